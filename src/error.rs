@@ -1,0 +1,107 @@
+//! Typed errors for every stage of ndfmap.
+//!
+//! Each variant names the file (or the option) and the problem in words, so the command-line
+//! program can print one clear line and the C API can hand the same text to the caller.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in ndfmap's library code.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The file could not be read at all (missing, permission denied, ...).
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        /// The file that was being read.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// The file was read but its contents are not a decodable image (corrupt, truncated,
+    /// unknown format).
+    #[error("{}: cannot decode image: {message}", path.display())]
+    Decode {
+        /// The file that was being decoded.
+        path: PathBuf,
+        /// The decoder's reason.
+        message: String,
+    },
+    /// The image decoded, but its channels cannot be read as a normal map (for example a
+    /// one-channel height map).
+    #[error("{what}: unsupported channel layout: {layout}")]
+    UnsupportedLayout {
+        /// The file or buffer the image came from.
+        what: String,
+        /// What was found and what would have been accepted.
+        layout: String,
+    },
+    /// Width or height is zero, absurd, or their product overflows.
+    #[error("{what}: invalid dimensions {width}x{height}: {reason}")]
+    Dimensions {
+        /// The file or buffer the image came from.
+        what: String,
+        /// Width as declared.
+        width: u64,
+        /// Height as declared.
+        height: u64,
+        /// Why it is refused.
+        reason: String,
+    },
+    /// A caller-provided pixel buffer is shorter than its declared size.
+    #[error("{what}: pixel buffer holds {got} samples, {needed} are needed")]
+    ShortBuffer {
+        /// The buffer's description.
+        what: String,
+        /// Samples provided.
+        got: usize,
+        /// Samples needed for width × height × channels.
+        needed: usize,
+    },
+    /// The feature (colour) image does not have the normal map's size.
+    #[error(
+        "{what}: feature image is {feature_width}x{feature_height}, the normal map is {width}x{height}"
+    )]
+    FeatureSize {
+        /// The feature image's file or buffer.
+        what: String,
+        /// Feature image width.
+        feature_width: u32,
+        /// Feature image height.
+        feature_height: u32,
+        /// Normal map width.
+        width: u32,
+        /// Normal map height.
+        height: u32,
+    },
+    /// The input has bad normals (zero-length, NaN, below the horizon) and the caller asked to
+    /// reject rather than repair them.
+    #[error("{what}: {count} bad normals ({kind}), the first at x={x}, y={y}")]
+    BadNormals {
+        /// The file or buffer.
+        what: String,
+        /// How many texels are bad in total.
+        count: u64,
+        /// Which kind the first bad texel is.
+        kind: &'static str,
+        /// Column of the first bad texel.
+        x: u32,
+        /// Row of the first bad texel.
+        y: u32,
+    },
+    /// An option value is out of range or inconsistent.
+    #[error("invalid option: {0}")]
+    InvalidOption(String),
+    /// Output could not be written.
+    #[error("{}: cannot write: {message}", path.display())]
+    Write {
+        /// The file or folder being written.
+        path: PathBuf,
+        /// The reason.
+        message: String,
+    },
+    /// A long operation was cancelled by its progress callback.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// Shorthand for results carrying [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
