@@ -5,9 +5,13 @@
 //! [`ingest`] → [`pyramid`] → methods ([`baseline`]) → [`bake`] → [`shade`] / [`eval`] /
 //! [`output`].
 
+pub mod bake;
+pub mod baseline;
 pub mod error;
+pub mod eval;
 pub mod ingest;
 pub mod pyramid;
+pub mod shade;
 
 pub use error::{Error, Result};
 pub use ingest::{IngestOptions, NormalMap};

@@ -1,0 +1,122 @@
+//! A bake: the per-level, per-texel parameters of one filtering method, as RGBA MIP chains.
+//!
+//! Every method's output has the same shape: a list of [`Texture`]s, each an RGBA f32 MIP chain
+//! whose channels have documented meanings (DESIGN.md "Texture layouts"). That is what the
+//! shaders sample, what packing converts, what the CPU twin shades ([`crate::shade`]) and what
+//! [`crate::output`] writes.
+
+use crate::error::{Error, Result};
+use crate::ingest::{Addressing, NormalMap};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// The filtering methods ndfmap bakes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Plain MIP-mapping of the normal: the normalized mean normal, shaded with the unchanged
+    /// BRDF. The row every method must beat.
+    Plain,
+    /// Toksvig (2005): the mean normal's length shortens with variation; the Blinn-Phong
+    /// exponent becomes `s' = |n̄| s / (|n̄| + s (1 − |n̄|))`.
+    Toksvig,
+    /// LEAN mapping (Olano & Baker 2010): first and second moments of the normal's slopes
+    /// `b = (n_x, n_y) / n_z`, giving an anisotropic slope covariance.
+    Lean,
+    /// Olano & North (1997) normal distribution mapping: the mean normal (3) and the second
+    /// moments `E[n nᵀ]` (6) of a 3D Gaussian, all of which filter linearly.
+    Olano,
+}
+
+impl Method {
+    /// Every method, in the order tables list them.
+    pub const ALL: [Method; 4] = [Method::Plain, Method::Toksvig, Method::Lean, Method::Olano];
+
+    /// The lower-case name used on the command line, in manifests and file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Plain => "plain",
+            Method::Toksvig => "toksvig",
+            Method::Lean => "lean",
+            Method::Olano => "olano",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name().eq_ignore_ascii_case(s))
+            .ok_or_else(|| {
+                let names: Vec<_> = Method::ALL.iter().map(|m| m.name()).collect();
+                Error::InvalidOption(format!(
+                    "unknown method '{s}' (expected one of: {})",
+                    names.join(", ")
+                ))
+            })
+    }
+}
+
+/// One RGBA f32 MIP chain of a bake.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    /// Short name, used in file names (`moments`, `mean`, ...).
+    pub name: &'static str,
+    /// What each of R, G, B, A holds.
+    pub channels: [&'static str; 4],
+    /// Texels of each level, finest first, row-major.
+    pub levels: Vec<Vec<[f32; 4]>>,
+}
+
+/// The result of baking one method: level sizes and the textures every level is read from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bake {
+    /// The method that produced it.
+    pub method: Method,
+    /// Width and height of each level, finest first, down to 1×1.
+    pub sizes: Vec<(u32, u32)>,
+    /// The texture chains; a shader samples all of them at the same coordinates.
+    pub textures: Vec<Texture>,
+    /// Addressing of the source map (for samplers).
+    pub addressing: Addressing,
+}
+
+impl Bake {
+    /// Number of MIP levels.
+    pub fn level_count(&self) -> usize {
+        self.sizes.len()
+    }
+
+    /// The RGBA value of every texture at texel `(x, y)` of `level`, in texture order.
+    pub fn texel(&self, level: usize, x: u32, y: u32) -> Vec<[f32; 4]> {
+        let mut out = vec![[0.0; 4]; self.textures.len()];
+        self.texel_into(
+            level,
+            y as usize * self.sizes[level].0 as usize + x as usize,
+            &mut out,
+        );
+        out
+    }
+
+    /// Writes the RGBA value of every texture at row-major texel `index` of `level` into `out`
+    /// (which must hold one entry per texture), without allocating.
+    pub fn texel_into(&self, level: usize, index: usize, out: &mut [[f32; 4]]) {
+        for (o, t) in out.iter_mut().zip(&self.textures) {
+            *o = t.levels[level][index];
+        }
+    }
+}
+
+/// Bakes `method` for `map`: the full MIP chain down to 1×1.
+pub fn bake(map: &NormalMap, method: Method) -> Bake {
+    crate::baseline::bake(map, method)
+}

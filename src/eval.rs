@@ -1,0 +1,313 @@
+//! Texel-space error (DESIGN.md "Ground truth and error"): at MIP level k, texel t, the exact
+//! answer is the footprint average of the unfiltered shading of every finest normal t covers
+//! (eq 4's effective BRDF); the filtered answer is what the method's shading computes from t's
+//! baked values. The error is the relative RMS over texels and light/view pairs,
+//! `sqrt(Σ (F − G)² / Σ G²)`, per level and per shading term (Lambert, Blinn-Phong).
+//!
+//! The exact answers of every level come from one image of per-normal shading per light/view
+//! pair, box-filtered over the exact footprints ([`crate::pyramid::reduce`]), so they are exact
+//! for any map size. Sums are f64 in a fixed order: results do not depend on the thread count.
+
+use crate::bake::{Bake, Method};
+use crate::ingest::NormalMap;
+use crate::pyramid::{pyramid, reduce};
+use crate::shade::{half_vector, reference, shade};
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// A light direction and a view direction, unit vectors in tangent space (z up).
+pub type LightView = (DVec3, DVec3);
+
+/// A unit direction from polar angle θ and azimuth φ, in degrees.
+pub fn direction(theta_deg: f64, phi_deg: f64) -> DVec3 {
+    let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
+    DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos())
+}
+
+/// The default light/view set: views at θ = 0°, 35°, 70° (φ = 0°) × lights at the zenith and at
+/// θ = 35°, 70° for φ = 0°, 90°, 180°, 270°: 27 pairs, including the three mirror
+/// configurations (half vector = +Z) and grazing ones.
+pub fn default_directions() -> Vec<LightView> {
+    let mut lights = vec![direction(0.0, 0.0)];
+    for theta in [35.0, 70.0] {
+        for phi in [0.0, 90.0, 180.0, 270.0] {
+            lights.push(direction(theta, phi));
+        }
+    }
+    let mut out = Vec::new();
+    for view in [0.0, 35.0, 70.0] {
+        for &l in &lights {
+            out.push((l, direction(view, 0.0)));
+        }
+    }
+    out
+}
+
+/// Relative RMS error of one level.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LevelError {
+    /// MIP level (0 = finest).
+    pub level: usize,
+    /// Level width.
+    pub width: u32,
+    /// Level height.
+    pub height: u32,
+    /// Lambert term's relative RMS error.
+    pub diffuse: f64,
+    /// Blinn-Phong term's relative RMS error.
+    pub specular: f64,
+}
+
+/// One method's error at one Blinn-Phong exponent.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MethodError {
+    /// The method.
+    pub method: Method,
+    /// Blinn-Phong exponent s.
+    pub s: f64,
+    /// Per level, finest first.
+    pub levels: Vec<LevelError>,
+    /// Lambert error over all levels but the finest: the RMS of the per-level relative errors
+    /// (each level counts once, however many texels it has). For a 1×1 map, level 0's.
+    pub overall_diffuse: f64,
+    /// Blinn-Phong error, aggregated the same way.
+    pub overall_specular: f64,
+}
+
+/// Sums Σ(F − G)² and ΣG² per (bake, exponent, level, term).
+#[derive(Clone)]
+struct Sums(Vec<[f64; 4]>);
+
+/// Measures the texel-space error of each bake (baked from `map`) for every exponent in
+/// `exponents` and every light/view pair in `directions`.
+pub fn evaluate(
+    map: &NormalMap,
+    bakes: &[&Bake],
+    exponents: &[f64],
+    directions: &[LightView],
+) -> Vec<MethodError> {
+    let levels = pyramid(map.width(), map.height());
+    let nl = levels.len();
+    let ns = exponents.len();
+    let slot = |b: usize, si: usize, k: usize| (b * ns + si) * nl + k;
+    let per_direction: Vec<Sums> = directions
+        .par_iter()
+        .map(|&(l, v)| {
+            let h = half_vector(l, v);
+            let ch = 1 + ns;
+            // Per-normal reference: diffuse, then specular for each exponent.
+            let mut finest = vec![0.0f64; map.normals().len() * ch];
+            finest
+                .chunks_exact_mut(ch)
+                .zip(map.normals())
+                .for_each(|(o, n)| {
+                    let n = n.as_dvec3();
+                    o[0] = reference(n, l, h, 1.0).diffuse;
+                    for (si, &s) in exponents.iter().enumerate() {
+                        o[1 + si] = reference(n, l, h, s).specular;
+                    }
+                });
+            let mut sums = Sums(vec![[0.0; 4]; bakes.len() * ns * nl]);
+            for (k, lf) in levels.iter().enumerate() {
+                let exact = reduce(&finest, ch, map.width(), lf);
+                for (b, bake) in bakes.iter().enumerate() {
+                    let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
+                    for (i, g) in exact.chunks_exact(ch).enumerate() {
+                        bake.texel_into(k, i, &mut texel);
+                        for (si, &s) in exponents.iter().enumerate() {
+                            let f = shade(bake.method, &texel, l, h, s);
+                            let e = &mut sums.0[slot(b, si, k)];
+                            e[0] += (f.diffuse - g[0]).powi(2);
+                            e[1] += g[0] * g[0];
+                            e[2] += (f.specular - g[1 + si]).powi(2);
+                            e[3] += g[1 + si] * g[1 + si];
+                        }
+                    }
+                }
+            }
+            sums
+        })
+        .collect();
+    let mut total = vec![[0.0f64; 4]; bakes.len() * ns * nl];
+    for d in &per_direction {
+        for (t, s) in total.iter_mut().zip(&d.0) {
+            for c in 0..4 {
+                t[c] += s[c];
+            }
+        }
+    }
+    let rel = |num: f64, den: f64| {
+        if den > 0.0 {
+            (num / den).sqrt()
+        } else if num > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        }
+    };
+    let mut out = Vec::new();
+    for (b, bake) in bakes.iter().enumerate() {
+        for (si, &s) in exponents.iter().enumerate() {
+            let levels_err: Vec<LevelError> = levels
+                .iter()
+                .enumerate()
+                .map(|(k, lf)| {
+                    let e = total[slot(b, si, k)];
+                    LevelError {
+                        level: k,
+                        width: lf.size.0,
+                        height: lf.size.1,
+                        diffuse: rel(e[0], e[1]),
+                        specular: rel(e[2], e[3]),
+                    }
+                })
+                .collect();
+            let coarse = if levels_err.len() > 1 {
+                &levels_err[1..]
+            } else {
+                &levels_err[..]
+            };
+            let rms = |f: fn(&LevelError) -> f64| {
+                (coarse.iter().map(|e| f(e).powi(2)).sum::<f64>() / coarse.len() as f64).sqrt()
+            };
+            out.push(MethodError {
+                method: bake.method,
+                s,
+                overall_diffuse: rms(|e| e.diffuse),
+                overall_specular: rms(|e| e.specular),
+                levels: levels_err,
+            });
+        }
+    }
+    out
+}
+
+/// Formats errors as plain-text tables, one per exponent: a row per level, a diffuse and a
+/// specular column per method, and a closing row with the overall (levels ≥ 1) error.
+pub fn format_table(errors: &[MethodError]) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let mut exponents: Vec<f64> = errors.iter().map(|e| e.s).collect();
+    exponents.dedup();
+    for s in exponents {
+        let rows: Vec<&MethodError> = errors.iter().filter(|e| e.s == s).collect();
+        let _ = writeln!(
+            out,
+            "Blinn-Phong s = {s}: relative RMS error against the exact footprint average"
+        );
+        let _ = write!(out, "{:>5} {:>11}", "level", "size");
+        for r in &rows {
+            let _ = write!(out, " | {:^17}", r.method.name());
+        }
+        let _ = write!(out, "\n{:>5} {:>11}", "", "");
+        for _ in &rows {
+            let _ = write!(out, " | {:>8} {:>8}", "diffuse", "specular");
+        }
+        out.push('\n');
+        for k in 0..rows[0].levels.len() {
+            let l = &rows[0].levels[k];
+            let _ = write!(out, "{:>5} {:>11}", k, format!("{}x{}", l.width, l.height));
+            for r in &rows {
+                let _ = write!(
+                    out,
+                    " | {:>8.5} {:>8.5}",
+                    r.levels[k].diffuse, r.levels[k].specular
+                );
+            }
+            out.push('\n');
+        }
+        let _ = write!(out, "{:>5} {:>11}", "all", "levels 1+");
+        for r in &rows {
+            let _ = write!(
+                out,
+                " | {:>8.5} {:>8.5}",
+                r.overall_diffuse, r.overall_specular
+            );
+        }
+        out.push_str("\n\n");
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::bake;
+    use crate::ingest::{Addressing, BadNormals};
+    use glam::Vec3;
+
+    fn map(w: u32, h: u32, f: impl Fn(u32, u32) -> Vec3) -> NormalMap {
+        let v = (0..w * h).map(|i| f(i % w, i / w)).collect();
+        NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
+    }
+
+    #[test]
+    fn error_is_zero_at_level_zero_for_every_method() {
+        let m = map(9, 7, |x, y| {
+            Vec3::new(
+                (x as f32 * 1.7).sin() * 0.5,
+                (y as f32 * 0.8).cos() * 0.4,
+                1.0,
+            )
+        });
+        let bakes: Vec<Bake> = Method::ALL.iter().map(|&me| bake(&m, me)).collect();
+        let refs: Vec<&Bake> = bakes.iter().collect();
+        for e in evaluate(&m, &refs, &[8.0, 64.0, 2048.0], &default_directions()) {
+            // f32 storage of the moments is the only difference at level 0.
+            assert!(
+                e.levels[0].diffuse < 1e-6,
+                "{} {}",
+                e.method,
+                e.levels[0].diffuse
+            );
+            assert!(
+                e.levels[0].specular < 1e-4,
+                "{} s={} {}",
+                e.method,
+                e.s,
+                e.levels[0].specular
+            );
+            assert!(
+                e.levels[1].specular > 1e-3,
+                "a bumpy map has filtering error at level 1"
+            );
+        }
+    }
+
+    #[test]
+    fn error_is_zero_at_every_level_for_a_flat_map() {
+        for (w, h) in [(8, 8), (5, 3), (1, 1)] {
+            let m = map(w, h, |_, _| Vec3::Z);
+            let bakes: Vec<Bake> = Method::ALL.iter().map(|&me| bake(&m, me)).collect();
+            let refs: Vec<&Bake> = bakes.iter().collect();
+            for e in evaluate(&m, &refs, &[1.0, 256.0], &default_directions()) {
+                // Zero up to the f64 rounding of the footprint sums (~1e-16).
+                for l in &e.levels {
+                    assert!(
+                        l.diffuse < 1e-12 && l.specular < 1e-12,
+                        "{} level {}: {l:?}",
+                        e.method,
+                        l.level
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn result_does_not_depend_on_thread_count() {
+        let m = map(16, 16, |x, y| {
+            Vec3::new((x as f32).sin() * 0.7, (y as f32 * 2.1).sin() * 0.7, 1.0)
+        });
+        let b = bake(&m, Method::Toksvig);
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| evaluate(&m, &[&b], &[32.0], &default_directions()))
+        };
+        assert_eq!(run(1), run(3));
+    }
+}
