@@ -10,6 +10,7 @@ pub mod baseline;
 pub mod error;
 pub mod eval;
 pub mod ingest;
+pub mod output;
 pub mod pyramid;
 pub mod shade;
 
