@@ -66,6 +66,77 @@ impl FromStr for Method {
     }
 }
 
+/// The range a channel's values lie in, which decides how unsigned-normalized formats store it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ValueRange {
+    /// In [0, 1]: stored as is.
+    Unit,
+    /// In [−1, 1]: unsigned-normalized formats store `0.5 + 0.5·v` (DESIGN.md "Texture layouts").
+    Signed,
+    /// Unbounded (LEAN slope moments): float formats only.
+    Any,
+}
+
+/// Storage format of texel values: what the GPU texture holds (see [`crate::pack`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// 32-bit float RGBA (`GL_RGBA32F`).
+    #[default]
+    F32,
+    /// 16-bit float RGBA (`GL_RGBA16F`).
+    F16,
+    /// 16-bit unsigned-normalized RGBA (`GL_RGBA16`); signed channels biased.
+    Unorm16,
+    /// 8-bit unsigned-normalized RGBA (`GL_RGBA8`); signed channels biased.
+    Unorm8,
+}
+
+impl Format {
+    /// Every format, widest first.
+    pub const ALL: [Format; 4] = [Format::F32, Format::F16, Format::Unorm16, Format::Unorm8];
+
+    /// The lower-case name used on the command line and in manifests.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::F32 => "f32",
+            Format::F16 => "f16",
+            Format::Unorm16 => "unorm16",
+            Format::Unorm8 => "unorm8",
+        }
+    }
+
+    /// Bytes per channel.
+    pub fn channel_bytes(self) -> usize {
+        match self {
+            Format::F32 => 4,
+            Format::F16 | Format::Unorm16 => 2,
+            Format::Unorm8 => 1,
+        }
+    }
+}
+
+impl fmt::Display for Format {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Format {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Format::ALL
+            .into_iter()
+            .find(|m| m.name().eq_ignore_ascii_case(s))
+            .ok_or_else(|| {
+                Error::InvalidOption(format!(
+                    "unknown format '{s}' (expected one of: f32, f16, unorm16, unorm8)"
+                ))
+            })
+    }
+}
+
 /// One RGBA f32 MIP chain of a bake.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Texture {
@@ -73,6 +144,8 @@ pub struct Texture {
     pub name: &'static str,
     /// What each of R, G, B, A holds.
     pub channels: [&'static str; 4],
+    /// The value range of each channel.
+    pub ranges: [ValueRange; 4],
     /// Texels of each level, finest first, row-major.
     pub levels: Vec<Vec<[f32; 4]>>,
 }
@@ -88,6 +161,9 @@ pub struct Bake {
     pub textures: Vec<Texture>,
     /// Addressing of the source map (for samplers).
     pub addressing: Addressing,
+    /// The storage format the values have been rounded to ([`Format::F32`] as baked;
+    /// [`crate::pack::quantize`] gives the values a GPU reads from a narrower format).
+    pub format: Format,
 }
 
 impl Bake {

@@ -11,7 +11,7 @@
 //!
 //! Moments are accumulated in f64 and stored as f32. Shading from them is in [`crate::shade`].
 
-use crate::bake::{Bake, Method, Texture};
+use crate::bake::{Bake, Format, Method, Texture, ValueRange};
 use crate::ingest::NormalMap;
 use crate::pyramid::{pyramid, reduce};
 use glam::Vec3;
@@ -44,21 +44,43 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
     }
 }
 
-/// Texture names and channel meanings of `method`.
-fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4])> {
+/// Texture names, channel meanings and value ranges of `method`.
+fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
+    use ValueRange::{Any, Signed as S, Unit as U};
     match method {
-        Method::Plain => vec![("normal", ["n_x", "n_y", "n_z", "unused"])],
-        Method::Toksvig => vec![("mean", ["mean_x", "mean_y", "mean_z", "mean_length"])],
+        Method::Plain => vec![("normal", ["n_x", "n_y", "n_z", "unused"], [S, S, S, U])],
+        Method::Toksvig => vec![(
+            "mean",
+            ["mean_x", "mean_y", "mean_z", "mean_length"],
+            [S, S, S, U],
+        )],
         Method::Lean => vec![
-            ("slopes", ["E[b_x]", "E[b_y]", "E[b_x^2]", "E[b_y^2]"]),
-            ("cross", ["E[b_x*b_y]", "unused", "unused", "unused"]),
+            (
+                "slopes",
+                ["E[b_x]", "E[b_y]", "E[b_x^2]", "E[b_y^2]"],
+                [Any; 4],
+            ),
+            (
+                "cross",
+                ["E[b_x*b_y]", "unused", "unused", "unused"],
+                [Any, U, U, U],
+            ),
         ],
         Method::Olano => vec![
-            ("mean", ["E[n_x]", "E[n_y]", "E[n_z]", "unused"]),
-            ("diagonal", ["E[n_x^2]", "E[n_y^2]", "E[n_z^2]", "unused"]),
+            (
+                "mean",
+                ["E[n_x]", "E[n_y]", "E[n_z]", "unused"],
+                [S, S, S, U],
+            ),
+            (
+                "diagonal",
+                ["E[n_x^2]", "E[n_y^2]", "E[n_z^2]", "unused"],
+                [U; 4],
+            ),
             (
                 "offdiagonal",
                 ["E[n_x*n_y]", "E[n_x*n_z]", "E[n_y*n_z]", "unused"],
+                [S, S, S, U],
             ),
         ],
     }
@@ -104,9 +126,10 @@ pub(crate) fn bake(map: &NormalMap, method: Method) -> Bake {
     let layout = layout(method);
     let mut textures: Vec<Texture> = layout
         .iter()
-        .map(|&(name, channels)| Texture {
+        .map(|&(name, channels, ranges)| Texture {
             name,
             channels,
+            ranges,
             levels: Vec::new(),
         })
         .collect();
@@ -131,6 +154,7 @@ pub(crate) fn bake(map: &NormalMap, method: Method) -> Bake {
         sizes: levels.iter().map(|l| l.size).collect(),
         textures,
         addressing: map.addressing(),
+        format: Format::F32,
     }
 }
 

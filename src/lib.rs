@@ -11,6 +11,8 @@ pub mod error;
 pub mod eval;
 pub mod ingest;
 pub mod output;
+pub mod pack;
+pub mod procedural;
 pub mod pyramid;
 pub mod shade;
 

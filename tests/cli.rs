@@ -1,0 +1,261 @@
+//! The `ndfmap` command: the main jobs succeed and write what they say, and bad input exits
+//! non-zero with one clear line naming the file, leaving no output that looks complete.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn ndfmap(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ndfmap"))
+        .args(args)
+        .output()
+        .expect("runs ndfmap")
+}
+
+fn write_normal_png(path: &Path, w: u32, h: u32) {
+    let img = image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb([
+            128 + ((x * 37 + y * 11) % 60) as u8,
+            128 - ((x * 7 + y * 29) % 50) as u8,
+            230,
+        ])
+    });
+    img.save(path).unwrap();
+}
+
+/// Asserts a failed run with exactly one stderr line that contains every `needle`.
+fn assert_one_line_error(out: &Output, needles: &[&str]) {
+    assert!(!out.status.success(), "expected failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<_> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "one line expected, got: {err}");
+    assert!(lines[0].starts_with("ndfmap: error: "), "{err}");
+    for n in needles {
+        assert!(lines[0].contains(n), "'{n}' missing from: {err}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn bake_writes_manifest_and_every_level() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 12, 5);
+    let out_dir = dir.path().join("out");
+    for method in ["plain", "toksvig", "lean", "olano"] {
+        let o = out_dir.join(method);
+        let run = ndfmap(&[
+            "bake",
+            input.to_str().unwrap(),
+            "--method",
+            method,
+            "-o",
+            o.to_str().unwrap(),
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let manifest: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(o.join("manifest.json")).unwrap())
+                .unwrap();
+        assert_eq!(manifest["method"], method);
+        assert_eq!(manifest["levels"].as_array().unwrap().len(), 4); // 12x5, 6x2, 3x1, 1x1
+        assert_eq!(manifest["input"]["options"]["green"], "opengl");
+        for t in manifest["textures"].as_array().unwrap() {
+            for f in t["files"].as_array().unwrap() {
+                assert!(o.join(f.as_str().unwrap()).is_file());
+            }
+        }
+    }
+}
+
+#[test]
+fn eval_json_reports_every_method_and_level() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 16, 16);
+    let run = ndfmap(&["eval", input.to_str().unwrap(), "--json", "-s", "32,256"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let errors = v["errors"].as_array().unwrap();
+    assert_eq!(errors.len(), 4 * 2);
+    for e in errors {
+        let levels = e["levels"].as_array().unwrap();
+        assert_eq!(levels.len(), 5);
+        assert!(levels[0]["specular"].as_f64().unwrap() < 1e-4);
+    }
+}
+
+#[test]
+fn demo_writes_sample_bakes_and_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = ndfmap(&["demo", "-o", dir.path().to_str().unwrap(), "--size", "32"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains("toksvig") && stdout.contains("error table"),
+        "{stdout}"
+    );
+    for f in [
+        "sample_normal.png",
+        "sample_albedo.png",
+        "eval.txt",
+        "plain/manifest.json",
+        "olano/manifest.json",
+    ] {
+        assert!(dir.path().join(f).is_file(), "{f}");
+    }
+}
+
+#[test]
+fn bad_inputs_fail_with_one_line_and_leave_no_manifest() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |name: &str| dir.path().join(name);
+    let good = d("good.png");
+    write_normal_png(&good, 8, 8);
+    let bytes = std::fs::read(&good).unwrap();
+    std::fs::write(d("truncated.png"), &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(
+        d("corrupt.png"),
+        b"\x89PNG\r\n\x1a\n this is not a png at all",
+    )
+    .unwrap();
+    std::fs::write(d("empty.tga"), b"").unwrap();
+    image::GrayImage::new(4, 4).save(d("grey.png")).unwrap();
+    write_normal_png(&d("feature-small.png"), 4, 4);
+    std::fs::write(d("a-file"), b"x").unwrap();
+
+    let out = d("out");
+    let o = out.to_str().unwrap();
+    let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
+        (
+            vec![
+                "bake".into(),
+                d("truncated.png").display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+            ],
+            vec!["truncated.png"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                d("corrupt.png").display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+            ],
+            vec!["corrupt.png"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                d("empty.tga").display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+            ],
+            vec!["empty.tga"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                d("missing.png").display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+            ],
+            vec!["missing.png"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                d("grey.png").display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+            ],
+            vec!["grey.png", "channel"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                good.display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+                "--feature".into(),
+                d("feature-small.png").display().to_string(),
+            ],
+            vec!["feature-small.png", "4x4", "8x8"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                good.display().to_string(),
+                "-m".into(),
+                "mystery".into(),
+                "-o".into(),
+                o.into(),
+            ],
+            vec!["mystery"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                good.display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                d("a-file").join("sub").display().to_string(),
+            ],
+            vec!["a-file"],
+        ),
+        (
+            vec![
+                "bake".into(),
+                good.display().to_string(),
+                "-m".into(),
+                "plain".into(),
+                "-o".into(),
+                o.into(),
+                "--green".into(),
+                "sideways".into(),
+            ],
+            vec!["sideways"],
+        ),
+        (
+            vec![
+                "eval".into(),
+                good.display().to_string(),
+                "--exponents=-3".into(),
+            ],
+            vec!["-3"],
+        ),
+    ];
+    for (args, needles) in cases {
+        let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
+        let run = ndfmap(&args);
+        assert_one_line_error(&run, &needles);
+        assert!(
+            !out.join("manifest.json").exists(),
+            "{args:?} left a manifest"
+        );
+    }
+}
