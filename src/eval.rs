@@ -8,7 +8,7 @@
 //! pair, box-filtered over the exact footprints ([`crate::pyramid::reduce`]), so they are exact
 //! for any map size. Sums are f64 in a fixed order: results do not depend on the thread count.
 
-use crate::bake::{Bake, Method};
+use crate::bake::{Bake, Format, Method};
 use crate::ingest::NormalMap;
 use crate::pyramid::{pyramid, reduce};
 use crate::shade::{half_vector, reference, shade};
@@ -64,6 +64,8 @@ pub struct LevelError {
 pub struct MethodError {
     /// The method.
     pub method: Method,
+    /// The storage format the bake was read in (quantization included in the error).
+    pub format: Format,
     /// Blinn-Phong exponent s.
     pub s: f64,
     /// Per level, finest first.
@@ -173,6 +175,7 @@ pub fn evaluate(
             };
             out.push(MethodError {
                 method: bake.method,
+                format: bake.format,
                 s,
                 overall_diffuse: rms(|e| e.diffuse),
                 overall_specular: rms(|e| e.specular),
@@ -198,7 +201,11 @@ pub fn format_table(errors: &[MethodError]) -> String {
         );
         let _ = write!(out, "{:>5} {:>11}", "level", "size");
         for r in &rows {
-            let _ = write!(out, " | {:^17}", r.method.name());
+            let label = match r.format {
+                Format::F32 => r.method.name().to_string(),
+                f => format!("{} {f}", r.method.name()),
+            };
+            let _ = write!(out, " | {label:^17}");
         }
         let _ = write!(out, "\n{:>5} {:>11}", "", "");
         for _ in &rows {

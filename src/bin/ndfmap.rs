@@ -2,7 +2,7 @@
 //! each filtering method matches the exact shading.
 
 use clap::{Args, Parser, Subcommand};
-use ndfmap::bake::{Bake, Method, bake};
+use ndfmap::bake::{Bake, Format, Method, bake};
 use ndfmap::eval::{default_directions, evaluate, format_table};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
 use ndfmap::output::{InputInfo, write_bake};
@@ -77,6 +77,10 @@ enum Command {
             value_delimiter = ','
         )]
         s: Vec<f64>,
+        /// Storage formats to measure, comma-separated (f32, f16, unorm16, unorm8): each bake
+        /// is rounded through the format before shading, so the format's own error shows.
+        #[arg(long, default_value = "f32", value_delimiter = ',')]
+        formats: Vec<String>,
         /// Print JSON instead of tables.
         #[arg(long)]
         json: bool,
@@ -231,13 +235,26 @@ fn run(cli: Cli) -> Result<()> {
             input,
             methods,
             s,
+            formats,
             json,
             ingest,
         } => {
             check_exponents(&s)?;
             let methods = parse_methods(&methods)?;
+            let formats = formats
+                .iter()
+                .map(|f| f.trim().parse())
+                .collect::<Result<Vec<Format>>>()?;
             let (map, _) = ingest.load(&input)?;
-            let bakes = bake_all(&map, &methods, json);
+            let mut bakes = Vec::new();
+            for b in bake_all(&map, &methods, json) {
+                for &f in &formats {
+                    match ndfmap::pack::quantize(&b, f) {
+                        Ok(q) => bakes.push(q),
+                        Err(e) => eprintln!("skipped {} in {f}: {e}", b.method),
+                    }
+                }
+            }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
             let errors = evaluate(&map, &refs, &s, &default_directions());
