@@ -70,7 +70,7 @@ pub enum Addressing {
 #[serde(rename_all = "lowercase")]
 pub enum BadNormals {
     /// Replace zero-length and NaN normals by +Z, clamp below-horizon normals onto the horizon
-    /// (z = 0, same azimuth), and report counts.
+    /// (z = 0, same azimuth; +Z for a normal pointing straight down), and report counts.
     #[default]
     Repair,
     /// Fail with [`Error::BadNormals`] naming the first bad texel.
@@ -259,6 +259,688 @@ impl NormalMap {
     }
 }
 
+/// Largest buffer (bytes) an image decoder may allocate for the decoded pixels: RGBA `f32` at
+/// [`MAX_TEXELS`]. Checked against the size declared in the file header before allocating.
+pub const MAX_DECODE_BYTES: u64 = MAX_TEXELS * 16;
+
+/// The first four bytes of every OpenEXR file.
+const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+
+impl NormalMap {
+    /// Reads a normal map from a PNG, JPEG, TGA, TIFF or OpenEXR file.
+    ///
+    /// The format is detected from the file's content (magic bytes); the extension is used
+    /// only when the content does not say (TGA has no signature). PNG, JPEG, TGA and TIFF are
+    /// decoded with the `image` crate (8 or 16 bits per channel, or 32-bit float TIFF); OpenEXR
+    /// with the `exr` crate (half or float channels `R` and `G`, `B` optional, from the first
+    /// layer).
+    ///
+    /// Values are converted as described by `opts` (see [`NormalMap::from_samples`]); pixels are
+    /// linear data, no sRGB or gamma decoding is ever applied. Sizes are checked from the header
+    /// before any pixel buffer is allocated.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Read`] if the file cannot be read, [`Error::Decode`] if it is empty, corrupt,
+    /// truncated or of an unknown format, [`Error::Dimensions`] if its size is absurd,
+    /// [`Error::UnsupportedLayout`] for one-channel (grey) images, EXR files without `R` and `G`,
+    /// or a channel layout that contradicts `opts.channels`, and [`Error::BadNormals`] if
+    /// `opts.bad_normals` is [`BadNormals::Reject`] and a texel is bad.
+    pub fn load(path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
+        let decoded = decode_file(path, Purpose::Normals)?;
+        let what = path.display().to_string();
+        convert_normals(
+            &what,
+            decoded.width,
+            decoded.height,
+            decoded.channels,
+            decoded.samples.as_samples(),
+            decoded.bits,
+            opts,
+        )
+    }
+
+    /// Builds a map from pixel samples in caller memory: `channels` (1 to 4) interleaved
+    /// samples per texel, rows top to bottom. `what` names the buffer in error messages.
+    ///
+    /// Conversion, per texel:
+    /// - Encoding ([`IngestOptions::encoding`]): `Auto` is `Unorm` for integer samples and
+    ///   `Snorm` for float samples. `Unorm` maps a value `c` to `2c/max − 1` (`max` = 255,
+    ///   65535, or 1 for floats). `Snorm` takes floats as they are and reads integers as two's
+    ///   complement (GPU SNORM: `max(s / 127, −1)` for 8 bits, `max(s / 32767, −1)` for 16).
+    /// - Channels ([`IngestOptions::channels`]): `Auto` reads x, y, z from the first three
+    ///   channels of a 3- or 4-channel image and reconstructs z from x and y of a 2-channel
+    ///   image; `Xy` always reconstructs z from the first two channels (the third, if any, is
+    ///   ignored); `Xyz` requires at least three channels. Reconstruction is
+    ///   z = sqrt(1 − x² − y²), and if x² + y² > 1, (x, y) is normalized and z = 0.
+    /// - Green ([`IngestOptions::green`]): `DirectX` negates y.
+    ///
+    /// The vectors are then renormalized and bad ones repaired or rejected
+    /// ([`IngestOptions::bad_normals`]); [`NormalMap::stats`] reports what was found.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Dimensions`] for zero, absurd or overflowing sizes, [`Error::UnsupportedLayout`]
+    /// for `channels` outside 1..=4, one channel (a grey image is a height map, not a normal
+    /// map), or `Xyz` with two channels, [`Error::ShortBuffer`] if `samples` holds fewer than
+    /// `width × height × channels` values, and [`Error::BadNormals`] under
+    /// [`BadNormals::Reject`].
+    pub fn from_samples(
+        what: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        samples: Samples<'_>,
+        opts: &IngestOptions,
+    ) -> Result<NormalMap> {
+        let bits = samples_bits(samples);
+        convert_normals(what, width, height, channels, samples, bits, opts)
+    }
+
+    /// Reads a feature (albedo colour) image from a file and attaches it to the map.
+    ///
+    /// Accepts the same formats as [`NormalMap::load`]; OpenEXR feature images need channels
+    /// `R`, `G`, `B` (or a grey `Y`), `A` optional. The image is converted to linear RGBA as in
+    /// [`NormalMap::with_feature_samples`].
+    ///
+    /// # Errors
+    ///
+    /// The decoding errors of [`NormalMap::load`], and [`Error::FeatureSize`] if the image's
+    /// size differs from the normal map's.
+    pub fn with_feature_file(self, path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
+        let decoded = decode_file(path, Purpose::Feature)?;
+        let what = path.display().to_string();
+        self.with_feature_samples(
+            &what,
+            decoded.width,
+            decoded.height,
+            decoded.channels,
+            decoded.samples.as_samples(),
+            opts,
+        )
+    }
+
+    /// Attaches a feature (albedo colour) image from pixel samples in caller memory:
+    /// `channels` (1 to 4) interleaved samples per texel, rows top to bottom, the normal map's
+    /// size.
+    ///
+    /// Samples are converted to linear RGBA `f32`: grey is replicated to RGB, a missing alpha
+    /// is 1. Integer samples are divided by their maximum (255 or 65535) and, when
+    /// [`IngestOptions::feature_encoding`] is [`FeatureEncoding::Srgb`], their RGB (not alpha)
+    /// is decoded with the sRGB transfer function. Float samples are taken as linear.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::FeatureSize`] if `width × height` differs from the normal map's size,
+    /// [`Error::UnsupportedLayout`] for `channels` outside 1..=4, and [`Error::ShortBuffer`] if
+    /// `samples` is too short.
+    pub fn with_feature_samples(
+        self,
+        what: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        samples: Samples<'_>,
+        opts: &IngestOptions,
+    ) -> Result<NormalMap> {
+        if (width, height) != (self.width, self.height) {
+            return Err(Error::FeatureSize {
+                what: what.to_string(),
+                feature_width: width,
+                feature_height: height,
+                width: self.width,
+                height: self.height,
+            });
+        }
+        let texels = check_buffer(what, width, height, channels, samples)?;
+        let feature = convert_feature(channels as usize, samples, texels, opts.feature_encoding);
+        self.with_feature(feature)
+    }
+}
+
+/// Bits per sample of a caller buffer.
+fn samples_bits(samples: Samples<'_>) -> u32 {
+    match samples {
+        Samples::U8(_) => 8,
+        Samples::U16(_) => 16,
+        Samples::F32(_) => 32,
+    }
+}
+
+/// Number of samples in a caller buffer.
+fn samples_len(samples: Samples<'_>) -> usize {
+    match samples {
+        Samples::U8(s) => s.len(),
+        Samples::U16(s) => s.len(),
+        Samples::F32(s) => s.len(),
+    }
+}
+
+/// Checks dimensions, channel count and buffer length; returns the texel count.
+fn check_buffer(
+    what: &str,
+    width: u32,
+    height: u32,
+    channels: u32,
+    samples: Samples<'_>,
+) -> Result<usize> {
+    check_dimensions(what, width as u64, height as u64)?;
+    if !(1..=4).contains(&channels) {
+        return Err(Error::UnsupportedLayout {
+            what: what.to_string(),
+            layout: format!("{channels} channels per texel; 1 to 4 are supported"),
+        });
+    }
+    // check_dimensions bounds width × height by MAX_TEXELS (2^28), so these cannot overflow
+    // even with a 32-bit usize; checked arithmetic keeps that an error rather than a panic.
+    let texels = (width as usize).checked_mul(height as usize);
+    let needed = texels.and_then(|t| t.checked_mul(channels as usize));
+    let (Some(texels), Some(needed)) = (texels, needed) else {
+        return Err(Error::Dimensions {
+            what: what.to_string(),
+            width: width as u64,
+            height: height as u64,
+            reason: "the sample count overflows this platform's address space".to_string(),
+        });
+    };
+    let got = samples_len(samples);
+    if got < needed {
+        return Err(Error::ShortBuffer {
+            what: what.to_string(),
+            got,
+            needed,
+        });
+    }
+    Ok(texels)
+}
+
+/// The one conversion from interleaved samples to a [`NormalMap`], shared by
+/// [`NormalMap::load`] and [`NormalMap::from_samples`]. `source_bits` is recorded in the
+/// statistics (it differs from the sample type for half-float EXR files).
+fn convert_normals(
+    what: &str,
+    width: u32,
+    height: u32,
+    channels: u32,
+    samples: Samples<'_>,
+    source_bits: u32,
+    opts: &IngestOptions,
+) -> Result<NormalMap> {
+    let texels = check_buffer(what, width, height, channels, samples)?;
+    let layout_error = |layout: String| Error::UnsupportedLayout {
+        what: what.to_string(),
+        layout,
+    };
+    let reconstruct = match (opts.channels, channels) {
+        (_, 1) => {
+            return Err(layout_error(
+                "one channel (grey): this is probably a height or bump map, not a normal map; \
+                 convert it to a normal map first (2 channels x, y or 3 channels x, y, z)"
+                    .to_string(),
+            ));
+        }
+        (Channels::Xyz, 2) => {
+            return Err(layout_error(
+                "2 channels, but channels = xyz needs 3 or 4 (use xy or auto to reconstruct z)"
+                    .to_string(),
+            ));
+        }
+        (Channels::Auto, 2) | (Channels::Xy, _) => true,
+        (Channels::Auto | Channels::Xyz, _) => false,
+    };
+    let is_float = matches!(samples, Samples::F32(_));
+    let encoding = match opts.encoding {
+        Encoding::Auto if is_float => Encoding::Snorm,
+        Encoding::Auto => Encoding::Unorm,
+        e => e,
+    };
+    let unorm = encoding == Encoding::Unorm;
+    let layout = Layout {
+        channels: channels as usize,
+        texels,
+        reconstruct,
+        y_sign: match opts.green {
+            GreenChannel::OpenGl => 1.0,
+            GreenChannel::DirectX => -1.0,
+        },
+    };
+    let vectors = match samples {
+        Samples::U8(data) => layout.gather(data, if unorm { unorm8 } else { snorm8 }),
+        Samples::U16(data) => layout.gather(data, if unorm { unorm16 } else { snorm16 }),
+        Samples::F32(data) => layout.gather(data, if unorm { unorm_f32 } else { snorm_f32 }),
+    };
+    let stats = IngestStats {
+        width,
+        height,
+        source_channels: channels,
+        source_bits,
+        encoding,
+        reconstructed_z: reconstruct,
+        ..IngestStats::default()
+    };
+    finish(
+        what,
+        width,
+        height,
+        vectors,
+        opts.addressing,
+        opts.bad_normals,
+        stats,
+    )
+}
+
+/// How interleaved samples become vectors.
+struct Layout {
+    channels: usize,
+    texels: usize,
+    reconstruct: bool,
+    /// −1 negates y (DirectX green).
+    y_sign: f32,
+}
+
+impl Layout {
+    /// Decodes every texel with `component` (the value encoding) into a raw vector.
+    fn gather<T: Copy>(&self, data: &[T], component: fn(T) -> f32) -> Vec<Vec3> {
+        data.chunks_exact(self.channels)
+            .take(self.texels)
+            .map(|px| {
+                let x = component(px[0]);
+                let y = self.y_sign * component(px[1]);
+                if self.reconstruct {
+                    reconstruct_z(x, y)
+                } else {
+                    Vec3::new(x, y, component(px[2]))
+                }
+            })
+            .collect()
+    }
+}
+
+/// (x, y, sqrt(1 − x² − y²)); if x² + y² > 1, (x, y) is normalized and z = 0. Non-finite
+/// input gives a non-finite vector, which `finish` reports as NaN.
+fn reconstruct_z(x: f32, y: f32) -> Vec3 {
+    let s = x * x + y * y;
+    if s > 1.0 {
+        let l = s.sqrt();
+        Vec3::new(x / l, y / l, 0.0)
+    } else {
+        Vec3::new(x, y, (1.0 - s).sqrt())
+    }
+}
+
+fn unorm8(c: u8) -> f32 {
+    2.0 * c as f32 / 255.0 - 1.0
+}
+
+fn unorm16(c: u16) -> f32 {
+    2.0 * c as f32 / 65535.0 - 1.0
+}
+
+fn unorm_f32(v: f32) -> f32 {
+    2.0 * v - 1.0
+}
+
+/// Two's-complement 8-bit SNORM, as GPUs read it: −128 and −127 both mean −1.
+fn snorm8(c: u8) -> f32 {
+    (c as i8 as f32 / 127.0).max(-1.0)
+}
+
+/// Two's-complement 16-bit SNORM, as GPUs read it.
+fn snorm16(c: u16) -> f32 {
+    (c as i16 as f32 / 32767.0).max(-1.0)
+}
+
+fn snorm_f32(v: f32) -> f32 {
+    v
+}
+
+/// The sRGB electro-optical transfer function: encoded [0, 1] → linear [0, 1].
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Converts interleaved feature samples to linear RGBA.
+fn convert_feature(
+    channels: usize,
+    samples: Samples<'_>,
+    texels: usize,
+    encoding: FeatureEncoding,
+) -> Vec<[f32; 4]> {
+    let srgb = encoding == FeatureEncoding::Srgb;
+    match samples {
+        Samples::U8(data) => {
+            let alpha: [f32; 256] = std::array::from_fn(|c| c as f32 / 255.0);
+            let colour = if srgb {
+                alpha.map(srgb_to_linear)
+            } else {
+                alpha
+            };
+            to_rgba(
+                data,
+                channels,
+                texels,
+                |c| colour[c as usize],
+                |c| alpha[c as usize],
+            )
+        }
+        Samples::U16(data) => {
+            let alpha = |c: u16| c as f32 / 65535.0;
+            if srgb {
+                to_rgba(data, channels, texels, |c| srgb_to_linear(alpha(c)), alpha)
+            } else {
+                to_rgba(data, channels, texels, alpha, alpha)
+            }
+        }
+        Samples::F32(data) => to_rgba(data, channels, texels, |v| v, |v| v),
+    }
+}
+
+/// Expands 1 to 4 channels to RGBA: grey is replicated, a missing alpha is 1.
+fn to_rgba<T: Copy>(
+    data: &[T],
+    channels: usize,
+    texels: usize,
+    colour: impl Fn(T) -> f32,
+    alpha: impl Fn(T) -> f32,
+) -> Vec<[f32; 4]> {
+    data.chunks_exact(channels)
+        .take(texels)
+        .map(|px| match *px {
+            [g] => {
+                let g = colour(g);
+                [g, g, g, 1.0]
+            }
+            [g, a] => {
+                let g = colour(g);
+                [g, g, g, alpha(a)]
+            }
+            [r, g, b] => [colour(r), colour(g), colour(b), 1.0],
+            [r, g, b, a, ..] => [colour(r), colour(g), colour(b), alpha(a)],
+            [] => [0.0, 0.0, 0.0, 1.0],
+        })
+        .collect()
+}
+
+/// Which channels an OpenEXR file must provide.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Purpose {
+    /// `R`, `G` required, `B` optional.
+    Normals,
+    /// `R`, `G`, `B` or `Y`; `A` optional.
+    Feature,
+}
+
+/// Decoded samples owned by ingest.
+enum SampleBuf {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+    F32(Vec<f32>),
+}
+
+impl SampleBuf {
+    fn as_samples(&self) -> Samples<'_> {
+        match self {
+            SampleBuf::U8(v) => Samples::U8(v),
+            SampleBuf::U16(v) => Samples::U16(v),
+            SampleBuf::F32(v) => Samples::F32(v),
+        }
+    }
+}
+
+/// An image file decoded to interleaved samples.
+struct Decoded {
+    width: u32,
+    height: u32,
+    channels: u32,
+    /// Bits per channel in the file (16 for half floats, which are widened to `f32`).
+    bits: u32,
+    samples: SampleBuf,
+}
+
+/// Reads and decodes an image file (any supported format) to interleaved samples.
+fn decode_file(path: &Path, purpose: Purpose) -> Result<Decoded> {
+    let bytes = std::fs::read(path).map_err(|source| Error::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if bytes.is_empty() {
+        return Err(decode_error(path, "the file is empty"));
+    }
+    // Third-party decoders are fuzzed but not proven panic-free; a panic on hostile input
+    // becomes a decode error instead of unwinding into the caller (or across the C API).
+    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        if bytes.starts_with(&EXR_MAGIC) {
+            decode_exr(path, &bytes, purpose)
+        } else {
+            decode_image(path, &bytes, purpose)
+        }
+    }))
+    .unwrap_or_else(|payload| {
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown reason".to_string());
+        Err(decode_error(
+            path,
+            &format!("the decoder failed unexpectedly: {message}"),
+        ))
+    })?;
+    let what = path.display().to_string();
+    check_dimensions(&what, decoded.width as u64, decoded.height as u64)?;
+    Ok(decoded)
+}
+
+fn decode_error(path: &Path, message: &str) -> Error {
+    Error::Decode {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    }
+}
+
+fn is_exr_extension(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+}
+
+/// Decodes PNG, JPEG, TGA or TIFF bytes with the `image` crate.
+fn decode_image(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
+    use image::{DynamicImage, ImageDecoder, ImageFormat, ImageReader, Limits};
+
+    let what = path.display().to_string();
+    let supported = |f: ImageFormat| {
+        matches!(
+            f,
+            ImageFormat::Png | ImageFormat::Jpeg | ImageFormat::Tga | ImageFormat::Tiff
+        )
+    };
+    let mut reader = ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| decode_error(path, &e.to_string()))?;
+    // Content first; the extension decides only when the content has no known signature
+    // (TGA has none) or names a format ndfmap does not read.
+    if !reader.format().is_some_and(supported) {
+        if is_exr_extension(path) {
+            return decode_exr(path, bytes, purpose);
+        }
+        match ImageFormat::from_path(path) {
+            Ok(f) if supported(f) => reader.set_format(f),
+            _ if reader.format().is_some() => {}
+            _ => {
+                return Err(decode_error(
+                    path,
+                    "unrecognized image format (PNG, JPEG, TGA, TIFF and OpenEXR are supported)",
+                ));
+            }
+        }
+    }
+
+    // Dimensions are checked by ndfmap's own rule first (for a precise error), then by the
+    // decoder's limits; the pixel buffer is reserved against `max_alloc` before decoding.
+    let mut limits = Limits::default();
+    limits.max_alloc = Some(MAX_DECODE_BYTES);
+    reader.limits(limits.clone());
+    let mut decoder = reader
+        .into_decoder()
+        .map_err(|e| decode_error(path, &e.to_string()))?;
+    let (width, height) = decoder.dimensions();
+    check_dimensions(&what, width as u64, height as u64)?;
+    let too_big = |e: image::ImageError| Error::Dimensions {
+        what: what.clone(),
+        width: width as u64,
+        height: height as u64,
+        reason: e.to_string(),
+    };
+    limits.max_image_width = Some(MAX_DIMENSION);
+    limits.max_image_height = Some(MAX_DIMENSION);
+    limits.reserve(decoder.total_bytes()).map_err(too_big)?;
+    decoder.set_limits(limits).map_err(too_big)?;
+    let image = DynamicImage::from_decoder(decoder).map_err(|e| match e {
+        image::ImageError::Limits(_) => too_big(e),
+        e => decode_error(path, &e.to_string()),
+    })?;
+
+    let (width, height) = (image.width(), image.height());
+    let (channels, samples) = match image {
+        DynamicImage::ImageLuma8(b) => (1, SampleBuf::U8(b.into_raw())),
+        DynamicImage::ImageLumaA8(b) => (2, SampleBuf::U8(b.into_raw())),
+        DynamicImage::ImageRgb8(b) => (3, SampleBuf::U8(b.into_raw())),
+        DynamicImage::ImageRgba8(b) => (4, SampleBuf::U8(b.into_raw())),
+        DynamicImage::ImageLuma16(b) => (1, SampleBuf::U16(b.into_raw())),
+        DynamicImage::ImageLumaA16(b) => (2, SampleBuf::U16(b.into_raw())),
+        DynamicImage::ImageRgb16(b) => (3, SampleBuf::U16(b.into_raw())),
+        DynamicImage::ImageRgba16(b) => (4, SampleBuf::U16(b.into_raw())),
+        DynamicImage::ImageRgb32F(b) => (3, SampleBuf::F32(b.into_raw())),
+        DynamicImage::ImageRgba32F(b) => (4, SampleBuf::F32(b.into_raw())),
+        other => {
+            return Err(Error::UnsupportedLayout {
+                what,
+                layout: format!("pixel format {:?} is not supported", other.color()),
+            });
+        }
+    };
+    let bits = match samples {
+        SampleBuf::U8(_) => 8,
+        SampleBuf::U16(_) => 16,
+        SampleBuf::F32(_) => 32,
+    };
+    Ok(Decoded {
+        width,
+        height,
+        channels,
+        bits,
+        samples,
+    })
+}
+
+/// Decodes OpenEXR bytes with the `exr` crate: the first layer, full resolution, the channels
+/// `purpose` asks for, widened to interleaved `f32`.
+fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
+    use exr::prelude::{FlatSamples, ReadChannels, ReadLayers};
+    use std::io::Cursor;
+
+    let what = path.display().to_string();
+    let exr_error = |e: exr::error::Error| decode_error(path, &e.to_string());
+
+    // Headers first: refuse absurd sizes before the decoder allocates channel buffers.
+    let meta =
+        exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(exr_error)?;
+    for header in &meta.headers {
+        let size = header.layer_size;
+        check_dimensions(&what, size.width() as u64, size.height() as u64)?;
+    }
+
+    // Sequential decoding: the parallel decoder runs on a rayon pool, where a panic on hostile
+    // input would abort the process instead of reaching `catch_unwind`.
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .non_parallel()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(exr_error)?;
+    let layer = image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    check_dimensions(&what, w as u64, h as u64)?;
+    let list = &layer.channel_data.list;
+    let find = |name: &str| list.iter().find(|c| c.name.eq(name));
+    // The channels to read, in sample order; empty if the layer lacks the required ones.
+    let wanted: Vec<Option<_>> = match purpose {
+        Purpose::Normals => match (find("R"), find("G")) {
+            (Some(r), Some(g)) => vec![Some(r), Some(g), find("B")],
+            _ => vec![],
+        },
+        Purpose::Feature => match (find("R"), find("G"), find("B"), find("Y")) {
+            (Some(r), Some(g), Some(b), _) => vec![Some(r), Some(g), Some(b), find("A")],
+            (_, _, _, Some(y)) => vec![Some(y), find("A")],
+            _ => vec![],
+        },
+    };
+    let picked: Vec<_> = wanted.into_iter().flatten().collect();
+    if picked.is_empty() {
+        let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
+        let needed = match purpose {
+            Purpose::Normals => "R and G (B optional)",
+            Purpose::Feature => "R, G and B, or Y (A optional)",
+        };
+        return Err(Error::UnsupportedLayout {
+            what,
+            layout: format!(
+                "OpenEXR layer has channels [{}]; {needed} are needed",
+                names.join(", ")
+            ),
+        });
+    }
+
+    let texels = w * h;
+    let channels = picked.len();
+    let mut bits = 16;
+    let mut data = vec![0.0f32; texels * channels];
+    for (k, channel) in picked.iter().enumerate() {
+        let len = match &channel.sample_data {
+            FlatSamples::F16(v) => v.len(),
+            FlatSamples::F32(v) => v.len(),
+            FlatSamples::U32(v) => v.len(),
+        };
+        if len != texels {
+            return Err(Error::UnsupportedLayout {
+                what,
+                layout: format!("OpenEXR channel {} is subsampled", channel.name),
+            });
+        }
+        let out = data.iter_mut().skip(k).step_by(channels);
+        match &channel.sample_data {
+            FlatSamples::F16(v) => out.zip(v).for_each(|(o, s)| *o = s.to_f32()),
+            FlatSamples::F32(v) => {
+                bits = 32;
+                out.zip(v).for_each(|(o, s)| *o = *s);
+            }
+            FlatSamples::U32(_) => {
+                return Err(Error::UnsupportedLayout {
+                    what,
+                    layout: format!(
+                        "OpenEXR channel {} holds 32-bit integers; half or float is needed",
+                        channel.name
+                    ),
+                });
+            }
+        }
+    }
+    Ok(Decoded {
+        width: w as u32,
+        height: h as u32,
+        channels: channels as u32,
+        bits,
+        samples: SampleBuf::F32(data),
+    })
+}
+
 /// Refuses zero, absurd, or overflowing dimensions.
 pub(crate) fn check_dimensions(what: &str, width: u64, height: u64) -> Result<()> {
     let reason = if width == 0 || height == 0 {
@@ -318,7 +1000,12 @@ fn finish(
                     note(&mut stats.below_horizon, i, width);
                     let xy = glam::DVec2::new(n.x as f64, n.y as f64);
                     let l = xy.length();
-                    n = Vec3::new((xy.x / l) as f32, (xy.y / l) as f32, 0.0);
+                    // A normal pointing (almost) straight down has no azimuth to keep: +Z.
+                    n = if l > 1e-6 {
+                        Vec3::new((xy.x / l) as f32, (xy.y / l) as f32, 0.0)
+                    } else {
+                        Vec3::Z
+                    };
                 }
             }
         }
