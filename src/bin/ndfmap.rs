@@ -227,9 +227,11 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let method: Method = method.parse()?;
             let (map, info) = ingest.load(&input)?;
-            let b = bake_all(&map, &[method], false).remove(0);
+            let t = Instant::now();
+            let b = bake(&map, method);
+            let seconds = t.elapsed().as_secs_f64();
             let manifest = write_bake(&b, info, &output)?;
-            println!("{}", manifest.display());
+            println!("baked {method} in {seconds:.3} s: {}", manifest.display());
         }
         Command::Eval {
             input,
