@@ -191,8 +191,12 @@ pub fn evaluate(
 pub fn format_table(errors: &[MethodError]) -> String {
     use std::fmt::Write;
     let mut out = String::new();
-    let mut exponents: Vec<f64> = errors.iter().map(|e| e.s).collect();
-    exponents.dedup();
+    let mut exponents: Vec<f64> = Vec::new();
+    for e in errors {
+        if !exponents.contains(&e.s) {
+            exponents.push(e.s);
+        }
+    }
     for s in exponents {
         let rows: Vec<&MethodError> = errors.iter().filter(|e| e.s == s).collect();
         let _ = writeln!(
@@ -300,6 +304,17 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn table_has_one_block_per_exponent_and_a_column_per_bake() {
+        let m = map(4, 4, |x, _| Vec3::new(x as f32 * 0.2, 0.0, 1.0));
+        let (a, b) = (bake(&m, Method::Plain), bake(&m, Method::Lean));
+        let errors = evaluate(&m, &[&a, &b], &[16.0, 64.0], &default_directions());
+        let t = format_table(&errors);
+        assert_eq!(t.matches("Blinn-Phong s =").count(), 2, "{t}");
+        assert_eq!(t.matches(" plain ").count(), 2, "{t}");
+        assert_eq!(t.matches(" lean ").count(), 2, "{t}");
     }
 
     #[test]
