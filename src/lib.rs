@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod ingest;
+pub mod vmf;
 
 pub use error::{Error, Result};
 pub use ingest::{IngestOptions, NormalMap};
