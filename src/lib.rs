@@ -5,6 +5,7 @@
 //! [`ingest`] → [`pyramid`] → methods ([`baseline`]) → [`bake`] → [`shade`] / [`eval`] /
 //! [`output`].
 
+pub mod em;
 pub mod error;
 pub mod ingest;
 pub mod vmf;

@@ -220,6 +220,10 @@ pub fn peak_density(kappa: f64) -> f64 {
     if !is_positive(kappa) {
         return 1.0 / (4.0 * PI);
     }
+    if kappa > 19.0 {
+        // e^{−2κ} < 2⁻⁵⁴: 1 − e^{−2κ} rounds to exactly 1 (same bits, no expm1 call).
+        return kappa / (2.0 * PI);
+    }
     // κ/(1 − e^{−2κ}) → 1/2 as κ → 0; expm1 keeps it exact for tiny κ.
     kappa / (-(-2.0 * kappa).exp_m1()) / (2.0 * PI)
 }
@@ -341,6 +345,19 @@ impl Lobe {
             return [0.0; 4];
         }
         let ar = self.mu * (self.alpha * r_from_kappa(self.kappa));
+        [self.alpha, ar.x, ar.y, ar.z]
+    }
+
+    /// Encodes the lobe with eq 16 taken literally: `[α, α·A(κ)μ]` (with `A(κ)` capped at
+    /// [`R_MAX`]). This is the right encoding for a lobe whose κ is the exact estimate
+    /// `A⁻¹(|r|)` (e.g. from [`crate::em::KappaEstimator::Exact`]): the texel then holds the
+    /// data's mean `α·r`. Decoding it with Banerjee's formula ([`Lobe::from_moments`], the
+    /// shader) returns a κ larger by up to 4.94 % (see [`kappa_from_r`]).
+    pub fn texel_exact(&self) -> [f64; 4] {
+        if !is_positive(self.alpha) {
+            return [0.0; 4];
+        }
+        let ar = self.mu * (self.alpha * a_kappa(self.kappa).min(R_MAX));
         [self.alpha, ar.x, ar.y, ar.z]
     }
 
@@ -470,6 +487,14 @@ mod tests {
                 (integral - 1.0).abs() < 1e-6,
                 "κ = {kappa}: ∫γ = {integral}"
             );
+        }
+    }
+
+    #[test]
+    fn peak_density_shortcut_is_exact() {
+        for k in [18.0_f64, 18.7, 18.8, 19.0, 19.000001, 25.0] {
+            let general = k / (-(-2.0 * k).exp_m1()) / (2.0 * PI);
+            assert_eq!(peak_density(k), general, "κ = {k}");
         }
     }
 
@@ -618,6 +643,16 @@ mod tests {
                 assert!((t2[c] - t[c]).abs() <= 1e-12 * lobe.alpha);
             }
         }
+        // The eq 16 encoding: decoding over-estimates κ by Banerjee's error.
+        let l = Lobe::new(0.5, DVec3::Y, 4.941645165380388);
+        let t = l.texel_exact();
+        assert!((t[2] / 0.5 - a_kappa(l.kappa)).abs() < 1e-15);
+        let back = Lobe::from_moments(t[0], DVec3::new(t[1], t[2], t[3]));
+        assert!(
+            (back.kappa / l.kappa - 1.0 - 0.04937).abs() < 1e-4,
+            "{back:?}"
+        );
+        assert_eq!(Lobe::EMPTY.texel_exact(), [0.0; 4]);
         // The empty and degenerate forms.
         assert_eq!(Lobe::from_moments(0.0, DVec3::ZERO), Lobe::EMPTY);
         assert_eq!(Lobe::from_moments(0.0, DVec3::X), Lobe::EMPTY);
