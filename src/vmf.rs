@@ -19,7 +19,13 @@
 //! `Lobe::from_moments(texel)` returns the same lobe and, for lobes produced by the EM
 //! ([`crate::em`]), the texel holds exactly the M-step's mean `α·r`. The exact relation of eq 16,
 //! `|r| = A(κ)`, differs from it by Banerjee's approximation error (see
-//! [`banerjee_max_relative_error`]).
+//! [`banerjee_max_relative_error`]); [`Lobe::texel_exact`] encodes with it, for lobes whose κ
+//! is the exact `A⁻¹(|r|)` (and `crate::em::EmFit::texel` picks the right one).
+//!
+//! # The κ clamp
+//! κ never exceeds [`KAPPA_MAX`] ≈ 2048.5 (|r| ≤ [`R_MAX`] = 1 − 2⁻¹¹, DESIGN.md "Numerics"):
+//! sharper lobes (e.g. κ = 5000, or a single repeated normal) are represented as `KAPPA_MAX`,
+//! an angular spread of about 1.8°. Densities and logs are exact for any κ (tested to 10⁶).
 
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -31,9 +37,8 @@ use std::f64::consts::PI;
 pub const R_MAX: f64 = 1.0 - 1.0 / 2048.0;
 
 /// Largest κ ever produced: Banerjee's κ at [`R_MAX`], ≈ 2048.499 (the exact `A⁻¹(R_MAX)` is
-/// 2048.000). It corresponds to an angular
-/// standard deviation of about `sqrt(2/κ)` ≈ 1.8°. Initial lobes at the finest level use it
-/// (Sec 7.1: "κ to a large initial value").
+/// 2048.000). It corresponds to an RMS angle of about `sqrt(2/κ)` ≈ 1.8° around μ. Initial
+/// lobes at the finest level use it (Sec 7.1: "κ to a large initial value").
 pub const KAPPA_MAX: f64 = kappa_banerjee(R_MAX);
 
 /// Banerjee's approximation of `A⁻¹(r)` on S² (Algorithm 1 line 12):
