@@ -31,10 +31,10 @@
 //!
 //! Main items: [`fit`], [`EmInput`], [`EmOptions`], [`EmScratch`], [`EmFit`], [`Alignment`].
 //!
-//! Measured (release build, one core of the 2.3 GHz Xeon this was developed on, J = 6, default
-//! options, AVX-512 path): about 5 µs per fit for N = 16 normals (6.6 iterations on average)
-//! and 0.4–0.5 ms for N = 1024 (20 iterations), i.e. 3–4 ns per normal·lobe·iteration for
-//! large N; see the ignored `timing_*` tests.
+//! Measured (release build, one core of the shared 2-core 2.3 GHz Xeon this was developed on,
+//! J = 6, default options, AVX-512 path): about 1.4 µs per fit for N = 4 (3.2 iterations on
+//! average), 4–5 µs for N = 16 (6.6 iterations) and 0.4–0.55 ms for N = 1024 (20 iterations),
+//! i.e. 3–4.5 ns per normal·lobe·iteration for large N; see the ignored `timing_*` tests.
 
 use crate::vmf::{
     self, KAPPA_MAX, Lobe, clamp_kappa, is_positive, kappa_from_r_exact, normalize_robust,
