@@ -2,11 +2,12 @@
 //!
 //! Implements "Frequency Domain Normal Map Filtering" (Han, Sun, Ramamoorthi, Grinspun 2007)
 //! and the baselines it compares with. Data flows forward through one module per stage:
-//! [`ingest`] → [`pyramid`] → methods ([`baseline`]) → [`bake`] → [`shade`] / [`eval`] /
-//! [`output`].
+//! [`ingest`] → [`pyramid`] → methods ([`baseline`]; [`vmf`] and [`em`] for the paper's
+//! Sec 7) → [`bake`] → [`shade`] / [`eval`] / [`pack`] / [`output`].
 
 pub mod bake;
 pub mod baseline;
+pub mod em;
 pub mod error;
 pub mod eval;
 pub mod ingest;
@@ -15,6 +16,7 @@ pub mod pack;
 pub mod procedural;
 pub mod pyramid;
 pub mod shade;
+pub mod vmf;
 
 pub use error::{Error, Result};
 pub use ingest::{IngestOptions, NormalMap};
