@@ -23,23 +23,41 @@
 //! is the exact `A⁻¹(|r|)` (and `crate::em::EmFit::texel` picks the right one).
 //!
 //! # The κ clamp
-//! κ never exceeds [`KAPPA_MAX`] ≈ 2048.5 (|r| ≤ [`R_MAX`] = 1 − 2⁻¹¹, DESIGN.md "Numerics"):
-//! sharper lobes (e.g. κ = 5000, or a single repeated normal) are represented as `KAPPA_MAX`,
-//! an angular spread of about 1.8°. Densities and logs are exact for any κ (tested to 10⁶).
+//! κ never exceeds [`KAPPA_MAX`] ≈ 4.2·10⁶ (|r| ≤ [`R_MAX`] = 1 − 2⁻²², what an f32 texel can
+//! still tell apart from 1): a single repeated normal — every finest-level texel — is a lobe
+//! that sharp, so the Blinn-Phong convolution of eq 20 leaves any practical exponent
+//! (s ≤ 10⁴) within 0.25 % of itself and level 0 reproduces the unfiltered BRDF. Narrower
+//! storage formats cannot hold |r| that close to 1; [`r_max`] gives each format's clamp, which
+//! the shader and the CPU twin apply after reading a texel (DESIGN.md "Numerics": an f16 `r`
+//! cannot exceed 1 − 2⁻¹¹, so κ ≤ 2048.5 from an f16 texture). Densities and logs are exact
+//! for any κ.
 
+use crate::bake::Format;
 use glam::DVec3;
 use std::f64::consts::PI;
 
-/// Largest mean resultant length `|r|` ever used: `1 − 2⁻¹¹`, the largest value below 1 that an
-/// f16 holds (DESIGN.md "Numerics"). Every κ computed from an `r` goes through [`clamp_r`], so κ
-/// never exceeds [`KAPPA_MAX`] and the shader (which reads `r` from an f16 texture at best) and
-/// the CPU agree.
-pub const R_MAX: f64 = 1.0 - 1.0 / 2048.0;
+/// Largest mean resultant length `|r|` the baker produces: `1 − 2⁻²²`. Every κ computed from an
+/// `r` goes through [`clamp_r`], so κ never exceeds [`KAPPA_MAX`].
+pub const R_MAX: f64 = 1.0 - 1.0 / 4_194_304.0;
 
-/// Largest κ ever produced: Banerjee's κ at [`R_MAX`], ≈ 2048.499 (the exact `A⁻¹(R_MAX)` is
-/// 2048.000). It corresponds to an RMS angle of about `sqrt(2/κ)` ≈ 1.8° around μ. Initial
-/// lobes at the finest level use it (Sec 7.1: "κ to a large initial value").
+/// Largest κ ever produced: Banerjee's κ at [`R_MAX`], ≈ 4.19·10⁶ (an RMS angle of
+/// `sqrt(2/κ)` ≈ 0.04° around μ). Initial lobes at the finest level use it (Sec 7.1: "κ to a
+/// large initial value").
 pub const KAPPA_MAX: f64 = kappa_banerjee(R_MAX);
+
+/// The largest `|r|` a texel read from `format` is trusted with, the clamp applied (in the
+/// shader and in [`crate::shade`]) before κ is computed from it (Algorithm 2 line 9):
+/// f32 `1 − 2⁻²²` ([`R_MAX`]); f16 `1 − 2⁻¹¹`, the largest f16 below 1 (κ ≤ 2048.5); unorm16
+/// `1 − 2⁻¹⁴` (two steps of the biased `α·r` and one of α; κ ≤ 16384); unorm8 `1 − 2⁻⁶`
+/// (κ ≤ 64.5). Quantization can push a decoded `|α·r|/α` past 1; the clamp keeps κ finite.
+pub fn r_max(format: Format) -> f64 {
+    match format {
+        Format::F32 => R_MAX,
+        Format::F16 => 1.0 - 1.0 / 2048.0,
+        Format::Unorm16 => 1.0 - 1.0 / 16384.0,
+        Format::Unorm8 => 1.0 - 1.0 / 64.0,
+    }
+}
 
 /// Banerjee's approximation of `A⁻¹(r)` on S² (Algorithm 1 line 12):
 /// `κ = (3r − r³)/(1 − r²)`, *without* the clamp. Valid for `r` in `[0, 1)`; infinite at 1.
@@ -582,14 +600,21 @@ mod tests {
 
     #[test]
     fn clamp_constants() {
-        assert_eq!(R_MAX, 0.99951171875);
-        // R_MAX is exactly representable in f16 and is the largest f16 below 1.
-        let h = half::f16::from_f64(R_MAX);
-        assert_eq!(h.to_f64(), R_MAX);
+        assert_eq!(R_MAX, 1.0 - 2f64.powi(-22));
+        // R_MAX is exactly an f32, and f32 still tells it apart from 1 (and from its neighbour).
+        assert_eq!(R_MAX as f32 as f64, R_MAX);
+        assert!((R_MAX as f32) < 1.0);
+        const { assert!(KAPPA_MAX > 4.19e6 && KAPPA_MAX < 4.20e6) };
+        // The f16 clamp is the largest f16 below 1, and its κ is 2048.5 (exact A⁻¹: 2048.000).
+        let h = half::f16::from_f64(r_max(Format::F16));
+        assert_eq!(h.to_f64(), r_max(Format::F16));
         assert_eq!(f64::from(half::f16::from_bits(h.to_bits() + 1)), 1.0);
-        const { assert!(KAPPA_MAX > 2048.49 && KAPPA_MAX < 2048.51) };
-        // Banerjee over-estimates A⁻¹(R_MAX) = 2048.000 by 0.024 %.
-        assert!((kappa_from_r_exact(R_MAX) - 2048.0).abs() < 1e-6);
+        assert!((kappa_from_r(r_max(Format::F16)) - 2048.5).abs() < 0.01);
+        assert!((kappa_from_r_exact(r_max(Format::F16)) - 2048.0).abs() < 1e-6);
+        // The baker's clamp is the loosest, unorm8's the tightest.
+        for f in [Format::F16, Format::Unorm16, Format::Unorm8] {
+            assert!(r_max(f) < R_MAX && r_max(f) >= r_max(Format::Unorm8));
+        }
         assert_eq!(kappa_from_r(1.0), KAPPA_MAX);
         assert_eq!(kappa_from_r(2.0), KAPPA_MAX);
         assert_eq!(kappa_from_r(f64::NAN), 0.0);
