@@ -27,11 +27,24 @@ pub enum Method {
     /// Olano & North (1997) normal distribution mapping: the mean normal (3) and the second
     /// moments `E[n nᵀ]` (6) of a 3D Gaussian, all of which filter linearly.
     Olano,
+    /// The paper's method (Sec 7): a mixture of J von Mises–Fisher lobes per texel fitted by
+    /// spherical EM (Algorithm 1), one `(α, α·r)` texture per lobe, shaded by Algorithm 2.
+    Vmf,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: [Method; 4] = [Method::Plain, Method::Toksvig, Method::Lean, Method::Olano];
+    pub const ALL: [Method; 5] = [
+        Method::Plain,
+        Method::Toksvig,
+        Method::Lean,
+        Method::Olano,
+        Method::Vmf,
+    ];
+
+    /// The baselines (no options, closed-form moments).
+    pub const BASELINES: [Method; 4] =
+        [Method::Plain, Method::Toksvig, Method::Lean, Method::Olano];
 
     /// The lower-case name used on the command line, in manifests and file names.
     pub fn name(self) -> &'static str {
@@ -40,6 +53,7 @@ impl Method {
             Method::Toksvig => "toksvig",
             Method::Lean => "lean",
             Method::Olano => "olano",
+            Method::Vmf => "vmf",
         }
     }
 }
@@ -161,12 +175,32 @@ pub struct Bake {
     pub textures: Vec<Texture>,
     /// Addressing of the source map (for samplers).
     pub addressing: Addressing,
+    /// Number of lobe textures (the first `lobes` textures) for mixture methods; 0 otherwise.
+    pub lobes: usize,
+    /// Method parameters as recorded in the manifest (lobe count, alignment, EM settings).
+    pub parameters: serde_json::Value,
     /// The storage format the values have been rounded to ([`Format::F32`] as baked;
     /// [`crate::pack::quantize`] gives the values a GPU reads from a narrower format).
     pub format: Format,
 }
 
 impl Bake {
+    /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
+    /// for mixtures (`vmf6`, `vmf6a`), and the format when it is not f32 (`vmf6a f16`).
+    pub fn label(&self) -> String {
+        let mut l = self.method.name().to_string();
+        if self.lobes > 0 {
+            l += &self.lobes.to_string();
+            if self.parameters["aligned"] == serde_json::Value::Bool(true) {
+                l.push('a');
+            }
+        }
+        if self.format != Format::F32 {
+            l = format!("{l} {}", self.format);
+        }
+        l
+    }
+
     /// Number of MIP levels.
     pub fn level_count(&self) -> usize {
         self.sizes.len()
@@ -192,7 +226,38 @@ impl Bake {
     }
 }
 
-/// Bakes `method` for `map`: the full MIP chain down to 1×1.
+/// Options of the mixture methods (ignored by the baselines).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BakeOptions {
+    /// Lobes per texel, J, 1 to [`crate::em::MAX_LOBES`] (default 6, the paper's choice).
+    pub lobes: usize,
+    /// Coherent lobes for hardware interpolation (eq 23): `Some(C)` fits from the coarsest
+    /// level down, pulling each lobe towards the same lobe of already-fitted neighbours with
+    /// strength C; `None` fits each texel on its own from the finest level up (unaligned).
+    pub align: Option<f64>,
+    /// EM iteration cap and convergence tolerance.
+    pub em: crate::em::EmOptions,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        BakeOptions {
+            lobes: 6,
+            align: None,
+            em: crate::em::EmOptions::default(),
+        }
+    }
+}
+
+/// Bakes `method` for `map` with default options: the full MIP chain down to 1×1.
 pub fn bake(map: &NormalMap, method: Method) -> Bake {
-    crate::baseline::bake(map, method)
+    bake_with(map, method, &BakeOptions::default()).expect("default options are valid")
+}
+
+/// Bakes `method` for `map` with `options`; fails only on invalid options.
+pub fn bake_with(map: &NormalMap, method: Method, options: &BakeOptions) -> Result<Bake> {
+    match method {
+        Method::Vmf => crate::mixture::bake_vmf(map, options),
+        _ => Ok(crate::baseline::bake(map, method)),
+    }
 }

@@ -11,6 +11,7 @@ pub mod em;
 pub mod error;
 pub mod eval;
 pub mod ingest;
+pub mod mixture;
 pub mod output;
 pub mod pack;
 pub mod procedural;

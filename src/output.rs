@@ -6,7 +6,7 @@
 //! and the new manifest renamed in last. A folder with a `manifest.json` therefore always holds
 //! a complete bake, and a failure leaves no partial output behind.
 
-use crate::bake::{Bake, Method};
+use crate::bake::{Bake, Format, Method, ValueRange};
 use crate::error::{Error, Result};
 use crate::ingest::{IngestOptions, IngestStats};
 use serde::{Deserialize, Serialize};
@@ -44,6 +44,8 @@ pub struct TextureInfo {
     pub name: String,
     /// Meaning of R, G, B, A.
     pub channels: Vec<String>,
+    /// Value range of R, G, B, A (`signed` channels are biased in unorm formats).
+    pub ranges: Vec<ValueRange>,
     /// One file per level, finest first, relative to the manifest.
     pub files: Vec<String>,
 }
@@ -65,6 +67,8 @@ pub struct Manifest {
     pub storage: String,
     /// How values are encoded in the files.
     pub encoding: String,
+    /// The storage format (f32, f16, unorm16, unorm8).
+    pub texel_format: Format,
     /// Texture addressing the bake assumes (`wrap` or `clamp`).
     pub addressing: crate::ingest::Addressing,
     /// Level sizes, finest first.
@@ -83,10 +87,24 @@ impl Manifest {
             manifest_version: MANIFEST_VERSION,
             ndfmap_version: env!("CARGO_PKG_VERSION").into(),
             method: bake.method,
-            parameters: serde_json::json!({}),
-            storage: "one OpenEXR file per texture per level (RGBA, scanlines top row first)"
-                .into(),
-            encoding: "f32 linear (values as baked, no bias or scale)".into(),
+            parameters: bake.parameters.clone(),
+            storage: match bake.format {
+                Format::F32 | Format::F16 => {
+                    "one OpenEXR file per texture per level (RGBA, scanlines top row first)"
+                }
+                Format::Unorm16 | Format::Unorm8 => {
+                    "one PNG file per texture per level (RGBA, rows top first, linear data, no sRGB)"
+                }
+            }
+            .into(),
+            encoding: match bake.format {
+                Format::F32 => "f32: values as baked".into(),
+                Format::F16 => "f16: values as baked, rounded to half floats".into(),
+                f => format!(
+                    "{f}: unsigned-normalized; channels whose range is 'signed' store 0.5 + 0.5*v"
+                ),
+            },
+            texel_format: bake.format,
             addressing: bake.addressing,
             levels: bake
                 .sizes
@@ -104,8 +122,9 @@ impl Manifest {
                 .map(|t| TextureInfo {
                     name: t.name.into(),
                     channels: t.channels.iter().map(|c| c.to_string()).collect(),
+                    ranges: t.ranges.to_vec(),
                     files: (0..bake.sizes.len())
-                        .map(|k| file_name(t.name, k))
+                        .map(|k| file_name(t.name, k, bake.format))
                         .collect(),
                 })
                 .collect(),
@@ -114,9 +133,62 @@ impl Manifest {
     }
 }
 
-/// File name of texture `name` at `level`.
-pub fn file_name(name: &str, level: usize) -> String {
-    format!("{name}_L{level:02}.exr")
+/// File name of texture `name` at `level`: `.exr` for float formats, `.png` for unorm ones.
+pub fn file_name(name: &str, level: usize, format: Format) -> String {
+    let ext = match format {
+        Format::F32 | Format::F16 => "exr",
+        Format::Unorm16 | Format::Unorm8 => "png",
+    };
+    format!("{name}_L{level:02}.{ext}")
+}
+
+/// Writes one level of one texture in the bake's format.
+fn write_level(
+    path: &Path,
+    w: u32,
+    h: u32,
+    level: &[[f32; 4]],
+    ranges: [ValueRange; 4],
+    format: Format,
+) -> Result<()> {
+    let px = |x: usize, y: usize| level[y * w as usize + x];
+    let result = match format {
+        Format::F32 => exr::prelude::write_rgba_file(path, w as usize, h as usize, |x, y| {
+            let v = px(x, y);
+            (v[0], v[1], v[2], v[3])
+        })
+        .map_err(|e| e.to_string()),
+        Format::F16 => exr::prelude::write_rgba_file(path, w as usize, h as usize, |x, y| {
+            let v = px(x, y).map(half::f16::from_f32);
+            (v[0], v[1], v[2], v[3])
+        })
+        .map_err(|e| e.to_string()),
+        Format::Unorm16 => {
+            let data: Vec<u16> = level
+                .iter()
+                .flat_map(|t| {
+                    (0..4).map(move |c| crate::pack::unorm_code(t[c], ranges[c], 65535.0))
+                })
+                .collect();
+            image::ImageBuffer::<image::Rgba<u16>, _>::from_raw(w, h, data)
+                .expect("buffer matches the level size")
+                .save_with_format(path, image::ImageFormat::Png)
+                .map_err(|e| e.to_string())
+        }
+        Format::Unorm8 => {
+            let data: Vec<u8> = level
+                .iter()
+                .flat_map(|t| {
+                    (0..4).map(move |c| crate::pack::unorm_code(t[c], ranges[c], 255.0) as u8)
+                })
+                .collect();
+            image::RgbaImage::from_raw(w, h, data)
+                .expect("buffer matches the level size")
+                .save_with_format(path, image::ImageFormat::Png)
+                .map_err(|e| e.to_string())
+        }
+    };
+    result.map_err(|e| write_err(path, e))
 }
 
 fn write_err(path: &Path, e: impl std::fmt::Display) -> Error {
@@ -144,11 +216,8 @@ fn stage_and_commit(bake: &Bake, input: InputInfo, dir: &Path, staging: &Path) -
         for (k, level) in t.levels.iter().enumerate() {
             let (w, h) = bake.sizes[k];
             let path = staging.join(&info.files[k]);
-            exr::prelude::write_rgba_file(&path, w as usize, h as usize, |x, y| {
-                let v = level[y * w as usize + x];
-                (v[0], v[1], v[2], v[3])
-            })
-            .map_err(|e| write_err(&dir.join(&info.files[k]), e))?;
+            write_level(&path, w, h, level, t.ranges, bake.format)
+                .map_err(|_| write_err(&dir.join(&info.files[k]), "cannot write the level"))?;
         }
     }
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| write_err(dir, e))?;

@@ -21,6 +21,13 @@ pub fn packed_len(bake: &Bake, level: usize, format: Format) -> usize {
     w as usize * h as usize * 4 * format.channel_bytes()
 }
 
+/// The integer code of `v` in an unsigned-normalized format with maximum code `max` (255 or
+/// 65535): `round(v·max)` for unit channels, `round((0.5 + 0.5·v)·max)` for signed ones,
+/// clamped to the range first.
+pub fn unorm_code(v: f32, range: ValueRange, max: f32) -> u16 {
+    unorm(v, range, max) as u16
+}
+
 fn unorm(v: f32, range: ValueRange, max: f32) -> f32 {
     let u = match range {
         ValueRange::Signed => 0.5 + 0.5 * v.clamp(-1.0, 1.0),

@@ -19,7 +19,7 @@
 //!   of ω_h from μ. With Σ = 0 this is `(s+1)/(2π)(ω_h·μ)^s`. LEAN's own paper evaluates a
 //!   Beckmann-like Gaussian instead, which differs from Blinn-Phong by O(1/s) even unfiltered.
 
-use crate::bake::Method;
+use crate::bake::{Bake, Method};
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
 
@@ -109,11 +109,54 @@ fn v3(t: [f32; 4]) -> DVec3 {
     DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64)
 }
 
-/// Filtered shading of `method` from one texel's values (`texels[i]` from texture i of the
-/// bake, as [`crate::bake::Bake::texel`] returns), for light `l`, half vector `h` and Blinn-Phong
-/// exponent `s` (> 0). This is the CPU twin of the method's shader.
-pub fn shade(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Shading {
-    match method {
+/// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
+/// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
+/// [`crate::vmf::r_max`]) before κ is computed:
+/// `r = θ.yzw/α`, `κ = (3|r| − |r|³)/(1 − |r|²)`, `μ = r/|r|`, `s' = κs/(κ+s)` (eq 20),
+/// `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`; diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
+/// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
+/// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe: `s' = 0`, μ = +Z.
+pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shading {
+    let alpha = theta[0] as f64;
+    if alpha.is_nan() || alpha <= 0.0 {
+        return Shading::default();
+    }
+    let r = DVec3::new(theta[1] as f64, theta[2] as f64, theta[3] as f64) / alpha;
+    let len = r.length();
+    let (mu, kappa) = if len > 0.0 && len.is_finite() {
+        let rc = len.min(r_max);
+        (r / len, (3.0 * rc - rc * rc * rc) / (1.0 - rc * rc))
+    } else {
+        (DVec3::Z, 0.0)
+    };
+    let s_eff = if kappa + s > 0.0 {
+        kappa * s / (kappa + s)
+    } else {
+        0.0
+    };
+    let cos_i = mu.dot(l).max(0.0);
+    Shading {
+        diffuse: alpha * cos_i,
+        specular: alpha * blinn_phong(mu.dot(h), s_eff) * cos_i,
+    }
+}
+
+/// Filtered shading of `bake`'s method from one texel's values (`texels[i]` from texture i of
+/// the bake, as [`crate::bake::Bake::texel`] returns), for light `l`, half vector `h` and
+/// Blinn-Phong exponent `s` (> 0). This is the CPU twin of the method's shader; it applies the
+/// clamps of the format the bake was read in ([`Bake::format`]).
+pub fn shade(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Shading {
+    match bake.method {
+        Method::Vmf => {
+            let r_max = crate::vmf::r_max(bake.format);
+            let mut sum = Shading::default();
+            for &theta in &texels[..bake.lobes] {
+                let one = vmf_lobe(theta, l, h, s, r_max);
+                sum.diffuse += one.diffuse;
+                sum.specular += one.specular;
+            }
+            sum
+        }
         Method::Plain => {
             let mu = v3(texels[0]).try_normalize().unwrap_or(DVec3::Z);
             reference(mu, l, h, s)

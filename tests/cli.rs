@@ -41,7 +41,7 @@ fn bake_writes_manifest_and_every_level() {
     let input = dir.path().join("n.png");
     write_normal_png(&input, 12, 5);
     let out_dir = dir.path().join("out");
-    for method in ["plain", "toksvig", "lean", "olano"] {
+    for method in ["plain", "toksvig", "lean", "olano", "vmf"] {
         let o = out_dir.join(method);
         let run = ndfmap(&[
             "bake",
@@ -61,10 +61,62 @@ fn bake_writes_manifest_and_every_level() {
                 .unwrap();
         assert_eq!(manifest["method"], method);
         assert_eq!(manifest["levels"].as_array().unwrap().len(), 4); // 12x5, 6x2, 3x1, 1x1
+        let textures = manifest["textures"].as_array().unwrap().len();
+        assert_eq!(textures, if method == "vmf" { 6 } else { textures });
         assert_eq!(manifest["input"]["options"]["green"], "opengl");
         for t in manifest["textures"].as_array().unwrap() {
             for f in t["files"].as_array().unwrap() {
                 assert!(o.join(f.as_str().unwrap()).is_file());
+            }
+        }
+    }
+}
+
+#[test]
+fn vmf_bake_with_alignment_colour_and_narrow_formats() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 16, 8);
+    let color = dir.path().join("albedo.png");
+    image::RgbImage::from_fn(16, 8, |x, _| image::Rgb([(x * 15) as u8, 90, 200]))
+        .save(&color)
+        .unwrap();
+    for (format, ext) in [("f16", "exr"), ("unorm16", "png"), ("unorm8", "png")] {
+        let o = dir.path().join(format);
+        let run = ndfmap(&[
+            "bake",
+            input.to_str().unwrap(),
+            "--method",
+            "vmf",
+            "--lobes",
+            "3",
+            "--align",
+            "0.1",
+            "--color",
+            color.to_str().unwrap(),
+            "--format",
+            format,
+            "-o",
+            o.to_str().unwrap(),
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let manifest: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(o.join("manifest.json")).unwrap())
+                .unwrap();
+        assert_eq!(manifest["parameters"]["lobes"], 3);
+        assert_eq!(manifest["parameters"]["aligned"], true);
+        assert_eq!(manifest["texel_format"], format);
+        let textures = manifest["textures"].as_array().unwrap();
+        assert_eq!(textures.len(), 6, "3 lobe and 3 colour chains");
+        assert_eq!(textures[0]["ranges"][1], "signed");
+        for t in textures {
+            for f in t["files"].as_array().unwrap() {
+                let f = f.as_str().unwrap();
+                assert!(f.ends_with(ext) && o.join(f).is_file(), "{f}");
             }
         }
     }
@@ -83,7 +135,7 @@ fn eval_json_reports_every_method_and_level() {
     );
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     let errors = v["errors"].as_array().unwrap();
-    assert_eq!(errors.len(), 4 * 2);
+    assert_eq!(errors.len(), 5 * 2); // four baselines and vmf6, at two exponents
     for e in errors {
         let levels = e["levels"].as_array().unwrap();
         assert_eq!(levels.len(), 5);

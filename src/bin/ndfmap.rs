@@ -2,7 +2,7 @@
 //! each filtering method matches the exact shading.
 
 use clap::{Args, Parser, Subcommand};
-use ndfmap::bake::{Bake, Format, Method, bake};
+use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
 use ndfmap::eval::{default_directions, evaluate, format_table};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
 use ndfmap::output::{InputInfo, write_bake};
@@ -45,16 +45,26 @@ enum Command {
         #[command(flatten)]
         ingest: IngestArgs,
     },
-    /// Bake one method's MIP chain to a folder: manifest.json plus OpenEXR files.
+    /// Bake one method's MIP chain to a folder: manifest.json plus OpenEXR (or PNG) files.
     Bake {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
         input: PathBuf,
-        /// Filtering method: plain, toksvig, lean, olano.
+        /// Filtering method: plain, toksvig, lean, olano, vmf.
         #[arg(short, long)]
         method: String,
         /// Output folder (created if missing; written all-or-nothing).
         #[arg(short, long)]
         output: PathBuf,
+        /// vMF: lobes per texel (1 to 8).
+        #[arg(long, default_value_t = 6)]
+        lobes: usize,
+        /// vMF: coherent lobes for hardware trilinear filtering, with alignment strength C
+        /// (eq 23; 0.5 is a good start). Without it lobes are fitted per texel (unaligned).
+        #[arg(long)]
+        align: Option<f64>,
+        /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
+        #[arg(long, default_value = "f32")]
+        format: String,
         #[command(flatten)]
         ingest: IngestArgs,
     },
@@ -65,10 +75,16 @@ enum Command {
         /// Methods to compare, comma-separated.
         #[arg(
             long,
-            default_value = "plain,toksvig,lean,olano",
+            default_value = "plain,toksvig,lean,olano,vmf",
             value_delimiter = ','
         )]
         methods: Vec<String>,
+        /// vMF lobe counts to compare, comma-separated.
+        #[arg(long, default_value = "6", value_delimiter = ',')]
+        lobes: Vec<usize>,
+        /// vMF alignments to compare, comma-separated: `none` (unaligned) or a strength C.
+        #[arg(long, default_value = "none", value_delimiter = ',')]
+        align: Vec<String>,
         /// Blinn-Phong exponents, comma-separated.
         #[arg(
             short,
@@ -107,8 +123,8 @@ struct IngestArgs {
     /// Bad normals (zero-length, NaN, below the horizon): repair or reject.
     #[arg(long, default_value = "repair")]
     bad_normals: String,
-    /// Optional feature (albedo colour) image of the same size.
-    #[arg(long)]
+    /// Optional feature (albedo colour) image of the same size (eq 22's colour per lobe).
+    #[arg(long, alias = "color")]
     feature: Option<PathBuf>,
     /// Feature image encoding: srgb (decoded to linear) or linear.
     #[arg(long, default_value = "srgb")]
@@ -198,17 +214,64 @@ fn print_info(map: &NormalMap) {
     }
 }
 
-/// Bakes every method in `methods`, printing the time each took.
-fn bake_all(map: &NormalMap, methods: &[Method], quiet: bool) -> Vec<Bake> {
-    methods
+/// Parses `--align` values: `none` or a strength C.
+fn parse_align(values: &[String]) -> Result<Vec<Option<f64>>> {
+    values
         .iter()
-        .map(|&m| {
-            let t = Instant::now();
-            let b = bake(map, m);
-            if !quiet {
-                eprintln!("baked {m:<8} in {:.3} s", t.elapsed().as_secs_f64());
+        .map(|v| match v.trim() {
+            "none" => Ok(None),
+            c => c
+                .parse::<f64>()
+                .ok()
+                .filter(|c| c.is_finite() && *c >= 0.0)
+                .map(Some)
+                .ok_or_else(|| {
+                    Error::InvalidOption(format!("--align '{c}' (expected none or C >= 0)"))
+                }),
+        })
+        .collect()
+}
+
+/// Bakes every method in `methods` (vMF once per lobe count and alignment), printing the time
+/// each took to stderr unless `quiet`.
+fn bake_all(
+    map: &NormalMap,
+    methods: &[Method],
+    lobes: &[usize],
+    align: &[Option<f64>],
+    quiet: bool,
+) -> Result<Vec<Bake>> {
+    let mut jobs = Vec::new();
+    for &m in methods {
+        if m == Method::Vmf {
+            for &j in lobes {
+                for &a in align {
+                    jobs.push((
+                        m,
+                        BakeOptions {
+                            lobes: j,
+                            align: a,
+                            ..BakeOptions::default()
+                        },
+                    ));
+                }
             }
-            b
+        } else {
+            jobs.push((m, BakeOptions::default()));
+        }
+    }
+    jobs.into_iter()
+        .map(|(m, o)| {
+            let t = Instant::now();
+            let b = bake_with(map, m, &o)?;
+            if !quiet {
+                eprintln!(
+                    "baked {:<8} in {:.3} s",
+                    b.label(),
+                    t.elapsed().as_secs_f64()
+                );
+            }
+            Ok(b)
         })
         .collect()
 }
@@ -223,12 +286,26 @@ fn run(cli: Cli) -> Result<()> {
             input,
             method,
             output,
+            lobes,
+            align,
+            format,
             ingest,
         } => {
             let method: Method = method.parse()?;
+            let format: Format = format.parse()?;
+            if let Some(c) = align.filter(|c| !(c.is_finite() && *c >= 0.0)) {
+                return Err(Error::InvalidOption(format!(
+                    "--align {c} (expected C >= 0)"
+                )));
+            }
+            let options = BakeOptions {
+                lobes,
+                align,
+                ..BakeOptions::default()
+            };
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
-            let b = bake(&map, method);
+            let b = ndfmap::pack::quantize(&bake_with(&map, method, &options)?, format)?;
             let seconds = t.elapsed().as_secs_f64();
             let manifest = write_bake(&b, info, &output)?;
             println!("baked {method} in {seconds:.3} s: {}", manifest.display());
@@ -236,11 +313,14 @@ fn run(cli: Cli) -> Result<()> {
         Command::Eval {
             input,
             methods,
+            lobes,
+            align,
             s,
             formats,
             json,
             ingest,
         } => {
+            let align = parse_align(&align)?;
             check_exponents(&s)?;
             let methods = parse_methods(&methods)?;
             let formats = formats
@@ -249,7 +329,7 @@ fn run(cli: Cli) -> Result<()> {
                 .collect::<Result<Vec<Format>>>()?;
             let (map, _) = ingest.load(&input)?;
             let mut bakes = Vec::new();
-            for b in bake_all(&map, &methods, json) {
+            for b in bake_all(&map, &methods, &lobes, &align, json)? {
                 for &f in &formats {
                     match ndfmap::pack::quantize(&b, f) {
                         Ok(q) => bakes.push(q),
@@ -321,7 +401,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         normal_png.display(),
         map.stats().mean_z
     );
-    let bakes = bake_all(&map, &Method::ALL, false);
+    let bakes = bake_all(&map, &Method::ALL, &[6], &[None], false)?;
     for b in &bakes {
         let info = InputInfo {
             path: Some(normal_png.display().to_string()),

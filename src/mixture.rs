@@ -1,0 +1,708 @@
+//! Mixture bakes: one spherical-EM fit (Algorithm 1, [`crate::em`]) per texel of every MIP level,
+//! over *all* finest normals the texel covers (exact footprints, [`crate::pyramid`]).
+//!
+//! **Unaligned** (Sec 7.1): levels are fitted from the finest up. The finest texel holds one
+//! lobe, `α = 1, μ = n, κ = KAPPA_MAX`; a coarser texel starts EM from the J furthest-apart of
+//! its children's lobes (Hochbaum–Shmoys, [`crate::em::farthest_first`]).
+//!
+//! **Aligned** (Sec 7.3, eq 23, the appendix's eq 29): levels are fitted from the coarsest down,
+//! each texel starting from its parent's lobes (so lobe j keeps its meaning down the chain) and
+//! pulled towards lobe j of the previously visited neighbours — left, upper-left, up,
+//! upper-right in scan-line order — and of its parent, with strength C. Scan-line order is kept
+//! exactly, yet texels run in parallel along wavefronts `x + 2y = const`, whose texels depend
+//! only on earlier wavefronts; the result is the same for any thread count. At the finest level
+//! the single normal goes to the lobe slot that explains it best, unpulled (so level 0 stays
+//! exact).
+//!
+//! Colour (eq 22): with a feature image, each lobe also gets `y_j = Σ z_ij y_i / Σ z_ij`, stored
+//! as `α_j y_j`.
+
+use crate::bake::{Bake, BakeOptions, Format, Method, Texture, ValueRange};
+use crate::em::{self, Alignment, EmFit, EmInput, EmScratch, MAX_LOBES, fit};
+use crate::error::{Error, Result};
+use crate::ingest::NormalMap;
+use crate::pyramid::{AxisFootprints, LevelFootprints, level_sizes};
+use crate::vmf::{KAPPA_MAX, Lobe};
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// Lobes and colours of every texel of one level, `lobes[t * J + j]`.
+struct LevelFit {
+    lobes: Vec<Lobe>,
+    /// `α_j y_j` per lobe (eq 22), when a feature image is present.
+    colors: Option<Vec<[f64; 4]>>,
+    /// The texture form `(α, α·r)` of each lobe, as EM's estimator encodes it.
+    texels: Vec<[f64; 4]>,
+}
+
+/// One texel's fit: its lobes, their eq 22 colours `y_j`, and their texels `(α, α·r)`.
+type TexelFit = (Vec<Lobe>, Vec<[f64; 4]>, Vec<[f64; 4]>);
+
+/// Per-thread working memory for gathering a texel's samples.
+#[derive(Default)]
+struct Gather {
+    normals: Vec<Vec3>,
+    weights: Vec<f64>,
+    features: Vec<[f32; 4]>,
+    candidates: Vec<Lobe>,
+    scratch: EmScratch,
+}
+
+impl Gather {
+    /// Collects the finest normals (and features) texel `(x, y)` of `level` covers.
+    fn collect(&mut self, map: &NormalMap, level: &LevelFootprints, x: u32, y: u32) {
+        self.normals.clear();
+        self.weights.clear();
+        self.features.clear();
+        let w = map.width() as usize;
+        for (fy, wy) in level.y.taps(y as usize) {
+            for (fx, wx) in level.x.taps(x as usize) {
+                let i = fy as usize * w + fx as usize;
+                self.normals.push(map.normals()[i]);
+                self.weights.push(wx * wy);
+                if let Some(f) = map.feature() {
+                    self.features.push(f[i]);
+                }
+            }
+        }
+    }
+
+    /// Runs Algorithm 1 on the collected samples.
+    fn fit(
+        &mut self,
+        init: &[Lobe],
+        options: &BakeOptions,
+        alignment: Option<&Alignment>,
+    ) -> EmFit {
+        let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
+        if !self.features.is_empty() {
+            input = input.with_features(&self.features);
+        }
+        fit(&input, init, &options.em, alignment, &mut self.scratch)
+    }
+}
+
+/// Validates the mixture options.
+fn check(options: &BakeOptions) -> Result<()> {
+    if !(1..=MAX_LOBES).contains(&options.lobes) {
+        return Err(Error::InvalidOption(format!(
+            "lobe count {} (expected 1 to {MAX_LOBES})",
+            options.lobes
+        )));
+    }
+    if let Some(c) = options.align
+        && !(c.is_finite() && c >= 0.0)
+    {
+        return Err(Error::InvalidOption(format!(
+            "alignment strength {c} (expected a finite C ≥ 0)"
+        )));
+    }
+    if options.em.max_iterations == 0 || options.em.tolerance.is_nan() || options.em.tolerance < 0.0
+    {
+        return Err(Error::InvalidOption(
+            "EM needs at least one iteration and a tolerance ≥ 0".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The finest level: one lobe per texel, `α = 1, μ = n, κ = KAPPA_MAX` (Sec 7.1), in `slot`.
+fn finest_lobes(n: Vec3, j: usize, slot: usize) -> Vec<Lobe> {
+    let mut lobes = vec![Lobe::EMPTY; j];
+    lobes[slot] = em::init_single(n);
+    lobes
+}
+
+/// Stores one texel's result.
+fn push_result(
+    out: &mut LevelFit,
+    lobes: &[Lobe],
+    colors: Option<&[[f64; 4]]>,
+    texels: impl Iterator<Item = [f64; 4]>,
+) {
+    out.lobes.extend_from_slice(lobes);
+    out.texels.extend(texels);
+    if let (Some(c), Some(dst)) = (colors, out.colors.as_mut()) {
+        for (l, y) in lobes.iter().zip(c) {
+            dst.push(y.map(|v| l.alpha * v));
+        }
+    }
+}
+
+fn fit_result(f: &EmFit) -> TexelFit {
+    let lobes = f.lobes().to_vec();
+    let texels = (0..lobes.len()).map(|j| f.texel(j)).collect();
+    (lobes, f.features().to_vec(), texels)
+}
+
+/// The finest level's fit: every texel's normal as one lobe in `slot_of(texel)`.
+fn finest_level(map: &NormalMap, j: usize, slot_of: impl Fn(usize) -> usize) -> LevelFit {
+    let mut out = LevelFit {
+        lobes: Vec::with_capacity(map.normals().len() * j),
+        colors: map.feature().map(|_| Vec::new()),
+        texels: Vec::with_capacity(map.normals().len() * j),
+    };
+    for (t, &n) in map.normals().iter().enumerate() {
+        let lobes = finest_lobes(n, j, slot_of(t));
+        let colors: Option<Vec<[f64; 4]>> = map.feature().map(|f| vec![f[t].map(|v| v as f64); j]);
+        push_result(
+            &mut out,
+            &lobes,
+            colors.as_deref(),
+            lobes.iter().map(|l| l.texel()),
+        );
+    }
+    out
+}
+
+/// Bakes the vMF mixture of `map` (module docs).
+pub(crate) fn bake_vmf(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
+    check(options)?;
+    let sizes = level_sizes(map.width(), map.height());
+    let fits = match options.align {
+        None => bottom_up(map, options, &sizes),
+        Some(c) => {
+            let unaligned = bottom_up(map, options, &sizes);
+            top_down(map, options, &sizes, c, &unaligned)
+        }
+    };
+    Ok(assemble(map, options, sizes, fits))
+}
+
+/// Unaligned: finest level up, each texel initialized from its children's lobes.
+fn bottom_up(map: &NormalMap, options: &BakeOptions, sizes: &[(u32, u32)]) -> Vec<LevelFit> {
+    let j = options.lobes;
+    let finest = (map.width(), map.height());
+    let mut fits = vec![finest_level(map, j, |_| 0)];
+    for k in 1..sizes.len() {
+        let (w, h) = sizes[k];
+        let (pw, ph) = sizes[k - 1];
+        let level = LevelFootprints::new(finest, (w, h));
+        let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
+        let prev = &fits[k - 1];
+        let results: Vec<_> = (0..w * h)
+            .into_par_iter()
+            .map_init(Gather::default, |g, t| {
+                let (x, y) = (t % w, t / w);
+                g.candidates.clear();
+                for (py, wy) in cy.taps(y as usize) {
+                    for (px, wx) in cx.taps(x as usize) {
+                        let p = (py * pw + px) as usize;
+                        for l in &prev.lobes[p * j..(p + 1) * j] {
+                            g.candidates.push(Lobe {
+                                alpha: l.alpha * wx * wy,
+                                ..*l
+                            });
+                        }
+                    }
+                }
+                let init = em::farthest_first(&g.candidates, j);
+                g.collect(map, &level, x, y);
+                let f = g.fit(&init, options, None);
+                fit_result(&f)
+            })
+            .collect();
+        fits.push(collect_level(map, results));
+    }
+    fits
+}
+
+fn collect_level(map: &NormalMap, results: Vec<TexelFit>) -> LevelFit {
+    let mut out = LevelFit {
+        lobes: Vec::new(),
+        colors: map.feature().map(|_| Vec::new()),
+        texels: Vec::new(),
+    };
+    for (lobes, colors, texels) in results {
+        push_result(&mut out, &lobes, Some(&colors), texels.into_iter());
+    }
+    out
+}
+
+/// Index of the parent (next coarser level) texel containing the centre of `x` on an axis of
+/// `n` texels whose parent axis has `pn` texels.
+fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
+    (((2 * x + 1) as u64 * pn as u64) / (2 * n as u64)) as u32
+}
+
+/// Puts `own` lobes into the slots of `reference` lobes: greedily pairs the most parallel
+/// (non-empty) lobes first, then fills the remaining slots in order. Deterministic.
+fn match_slots(own: &[Lobe], reference: &[Lobe]) -> Vec<Lobe> {
+    let j = own.len();
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::with_capacity(j * j);
+    for (i, a) in own.iter().enumerate().filter(|(_, l)| !l.is_empty()) {
+        for (s, b) in reference.iter().enumerate().filter(|(_, l)| !l.is_empty()) {
+            pairs.push((a.mu.dot(b.mu), i, s));
+        }
+    }
+    pairs.sort_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
+    let mut out: Vec<Option<Lobe>> = vec![None; j];
+    let mut used = vec![false; j];
+    for (_, i, s) in pairs {
+        if !used[i] && out[s].is_none() {
+            out[s] = Some(own[i]);
+            used[i] = true;
+        }
+    }
+    let mut rest = own
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !used[*i])
+        .map(|(_, l)| *l);
+    out.into_iter()
+        .map(|l| l.or_else(|| rest.next()).unwrap_or(Lobe::EMPTY))
+        .collect()
+}
+
+/// Aligned: coarsest level down. Each texel starts from its own unaligned fit with its lobes
+/// matched to the parent's slots, then EM runs with eq 23's pull towards visited neighbours.
+fn top_down(
+    map: &NormalMap,
+    options: &BakeOptions,
+    sizes: &[(u32, u32)],
+    strength: f64,
+    unaligned: &[LevelFit],
+) -> Vec<LevelFit> {
+    let j = options.lobes;
+    let finest = (map.width(), map.height());
+    let levels = sizes.len();
+    let mut fits: Vec<Option<LevelFit>> = (0..levels).map(|_| None).collect();
+    for k in (0..levels).rev() {
+        let (w, h) = sizes[k];
+        let parent = fits.get(k + 1).and_then(|p| p.as_ref());
+        let parent_size = sizes.get(k + 1).copied();
+        let parent_lobes = |x: u32, y: u32| -> Option<&[Lobe]> {
+            let (p, (pw, ph)) = (parent?, parent_size?);
+            let i = (parent_of(y, h, ph) * pw + parent_of(x, w, pw)) as usize;
+            Some(&p.lobes[i * j..(i + 1) * j])
+        };
+        if k == 0 && levels > 1 {
+            // One normal per texel: it goes, unpulled, to the parent's lobe that explains it
+            // best (the E-step of Algorithm 1 line 5 with the parent's lobes).
+            let fit0 = finest_level(map, j, |t| {
+                let (x, y) = (t as u32 % w, t as u32 / w);
+                let n = map.normals()[t].as_dvec3();
+                let lobes = parent_lobes(x, y).expect("level 0 has a parent");
+                let mut best = (0, f64::NEG_INFINITY);
+                for (s, l) in lobes.iter().enumerate() {
+                    let ll = if l.is_empty() {
+                        f64::NEG_INFINITY
+                    } else {
+                        l.alpha.ln() + crate::vmf::log_density(n.dot(l.mu), l.kappa)
+                    };
+                    if ll > best.1 {
+                        best = (s, ll);
+                    }
+                }
+                best.0
+            });
+            fits[0] = Some(fit0);
+            continue;
+        }
+        let level = LevelFootprints::new(finest, (w, h));
+        let mut out = LevelFit {
+            lobes: vec![Lobe::EMPTY; (w * h) as usize * j],
+            colors: map.feature().map(|_| vec![[0.0; 4]; (w * h) as usize * j]),
+            texels: vec![[0.0; 4]; (w * h) as usize * j],
+        };
+        // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
+        for d in 0..(w + 2 * (h - 1)) {
+            // x = d − 2y must lie in [0, w): y > (d − w)/2 and y ≤ d/2.
+            let y_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
+            let y_hi = (d / 2).min(h - 1);
+            if y_lo > y_hi {
+                continue;
+            }
+            let done = &out;
+            let results: Vec<_> = (y_lo..=y_hi)
+                .into_par_iter()
+                .map_init(Gather::default, |g, y| {
+                    let x = d - 2 * y;
+                    let texel_lobes = |xx: i64, yy: i64| -> Option<&[Lobe]> {
+                        if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
+                            return None;
+                        }
+                        let i = (yy as usize) * w as usize + xx as usize;
+                        Some(&done.lobes[i * j..(i + 1) * j])
+                    };
+                    let (xi, yi) = (x as i64, y as i64);
+                    let mut neighbours: Vec<&[Lobe]> = [
+                        (xi - 1, yi),
+                        (xi - 1, yi - 1),
+                        (xi, yi - 1),
+                        (xi + 1, yi - 1),
+                    ]
+                    .into_iter()
+                    .filter_map(|(a, b)| texel_lobes(a, b))
+                    .collect();
+                    // Start from this texel's own (unaligned) fit, its lobes moved to the slots of
+                    // the parent's lobes they are closest to.
+                    let t = (y * w + x) as usize;
+                    let own = &unaligned[k].lobes[t * j..(t + 1) * j];
+                    let init = match parent_lobes(x, y) {
+                        Some(p) => {
+                            neighbours.push(p);
+                            match_slots(own, p)
+                        }
+                        None => own.to_vec(),
+                    };
+                    g.collect(map, &level, x, y);
+                    let alignment = Alignment {
+                        strength,
+                        neighbours: &neighbours,
+                    };
+                    let f = g.fit(&init, options, Some(&alignment));
+                    (x, y, fit_result(&f))
+                })
+                .collect();
+            for (x, y, (lobes, colors, texels)) in results {
+                let i = (y * w + x) as usize * j;
+                out.lobes[i..i + j].copy_from_slice(&lobes);
+                out.texels[i..i + j].copy_from_slice(&texels);
+                if let Some(c) = out.colors.as_mut() {
+                    for s in 0..j {
+                        c[i + s] = colors[s].map(|v| lobes[s].alpha * v);
+                    }
+                }
+            }
+        }
+        fits[k] = Some(out);
+    }
+    fits.into_iter()
+        .map(|f| f.expect("every level fitted"))
+        .collect()
+}
+
+/// Lays the fits out as textures: J lobe chains `(α, α·r)`, then J colour chains `α·y`.
+fn assemble(
+    map: &NormalMap,
+    options: &BakeOptions,
+    sizes: Vec<(u32, u32)>,
+    fits: Vec<LevelFit>,
+) -> Bake {
+    let j = options.lobes;
+    const LOBE_NAMES: [&str; MAX_LOBES] = [
+        "lobe0", "lobe1", "lobe2", "lobe3", "lobe4", "lobe5", "lobe6", "lobe7",
+    ];
+    const COLOR_NAMES: [&str; MAX_LOBES] = [
+        "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
+    ];
+    let f32s = |v: [f64; 4]| v.map(|c| c as f32);
+    let mut textures = Vec::new();
+    for (s, &name) in LOBE_NAMES.iter().enumerate().take(j) {
+        textures.push(Texture {
+            name,
+            channels: ["alpha", "alpha*r_x", "alpha*r_y", "alpha*r_z"],
+            ranges: [
+                ValueRange::Unit,
+                ValueRange::Signed,
+                ValueRange::Signed,
+                ValueRange::Signed,
+            ],
+            levels: fits
+                .iter()
+                .map(|f| {
+                    f.texels
+                        .iter()
+                        .skip(s)
+                        .step_by(j)
+                        .map(|&t| f32s(t))
+                        .collect()
+                })
+                .collect(),
+        });
+    }
+    if map.feature().is_some() {
+        for (s, &name) in COLOR_NAMES.iter().enumerate().take(j) {
+            textures.push(Texture {
+                name,
+                channels: ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
+                ranges: [ValueRange::Unit; 4],
+                levels: fits
+                    .iter()
+                    .map(|f| {
+                        let c = f.colors.as_ref().expect("features give colours");
+                        c.iter().skip(s).step_by(j).map(|&t| f32s(t)).collect()
+                    })
+                    .collect(),
+            });
+        }
+    }
+    Bake {
+        method: Method::Vmf,
+        sizes,
+        textures,
+        addressing: map.addressing(),
+        lobes: j,
+        parameters: serde_json::json!({
+            "lobes": j,
+            "aligned": options.align.is_some(),
+            "align_strength": options.align,
+            "color": map.feature().is_some(),
+            "em_max_iterations": options.em.max_iterations,
+            "em_tolerance": options.em.tolerance,
+            "kappa_max": KAPPA_MAX,
+        }),
+        format: Format::F32,
+    }
+}
+
+/// How well lobe j lines up with lobe j of the neighbouring texels, per level: the mean angle
+/// in degrees between the μ of lobe j at `(x, y)` and at its right and lower neighbours
+/// (within the level, no wrap), weighted by the smaller of the two α. Small angles are what
+/// hardware trilinear interpolation of aligned lobes needs (Sec 7.3); an entry is `None` when
+/// the level has no neighbouring non-empty lobes.
+pub fn lobe_coherence(bake: &Bake) -> Vec<Option<f64>> {
+    let j = bake.lobes;
+    (0..bake.level_count())
+        .map(|k| {
+            let (w, h) = bake.sizes[k];
+            let lobe = |x: u32, y: u32, s: usize| {
+                let t = bake.textures[s].levels[k][(y * w + x) as usize];
+                Lobe::from_moments(
+                    t[0] as f64,
+                    glam::DVec3::new(t[1] as f64, t[2] as f64, t[3] as f64),
+                )
+            };
+            let (mut sum, mut weight) = (0.0f64, 0.0f64);
+            for y in 0..h {
+                for x in 0..w {
+                    for (nx, ny) in [(x + 1, y), (x, y + 1)] {
+                        if nx >= w || ny >= h {
+                            continue;
+                        }
+                        for s in 0..j {
+                            let (a, b) = (lobe(x, y, s), lobe(nx, ny, s));
+                            let wt = a.alpha.min(b.alpha);
+                            if wt > 0.0 {
+                                sum += wt * a.mu.dot(b.mu).clamp(-1.0, 1.0).acos().to_degrees();
+                                weight += wt;
+                            }
+                        }
+                    }
+                }
+            }
+            (weight > 0.0).then(|| sum / weight)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::bake_with;
+    use crate::eval::{default_directions, evaluate};
+    use crate::ingest::{Addressing, BadNormals};
+
+    fn bumpy(w: u32, h: u32) -> NormalMap {
+        let v = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                Vec3::new(
+                    (x * 0.7).sin() * 0.5 + (y * 1.9).cos() * 0.2,
+                    (y * 0.45).sin() * 0.5,
+                    1.0,
+                )
+            })
+            .collect();
+        NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
+    }
+
+    fn opts(lobes: usize, align: Option<f64>) -> BakeOptions {
+        BakeOptions {
+            lobes,
+            align,
+            ..BakeOptions::default()
+        }
+    }
+
+    fn all_finite(b: &Bake) {
+        for t in &b.textures {
+            for l in &t.levels {
+                for v in l.iter().flatten() {
+                    assert!(v.is_finite(), "{} holds {v}", t.name);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn level_zero_is_exact_and_alphas_sum_to_one() {
+        let m = bumpy(12, 10);
+        for align in [None, Some(0.1)] {
+            let b = bake_with(&m, Method::Vmf, &opts(4, align)).unwrap();
+            all_finite(&b);
+            for k in 0..b.level_count() {
+                let (w, h) = b.sizes[k];
+                for t in 0..(w * h) as usize {
+                    let sum: f32 = (0..4).map(|s| b.textures[s].levels[k][t][0]).sum();
+                    assert!((sum - 1.0).abs() < 1e-5, "level {k} texel {t}: Σα = {sum}");
+                }
+            }
+            let e = evaluate(&m, &[&b], &[16.0, 512.0], &default_directions());
+            for row in &e {
+                // κ is capped at KAPPA_MAX, so s' = s·κ/(κ+s) ≈ s(1 − s/KAPPA_MAX): the relative
+                // error of the lobe is about s/KAPPA_MAX (1.2e-4 at s = 512).
+                let bound = 2.0 * row.s / KAPPA_MAX;
+                assert!(
+                    row.levels[0].specular < bound,
+                    "{align:?}: {:?}",
+                    row.levels[0]
+                );
+                assert!(row.levels[0].diffuse < 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn enough_lobes_represent_a_two_by_two_footprint_exactly() {
+        // Level 1 of a power-of-two map covers 4 normals: with J ≥ 4 each gets its own lobe.
+        let m = bumpy(8, 8);
+        let b = bake_with(&m, Method::Vmf, &opts(4, None)).unwrap();
+        let e = evaluate(&m, &[&b], &[64.0], &default_directions());
+        assert!(e[0].levels[1].specular < 1e-3, "{:?}", e[0].levels[1]);
+        assert!(e[0].levels[1].diffuse < 1e-6, "{:?}", e[0].levels[1]);
+    }
+
+    #[test]
+    fn vmf_beats_toksvig_on_a_bumpy_map() {
+        let m = bumpy(32, 32);
+        let v = bake_with(&m, Method::Vmf, &opts(6, None)).unwrap();
+        let t = crate::bake::bake(&m, Method::Toksvig);
+        let e = evaluate(&m, &[&v, &t], &[64.0], &default_directions());
+        assert!(
+            e[0].overall_specular < 0.7 * e[1].overall_specular,
+            "{} vs {}",
+            e[0].overall_specular,
+            e[1].overall_specular
+        );
+    }
+
+    #[test]
+    fn degenerate_maps_give_finite_lobes() {
+        let cases: Vec<(u32, u32, Vec<Vec3>)> = vec![
+            (1, 1, vec![Vec3::Z]),
+            (1, 5, vec![Vec3::new(0.3, 0.0, 0.9); 5]),
+            (
+                3,
+                5,
+                (0..15)
+                    .map(|i| if i % 2 == 0 { Vec3::X } else { -Vec3::X })
+                    .collect(),
+            ),
+            (
+                4,
+                4,
+                (0..16)
+                    .map(|i| Vec3::new((i as f32).cos(), (i as f32).sin(), 0.0))
+                    .collect(),
+            ),
+            (4, 4, vec![Vec3::Z; 16]),
+        ];
+        for (w, h, v) in cases {
+            let m =
+                NormalMap::from_vectors(w, h, v, Addressing::Clamp, BadNormals::Repair).unwrap();
+            for align in [None, Some(0.5)] {
+                for lobes in [1, 3, 8] {
+                    let b = bake_with(&m, Method::Vmf, &opts(lobes, align)).unwrap();
+                    all_finite(&b);
+                    assert_eq!(b.sizes.last(), Some(&(1, 1)));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn colour_follows_the_lobes() {
+        // Left half tilted +x and red, right half tilted −x and blue: at the 1×1 level two
+        // lobes separate the halves and each carries its half's colour (eq 22).
+        let (w, h) = (8u32, 8u32);
+        let v = (0..w * h)
+            .map(|i| {
+                if i % w < w / 2 {
+                    Vec3::new(0.5, 0.0, 0.8)
+                } else {
+                    Vec3::new(-0.5, 0.0, 0.8)
+                }
+            })
+            .collect();
+        let c = (0..w * h)
+            .map(|i| {
+                if i % w < w / 2 {
+                    [1.0, 0.0, 0.0, 1.0]
+                } else {
+                    [0.0, 0.0, 1.0, 1.0]
+                }
+            })
+            .collect();
+        let m = NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair)
+            .unwrap()
+            .with_feature(c)
+            .unwrap();
+        let b = bake_with(&m, Method::Vmf, &opts(2, None)).unwrap();
+        assert_eq!(b.textures.len(), 4);
+        let top = b.level_count() - 1;
+        for s in 0..2 {
+            let lobe = b.textures[s].levels[top][0];
+            let color = b.textures[2 + s].levels[top][0];
+            assert!((lobe[0] - 0.5).abs() < 1e-4, "α {lobe:?}");
+            let want = if lobe[1] > 0.0 {
+                [0.5, 0.0, 0.0, 0.5]
+            } else {
+                [0.0, 0.0, 0.5, 0.5]
+            };
+            for (a, b) in color.iter().zip(want) {
+                assert!((a - b).abs() < 1e-4, "{color:?} vs {want:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn output_does_not_depend_on_thread_count() {
+        let m = bumpy(16, 12);
+        for align in [None, Some(0.2)] {
+            let run = |threads| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(|| bake_with(&m, Method::Vmf, &opts(5, align)).unwrap())
+            };
+            assert_eq!(run(1).textures, run(4).textures);
+        }
+    }
+
+    #[test]
+    fn alignment_makes_neighbouring_lobes_coherent() {
+        let m = bumpy(32, 32);
+        let u = lobe_coherence(&bake_with(&m, Method::Vmf, &opts(4, None)).unwrap());
+        let a = lobe_coherence(&bake_with(&m, Method::Vmf, &opts(4, Some(0.5))).unwrap());
+        let mean = |v: &[Option<f64>]| v[1..4].iter().map(|x| x.unwrap()).sum::<f64>() / 3.0;
+        assert!(
+            mean(&a) < 0.8 * mean(&u),
+            "aligned {a:?} vs unaligned {u:?}"
+        );
+    }
+
+    #[test]
+    fn invalid_options_are_errors() {
+        let m = bumpy(4, 4);
+        assert!(bake_with(&m, Method::Vmf, &opts(0, None)).is_err());
+        assert!(bake_with(&m, Method::Vmf, &opts(9, None)).is_err());
+        assert!(bake_with(&m, Method::Vmf, &opts(2, Some(f64::NAN))).is_err());
+        assert!(bake_with(&m, Method::Vmf, &opts(2, Some(-1.0))).is_err());
+    }
+
+    #[test]
+    fn parent_of_maps_centres() {
+        assert_eq!(
+            (0..4).map(|x| parent_of(x, 4, 2)).collect::<Vec<_>>(),
+            vec![0, 0, 1, 1]
+        );
+        assert_eq!(
+            (0..5).map(|x| parent_of(x, 5, 2)).collect::<Vec<_>>(),
+            vec![0, 0, 1, 1, 1]
+        );
+        assert_eq!(parent_of(2, 3, 1), 0);
+    }
+}
