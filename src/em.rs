@@ -557,6 +557,39 @@ fn e_step(blocks: &[Block], active: &Active) -> Sums {
     e_step_kernel::<Portable>(blocks, active)
 }
 
+/// Blocks per chunk of a chunked E-step (16 384 samples).
+const CHUNK_BLOCKS: usize = 2048;
+
+/// [`e_step`] over a texel of any size: inputs longer than one chunk are split into fixed
+/// chunks of [`CHUNK_BLOCKS`] blocks, run in parallel, and their sums added in chunk order.
+/// Chunk boundaries depend only on the input length, so the result is the same for any thread
+/// count (the coarsest MIP levels, one texel covering the whole map, use both cores this way).
+fn e_step_chunked(blocks: &[Block], active: &Active) -> Sums {
+    use rayon::prelude::*;
+    if blocks.len() <= CHUNK_BLOCKS {
+        return e_step(blocks, active);
+    }
+    let parts: Vec<Sums> = blocks
+        .par_chunks(CHUNK_BLOCKS)
+        .map(|c| e_step(c, active))
+        .collect();
+    let mut total = Sums {
+        weight: [0.0; MAX_LOBES],
+        moment: [[0.0; MAX_LOBES]; 3],
+        log_likelihood: 0.0,
+    };
+    for p in &parts {
+        total.log_likelihood += p.log_likelihood;
+        for j in 0..MAX_LOBES {
+            total.weight[j] += p.weight[j];
+            for c in 0..3 {
+                total.moment[c][j] += p.moment[c][j];
+            }
+        }
+    }
+    total
+}
+
 /// The E-step proper. Sums are kept per lane and reduced in lane order at the end (a fixed
 /// order, hence deterministic).
 #[inline(always)]
@@ -690,7 +723,7 @@ pub fn fit(
 
     let samples = &scratch.blocks;
     let mut active = Active::new(&lobes[..j_count]);
-    let mut sums = e_step(samples, &active);
+    let mut sums = e_step_chunked(samples, &active);
     let mut ll = sums.log_likelihood / total;
     scratch.log_likelihoods.push(ll);
     let mut iterations = 0;
@@ -706,7 +739,7 @@ pub fn fit(
         );
         iterations += 1;
         active = Active::new(&lobes[..j_count]);
-        sums = e_step(samples, &active);
+        sums = e_step_chunked(samples, &active);
         let next = sums.log_likelihood / total;
         scratch.log_likelihoods.push(next);
         let done = (next - ll).abs() <= options.tolerance * next.abs().max(1.0);

@@ -67,6 +67,26 @@ impl Gather {
         }
     }
 
+    /// The maximum-likelihood mixture when there are no more samples than lobes: one lobe per
+    /// normal, `α = w_i / Σw`, `μ = n_i`, `κ = KAPPA_MAX` (what EM converges to, without
+    /// running it; level 1 of a power-of-two map, 4 normals per texel, is all this case).
+    fn one_lobe_per_normal(&self, j: usize) -> TexelFit {
+        let total: f64 = self.weights.iter().sum();
+        let mut lobes = vec![Lobe::EMPTY; j];
+        let mut colors = vec![[0.0; 4]; j];
+        for (i, (&n, &w)) in self.normals.iter().zip(&self.weights).enumerate() {
+            lobes[i] = Lobe {
+                alpha: w / total,
+                ..em::init_single(n)
+            };
+            if let Some(f) = self.features.get(i) {
+                colors[i] = f.map(|v| v as f64);
+            }
+        }
+        let texels = lobes.iter().map(|l| l.texel()).collect();
+        (lobes, colors, texels)
+    }
+
     /// Runs Algorithm 1 on the collected samples.
     fn fit(
         &mut self,
@@ -196,8 +216,11 @@ fn bottom_up(map: &NormalMap, options: &BakeOptions, sizes: &[(u32, u32)]) -> Ve
                         }
                     }
                 }
-                let init = em::farthest_first(&g.candidates, j);
                 g.collect(map, &level, x, y);
+                if g.normals.len() <= j {
+                    return g.one_lobe_per_normal(j);
+                }
+                let init = em::farthest_first(&g.candidates, j);
                 let f = g.fit(&init, options, None);
                 fit_result(&f)
             })
