@@ -29,6 +29,22 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Time the vMF bake (and Toksvig's, for scale) on the built-in sample at several sizes and
+    /// lobe counts: wall seconds and peak memory per run.
+    Bench {
+        /// Map sizes (square), comma-separated.
+        #[arg(long, default_value = "256,512,1024", value_delimiter = ',')]
+        sizes: Vec<u32>,
+        /// Lobe counts, comma-separated.
+        #[arg(long, default_value = "6", value_delimiter = ',')]
+        lobes: Vec<usize>,
+        /// Alignments, comma-separated: `none` or a strength C.
+        #[arg(long, default_value = "none,0.1", value_delimiter = ',')]
+        align: Vec<String>,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Generate the built-in sample map, bake every method, and print the error table.
     Demo {
         /// Output folder (the sample's PNGs and one bake per method go here).
@@ -360,6 +376,12 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::Demo { output, size } => demo(&output, size)?,
+        Command::Bench {
+            sizes,
+            lobes,
+            align,
+            json,
+        } => bench(&sizes, &lobes, &parse_align(&align)?, json)?,
     }
     Ok(())
 }
@@ -417,6 +439,94 @@ fn demo(output: &Path, size: u32) -> Result<()> {
     let table_path = output.join("eval.txt");
     std::fs::write(&table_path, &table).map_err(|e| write_err(&table_path, &e))?;
     println!("\n{table}error table: {}", table_path.display());
+    Ok(())
+}
+
+/// Peak resident memory of this process since the last [`reset_peak_memory`], in bytes (Linux;
+/// `None` elsewhere).
+fn peak_memory() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Resets the kernel's peak-RSS counter (writing 5 to /proc/self/clear_refs), so the next
+/// [`peak_memory`] measures one run.
+fn reset_peak_memory() {
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+}
+
+/// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo).
+fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> Result<()> {
+    let mut rows = Vec::new();
+    let threads = rayon::current_num_threads();
+    if !json {
+        println!("{threads} threads; built-in sample with albedo; full MIP chain");
+        println!(
+            "{:>6} {:>8} {:>6} {:>9} {:>10} {:>12}",
+            "size", "method", "lobes", "aligned", "seconds", "peak MiB"
+        );
+    }
+    for &size in sizes {
+        if !(8..=8192).contains(&size) {
+            return Err(Error::InvalidOption(format!(
+                "--sizes {size} (expected 8 to 8192)"
+            )));
+        }
+        let sample = ndfmap::procedural::generate(size, 2007);
+        let map = sample.map.with_feature(sample.albedo)?;
+        let mut jobs = vec![(Method::Toksvig, BakeOptions::default())];
+        for &j in lobes {
+            for &a in align {
+                jobs.push((
+                    Method::Vmf,
+                    BakeOptions {
+                        lobes: j,
+                        align: a,
+                        ..BakeOptions::default()
+                    },
+                ));
+            }
+        }
+        for (method, options) in jobs {
+            reset_peak_memory();
+            let base = peak_memory();
+            let t = Instant::now();
+            let b = bake_with(&map, method, &options)?;
+            let seconds = t.elapsed().as_secs_f64();
+            let peak = peak_memory();
+            drop(b);
+            let lobes = if method == Method::Vmf {
+                options.lobes
+            } else {
+                0
+            };
+            let row = serde_json::json!({
+                "size": size, "method": method, "lobes": lobes,
+                "align": options.align, "seconds": seconds,
+                "peak_bytes": peak, "baseline_bytes": base, "threads": threads,
+            });
+            if !json {
+                let mib = |b: Option<u64>| {
+                    b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
+                };
+                println!(
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {seconds:>10.3} {:>12}",
+                    method.name(),
+                    options.align.map_or("no".into(), |c| format!("C={c}")),
+                    mib(peak)
+                );
+            }
+            rows.push(row);
+        }
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).expect("rows serialize")
+        );
+    }
     Ok(())
 }
 
