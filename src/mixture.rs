@@ -18,7 +18,7 @@
 //! as `α_j y_j`.
 
 use crate::bake::{Bake, BakeOptions, Format, Method, Texture, ValueRange};
-use crate::em::{self, Alignment, EmFit, EmInput, EmScratch, MAX_LOBES, fit};
+use crate::em::{self, Alignment, EmInput, EmOptions, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::ingest::NormalMap;
 use crate::pyramid::{AxisFootprints, LevelFootprints, level_sizes};
@@ -26,29 +26,142 @@ use crate::vmf::{KAPPA_MAX, Lobe};
 use glam::Vec3;
 use rayon::prelude::*;
 
-/// Lobes and colours of every texel of one level, `lobes[t * J + j]`.
-struct LevelFit {
-    lobes: Vec<Lobe>,
-    /// `α_j y_j` per lobe (eq 22), when a feature image is present.
+/// What the per-level driver needs of a mixture model: its components (vMF lobes, Tan's planar
+/// Gaussians), their one-texel EM, and their texture form.
+pub(crate) trait Model: Sync {
+    /// One mixture component.
+    type C: Copy + Send + Sync;
+    /// Reusable working memory of one EM run.
+    type Scratch: Default + Send;
+    /// The method this model bakes.
+    const METHOD: Method;
+    /// The empty component (α = 0); encodes as a zero texel.
+    const EMPTY: Self::C;
+    /// Texture names of the component chains.
+    const NAMES: [&'static str; MAX_LOBES];
+    /// Meaning of R, G, B, A of a component texel.
+    const CHANNELS: [&'static str; 4];
+    /// Value ranges of a component texel.
+    const RANGES: [ValueRange; 4];
+    /// The finest level's component for one normal (α = 1, as sharp as storable).
+    fn single(n: Vec3) -> Self::C;
+    /// The component's α.
+    fn alpha(c: &Self::C) -> f64;
+    /// The component with α replaced.
+    fn with_alpha(c: &Self::C, alpha: f64) -> Self::C;
+    /// How alike two components' directions are (larger is closer); used to match slots.
+    fn closeness(a: &Self::C, b: &Self::C) -> f64;
+    /// `ln(α p(n))`, the E-step's score of normal `n` under `c` (−∞ for an empty one).
+    fn log_score(c: &Self::C, n: Vec3) -> f64;
+    /// Furthest-first initialization from candidate components (Sec 7.1).
+    fn farthest_first(candidates: &[Self::C], j: usize) -> Vec<Self::C>;
+    /// One texel's EM from `init`, optionally pulled towards `neighbours` with `strength`.
+    fn fit(
+        input: &EmInput,
+        init: &[Self::C],
+        options: &EmOptions,
+        align: Option<(f64, &[&[Self::C]])>,
+        scratch: &mut Self::Scratch,
+    ) -> TexelFit<Self::C>;
+    /// The component's texel.
+    fn texel(c: &Self::C) -> [f64; 4];
+}
+
+/// The paper's vMF lobes (Sec 7).
+pub(crate) struct VmfModel;
+
+impl Model for VmfModel {
+    type C = Lobe;
+    type Scratch = EmScratch;
+    const METHOD: Method = Method::Vmf;
+    const EMPTY: Lobe = Lobe::EMPTY;
+    const NAMES: [&'static str; MAX_LOBES] = [
+        "lobe0", "lobe1", "lobe2", "lobe3", "lobe4", "lobe5", "lobe6", "lobe7",
+    ];
+    const CHANNELS: [&'static str; 4] = ["alpha", "alpha*r_x", "alpha*r_y", "alpha*r_z"];
+    const RANGES: [ValueRange; 4] = [
+        ValueRange::Unit,
+        ValueRange::Signed,
+        ValueRange::Signed,
+        ValueRange::Signed,
+    ];
+    fn single(n: Vec3) -> Lobe {
+        em::init_single(n)
+    }
+    fn alpha(c: &Lobe) -> f64 {
+        c.alpha
+    }
+    fn with_alpha(c: &Lobe, alpha: f64) -> Lobe {
+        Lobe { alpha, ..*c }
+    }
+    fn closeness(a: &Lobe, b: &Lobe) -> f64 {
+        a.mu.dot(b.mu)
+    }
+    fn log_score(c: &Lobe, n: Vec3) -> f64 {
+        if c.is_empty() {
+            f64::NEG_INFINITY
+        } else {
+            c.alpha.ln() + crate::vmf::log_density(n.as_dvec3().dot(c.mu), c.kappa)
+        }
+    }
+    fn farthest_first(candidates: &[Lobe], j: usize) -> Vec<Lobe> {
+        em::farthest_first(candidates, j)
+    }
+    fn fit(
+        input: &EmInput,
+        init: &[Lobe],
+        options: &EmOptions,
+        align: Option<(f64, &[&[Lobe]])>,
+        scratch: &mut EmScratch,
+    ) -> TexelFit<Lobe> {
+        let alignment = align.map(|(strength, neighbours)| Alignment {
+            strength,
+            neighbours,
+        });
+        let f = em::fit(input, init, options, alignment.as_ref(), scratch);
+        let lobes = f.lobes().to_vec();
+        let texels = (0..lobes.len()).map(|j| f.texel(j)).collect();
+        (lobes, f.features().to_vec(), texels)
+    }
+    fn texel(c: &Lobe) -> [f64; 4] {
+        c.texel()
+    }
+}
+
+/// Components and colours of every texel of one level, `components[t * J + j]`.
+struct LevelFit<C> {
+    components: Vec<C>,
+    /// `α_j y_j` per component (eq 22), when a feature image is present.
     colors: Option<Vec<[f64; 4]>>,
-    /// The texture form `(α, α·r)` of each lobe, as EM's estimator encodes it.
+    /// The texel of each component, as its EM encodes it.
     texels: Vec<[f64; 4]>,
 }
 
-/// One texel's fit: its lobes, their eq 22 colours `y_j`, and their texels `(α, α·r)`.
-type TexelFit = (Vec<Lobe>, Vec<[f64; 4]>, Vec<[f64; 4]>);
+/// One texel's fit: its components, their eq 22 colours `y_j`, and their texels.
+pub(crate) type TexelFit<C> = (Vec<C>, Vec<[f64; 4]>, Vec<[f64; 4]>);
 
 /// Per-thread working memory for gathering a texel's samples.
-#[derive(Default)]
-struct Gather {
+struct Gather<M: Model> {
     normals: Vec<Vec3>,
     weights: Vec<f64>,
     features: Vec<[f32; 4]>,
-    candidates: Vec<Lobe>,
-    scratch: EmScratch,
+    candidates: Vec<M::C>,
+    scratch: M::Scratch,
 }
 
-impl Gather {
+impl<M: Model> Default for Gather<M> {
+    fn default() -> Self {
+        Gather {
+            normals: Vec::new(),
+            weights: Vec::new(),
+            features: Vec::new(),
+            candidates: Vec::new(),
+            scratch: M::Scratch::default(),
+        }
+    }
+}
+
+impl<M: Model> Gather<M> {
     /// Collects the finest normals (and features) texel `(x, y)` of `level` covers.
     fn collect(&mut self, map: &NormalMap, level: &LevelFootprints, x: u32, y: u32) {
         self.normals.clear();
@@ -67,38 +180,35 @@ impl Gather {
         }
     }
 
-    /// The maximum-likelihood mixture when there are no more samples than lobes: one lobe per
-    /// normal, `α = w_i / Σw`, `μ = n_i`, `κ = KAPPA_MAX` (what EM converges to, without
-    /// running it; level 1 of a power-of-two map, 4 normals per texel, is all this case).
-    fn one_lobe_per_normal(&self, j: usize) -> TexelFit {
+    /// The maximum-likelihood mixture when there are no more samples than components: one
+    /// component per normal, `α = w_i / Σw`, as sharp as storable (what EM converges to,
+    /// without running it; level 1 of a power-of-two map, 4 normals per texel, is all this).
+    fn one_per_normal(&self, j: usize) -> TexelFit<M::C> {
         let total: f64 = self.weights.iter().sum();
-        let mut lobes = vec![Lobe::EMPTY; j];
+        let mut comps = vec![M::EMPTY; j];
         let mut colors = vec![[0.0; 4]; j];
         for (i, (&n, &w)) in self.normals.iter().zip(&self.weights).enumerate() {
-            lobes[i] = Lobe {
-                alpha: w / total,
-                ..em::init_single(n)
-            };
+            comps[i] = M::with_alpha(&M::single(n), w / total);
             if let Some(f) = self.features.get(i) {
                 colors[i] = f.map(|v| v as f64);
             }
         }
-        let texels = lobes.iter().map(|l| l.texel()).collect();
-        (lobes, colors, texels)
+        let texels = comps.iter().map(M::texel).collect();
+        (comps, colors, texels)
     }
 
-    /// Runs Algorithm 1 on the collected samples.
+    /// Runs the model's EM on the collected samples.
     fn fit(
         &mut self,
-        init: &[Lobe],
+        init: &[M::C],
         options: &BakeOptions,
-        alignment: Option<&Alignment>,
-    ) -> EmFit {
+        align: Option<(f64, &[&[M::C]])>,
+    ) -> TexelFit<M::C> {
         let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
         if !self.features.is_empty() {
             input = input.with_features(&self.features);
         }
-        fit(&input, init, &options.em, alignment, &mut self.scratch)
+        M::fit(&input, init, &options.em, align, &mut self.scratch)
     }
 }
 
@@ -126,120 +236,108 @@ fn check(options: &BakeOptions) -> Result<()> {
     Ok(())
 }
 
-/// The finest level: one lobe per texel, `α = 1, μ = n, κ = KAPPA_MAX` (Sec 7.1), in `slot`.
-fn finest_lobes(n: Vec3, j: usize, slot: usize) -> Vec<Lobe> {
-    let mut lobes = vec![Lobe::EMPTY; j];
-    lobes[slot] = em::init_single(n);
-    lobes
-}
-
-/// Stores one texel's result.
-fn push_result(
-    out: &mut LevelFit,
-    lobes: &[Lobe],
-    colors: Option<&[[f64; 4]]>,
-    texels: impl Iterator<Item = [f64; 4]>,
-) {
-    out.lobes.extend_from_slice(lobes);
-    out.texels.extend(texels);
-    if let (Some(c), Some(dst)) = (colors, out.colors.as_mut()) {
-        for (l, y) in lobes.iter().zip(c) {
-            dst.push(y.map(|v| l.alpha * v));
+impl<C: Copy> LevelFit<C> {
+    fn with_capacity(n: usize, colors: bool) -> Self {
+        LevelFit {
+            components: Vec::with_capacity(n),
+            colors: colors.then(|| Vec::with_capacity(n)),
+            texels: Vec::with_capacity(n),
         }
+    }
+
+    /// Appends one texel's result (colours become `α_j y_j`).
+    fn push<M: Model<C = C>>(&mut self, fit: TexelFit<C>) {
+        let (comps, colors, texels) = fit;
+        if let Some(dst) = self.colors.as_mut() {
+            for (c, y) in comps.iter().zip(&colors) {
+                dst.push(y.map(|v| M::alpha(c) * v));
+            }
+        }
+        self.components.extend_from_slice(&comps);
+        self.texels.extend(texels);
     }
 }
 
-fn fit_result(f: &EmFit) -> TexelFit {
-    let lobes = f.lobes().to_vec();
-    let texels = (0..lobes.len()).map(|j| f.texel(j)).collect();
-    (lobes, f.features().to_vec(), texels)
-}
-
-/// The finest level's fit: every texel's normal as one lobe in `slot_of(texel)`.
-fn finest_level(map: &NormalMap, j: usize, slot_of: impl Fn(usize) -> usize) -> LevelFit {
-    let mut out = LevelFit {
-        lobes: Vec::with_capacity(map.normals().len() * j),
-        colors: map.feature().map(|_| Vec::new()),
-        texels: Vec::with_capacity(map.normals().len() * j),
-    };
+/// The finest level's fit: every texel's normal as one component in `slot_of(texel)`.
+fn finest_level<M: Model>(
+    map: &NormalMap,
+    j: usize,
+    slot_of: impl Fn(usize) -> usize,
+) -> LevelFit<M::C> {
+    let mut out = LevelFit::with_capacity(map.normals().len() * j, map.feature().is_some());
     for (t, &n) in map.normals().iter().enumerate() {
-        let lobes = finest_lobes(n, j, slot_of(t));
-        let colors: Option<Vec<[f64; 4]>> = map.feature().map(|f| vec![f[t].map(|v| v as f64); j]);
-        push_result(
-            &mut out,
-            &lobes,
-            colors.as_deref(),
-            lobes.iter().map(|l| l.texel()),
-        );
+        let mut comps = vec![M::EMPTY; j];
+        comps[slot_of(t)] = M::single(n);
+        let colors = match map.feature() {
+            Some(f) => vec![f[t].map(|v| v as f64); j],
+            None => Vec::new(),
+        };
+        let texels = comps.iter().map(M::texel).collect();
+        out.push::<M>((comps, colors, texels));
     }
     out
 }
 
 /// Bakes the vMF mixture of `map` (module docs).
 pub(crate) fn bake_vmf(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
-    check(options)?;
-    let sizes = level_sizes(map.width(), map.height());
-    let fits = match options.align {
-        None => bottom_up(map, options, &sizes),
-        Some(c) => {
-            let unaligned = bottom_up(map, options, &sizes);
-            top_down(map, options, &sizes, c, &unaligned)
-        }
-    };
-    Ok(assemble(map, options, sizes, fits))
+    bake_mixture::<VmfModel>(map, options)
 }
 
-/// Unaligned: finest level up, each texel initialized from its children's lobes.
-fn bottom_up(map: &NormalMap, options: &BakeOptions, sizes: &[(u32, u32)]) -> Vec<LevelFit> {
+/// Bakes a mixture model for `map`: unaligned, or aligned from the unaligned fits.
+pub(crate) fn bake_mixture<M: Model>(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
+    check(options)?;
+    let sizes = level_sizes(map.width(), map.height());
+    let unaligned = bottom_up::<M>(map, options, &sizes);
+    let fits = match options.align {
+        None => unaligned,
+        Some(c) => top_down::<M>(map, options, &sizes, c, &unaligned),
+    };
+    Ok(assemble::<M>(map, options, sizes, fits))
+}
+
+/// Unaligned: finest level up, each texel initialized from its children's components.
+fn bottom_up<M: Model>(
+    map: &NormalMap,
+    options: &BakeOptions,
+    sizes: &[(u32, u32)],
+) -> Vec<LevelFit<M::C>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
-    let mut fits = vec![finest_level(map, j, |_| 0)];
+    let mut fits = vec![finest_level::<M>(map, j, |_| 0)];
     for k in 1..sizes.len() {
         let (w, h) = sizes[k];
         let (pw, ph) = sizes[k - 1];
         let level = LevelFootprints::new(finest, (w, h));
         let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
         let prev = &fits[k - 1];
-        let results: Vec<_> = (0..w * h)
+        let results: Vec<TexelFit<M::C>> = (0..w * h)
             .into_par_iter()
-            .map_init(Gather::default, |g, t| {
+            .map_init(Gather::<M>::default, |g, t| {
                 let (x, y) = (t % w, t / w);
+                g.collect(map, &level, x, y);
+                if g.normals.len() <= j {
+                    return g.one_per_normal(j);
+                }
                 g.candidates.clear();
                 for (py, wy) in cy.taps(y as usize) {
                     for (px, wx) in cx.taps(x as usize) {
                         let p = (py * pw + px) as usize;
-                        for l in &prev.lobes[p * j..(p + 1) * j] {
-                            g.candidates.push(Lobe {
-                                alpha: l.alpha * wx * wy,
-                                ..*l
-                            });
+                        for c in &prev.components[p * j..(p + 1) * j] {
+                            g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
                         }
                     }
                 }
-                g.collect(map, &level, x, y);
-                if g.normals.len() <= j {
-                    return g.one_lobe_per_normal(j);
-                }
-                let init = em::farthest_first(&g.candidates, j);
-                let f = g.fit(&init, options, None);
-                fit_result(&f)
+                let init = M::farthest_first(&g.candidates, j);
+                g.fit(&init, options, None)
             })
             .collect();
-        fits.push(collect_level(map, results));
+        let mut out = LevelFit::with_capacity((w * h) as usize * j, map.feature().is_some());
+        for r in results {
+            out.push::<M>(r);
+        }
+        fits.push(out);
     }
     fits
-}
-
-fn collect_level(map: &NormalMap, results: Vec<TexelFit>) -> LevelFit {
-    let mut out = LevelFit {
-        lobes: Vec::new(),
-        colors: map.feature().map(|_| Vec::new()),
-        texels: Vec::new(),
-    };
-    for (lobes, colors, texels) in results {
-        push_result(&mut out, &lobes, Some(&colors), texels.into_iter());
-    }
-    out
 }
 
 /// Index of the parent (next coarser level) texel containing the centre of `x` on an axis of
@@ -248,18 +346,19 @@ fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
     (((2 * x + 1) as u64 * pn as u64) / (2 * n as u64)) as u32
 }
 
-/// Puts `own` lobes into the slots of `reference` lobes: greedily pairs the most parallel
-/// (non-empty) lobes first, then fills the remaining slots in order. Deterministic.
-fn match_slots(own: &[Lobe], reference: &[Lobe]) -> Vec<Lobe> {
+/// Puts `own` components into the slots of `reference` ones: greedily pairs the closest
+/// (non-empty) components first, then fills the remaining slots in order. Deterministic.
+fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> Vec<M::C> {
     let j = own.len();
+    let live = |c: &M::C| M::alpha(c) > 0.0;
     let mut pairs: Vec<(f64, usize, usize)> = Vec::with_capacity(j * j);
-    for (i, a) in own.iter().enumerate().filter(|(_, l)| !l.is_empty()) {
-        for (s, b) in reference.iter().enumerate().filter(|(_, l)| !l.is_empty()) {
-            pairs.push((a.mu.dot(b.mu), i, s));
+    for (i, a) in own.iter().enumerate().filter(|(_, c)| live(c)) {
+        for (s, b) in reference.iter().enumerate().filter(|(_, c)| live(c)) {
+            pairs.push((M::closeness(a, b), i, s));
         }
     }
     pairs.sort_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
-    let mut out: Vec<Option<Lobe>> = vec![None; j];
+    let mut out: Vec<Option<M::C>> = vec![None; j];
     let mut used = vec![false; j];
     for (_, i, s) in pairs {
         if !used[i] && out[s].is_none() {
@@ -271,50 +370,47 @@ fn match_slots(own: &[Lobe], reference: &[Lobe]) -> Vec<Lobe> {
         .iter()
         .enumerate()
         .filter(|(i, _)| !used[*i])
-        .map(|(_, l)| *l);
+        .map(|(_, c)| *c);
     out.into_iter()
-        .map(|l| l.or_else(|| rest.next()).unwrap_or(Lobe::EMPTY))
+        .map(|c| c.or_else(|| rest.next()).unwrap_or(M::EMPTY))
         .collect()
 }
 
-/// Aligned: coarsest level down. Each texel starts from its own unaligned fit with its lobes
-/// matched to the parent's slots, then EM runs with eq 23's pull towards visited neighbours.
-fn top_down(
+/// Aligned: coarsest level down. Each texel starts from its own unaligned fit with its
+/// components matched to the parent's slots, then EM runs pulled towards the visited
+/// neighbours and the parent (eq 23 for vMF; Tan's prior for Gaussians).
+fn top_down<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     sizes: &[(u32, u32)],
     strength: f64,
-    unaligned: &[LevelFit],
-) -> Vec<LevelFit> {
+    unaligned: &[LevelFit<M::C>],
+) -> Vec<LevelFit<M::C>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
     let levels = sizes.len();
-    let mut fits: Vec<Option<LevelFit>> = (0..levels).map(|_| None).collect();
+    let mut fits: Vec<Option<LevelFit<M::C>>> = (0..levels).map(|_| None).collect();
     for k in (0..levels).rev() {
         let (w, h) = sizes[k];
         let parent = fits.get(k + 1).and_then(|p| p.as_ref());
         let parent_size = sizes.get(k + 1).copied();
-        let parent_lobes = |x: u32, y: u32| -> Option<&[Lobe]> {
+        let parent_of_texel = |x: u32, y: u32| -> Option<&[M::C]> {
             let (p, (pw, ph)) = (parent?, parent_size?);
             let i = (parent_of(y, h, ph) * pw + parent_of(x, w, pw)) as usize;
-            Some(&p.lobes[i * j..(i + 1) * j])
+            Some(&p.components[i * j..(i + 1) * j])
         };
         if k == 0 && levels > 1 {
-            // One normal per texel: it goes, unpulled, to the parent's lobe that explains it
-            // best (the E-step of Algorithm 1 line 5 with the parent's lobes).
-            let fit0 = finest_level(map, j, |t| {
+            // One normal per texel: it goes, unpulled, to the parent's component that explains
+            // it best (the E-step with the parent's components), so level 0 stays exact.
+            let fit0 = finest_level::<M>(map, j, |t| {
                 let (x, y) = (t as u32 % w, t as u32 / w);
-                let n = map.normals()[t].as_dvec3();
-                let lobes = parent_lobes(x, y).expect("level 0 has a parent");
+                let n = map.normals()[t];
+                let comps = parent_of_texel(x, y).expect("level 0 has a parent");
                 let mut best = (0, f64::NEG_INFINITY);
-                for (s, l) in lobes.iter().enumerate() {
-                    let ll = if l.is_empty() {
-                        f64::NEG_INFINITY
-                    } else {
-                        l.alpha.ln() + crate::vmf::log_density(n.dot(l.mu), l.kappa)
-                    };
-                    if ll > best.1 {
-                        best = (s, ll);
+                for (s, c) in comps.iter().enumerate() {
+                    let score = M::log_score(c, n);
+                    if score > best.1 {
+                        best = (s, score);
                     }
                 }
                 best.0
@@ -323,10 +419,11 @@ fn top_down(
             continue;
         }
         let level = LevelFootprints::new(finest, (w, h));
+        let texels = (w * h) as usize * j;
         let mut out = LevelFit {
-            lobes: vec![Lobe::EMPTY; (w * h) as usize * j],
-            colors: map.feature().map(|_| vec![[0.0; 4]; (w * h) as usize * j]),
-            texels: vec![[0.0; 4]; (w * h) as usize * j],
+            components: vec![M::EMPTY; texels],
+            colors: map.feature().map(|_| vec![[0.0; 4]; texels]),
+            texels: vec![[0.0; 4]; texels],
         };
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
         for d in 0..(w + 2 * (h - 1)) {
@@ -337,54 +434,47 @@ fn top_down(
                 continue;
             }
             let done = &out;
-            let results: Vec<_> = (y_lo..=y_hi)
+            let results: Vec<(u32, u32, TexelFit<M::C>)> = (y_lo..=y_hi)
                 .into_par_iter()
-                .map_init(Gather::default, |g, y| {
+                .map_init(Gather::<M>::default, |g, y| {
                     let x = d - 2 * y;
-                    let texel_lobes = |xx: i64, yy: i64| -> Option<&[Lobe]> {
+                    let at = |xx: i64, yy: i64| -> Option<&[M::C]> {
                         if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
                             return None;
                         }
                         let i = (yy as usize) * w as usize + xx as usize;
-                        Some(&done.lobes[i * j..(i + 1) * j])
+                        Some(&done.components[i * j..(i + 1) * j])
                     };
                     let (xi, yi) = (x as i64, y as i64);
-                    let mut neighbours: Vec<&[Lobe]> = [
+                    let mut neighbours: Vec<&[M::C]> = [
                         (xi - 1, yi),
                         (xi - 1, yi - 1),
                         (xi, yi - 1),
                         (xi + 1, yi - 1),
                     ]
                     .into_iter()
-                    .filter_map(|(a, b)| texel_lobes(a, b))
+                    .filter_map(|(a, b)| at(a, b))
                     .collect();
-                    // Start from this texel's own (unaligned) fit, its lobes moved to the slots of
-                    // the parent's lobes they are closest to.
                     let t = (y * w + x) as usize;
-                    let own = &unaligned[k].lobes[t * j..(t + 1) * j];
-                    let init = match parent_lobes(x, y) {
+                    let own = &unaligned[k].components[t * j..(t + 1) * j];
+                    let init = match parent_of_texel(x, y) {
                         Some(p) => {
                             neighbours.push(p);
-                            match_slots(own, p)
+                            match_slots::<M>(own, p)
                         }
                         None => own.to_vec(),
                     };
                     g.collect(map, &level, x, y);
-                    let alignment = Alignment {
-                        strength,
-                        neighbours: &neighbours,
-                    };
-                    let f = g.fit(&init, options, Some(&alignment));
-                    (x, y, fit_result(&f))
+                    (x, y, g.fit(&init, options, Some((strength, &neighbours))))
                 })
                 .collect();
-            for (x, y, (lobes, colors, texels)) in results {
+            for (x, y, (comps, colors, texels)) in results {
                 let i = (y * w + x) as usize * j;
-                out.lobes[i..i + j].copy_from_slice(&lobes);
+                out.components[i..i + j].copy_from_slice(&comps);
                 out.texels[i..i + j].copy_from_slice(&texels);
                 if let Some(c) = out.colors.as_mut() {
                     for s in 0..j {
-                        c[i + s] = colors[s].map(|v| lobes[s].alpha * v);
+                        c[i + s] = colors[s].map(|v| M::alpha(&comps[s]) * v);
                     }
                 }
             }
@@ -396,43 +486,36 @@ fn top_down(
         .collect()
 }
 
-/// Lays the fits out as textures: J lobe chains `(α, α·r)`, then J colour chains `α·y`.
-fn assemble(
+/// Lays the fits out as textures: J component chains, then J colour chains `α·y`.
+fn assemble<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     sizes: Vec<(u32, u32)>,
-    fits: Vec<LevelFit>,
+    fits: Vec<LevelFit<M::C>>,
 ) -> Bake {
-    let j = options.lobes;
-    const LOBE_NAMES: [&str; MAX_LOBES] = [
-        "lobe0", "lobe1", "lobe2", "lobe3", "lobe4", "lobe5", "lobe6", "lobe7",
-    ];
     const COLOR_NAMES: [&str; MAX_LOBES] = [
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
-    let f32s = |v: [f64; 4]| v.map(|c| c as f32);
+    let j = options.lobes;
+    let chain = |get: &dyn Fn(&LevelFit<M::C>) -> &[[f64; 4]], s: usize| -> Vec<Vec<[f32; 4]>> {
+        fits.iter()
+            .map(|f| {
+                get(f)
+                    .iter()
+                    .skip(s)
+                    .step_by(j)
+                    .map(|t| t.map(|c| c as f32))
+                    .collect()
+            })
+            .collect()
+    };
     let mut textures = Vec::new();
-    for (s, &name) in LOBE_NAMES.iter().enumerate().take(j) {
+    for (s, &name) in M::NAMES.iter().enumerate().take(j) {
         textures.push(Texture {
             name,
-            channels: ["alpha", "alpha*r_x", "alpha*r_y", "alpha*r_z"],
-            ranges: [
-                ValueRange::Unit,
-                ValueRange::Signed,
-                ValueRange::Signed,
-                ValueRange::Signed,
-            ],
-            levels: fits
-                .iter()
-                .map(|f| {
-                    f.texels
-                        .iter()
-                        .skip(s)
-                        .step_by(j)
-                        .map(|&t| f32s(t))
-                        .collect()
-                })
-                .collect(),
+            channels: M::CHANNELS,
+            ranges: M::RANGES,
+            levels: chain(&|f| &f.texels, s),
         });
     }
     if map.feature().is_some() {
@@ -441,31 +524,28 @@ fn assemble(
                 name,
                 channels: ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
                 ranges: [ValueRange::Unit; 4],
-                levels: fits
-                    .iter()
-                    .map(|f| {
-                        let c = f.colors.as_ref().expect("features give colours");
-                        c.iter().skip(s).step_by(j).map(|&t| f32s(t)).collect()
-                    })
-                    .collect(),
+                levels: chain(&|f| f.colors.as_deref().expect("features give colours"), s),
             });
         }
     }
+    let mut parameters = serde_json::json!({
+        "lobes": j,
+        "aligned": options.align.is_some(),
+        "align_strength": options.align,
+        "color": map.feature().is_some(),
+        "em_max_iterations": options.em.max_iterations,
+        "em_tolerance": options.em.tolerance,
+    });
+    if M::METHOD == Method::Vmf {
+        parameters["kappa_max"] = KAPPA_MAX.into();
+    }
     Bake {
-        method: Method::Vmf,
+        method: M::METHOD,
         sizes,
         textures,
         addressing: map.addressing(),
         lobes: j,
-        parameters: serde_json::json!({
-            "lobes": j,
-            "aligned": options.align.is_some(),
-            "align_strength": options.align,
-            "color": map.feature().is_some(),
-            "em_max_iterations": options.em.max_iterations,
-            "em_tolerance": options.em.tolerance,
-            "kappa_max": KAPPA_MAX,
-        }),
+        parameters,
         format: Format::F32,
     }
 }
