@@ -497,10 +497,11 @@ fn assemble<M: Model>(
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
     let j = options.lobes;
-    let chain = |get: &dyn Fn(&LevelFit<M::C>) -> &[[f64; 4]], s: usize| -> Vec<Vec<[f32; 4]>> {
-        fits.iter()
-            .map(|f| {
-                get(f)
+    // Texture chain s of per-level values `values[t * J + s]`.
+    let chain = |values: &dyn Fn(usize) -> &[[f64; 4]], s: usize| -> Vec<Vec<[f32; 4]>> {
+        (0..fits.len())
+            .map(|k| {
+                values(k)
                     .iter()
                     .skip(s)
                     .step_by(j)
@@ -515,7 +516,7 @@ fn assemble<M: Model>(
             name,
             channels: M::CHANNELS,
             ranges: M::RANGES,
-            levels: chain(&|f| &f.texels, s),
+            levels: chain(&|k| &fits[k].texels, s),
         });
     }
     if map.feature().is_some() {
@@ -524,7 +525,10 @@ fn assemble<M: Model>(
                 name,
                 channels: ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
                 ranges: [ValueRange::Unit; 4],
-                levels: chain(&|f| f.colors.as_deref().expect("features give colours"), s),
+                levels: chain(
+                    &|k| fits[k].colors.as_deref().expect("features give colours"),
+                    s,
+                ),
             });
         }
     }
