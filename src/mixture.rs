@@ -497,29 +497,34 @@ fn assemble<M: Model>(
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
     let j = options.lobes;
-    // Texture chain s of per-level values `values[t * J + s]`.
-    let chain = |values: &dyn Fn(usize) -> &[[f64; 4]], s: usize| -> Vec<Vec<[f32; 4]>> {
-        (0..fits.len())
-            .map(|k| {
-                values(k)
-                    .iter()
+    // Texture chain s from per-level values laid out `values[t * J + s]`.
+    fn chain(levels: &[&[[f64; 4]]], j: usize, s: usize) -> Vec<Vec<[f32; 4]>> {
+        levels
+            .iter()
+            .map(|v| {
+                v.iter()
                     .skip(s)
                     .step_by(j)
                     .map(|t| t.map(|c| c as f32))
                     .collect()
             })
             .collect()
-    };
+    }
+    let texels: Vec<&[[f64; 4]]> = fits.iter().map(|f| f.texels.as_slice()).collect();
     let mut textures = Vec::new();
     for (s, &name) in M::NAMES.iter().enumerate().take(j) {
         textures.push(Texture {
             name,
             channels: M::CHANNELS,
             ranges: M::RANGES,
-            levels: chain(&|k| &fits[k].texels, s),
+            levels: chain(&texels, j, s),
         });
     }
     if map.feature().is_some() {
+        let colors: Vec<&[[f64; 4]]> = fits
+            .iter()
+            .map(|f| f.colors.as_deref().expect("features give colours"))
+            .collect();
         for (s, &name) in COLOR_NAMES.iter().enumerate().take(j) {
             textures.push(Texture {
                 name,
