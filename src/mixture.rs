@@ -530,10 +530,7 @@ fn assemble<M: Model>(
                 name,
                 channels: ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
                 ranges: [ValueRange::Unit; 4],
-                levels: chain(
-                    &|k| fits[k].colors.as_deref().expect("features give colours"),
-                    s,
-                ),
+                levels: chain(&colors, j, s),
             });
         }
     }
