@@ -130,11 +130,13 @@ impl Model for VmfModel {
 
 /// Components and colours of every texel of one level, `components[t * J + j]`.
 struct LevelFit<C> {
+    /// Empty for the finest level, whose components are the normals themselves.
     components: Vec<C>,
-    /// `α_j y_j` per component (eq 22), when a feature image is present.
-    colors: Option<Vec<[f64; 4]>>,
-    /// The texel of each component, as its EM encodes it.
-    texels: Vec<[f64; 4]>,
+    keep_components: bool,
+    /// `α_j y_j` per component (eq 22), when a feature image is present, as stored (f32).
+    colors: Option<Vec<[f32; 4]>>,
+    /// The texel of each component, as its EM encodes it, as stored (f32).
+    texels: Vec<[f32; 4]>,
 }
 
 /// One texel's fit: its components, their eq 22 colours `y_j`, and their texels.
@@ -240,6 +242,7 @@ impl<C: Copy> LevelFit<C> {
     fn with_capacity(n: usize, colors: bool) -> Self {
         LevelFit {
             components: Vec::with_capacity(n),
+            keep_components: true,
             colors: colors.then(|| Vec::with_capacity(n)),
             texels: Vec::with_capacity(n),
         }
@@ -250,11 +253,14 @@ impl<C: Copy> LevelFit<C> {
         let (comps, colors, texels) = fit;
         if let Some(dst) = self.colors.as_mut() {
             for (c, y) in comps.iter().zip(&colors) {
-                dst.push(y.map(|v| M::alpha(c) * v));
+                dst.push(y.map(|v| (M::alpha(c) * v) as f32));
             }
         }
-        self.components.extend_from_slice(&comps);
-        self.texels.extend(texels);
+        if self.keep_components {
+            self.components.extend_from_slice(&comps);
+        }
+        self.texels
+            .extend(texels.iter().map(|t| t.map(|v| v as f32)));
     }
 }
 
@@ -322,8 +328,13 @@ fn bottom_up<M: Model>(
                 for (py, wy) in cy.taps(y as usize) {
                     for (px, wx) in cx.taps(x as usize) {
                         let p = (py * pw + px) as usize;
-                        for c in &prev.components[p * j..(p + 1) * j] {
-                            g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
+                        if k == 1 {
+                            let c = M::single(map.normals()[p]);
+                            g.candidates.push(M::with_alpha(&c, wx * wy));
+                        } else {
+                            for c in &prev.components[p * j..(p + 1) * j] {
+                                g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
+                            }
                         }
                     }
                 }
@@ -422,6 +433,7 @@ fn top_down<M: Model>(
         let texels = (w * h) as usize * j;
         let mut out = LevelFit {
             components: vec![M::EMPTY; texels],
+            keep_components: true,
             colors: map.feature().map(|_| vec![[0.0; 4]; texels]),
             texels: vec![[0.0; 4]; texels],
         };
@@ -471,10 +483,12 @@ fn top_down<M: Model>(
             for (x, y, (comps, colors, texels)) in results {
                 let i = (y * w + x) as usize * j;
                 out.components[i..i + j].copy_from_slice(&comps);
-                out.texels[i..i + j].copy_from_slice(&texels);
+                for s in 0..j {
+                    out.texels[i + s] = texels[s].map(|v| v as f32);
+                }
                 if let Some(c) = out.colors.as_mut() {
                     for s in 0..j {
-                        c[i + s] = colors[s].map(|v| M::alpha(&comps[s]) * v);
+                        c[i + s] = colors[s].map(|v| (M::alpha(&comps[s]) * v) as f32);
                     }
                 }
             }
@@ -498,19 +512,13 @@ fn assemble<M: Model>(
     ];
     let j = options.lobes;
     // Texture chain s from per-level values laid out `values[t * J + s]`.
-    fn chain(levels: &[&[[f64; 4]]], j: usize, s: usize) -> Vec<Vec<[f32; 4]>> {
+    fn chain(levels: &[&[[f32; 4]]], j: usize, s: usize) -> Vec<Vec<[f32; 4]>> {
         levels
             .iter()
-            .map(|v| {
-                v.iter()
-                    .skip(s)
-                    .step_by(j)
-                    .map(|t| t.map(|c| c as f32))
-                    .collect()
-            })
+            .map(|v| v.iter().skip(s).step_by(j).copied().collect())
             .collect()
     }
-    let texels: Vec<&[[f64; 4]]> = fits.iter().map(|f| f.texels.as_slice()).collect();
+    let texels: Vec<&[[f32; 4]]> = fits.iter().map(|f| f.texels.as_slice()).collect();
     let mut textures = Vec::new();
     for (s, &name) in M::NAMES.iter().enumerate().take(j) {
         textures.push(Texture {
@@ -521,7 +529,7 @@ fn assemble<M: Model>(
         });
     }
     if map.feature().is_some() {
-        let colors: Vec<&[[f64; 4]]> = fits
+        let colors: Vec<&[[f32; 4]]> = fits
             .iter()
             .map(|f| f.colors.as_deref().expect("features give colours"))
             .collect();
