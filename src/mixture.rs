@@ -483,8 +483,8 @@ fn top_down<M: Model>(
             for (x, y, (comps, colors, texels)) in results {
                 let i = (y * w + x) as usize * j;
                 out.components[i..i + j].copy_from_slice(&comps);
-                for s in 0..j {
-                    out.texels[i + s] = texels[s].map(|v| v as f32);
+                for (dst, t) in out.texels[i..i + j].iter_mut().zip(&texels) {
+                    *dst = t.map(|v| v as f32);
                 }
                 if let Some(c) = out.colors.as_mut() {
                     for s in 0..j {
