@@ -57,3 +57,35 @@ fn toksvig_beats_plain_mip_on_rock_at_far_levels() {
         );
     }
 }
+
+#[test]
+fn vmf_beats_toksvig_and_lean_on_rock_at_far_levels() {
+    let Some(path) = shared_map("rock.jpg") else {
+        return;
+    };
+    let map = NormalMap::load(&path, &IngestOptions::default()).unwrap();
+    let vmf = bake(&map, Method::Vmf); // J = 6, unaligned
+    let toksvig = bake(&map, Method::Toksvig);
+    let lean = bake(&map, Method::Lean);
+    let errors = evaluate(
+        &map,
+        &[&vmf, &toksvig, &lean],
+        &[32.0, 256.0],
+        &default_directions(),
+    );
+    for s in [32.0, 256.0] {
+        let get = |m: Method| errors.iter().find(|e| e.method == m && e.s == s).unwrap();
+        let (v, t, l) = (get(Method::Vmf), get(Method::Toksvig), get(Method::Lean));
+        for k in 2..=6 {
+            let (ve, te, le) = (
+                v.levels[k].specular,
+                t.levels[k].specular,
+                l.levels[k].specular,
+            );
+            assert!(
+                ve < te && ve < le,
+                "s={s} level {k}: vMF {ve}, Toksvig {te}, LEAN {le}"
+            );
+        }
+    }
+}
