@@ -356,11 +356,21 @@ fn run(cli: Cli) -> Result<()> {
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
             let errors = evaluate(&map, &refs, &s, &default_directions());
+            // How well lobe j lines up across neighbouring texels (Sec 7.3), per vMF bake.
+            let coherence: Vec<(String, Vec<Option<f64>>)> = bakes
+                .iter()
+                .filter(|b| b.method == Method::Vmf && b.format == Format::F32)
+                .map(|b| (b.label(), ndfmap::mixture::lobe_coherence(b)))
+                .collect();
             if json {
                 let v = serde_json::json!({
                     "input": input.display().to_string(),
                     "directions": default_directions().len(),
                     "errors": errors,
+                    "lobe_coherence_degrees": coherence
+                        .iter()
+                        .map(|(l, c)| (l.clone(), serde_json::json!(c)))
+                        .collect::<serde_json::Map<_, _>>(),
                 });
                 println!(
                     "{}",
@@ -368,6 +378,16 @@ fn run(cli: Cli) -> Result<()> {
                 );
             } else {
                 print!("{}", format_table(&errors));
+                for (label, c) in &coherence {
+                    let cells: Vec<String> = c
+                        .iter()
+                        .map(|a| a.map_or("-".into(), |a| format!("{a:.1}")))
+                        .collect();
+                    println!(
+                        "lobe coherence of {label} (mean angle between lobe j of neighbouring texels, degrees, per level): {}",
+                        cells.join(" ")
+                    );
+                }
                 eprintln!(
                     "evaluated {} light/view pairs in {:.2} s",
                     default_directions().len(),
