@@ -178,6 +178,11 @@ impl Gaussian {
     /// The texture form `[α, α μx, α μy, α(σ² + |μ|²)]` (Tan Sec 4.2; DESIGN.md "Texture
     /// layouts"). All four are linear in the samples, so trilinear filtering of them is Tan's
     /// optimal interpolation (Appendix). An empty component encodes as zeros.
+    ///
+    /// Ranges, for the packer: `α ∈ [0, 1]`, `αμ ∈ [−α, α]²`; the fourth channel lies in
+    /// `[0, α(1 + VARIANCE_MIN)]` for components fitted without alignment (there
+    /// `σ² + |μ|² = (E|p|² + |μ|²)/2 ≤ 1`, plus the floor); a strong alignment prior, which can
+    /// move μ away from the data, can raise it up to `3α`.
     pub fn texel(&self) -> [f64; 4] {
         if self.is_empty() {
             return [0.0; 4];
@@ -1194,6 +1199,10 @@ mod tests {
                 let f = fit(&input, &init, &options, None, &mut scratch);
                 assert_finite(&f);
                 assert_eq!(scratch.log_likelihoods().len(), f.iterations as usize + 1);
+                for g in f.gaussians() {
+                    let t = g.texel();
+                    assert!(t[3] >= 0.0 && t[3] <= g.alpha * (1.0 + VARIANCE_MIN) * (1.0 + 1e-15));
+                }
                 for w in scratch.log_likelihoods().windows(2) {
                     worst = worst.max((w[0] - w[1]) / w[0].abs().max(1.0));
                 }
