@@ -17,6 +17,7 @@ pub mod pack;
 pub mod procedural;
 pub mod pyramid;
 pub mod shade;
+pub mod tan2005;
 pub mod vmf;
 
 pub use error::{Error, Result};
