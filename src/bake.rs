@@ -27,6 +27,10 @@ pub enum Method {
     /// Olano & North (1997) normal distribution mapping: the mean normal (3) and the second
     /// moments `E[n nᵀ]` (6) of a 3D Gaussian, all of which filter linearly.
     Olano,
+    /// Tan et al. 2005: a mixture of J isotropic Gaussians over the planar projection
+    /// `(n_x, n_y)` per texel, fitted by EM, one `(α, αμ, α(σ²+|μ|²))` texture per Gaussian
+    /// (the paper's comparison row).
+    Tan2005,
     /// The paper's method (Sec 7): a mixture of J von Mises–Fisher lobes per texel fitted by
     /// spherical EM (Algorithm 1), one `(α, α·r)` texture per lobe, shaded by Algorithm 2.
     Vmf,
@@ -34,11 +38,12 @@ pub enum Method {
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: [Method; 5] = [
+    pub const ALL: [Method; 6] = [
         Method::Plain,
         Method::Toksvig,
         Method::Lean,
         Method::Olano,
+        Method::Tan2005,
         Method::Vmf,
     ];
 
@@ -53,6 +58,7 @@ impl Method {
             Method::Toksvig => "toksvig",
             Method::Lean => "lean",
             Method::Olano => "olano",
+            Method::Tan2005 => "tan2005",
             Method::Vmf => "vmf",
         }
     }
@@ -186,10 +192,14 @@ pub struct Bake {
 
 impl Bake {
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
-    /// for mixtures (`vmf6`, `vmf6a`), and the format when it is not f32 (`vmf6a f16`).
+    /// for mixtures (`vmf6`, `vmf6a`, `tan2005-4`), and the format when it is not f32
+    /// (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
         if self.lobes > 0 {
+            if l.ends_with(|c: char| c.is_ascii_digit()) {
+                l.push('-');
+            }
             l += &self.lobes.to_string();
             if self.parameters["aligned"] == serde_json::Value::Bool(true) {
                 l.push('a');
@@ -258,6 +268,7 @@ pub fn bake(map: &NormalMap, method: Method) -> Bake {
 pub fn bake_with(map: &NormalMap, method: Method, options: &BakeOptions) -> Result<Bake> {
     match method {
         Method::Vmf => crate::mixture::bake_vmf(map, options),
+        Method::Tan2005 => crate::mixture::bake_tan2005(map, options),
         _ => Ok(crate::baseline::bake(map, method)),
     }
 }

@@ -252,9 +252,10 @@ mod tests {
         NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
     }
 
-    /// The relative error the vMF κ cap allows at level 0 (`2 s / KAPPA_MAX`), 0 otherwise.
+    /// The relative error the mixtures' sharpness cap allows at level 0 (`2 s / KAPPA_MAX`:
+    /// vMF κ ≤ KAPPA_MAX, Tan σ² ≥ 1/KAPPA_MAX), 0 otherwise.
     fn vmf_cap(method: Method, s: f64) -> f64 {
-        if method == Method::Vmf {
+        if matches!(method, Method::Vmf | Method::Tan2005) {
             2.0 * s / crate::vmf::KAPPA_MAX
         } else {
             0.0

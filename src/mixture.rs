@@ -22,6 +22,7 @@ use crate::em::{self, Alignment, EmInput, EmOptions, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::ingest::NormalMap;
 use crate::pyramid::{AxisFootprints, LevelFootprints, level_sizes};
+use crate::tan2005::{self, Gaussian, GaussianAlignment, TanScratch};
 use crate::vmf::{KAPPA_MAX, Lobe};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -126,6 +127,78 @@ impl Model for VmfModel {
     fn texel(c: &Lobe) -> [f64; 4] {
         c.texel()
     }
+}
+
+/// Tan et al. 2005's planar Gaussians ([`crate::tan2005`]): the paper's comparison row.
+pub(crate) struct TanModel;
+
+impl Model for TanModel {
+    type C = Gaussian;
+    type Scratch = TanScratch;
+    const METHOD: Method = Method::Tan2005;
+    const EMPTY: Gaussian = Gaussian::EMPTY;
+    const NAMES: [&'static str; MAX_LOBES] = [
+        "gauss0", "gauss1", "gauss2", "gauss3", "gauss4", "gauss5", "gauss6", "gauss7",
+    ];
+    const CHANNELS: [&'static str; 4] = [
+        "alpha",
+        "alpha*mu_x",
+        "alpha*mu_y",
+        "alpha*(sigma^2+|mu|^2)",
+    ];
+    // α(σ² + |μ|²) reaches 3α (σ² ≤ VARIANCE_MAX = 2): float formats, as Tan stores it.
+    const RANGES: [ValueRange; 4] = [
+        ValueRange::Unit,
+        ValueRange::Signed,
+        ValueRange::Signed,
+        ValueRange::Any,
+    ];
+    fn single(n: Vec3) -> Gaussian {
+        tan2005::init_single(n)
+    }
+    fn alpha(c: &Gaussian) -> f64 {
+        c.alpha
+    }
+    fn with_alpha(c: &Gaussian, alpha: f64) -> Gaussian {
+        Gaussian { alpha, ..*c }
+    }
+    fn closeness(a: &Gaussian, b: &Gaussian) -> f64 {
+        -(a.mean - b.mean).length_squared()
+    }
+    fn log_score(c: &Gaussian, n: Vec3) -> f64 {
+        if c.is_empty() {
+            f64::NEG_INFINITY
+        } else {
+            c.alpha.ln() + c.log_density(tan2005::project(n.as_dvec3()))
+        }
+    }
+    fn farthest_first(candidates: &[Gaussian], j: usize) -> Vec<Gaussian> {
+        tan2005::farthest_first(candidates, j)
+    }
+    fn fit(
+        input: &EmInput,
+        init: &[Gaussian],
+        options: &EmOptions,
+        align: Option<(f64, &[&[Gaussian]])>,
+        scratch: &mut TanScratch,
+    ) -> TexelFit<Gaussian> {
+        let alignment = align.map(|(strength, neighbours)| GaussianAlignment {
+            strength,
+            neighbours,
+        });
+        let f = tan2005::fit(input, init, options, alignment.as_ref(), scratch);
+        let comps = f.gaussians().to_vec();
+        let texels = (0..comps.len()).map(|i| f.texel(i)).collect();
+        (comps, f.features().to_vec(), texels)
+    }
+    fn texel(c: &Gaussian) -> [f64; 4] {
+        c.texel()
+    }
+}
+
+/// Bakes Tan et al. 2005's Gaussian mixture of `map` with the same driver as vMF.
+pub(crate) fn bake_tan2005(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
+    bake_mixture::<TanModel>(map, options)
 }
 
 /// Components and colours of every texel of one level, `components[t * J + j]`.
@@ -682,6 +755,23 @@ mod tests {
     }
 
     #[test]
+    fn tan2005_bake_is_exact_at_level_zero_and_beats_plain() {
+        let m = bumpy(16, 16);
+        let t = bake_with(&m, Method::Tan2005, &opts(4, None)).unwrap();
+        assert_eq!(t.textures.len(), 4);
+        assert_eq!(t.textures[0].name, "gauss0");
+        all_finite(&t);
+        let p = crate::bake::bake(&m, Method::Plain);
+        let e = evaluate(&m, &[&t, &p], &[64.0], &default_directions());
+        assert!(
+            e[0].levels[0].specular < 2.0 * 64.0 / KAPPA_MAX + 1e-6,
+            "{:?}",
+            e[0].levels[0]
+        );
+        assert!(e[0].overall_specular < e[1].overall_specular);
+    }
+
+    #[test]
     fn vmf_beats_toksvig_on_a_bumpy_map() {
         let m = bumpy(32, 32);
         let v = bake_with(&m, Method::Vmf, &opts(6, None)).unwrap();
@@ -719,11 +809,13 @@ mod tests {
         for (w, h, v) in cases {
             let m =
                 NormalMap::from_vectors(w, h, v, Addressing::Clamp, BadNormals::Repair).unwrap();
-            for align in [None, Some(0.5)] {
-                for lobes in [1, 3, 8] {
-                    let b = bake_with(&m, Method::Vmf, &opts(lobes, align)).unwrap();
-                    all_finite(&b);
-                    assert_eq!(b.sizes.last(), Some(&(1, 1)));
+            for method in [Method::Vmf, Method::Tan2005] {
+                for align in [None, Some(0.5)] {
+                    for lobes in [1, 3, 8] {
+                        let b = bake_with(&m, method, &opts(lobes, align)).unwrap();
+                        all_finite(&b);
+                        assert_eq!(b.sizes.last(), Some(&(1, 1)));
+                    }
                 }
             }
         }
@@ -777,15 +869,17 @@ mod tests {
     #[test]
     fn output_does_not_depend_on_thread_count() {
         let m = bumpy(16, 12);
-        for align in [None, Some(0.2)] {
-            let run = |threads| {
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap()
-                    .install(|| bake_with(&m, Method::Vmf, &opts(5, align)).unwrap())
-            };
-            assert_eq!(run(1).textures, run(4).textures);
+        for method in [Method::Vmf, Method::Tan2005] {
+            for align in [None, Some(0.2)] {
+                let run = |threads| {
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .unwrap()
+                        .install(|| bake_with(&m, method, &opts(5, align)).unwrap())
+                };
+                assert_eq!(run(1).textures, run(4).textures, "{method}");
+            }
         }
     }
 

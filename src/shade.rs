@@ -147,6 +147,7 @@ pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shad
 /// clamps of the format the bake was read in ([`Bake::format`]).
 pub fn shade(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Shading {
     match bake.method {
+        Method::Tan2005 => crate::tan2005::shade(&texels[..bake.lobes], l, h, s),
         Method::Vmf => {
             let r_max = crate::vmf::r_max(bake.format);
             let mut sum = Shading::default();

@@ -65,17 +65,18 @@ enum Command {
     Bake {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
         input: PathBuf,
-        /// Filtering method: plain, toksvig, lean, olano, vmf.
+        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf.
         #[arg(short, long)]
         method: String,
         /// Output folder (created if missing; written all-or-nothing).
         #[arg(short, long)]
         output: PathBuf,
-        /// vMF: lobes per texel (1 to 8).
+        /// vmf, tan2005: lobes (mixture components) per texel, 1 to 8.
         #[arg(long, default_value_t = 6)]
         lobes: usize,
-        /// vMF: coherent lobes for hardware trilinear filtering, with alignment strength C
-        /// (eq 23; 0.5 is a good start). Without it lobes are fitted per texel (unaligned).
+        /// vmf, tan2005: coherent lobes for hardware trilinear filtering, with alignment
+        /// strength C (vMF eq 23: 0.1 is a good start; Tan's prior: c = 1). Without it
+        /// lobes are fitted per texel (unaligned).
         #[arg(long)]
         align: Option<f64>,
         /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
@@ -259,7 +260,7 @@ fn bake_all(
 ) -> Result<Vec<Bake>> {
     let mut jobs = Vec::new();
     for &m in methods {
-        if m == Method::Vmf {
+        if matches!(m, Method::Vmf | Method::Tan2005) {
             for &j in lobes {
                 for &a in align {
                     jobs.push((
