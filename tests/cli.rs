@@ -41,7 +41,7 @@ fn bake_writes_manifest_and_every_level() {
     let input = dir.path().join("n.png");
     write_normal_png(&input, 12, 5);
     let out_dir = dir.path().join("out");
-    for method in ["plain", "toksvig", "lean", "olano", "vmf"] {
+    for method in ["plain", "toksvig", "lean", "olano", "vmf", "tan2005"] {
         let o = out_dir.join(method);
         let run = ndfmap(&[
             "bake",
@@ -62,7 +62,12 @@ fn bake_writes_manifest_and_every_level() {
         assert_eq!(manifest["method"], method);
         assert_eq!(manifest["levels"].as_array().unwrap().len(), 4); // 12x5, 6x2, 3x1, 1x1
         let textures = manifest["textures"].as_array().unwrap().len();
-        assert_eq!(textures, if method == "vmf" { 6 } else { textures });
+        let mixture = method == "vmf" || method == "tan2005";
+        assert_eq!(
+            textures,
+            if mixture { 6 } else { textures },
+            "6 lobes by default"
+        );
         assert_eq!(manifest["input"]["options"]["green"], "opengl");
         for t in manifest["textures"].as_array().unwrap() {
             for f in t["files"].as_array().unwrap() {
