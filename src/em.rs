@@ -806,28 +806,7 @@ mod tests {
     use crate::vmf::{R_MAX, a_kappa, kappa_from_r};
     use std::f64::consts::PI;
 
-    /// splitmix64: a tiny deterministic PRNG for the tests.
-    struct Rng(u64);
-
-    impl Rng {
-        fn next_u64(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        }
-        /// Uniform in (0, 1].
-        fn uniform(&mut self) -> f64 {
-            ((self.next_u64() >> 11) + 1) as f64 / (1u64 << 53) as f64
-        }
-        fn direction(&mut self) -> DVec3 {
-            let z = 2.0 * self.uniform() - 1.0;
-            let phi = 2.0 * PI * self.uniform();
-            let s = (1.0 - z * z).max(0.0).sqrt();
-            DVec3::new(s * phi.cos(), s * phi.sin(), z)
-        }
-    }
+    use crate::rng::Rng;
 
     /// Wood's algorithm on S²: w = 1 + ln(u + (1 − u)e^{−2κ})/κ, direction uniform around μ.
     fn sample_vmf(rng: &mut Rng, mu: DVec3, kappa: f64) -> DVec3 {

@@ -16,6 +16,7 @@ pub mod output;
 pub mod pack;
 pub mod procedural;
 pub mod pyramid;
+mod rng;
 pub mod shade;
 pub mod tan2005;
 pub mod vmf;

@@ -6,24 +6,8 @@
 //! surface. Everything is deterministic for a given size and seed.
 
 use crate::ingest::{Addressing, BadNormals, NormalMap};
+use crate::rng::Rng;
 use glam::Vec3;
-
-/// A small deterministic random generator (splitmix64).
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [a, b).
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
 
 /// The procedural sample: normals (OpenGL convention) and linear RGBA albedo.
 pub struct Sample {

@@ -841,34 +841,7 @@ mod tests {
     use super::*;
     use crate::shade::{reference, tangent_frame, widened_lobe};
 
-    /// splitmix64: a tiny deterministic PRNG for the tests.
-    struct Rng(u64);
-
-    impl Rng {
-        fn next_u64(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        }
-        /// Uniform in (0, 1].
-        fn uniform(&mut self) -> f64 {
-            ((self.next_u64() >> 11) + 1) as f64 / (1u64 << 53) as f64
-        }
-        /// Standard normal (Box–Muller).
-        fn normal(&mut self) -> f64 {
-            let (u, v) = (self.uniform(), self.uniform());
-            (-2.0 * u.ln()).sqrt() * (2.0 * PI * v).cos()
-        }
-        /// Uniform on the upper hemisphere.
-        fn upper(&mut self) -> DVec3 {
-            let z = self.uniform();
-            let phi = 2.0 * PI * self.uniform();
-            let s = (1.0 - z * z).max(0.0).sqrt();
-            DVec3::new(s * phi.cos(), s * phi.sin(), z)
-        }
-    }
+    use crate::rng::Rng;
 
     fn dir(theta_deg: f64, phi_deg: f64) -> DVec3 {
         let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
