@@ -1,21 +1,25 @@
-//! Mixture bakes: one spherical-EM fit (Algorithm 1, [`crate::em`]) per texel of every MIP level,
-//! over *all* finest normals the texel covers (exact footprints, [`crate::pyramid`]).
+//! Mixture bakes: one EM fit per texel of every MIP level, over *all* finest normals the texel
+//! covers (exact footprints, [`crate::pyramid`]), for any [`Model`]: the paper's vMF lobes
+//! (Algorithm 1, [`crate::em`]) and Tan et al. 2005's planar Gaussians ([`crate::tan2005`]).
 //!
 //! **Unaligned** (Sec 7.1): levels are fitted from the finest up. The finest texel holds one
-//! lobe, `α = 1, μ = n, κ = KAPPA_MAX`; a coarser texel starts EM from the J furthest-apart of
-//! its children's lobes (Hochbaum–Shmoys, [`crate::em::farthest_first`]).
+//! component, `α = 1` and as sharp as storable (vMF: `μ = n, κ = KAPPA_MAX`); a coarser texel
+//! starts EM from the J furthest-apart of its children's components (Hochbaum–Shmoys,
+//! [`crate::em::farthest_first`]). A texel with no more normals than components gets the
+//! closed-form answer (one component per normal) without EM.
 //!
-//! **Aligned** (Sec 7.3, eq 23, the appendix's eq 29): levels are fitted from the coarsest down,
-//! each texel starting from its parent's lobes (so lobe j keeps its meaning down the chain) and
-//! pulled towards lobe j of the previously visited neighbours — left, upper-left, up,
-//! upper-right in scan-line order — and of its parent, with strength C. Scan-line order is kept
-//! exactly, yet texels run in parallel along wavefronts `x + 2y = const`, whose texels depend
-//! only on earlier wavefronts; the result is the same for any thread count. At the finest level
-//! the single normal goes to the lobe slot that explains it best, unpulled (so level 0 stays
-//! exact).
+//! **Aligned** (Sec 7.3, eq 23, the appendix's eq 29): after the unaligned pass, levels are
+//! refitted from the coarsest down. Each texel starts from its own unaligned fit with its
+//! components moved to the slots of the parent's components they are closest to (so slot j keeps
+//! its meaning down the chain), and EM runs pulled, with strength C, towards slot j of the
+//! previously visited neighbours — left, upper-left, up, upper-right in scan-line order — and of
+//! the parent. Scan-line order is kept exactly, yet texels run in parallel along wavefronts
+//! `x + 2y = const`, whose texels depend only on earlier wavefronts; the result is the same for
+//! any thread count. At the finest level the single normal goes, unpulled, to the parent's slot
+//! that explains it best (so level 0 stays exact).
 //!
-//! Colour (eq 22): with a feature image, each lobe also gets `y_j = Σ z_ij y_i / Σ z_ij`, stored
-//! as `α_j y_j`.
+//! Colour (eq 22): with a feature image, each component also gets `y_j = Σ z_ij y_i / Σ z_ij`,
+//! stored as `α_j y_j`.
 
 use crate::bake::{Bake, BakeOptions, Format, Method, Texture, ValueRange};
 use crate::em::{self, Alignment, EmInput, EmOptions, EmScratch, MAX_LOBES};

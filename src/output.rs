@@ -216,8 +216,11 @@ fn stage_and_commit(bake: &Bake, input: InputInfo, dir: &Path, staging: &Path) -
         for (k, level) in t.levels.iter().enumerate() {
             let (w, h) = bake.sizes[k];
             let path = staging.join(&info.files[k]);
-            write_level(&path, w, h, level, t.ranges, bake.format)
-                .map_err(|_| write_err(&dir.join(&info.files[k]), "cannot write the level"))?;
+            // Name the final file in the error, not the staging copy.
+            write_level(&path, w, h, level, t.ranges, bake.format).map_err(|e| match e {
+                Error::Write { message, .. } => write_err(&dir.join(&info.files[k]), message),
+                other => other,
+            })?;
         }
     }
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| write_err(dir, e))?;
