@@ -192,7 +192,8 @@ pub struct Bake {
 
 impl Bake {
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
-    /// for mixtures (`vmf6`, `vmf6a`, `tan2005-4`), and the format when it is not f32
+    /// and `f` for the approximate mode for mixtures (`vmf6`, `vmf6a`, `vmf6f`, `tan2005-4`),
+    /// and the format when it is not f32
     /// (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
@@ -203,6 +204,9 @@ impl Bake {
             l += &self.lobes.to_string();
             if self.parameters["aligned"] == serde_json::Value::Bool(true) {
                 l.push('a');
+            }
+            if self.parameters["approximate"] == serde_json::Value::Bool(true) {
+                l.push('f');
             }
         }
         if self.format != Format::F32 {
@@ -245,6 +249,10 @@ pub struct BakeOptions {
     /// level down, pulling each lobe towards the same lobe of already-fitted neighbours with
     /// strength C; `None` fits each texel on its own from the finest level up (unaligned).
     pub align: Option<f64>,
+    /// Approximate (fast) mode: levels 2 and coarser are fitted to the lobes of the level below
+    /// (their mean vectors `A(κ)μ` weighted by α, hierarchical EM) instead of to every finest
+    /// normal they cover. vMF only; Tan 2005 always fits the normals.
+    pub approximate: bool,
     /// EM iteration cap and convergence tolerance.
     pub em: crate::em::EmOptions,
 }
@@ -254,6 +262,7 @@ impl Default for BakeOptions {
         BakeOptions {
             lobes: 6,
             align: None,
+            approximate: false,
             em: crate::em::EmOptions::default(),
         }
     }

@@ -119,15 +119,28 @@ pub struct EmInput<'a> {
     /// Feature vector `y_i` (colour, material weights) of each normal for eq 22. Must have the
     /// same length as `normals`.
     pub features: Option<&'a [[f32; 4]]>,
+    /// When true, `normals` are *mean vectors* `r_c = A(κ_c) μ_c` of finer lobes (|r| ≤ 1),
+    /// not unit normals, and are used as given (longer ones are scaled to length 1): the
+    /// E-step's `κ(r·μ − 1)` is then the expected log-density of the finer lobe's normals and
+    /// the M-step's `Σ z r / Σ z` combines their moments exactly — hierarchical EM, the
+    /// approximate mode of the baker.
+    pub mean_vectors: bool,
 }
 
 impl<'a> EmInput<'a> {
+    /// Marks the samples as mean vectors of finer lobes (see [`EmInput::mean_vectors`]).
+    pub fn as_mean_vectors(mut self) -> Self {
+        self.mean_vectors = true;
+        self
+    }
+
     /// Unweighted normals without features.
     pub fn new(normals: &'a [Vec3]) -> Self {
         EmInput {
             normals,
             weights: None,
             features: None,
+            mean_vectors: false,
         }
     }
 
@@ -226,8 +239,21 @@ impl EmScratch {
             if !is_positive(w) || !w.is_finite() {
                 continue;
             }
-            let Some(n) = normalize_robust(v.as_dvec3()) else {
-                continue;
+            let v = v.as_dvec3();
+            let n = if input.mean_vectors {
+                if !v.is_finite() {
+                    continue;
+                }
+                if v.length_squared() > 1.0 {
+                    v.normalize()
+                } else {
+                    v
+                }
+            } else {
+                let Some(n) = normalize_robust(v) else {
+                    continue;
+                };
+                n
             };
             let l = used % LANES;
             if l == 0 {

@@ -70,6 +70,9 @@ pub(crate) trait Model: Sync {
     ) -> TexelFit<Self::C>;
     /// The component's texel.
     fn texel(c: &Self::C) -> [f64; 4];
+    /// The component as a sample of the approximate mode: its mean vector, or `None` when the
+    /// model has no approximate mode.
+    fn mean_vector(c: &Self::C) -> Option<Vec3>;
 }
 
 /// The paper's vMF lobes (Sec 7).
@@ -130,6 +133,12 @@ impl Model for VmfModel {
     }
     fn texel(c: &Lobe) -> [f64; 4] {
         c.texel()
+    }
+    fn mean_vector(c: &Lobe) -> Option<Vec3> {
+        let t = c.texel();
+        (t[0] > 0.0)
+            .then(|| glam::DVec3::new(t[1], t[2], t[3]) / t[0])
+            .map(|r| r.as_vec3())
     }
 }
 
@@ -198,6 +207,9 @@ impl Model for TanModel {
     fn texel(c: &Gaussian) -> [f64; 4] {
         c.texel()
     }
+    fn mean_vector(_: &Gaussian) -> Option<Vec3> {
+        None
+    }
 }
 
 /// Bakes Tan et al. 2005's Gaussian mixture of `map` with the same driver as vMF.
@@ -221,6 +233,8 @@ pub(crate) type TexelFit<C> = (Vec<C>, Vec<[f64; 4]>, Vec<[f64; 4]>);
 
 /// Per-thread working memory for gathering a texel's samples.
 struct Gather<M: Model> {
+    /// True when `normals` holds the mean vectors of finer components (approximate mode).
+    mean_vectors: bool,
     normals: Vec<Vec3>,
     weights: Vec<f64>,
     features: Vec<[f32; 4]>,
@@ -231,6 +245,7 @@ struct Gather<M: Model> {
 impl<M: Model> Default for Gather<M> {
     fn default() -> Self {
         Gather {
+            mean_vectors: false,
             normals: Vec::new(),
             weights: Vec::new(),
             features: Vec::new(),
@@ -243,6 +258,7 @@ impl<M: Model> Default for Gather<M> {
 impl<M: Model> Gather<M> {
     /// Collects the finest normals (and features) texel `(x, y)` of `level` covers.
     fn collect(&mut self, map: &NormalMap, level: &LevelFootprints, x: u32, y: u32) {
+        self.mean_vectors = false;
         self.normals.clear();
         self.weights.clear();
         self.features.clear();
@@ -257,6 +273,49 @@ impl<M: Model> Gather<M> {
                 }
             }
         }
+    }
+
+    /// Approximate mode: collects the components of the finer-level texels that texel `(x, y)`
+    /// covers (`children`: the finer level's fit, `cx`/`cy` its footprints on this level) as
+    /// samples — mean vector, `α × footprint weight`, colour `y`. Returns false (and collects
+    /// nothing) when the model has no approximate mode.
+    #[allow(clippy::too_many_arguments)]
+    fn collect_children(
+        &mut self,
+        children: &LevelFit<M::C>,
+        child_width: u32,
+        cx: &AxisFootprints,
+        cy: &AxisFootprints,
+        x: u32,
+        y: u32,
+        j: usize,
+    ) -> bool {
+        self.mean_vectors = true;
+        self.normals.clear();
+        self.weights.clear();
+        self.features.clear();
+        for (py, wy) in cy.taps(y as usize) {
+            for (px, wx) in cx.taps(x as usize) {
+                let p = (py * child_width + px) as usize;
+                for (s, c) in children.components[p * j..(p + 1) * j].iter().enumerate() {
+                    let a = M::alpha(c);
+                    if a <= 0.0 {
+                        continue;
+                    }
+                    let Some(r) = M::mean_vector(c) else {
+                        self.mean_vectors = false;
+                        return false;
+                    };
+                    self.normals.push(r);
+                    self.weights.push(a * wx * wy);
+                    if let Some(colors) = &children.colors {
+                        self.features
+                            .push(colors[p * j + s].map(|v| (v as f64 / a) as f32));
+                    }
+                }
+            }
+        }
+        true
     }
 
     /// The maximum-likelihood mixture when there are no more samples than components: one
@@ -286,6 +345,9 @@ impl<M: Model> Gather<M> {
         let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
         if !self.features.is_empty() {
             input = input.with_features(&self.features);
+        }
+        if self.mean_vectors {
+            input = input.as_mean_vectors();
         }
         M::fit(&input, init, &options.em, align, &mut self.scratch)
     }
@@ -397,9 +459,14 @@ fn bottom_up<M: Model>(
             .into_par_iter()
             .map_init(Gather::<M>::default, |g, t| {
                 let (x, y) = (t % w, t / w);
-                g.collect(map, &level, x, y);
-                if g.normals.len() <= j {
-                    return g.one_per_normal(j);
+                let fast = options.approximate
+                    && k >= 2
+                    && g.collect_children(prev, pw, &cx, &cy, x, y, j);
+                if !fast {
+                    g.collect(map, &level, x, y);
+                    if g.normals.len() <= j {
+                        return g.one_per_normal(j);
+                    }
                 }
                 g.candidates.clear();
                 for (py, wy) in cy.taps(y as usize) {
@@ -507,6 +574,12 @@ fn top_down<M: Model>(
             continue;
         }
         let level = LevelFootprints::new(finest, (w, h));
+        // Footprints of this level on the finer one (the approximate mode's samples).
+        let finer = sizes[k.saturating_sub(1)];
+        let (cx, cy) = (
+            AxisFootprints::new(finer.0, w),
+            AxisFootprints::new(finer.1, h),
+        );
         let texels = (w * h) as usize * j;
         let mut out = LevelFit {
             components: vec![M::EMPTY; texels],
@@ -553,7 +626,12 @@ fn top_down<M: Model>(
                         }
                         None => own.to_vec(),
                     };
-                    g.collect(map, &level, x, y);
+                    let fast = options.approximate
+                        && k >= 2
+                        && g.collect_children(&unaligned[k - 1], sizes[k - 1].0, &cx, &cy, x, y, j);
+                    if !fast {
+                        g.collect(map, &level, x, y);
+                    }
                     (x, y, g.fit(&init, options, Some((strength, &neighbours))))
                 })
                 .collect();
@@ -624,6 +702,7 @@ fn assemble<M: Model>(
         "aligned": options.align.is_some(),
         "align_strength": options.align,
         "color": map.feature().is_some(),
+        "approximate": options.approximate && M::METHOD == Method::Vmf,
         "em_max_iterations": options.em.max_iterations,
         "em_tolerance": options.em.tolerance,
     });
@@ -897,6 +976,61 @@ mod tests {
             mean(&a) < 0.8 * mean(&u),
             "aligned {a:?} vs unaligned {u:?}"
         );
+    }
+
+    #[test]
+    fn approximate_mode_matches_exact_below_level_two_and_stays_accurate() {
+        let m = bumpy(32, 32);
+        let exact = bake_with(&m, Method::Vmf, &opts(4, None)).unwrap();
+        let fast_opts = BakeOptions {
+            approximate: true,
+            ..opts(4, None)
+        };
+        let fast = bake_with(&m, Method::Vmf, &fast_opts).unwrap();
+        all_finite(&fast);
+        for t in 0..4 {
+            for k in 0..=1 {
+                assert_eq!(
+                    exact.textures[t].levels[k], fast.textures[t].levels[k],
+                    "level {k}"
+                );
+            }
+        }
+        assert_eq!(fast.label(), "vmf4f");
+        let toksvig = crate::bake::bake(&m, Method::Toksvig);
+        let e = evaluate(
+            &m,
+            &[&exact, &fast, &toksvig],
+            &[64.0],
+            &default_directions(),
+        );
+        assert!(
+            e[1].overall_specular < e[2].overall_specular,
+            "fast {} vs Toksvig {}",
+            e[1].overall_specular,
+            e[2].overall_specular
+        );
+        assert!(
+            e[1].overall_specular < 2.5 * e[0].overall_specular,
+            "fast {} vs exact {}",
+            e[1].overall_specular,
+            e[0].overall_specular
+        );
+        // Aligned and with colour it stays finite and deterministic too.
+        let c = (0..32 * 32)
+            .map(|i| [(i % 7) as f32 / 7.0, 0.5, 0.2, 1.0])
+            .collect();
+        let mc = m.clone().with_feature(c).unwrap();
+        let a = bake_with(
+            &mc,
+            Method::Vmf,
+            &BakeOptions {
+                align: Some(0.1),
+                ..fast_opts
+            },
+        )
+        .unwrap();
+        all_finite(&a);
     }
 
     #[test]

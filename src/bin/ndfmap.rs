@@ -79,6 +79,10 @@ enum Command {
         /// lobes are fitted per texel (unaligned).
         #[arg(long)]
         align: Option<f64>,
+        /// vmf: approximate (fast) mode — levels 2 and coarser are fitted to the lobes of the
+        /// level below instead of to every normal they cover.
+        #[arg(long)]
+        fast: bool,
         /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
         #[arg(long, default_value = "f32")]
         format: String,
@@ -102,6 +106,10 @@ enum Command {
         /// vMF alignments to compare, comma-separated: `none` (unaligned) or a strength C.
         #[arg(long, default_value = "none", value_delimiter = ',')]
         align: Vec<String>,
+        /// vMF fitting modes to compare, comma-separated: `exact` (every covered normal) and/or
+        /// `fast` (levels ≥ 2 fitted to the lobes of the level below).
+        #[arg(long, default_value = "exact", value_delimiter = ',')]
+        modes: Vec<String>,
         /// Blinn-Phong exponents, comma-separated.
         #[arg(
             short,
@@ -249,29 +257,67 @@ fn parse_align(values: &[String]) -> Result<Vec<Option<f64>>> {
         .collect()
 }
 
-/// Bakes every method in `methods` (vMF once per lobe count and alignment), printing the time
+/// The mixture variants to bake: every combination of lobe count, alignment and fitting mode.
+struct MixtureGrid {
+    lobes: Vec<usize>,
+    align: Vec<Option<f64>>,
+    /// `false` = exact, `true` = approximate (vMF only).
+    approximate: Vec<bool>,
+}
+
+impl MixtureGrid {
+    fn parse(lobes: &[usize], align: &[String], modes: &[String]) -> Result<Self> {
+        let approximate = modes
+            .iter()
+            .map(|m| match m.trim() {
+                "exact" => Ok(false),
+                "fast" => Ok(true),
+                other => Err(Error::InvalidOption(format!(
+                    "--modes '{other}' (expected exact or fast)"
+                ))),
+            })
+            .collect::<Result<Vec<bool>>>()?;
+        Ok(MixtureGrid {
+            lobes: lobes.to_vec(),
+            align: parse_align(align)?,
+            approximate,
+        })
+    }
+
+    fn options(&self, method: Method) -> Vec<BakeOptions> {
+        let mut out = Vec::new();
+        for &lobes in &self.lobes {
+            for &align in &self.align {
+                for &approximate in &self.approximate {
+                    if approximate && method != Method::Vmf {
+                        continue; // Tan 2005 has no approximate mode
+                    }
+                    out.push(BakeOptions {
+                        lobes,
+                        align,
+                        approximate,
+                        ..BakeOptions::default()
+                    });
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Bakes every method in `methods` (mixtures once per variant of `mixtures`), printing the time
 /// each took to stderr unless `quiet`.
 fn bake_all(
     map: &NormalMap,
     methods: &[Method],
-    lobes: &[usize],
-    align: &[Option<f64>],
+    mixtures: &MixtureGrid,
     quiet: bool,
 ) -> Result<Vec<Bake>> {
     let mut jobs = Vec::new();
     for &m in methods {
         if matches!(m, Method::Vmf | Method::Tan2005) {
-            for &j in lobes {
-                for &a in align {
-                    jobs.push((
-                        m,
-                        BakeOptions {
-                            lobes: j,
-                            align: a,
-                            ..BakeOptions::default()
-                        },
-                    ));
-                }
+            for o in mixtures.options(m) {
+                jobs.push((m, o));
             }
         } else {
             jobs.push((m, BakeOptions::default()));
@@ -305,6 +351,7 @@ fn run(cli: Cli) -> Result<()> {
             output,
             lobes,
             align,
+            fast,
             format,
             ingest,
         } => {
@@ -318,6 +365,7 @@ fn run(cli: Cli) -> Result<()> {
             let options = BakeOptions {
                 lobes,
                 align,
+                approximate: fast,
                 ..BakeOptions::default()
             };
             let (map, info) = ingest.load(&input)?;
@@ -332,12 +380,13 @@ fn run(cli: Cli) -> Result<()> {
             methods,
             lobes,
             align,
+            modes,
             s,
             formats,
             json,
             ingest,
         } => {
-            let align = parse_align(&align)?;
+            let mixtures = MixtureGrid::parse(&lobes, &align, &modes)?;
             check_exponents(&s)?;
             let methods = parse_methods(&methods)?;
             let formats = formats
@@ -346,7 +395,7 @@ fn run(cli: Cli) -> Result<()> {
                 .collect::<Result<Vec<Format>>>()?;
             let (map, _) = ingest.load(&input)?;
             let mut bakes = Vec::new();
-            for b in bake_all(&map, &methods, &lobes, &align, json)? {
+            for b in bake_all(&map, &methods, &mixtures, json)? {
                 for &f in &formats {
                     match ndfmap::pack::quantize(&b, f) {
                         Ok(q) => bakes.push(q),
@@ -444,7 +493,12 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         normal_png.display(),
         map.stats().mean_z
     );
-    let bakes = bake_all(&map, &Method::ALL, &[6], &[None], false)?;
+    let grid = MixtureGrid {
+        lobes: vec![6],
+        align: vec![None],
+        approximate: vec![false],
+    };
+    let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
     for b in &bakes {
         let info = InputInfo {
             path: Some(normal_png.display().to_string()),
@@ -485,8 +539,8 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>10} {:>12}",
-            "size", "method", "lobes", "aligned", "seconds", "peak MiB"
+            "{:>6} {:>8} {:>6} {:>9} {:>6} {:>10} {:>12}",
+            "size", "method", "lobes", "aligned", "mode", "seconds", "peak MiB"
         );
     }
     for &size in sizes {
@@ -500,14 +554,17 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
         let mut jobs = vec![(Method::Toksvig, BakeOptions::default())];
         for &j in lobes {
             for &a in align {
-                jobs.push((
-                    Method::Vmf,
-                    BakeOptions {
-                        lobes: j,
-                        align: a,
-                        ..BakeOptions::default()
-                    },
-                ));
+                for approximate in [false, true] {
+                    jobs.push((
+                        Method::Vmf,
+                        BakeOptions {
+                            lobes: j,
+                            align: a,
+                            approximate,
+                            ..BakeOptions::default()
+                        },
+                    ));
+                }
             }
         }
         for (method, options) in jobs {
@@ -525,7 +582,7 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
             };
             let row = serde_json::json!({
                 "size": size, "method": method, "lobes": lobes,
-                "align": options.align, "seconds": seconds,
+                "align": options.align, "approximate": options.approximate, "seconds": seconds,
                 "peak_bytes": peak, "baseline_bytes": base, "threads": threads,
             });
             if !json {
@@ -533,9 +590,10 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
                     b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
                 };
                 println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {seconds:>10.3} {:>12}",
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>6} {seconds:>10.3} {:>12}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
+                    if options.approximate { "fast" } else { "exact" },
                     mib(peak)
                 );
             }
