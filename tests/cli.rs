@@ -22,6 +22,21 @@ fn write_normal_png(path: &Path, w: u32, h: u32) {
     img.save(path).unwrap();
 }
 
+/// Runs `ndfmap bake` with `args` into `out`, asserts success, and returns the manifest.
+fn bake_manifest(args: &[&str], out: &Path) -> serde_json::Value {
+    let mut all = vec!["bake"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["-o", out.to_str().unwrap()]);
+    let run = ndfmap(&all);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = std::fs::read_to_string(out.join("manifest.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
 /// Asserts a failed run with exactly one stderr line that contains every `needle`.
 fn assert_one_line_error(out: &Output, needles: &[&str]) {
     assert!(!out.status.success(), "expected failure");
@@ -43,22 +58,7 @@ fn bake_writes_manifest_and_every_level() {
     let out_dir = dir.path().join("out");
     for method in ["plain", "toksvig", "lean", "olano", "vmf", "tan2005"] {
         let o = out_dir.join(method);
-        let run = ndfmap(&[
-            "bake",
-            input.to_str().unwrap(),
-            "--method",
-            method,
-            "-o",
-            o.to_str().unwrap(),
-        ]);
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
-        let manifest: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(o.join("manifest.json")).unwrap())
-                .unwrap();
+        let manifest = bake_manifest(&[input.to_str().unwrap(), "--method", method], &o);
         assert_eq!(manifest["method"], method);
         assert_eq!(manifest["levels"].as_array().unwrap().len(), 4); // 12x5, 6x2, 3x1, 1x1
         let textures = manifest["textures"].as_array().unwrap().len();
@@ -88,8 +88,7 @@ fn vmf_bake_with_alignment_colour_and_narrow_formats() {
         .unwrap();
     for (format, ext) in [("f16", "exr"), ("unorm16", "png"), ("unorm8", "png")] {
         let o = dir.path().join(format);
-        let run = ndfmap(&[
-            "bake",
+        let args = [
             input.to_str().unwrap(),
             "--method",
             "vmf",
@@ -101,17 +100,8 @@ fn vmf_bake_with_alignment_colour_and_narrow_formats() {
             color.to_str().unwrap(),
             "--format",
             format,
-            "-o",
-            o.to_str().unwrap(),
-        ]);
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
-        let manifest: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(o.join("manifest.json")).unwrap())
-                .unwrap();
+        ];
+        let manifest = bake_manifest(&args, &o);
         assert_eq!(manifest["parameters"]["lobes"], 3);
         assert_eq!(manifest["parameters"]["aligned"], true);
         assert_eq!(manifest["texel_format"], format);
