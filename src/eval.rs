@@ -11,7 +11,7 @@
 use crate::bake::{Bake, Format, Method};
 use crate::ingest::NormalMap;
 use crate::pyramid::{pyramid, reduce};
-use crate::shade::{half_vector, reference, shade};
+use crate::shade::{Brdf, half_vector, reference_brdf, shade_brdf};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -68,8 +68,8 @@ pub struct MethodError {
     pub label: String,
     /// The storage format the bake was read in (quantization included in the error).
     pub format: Format,
-    /// Blinn-Phong exponent s.
-    pub s: f64,
+    /// The BRDF whose specular term was measured.
+    pub brdf: Brdf,
     /// Per level, finest first.
     pub levels: Vec<LevelError>,
     /// Lambert error over all levels but the finest: the RMS of the per-level relative errors
@@ -83,17 +83,17 @@ pub struct MethodError {
 #[derive(Clone)]
 struct Sums(Vec<[f64; 4]>);
 
-/// Measures the texel-space error of each bake (baked from `map`) for every exponent in
-/// `exponents` and every light/view pair in `directions`.
+/// Measures the texel-space error of each bake (baked from `map`) for every BRDF in `brdfs`
+/// and every light/view pair in `directions`.
 pub fn evaluate(
     map: &NormalMap,
     bakes: &[&Bake],
-    exponents: &[f64],
+    brdfs: &[Brdf],
     directions: &[LightView],
 ) -> Vec<MethodError> {
     let levels = pyramid(map.width(), map.height());
     let nl = levels.len();
-    let ns = exponents.len();
+    let ns = brdfs.len();
     let slot = |b: usize, si: usize, k: usize| (b * ns + si) * nl + k;
     let per_direction: Vec<Sums> = directions
         .par_iter()
@@ -107,9 +107,9 @@ pub fn evaluate(
                 .zip(map.normals())
                 .for_each(|(o, n)| {
                     let n = n.as_dvec3();
-                    o[0] = reference(n, l, h, 1.0).diffuse;
-                    for (si, &s) in exponents.iter().enumerate() {
-                        o[1 + si] = reference(n, l, h, s).specular;
+                    o[0] = n.dot(l).max(0.0);
+                    for (si, &brdf) in brdfs.iter().enumerate() {
+                        o[1 + si] = reference_brdf(n, l, h, brdf).specular;
                     }
                 });
             let mut sums = Sums(vec![[0.0; 4]; bakes.len() * ns * nl]);
@@ -119,8 +119,8 @@ pub fn evaluate(
                     let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
                     for (i, g) in exact.chunks_exact(ch).enumerate() {
                         bake.texel_into(k, i, &mut texel);
-                        for (si, &s) in exponents.iter().enumerate() {
-                            let f = shade(bake, &texel, l, h, s);
+                        for (si, &brdf) in brdfs.iter().enumerate() {
+                            let f = shade_brdf(bake, &texel, l, h, brdf);
                             let e = &mut sums.0[slot(b, si, k)];
                             e[0] += (f.diffuse - g[0]).powi(2);
                             e[1] += g[0] * g[0];
@@ -152,7 +152,7 @@ pub fn evaluate(
     };
     let mut out = Vec::new();
     for (b, bake) in bakes.iter().enumerate() {
-        for (si, &s) in exponents.iter().enumerate() {
+        for (si, &brdf) in brdfs.iter().enumerate() {
             let levels_err: Vec<LevelError> = levels
                 .iter()
                 .enumerate()
@@ -179,7 +179,7 @@ pub fn evaluate(
                 method: bake.method,
                 label: bake.label(),
                 format: bake.format,
-                s,
+                brdf,
                 overall_diffuse: rms(|e| e.diffuse),
                 overall_specular: rms(|e| e.specular),
                 levels: levels_err,
@@ -194,17 +194,17 @@ pub fn evaluate(
 pub fn format_table(errors: &[MethodError]) -> String {
     use std::fmt::Write;
     let mut out = String::new();
-    let mut exponents: Vec<f64> = Vec::new();
+    let mut brdfs: Vec<Brdf> = Vec::new();
     for e in errors {
-        if !exponents.contains(&e.s) {
-            exponents.push(e.s);
+        if !brdfs.contains(&e.brdf) {
+            brdfs.push(e.brdf);
         }
     }
-    for s in exponents {
-        let rows: Vec<&MethodError> = errors.iter().filter(|e| e.s == s).collect();
+    for brdf in brdfs {
+        let rows: Vec<&MethodError> = errors.iter().filter(|e| e.brdf == brdf).collect();
         let _ = writeln!(
             out,
-            "Blinn-Phong s = {s}: relative RMS error against the exact footprint average"
+            "{brdf}: relative RMS error against the exact footprint average"
         );
         let _ = write!(out, "{:>5} {:>11}", "level", "size");
         for r in &rows {
@@ -273,7 +273,19 @@ mod tests {
         });
         let bakes: Vec<Bake> = Method::ALL.iter().map(|&me| bake(&m, me)).collect();
         let refs: Vec<&Bake> = bakes.iter().collect();
-        for e in evaluate(&m, &refs, &[8.0, 64.0, 2048.0], &default_directions()) {
+        for e in evaluate(
+            &m,
+            &refs,
+            &[
+                Brdf::blinn_phong(&[8.0, 64.0, 2048.0]),
+                vec![
+                    Brdf::TorranceSparrow { sigma: 0.05 },
+                    Brdf::TorranceSparrow { sigma: 0.3 },
+                ],
+            ]
+            .concat(),
+            &default_directions(),
+        ) {
             // f32 storage of the moments is the only difference at level 0 — and for vMF the
             // κ cap, which makes s' = s(1 − s/KAPPA_MAX) (Algorithm 2 line 12).
             assert!(
@@ -283,10 +295,10 @@ mod tests {
                 e.levels[0].diffuse
             );
             assert!(
-                e.levels[0].specular < 1e-4 + vmf_cap(e.method, e.s),
+                e.levels[0].specular < 1e-4 + vmf_cap(e.method, e.brdf.equivalent_exponent()),
                 "{} s={} {}",
                 e.method,
-                e.s,
+                e.brdf,
                 e.levels[0].specular
             );
             assert!(
@@ -302,11 +314,21 @@ mod tests {
             let m = map(w, h, |_, _| Vec3::Z);
             let bakes: Vec<Bake> = Method::ALL.iter().map(|&me| bake(&m, me)).collect();
             let refs: Vec<&Bake> = bakes.iter().collect();
-            for e in evaluate(&m, &refs, &[1.0, 256.0], &default_directions()) {
+            for e in evaluate(
+                &m,
+                &refs,
+                &[
+                    Brdf::blinn_phong(&[1.0, 256.0]),
+                    vec![Brdf::TorranceSparrow { sigma: 0.1 }],
+                ]
+                .concat(),
+                &default_directions(),
+            ) {
                 // Zero up to the f64 rounding of the footprint sums (~1e-16), and the κ cap.
                 for l in &e.levels {
                     assert!(
-                        l.diffuse < 1e-12 && l.specular < 1e-12 + vmf_cap(e.method, e.s),
+                        l.diffuse < 1e-12
+                            && l.specular < 1e-12 + vmf_cap(e.method, e.brdf.equivalent_exponent()),
                         "{} level {}: {l:?}",
                         e.method,
                         l.level
@@ -320,7 +342,12 @@ mod tests {
     fn table_has_one_block_per_exponent_and_a_column_per_bake() {
         let m = map(4, 4, |x, _| Vec3::new(x as f32 * 0.2, 0.0, 1.0));
         let (a, b) = (bake(&m, Method::Plain), bake(&m, Method::Lean));
-        let errors = evaluate(&m, &[&a, &b], &[16.0, 64.0], &default_directions());
+        let errors = evaluate(
+            &m,
+            &[&a, &b],
+            &Brdf::blinn_phong(&[16.0, 64.0]),
+            &default_directions(),
+        );
         let t = format_table(&errors);
         assert_eq!(t.matches("Blinn-Phong s =").count(), 2, "{t}");
         assert_eq!(t.matches(" plain ").count(), 2, "{t}");
@@ -338,7 +365,14 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| evaluate(&m, &[&b], &[32.0], &default_directions()))
+                .install(|| {
+                    evaluate(
+                        &m,
+                        &[&b],
+                        &Brdf::blinn_phong(&[32.0]),
+                        &default_directions(),
+                    )
+                })
         };
         assert_eq!(run(1), run(3));
     }

@@ -766,6 +766,7 @@ mod tests {
     use crate::bake::bake_with;
     use crate::eval::{default_directions, evaluate};
     use crate::ingest::{Addressing, BadNormals};
+    use crate::shade::Brdf;
 
     fn bumpy(w: u32, h: u32) -> NormalMap {
         let v = (0..w * h)
@@ -812,11 +813,16 @@ mod tests {
                     assert!((sum - 1.0).abs() < 1e-5, "level {k} texel {t}: Σα = {sum}");
                 }
             }
-            let e = evaluate(&m, &[&b], &[16.0, 512.0], &default_directions());
+            let e = evaluate(
+                &m,
+                &[&b],
+                &Brdf::blinn_phong(&[16.0, 512.0]),
+                &default_directions(),
+            );
             for row in &e {
                 // κ is capped at KAPPA_MAX, so s' = s·κ/(κ+s) ≈ s(1 − s/KAPPA_MAX): the relative
                 // error of the lobe is about s/KAPPA_MAX (1.2e-4 at s = 512).
-                let bound = 2.0 * row.s / KAPPA_MAX;
+                let bound = 2.0 * row.brdf.equivalent_exponent() / KAPPA_MAX;
                 assert!(
                     row.levels[0].specular < bound,
                     "{align:?}: {:?}",
@@ -832,7 +838,12 @@ mod tests {
         // Level 1 of a power-of-two map covers 4 normals: with J ≥ 4 each gets its own lobe.
         let m = bumpy(8, 8);
         let b = bake_with(&m, Method::Vmf, &opts(4, None)).unwrap();
-        let e = evaluate(&m, &[&b], &[64.0], &default_directions());
+        let e = evaluate(
+            &m,
+            &[&b],
+            &Brdf::blinn_phong(&[64.0]),
+            &default_directions(),
+        );
         assert!(e[0].levels[1].specular < 1e-3, "{:?}", e[0].levels[1]);
         assert!(e[0].levels[1].diffuse < 1e-6, "{:?}", e[0].levels[1]);
     }
@@ -845,7 +856,12 @@ mod tests {
         assert_eq!(t.textures[0].name, "gauss0");
         all_finite(&t);
         let p = crate::bake::bake(&m, Method::Plain);
-        let e = evaluate(&m, &[&t, &p], &[64.0], &default_directions());
+        let e = evaluate(
+            &m,
+            &[&t, &p],
+            &Brdf::blinn_phong(&[64.0]),
+            &default_directions(),
+        );
         assert!(
             e[0].levels[0].specular < 2.0 * 64.0 / KAPPA_MAX + 1e-6,
             "{:?}",
@@ -859,7 +875,12 @@ mod tests {
         let m = bumpy(32, 32);
         let v = bake_with(&m, Method::Vmf, &opts(6, None)).unwrap();
         let t = crate::bake::bake(&m, Method::Toksvig);
-        let e = evaluate(&m, &[&v, &t], &[64.0], &default_directions());
+        let e = evaluate(
+            &m,
+            &[&v, &t],
+            &Brdf::blinn_phong(&[64.0]),
+            &default_directions(),
+        );
         assert!(
             e[0].overall_specular < 0.7 * e[1].overall_specular,
             "{} vs {}",
@@ -1001,7 +1022,7 @@ mod tests {
         let e = evaluate(
             &m,
             &[&exact, &fast, &toksvig],
-            &[64.0],
+            &Brdf::blinn_phong(&[64.0]),
             &default_directions(),
         );
         assert!(

@@ -109,6 +109,24 @@ fn v3(t: [f32; 4]) -> DVec3 {
     DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64)
 }
 
+/// Decodes a vMF lobe texel `θ = (α, α·r)` as Algorithm 2 lines 7–10 do: `(α, μ, κ)` with
+/// `|r|` clamped to `r_max`, or `None` for an empty lobe (`α ≤ 0`: line 8 would divide by 0).
+/// A zero `r` is the uniform lobe (κ = 0, μ = +Z).
+pub fn vmf_decode(theta: [f32; 4], r_max: f64) -> Option<(f64, DVec3, f64)> {
+    let alpha = theta[0] as f64;
+    if alpha.is_nan() || alpha <= 0.0 {
+        return None;
+    }
+    let r = DVec3::new(theta[1] as f64, theta[2] as f64, theta[3] as f64) / alpha;
+    let len = r.length();
+    if len > 0.0 && len.is_finite() {
+        let rc = len.min(r_max);
+        Some((alpha, r / len, (3.0 * rc - rc * rc * rc) / (1.0 - rc * rc)))
+    } else {
+        Some((alpha, DVec3::Z, 0.0))
+    }
+}
+
 /// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
 /// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
 /// [`crate::vmf::r_max`]) before κ is computed:
@@ -117,17 +135,8 @@ fn v3(t: [f32; 4]) -> DVec3 {
 /// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
 /// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe: `s' = 0`, μ = +Z.
 pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shading {
-    let alpha = theta[0] as f64;
-    if alpha.is_nan() || alpha <= 0.0 {
+    let Some((alpha, mu, kappa)) = vmf_decode(theta, r_max) else {
         return Shading::default();
-    }
-    let r = DVec3::new(theta[1] as f64, theta[2] as f64, theta[3] as f64) / alpha;
-    let len = r.length();
-    let (mu, kappa) = if len > 0.0 && len.is_finite() {
-        let rc = len.min(r_max);
-        (r / len, (3.0 * rc - rc * rc * rc) / (1.0 - rc * rc))
-    } else {
-        (DVec3::Z, 0.0)
     };
     let s_eff = if kappa + s > 0.0 {
         kappa * s / (kappa + s)
@@ -139,6 +148,33 @@ pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shad
         diffuse: alpha * cos_i,
         specular: alpha * blinn_phong(mu.dot(h), s_eff) * cos_i,
     }
+}
+
+/// LEAN's texels decoded: mean slope `E[b]` and the slope covariance (PSD-projected).
+fn lean_moments(texels: &[[f32; 4]]) -> (DVec2, [f64; 3]) {
+    let (t0, t1) = (texels[0], texels[1]);
+    let b = DVec2::new(t0[0] as f64, t0[1] as f64);
+    let sigma = psd([
+        t0[2] as f64 - b.x * b.x,
+        t0[3] as f64 - b.y * b.y,
+        t1[0] as f64 - b.x * b.y,
+    ]);
+    (b, sigma)
+}
+
+/// Olano–North's texels decoded: mean normal `E[n]`, its direction μ with tangent frame, and
+/// the covariance of the normal projected on that frame (PSD-projected).
+fn olano_moments(texels: &[[f32; 4]]) -> (DVec3, DVec3, (DVec3, DVec3), [f64; 3]) {
+    let m = v3(texels[0]);
+    let (d, o) = (texels[1], texels[2]);
+    let e = |a: DVec3, b: DVec3| -> f64 {
+        a.x * (d[0] as f64 * b.x + o[0] as f64 * b.y + o[1] as f64 * b.z)
+            + a.y * (o[0] as f64 * b.x + d[1] as f64 * b.y + o[2] as f64 * b.z)
+            + a.z * (o[1] as f64 * b.x + o[2] as f64 * b.y + d[2] as f64 * b.z)
+    };
+    let mu = m.try_normalize().unwrap_or(DVec3::Z);
+    let (t1, t2) = tangent_frame(mu);
+    (m, mu, (t1, t2), psd([e(t1, t1), e(t2, t2), e(t1, t2)]))
 }
 
 /// Filtered shading of `bake`'s method from one texel's values (`texels[i]` from texture i of
@@ -175,13 +211,7 @@ pub fn shade(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Sh
             }
         }
         Method::Lean => {
-            let (t0, t1) = (texels[0], texels[1]);
-            let b = DVec2::new(t0[0] as f64, t0[1] as f64);
-            let sigma = psd([
-                t0[2] as f64 - b.x * b.x,
-                t0[3] as f64 - b.y * b.y,
-                t1[0] as f64 - b.x * b.y,
-            ]);
+            let (b, sigma) = lean_moments(texels);
             let mu = DVec3::new(b.x, b.y, 1.0).normalize();
             let cos_i = mu.dot(l).max(0.0);
             let specular = if h.z > 1e-9 {
@@ -196,20 +226,171 @@ pub fn shade(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Sh
             }
         }
         Method::Olano => {
-            let m = v3(texels[0]);
-            let (d, o) = (texels[1], texels[2]);
-            let e = |a: DVec3, b: DVec3| -> f64 {
-                a.x * (d[0] as f64 * b.x + o[0] as f64 * b.y + o[1] as f64 * b.z)
-                    + a.y * (o[0] as f64 * b.x + d[1] as f64 * b.y + o[2] as f64 * b.z)
-                    + a.z * (o[1] as f64 * b.x + o[2] as f64 * b.y + d[2] as f64 * b.z)
-            };
-            let mu = m.try_normalize().unwrap_or(DVec3::Z);
-            let (t1, t2) = tangent_frame(mu);
-            let sigma = psd([e(t1, t1), e(t2, t2), e(t1, t2)]);
+            let (m, mu, (t1, t2), sigma) = olano_moments(texels);
             let offset = DVec2::new(h.dot(t1), h.dot(t2));
             Shading {
                 diffuse: m.dot(l).max(0.0),
                 specular: widened_lobe(mu.dot(h), offset, sigma, s) * mu.dot(l).max(0.0),
+            }
+        }
+    }
+}
+
+/// The specular lobe of a BRDF: normalized Blinn-Phong with exponent `s` (eq 20's form), or the
+/// Torrance–Sparrow-like Gaussian of eq 18 with roughness σ,
+/// `e^{−β²/(4σ²)}/(4πσ²)` in the angle β between ω_h and the normal.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case")]
+pub enum Brdf {
+    /// `(s+1)/(2π)(ω_h·n)^s`, s > 0.
+    BlinnPhong {
+        /// The exponent.
+        s: f64,
+    },
+    /// `e^{−β²/(4σ²)}/(4πσ²)`, σ > 0 (eq 18).
+    TorranceSparrow {
+        /// The roughness.
+        sigma: f64,
+    },
+}
+
+impl Brdf {
+    /// Blinn-Phong BRDFs for each exponent in `s`.
+    pub fn blinn_phong(s: &[f64]) -> Vec<Brdf> {
+        s.iter().map(|&s| Brdf::BlinnPhong { s }).collect()
+    }
+
+    /// The Blinn-Phong exponent with the same angular width: `s`, or `1/(2σ²)` (eq 18 vs eq 20).
+    pub fn equivalent_exponent(&self) -> f64 {
+        match *self {
+            Brdf::BlinnPhong { s } => s,
+            Brdf::TorranceSparrow { sigma } => 0.5 / (sigma * sigma),
+        }
+    }
+}
+
+impl std::fmt::Display for Brdf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Brdf::BlinnPhong { s } => write!(f, "Blinn-Phong s = {s}"),
+            Brdf::TorranceSparrow { sigma } => write!(f, "Torrance-Sparrow sigma = {sigma}"),
+        }
+    }
+}
+
+/// The eq 18 lobe widened by an NDF covariance `cov` (angular, per axis, in the frame of
+/// `dir`): a 2D Gaussian in the angle offset `d = β·dir/|dir|` with covariance `2σ²I + cov`,
+/// `exp(−½ dᵀΣ⁻¹d)/(2π sqrt det Σ)`. With `cov = 0` it is exactly `e^{−β²/(4σ²)}/(4πσ²)`;
+/// with `cov = I/κ` it is eq 21, `σ'² = σ² + 1/(2κ)`. Zero for `cos_h ≤ 0`.
+pub fn torrance_sparrow_lobe(cos_h: f64, dir: DVec2, sigma: f64, cov: [f64; 3]) -> f64 {
+    if cos_h.is_nan() || cos_h <= 0.0 {
+        return 0.0;
+    }
+    let beta = cos_h.min(1.0).acos();
+    let v = 2.0 * sigma * sigma;
+    let (a, c, b) = (v + cov[0], v + cov[1], cov[2]);
+    let det = (a * c - b * b).max(f64::MIN_POSITIVE);
+    let len = dir.length();
+    let q = if len > 1e-300 {
+        let d = dir * (beta / len);
+        (c * d.x * d.x - 2.0 * b * d.x * d.y + a * d.y * d.y) / det
+    } else {
+        // No direction: isotropic spread, use the mean variance.
+        beta * beta * 2.0 / (a + c)
+    };
+    (-0.5 * q).exp() / (2.0 * PI * det.sqrt())
+}
+
+/// The exact shading of one unfiltered unit normal under `brdf` (the ground truth).
+pub fn reference_brdf(n: DVec3, l: DVec3, h: DVec3, brdf: Brdf) -> Shading {
+    match brdf {
+        Brdf::BlinnPhong { s } => reference(n, l, h, s),
+        Brdf::TorranceSparrow { sigma } => {
+            let cos_i = n.dot(l).max(0.0);
+            Shading {
+                diffuse: cos_i,
+                specular: torrance_sparrow_lobe(n.dot(h), DVec2::X, sigma, [0.0; 3]) * cos_i,
+            }
+        }
+    }
+}
+
+/// [`shade`] for any [`Brdf`]: Blinn-Phong as there; Torrance–Sparrow with each method's NDF
+/// spread added to the lobe's (eq 21 for vMF lobes: `σ'² = σ² + 1/(2κ)`; Toksvig's variance
+/// `(1 − |n̄|)/|n̄|`; Tan's σ²; LEAN's and Olano–North's covariances), the lobe of
+/// [`torrance_sparrow_lobe`].
+pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: Brdf) -> Shading {
+    let sigma = match brdf {
+        Brdf::BlinnPhong { s } => return shade(bake, texels, l, h, s),
+        Brdf::TorranceSparrow { sigma } => sigma,
+    };
+    // One isotropic lobe around μ with per-axis angular variance `var`, weight `alpha`.
+    let iso = |alpha: f64, mu: DVec3, var: f64| -> f64 {
+        let (t1, t2) = tangent_frame(mu);
+        let dir = DVec2::new(h.dot(t1), h.dot(t2));
+        alpha * torrance_sparrow_lobe(mu.dot(h), dir, sigma, [var, var, 0.0]) * mu.dot(l).max(0.0)
+    };
+    match bake.method {
+        Method::Vmf => {
+            let r_max = crate::vmf::r_max(bake.format);
+            let mut sum = Shading::default();
+            for &theta in &texels[..bake.lobes] {
+                if let Some((alpha, mu, kappa)) = vmf_decode(theta, r_max) {
+                    let var = if kappa > 0.0 { 1.0 / kappa } else { 1e6 };
+                    sum.diffuse += alpha * mu.dot(l).max(0.0);
+                    sum.specular += iso(alpha, mu, var);
+                }
+            }
+            sum
+        }
+        Method::Tan2005 => {
+            let mut sum = Shading::default();
+            for &t in &texels[..bake.lobes] {
+                let g = crate::tan2005::Gaussian::from_texel(t);
+                if g.is_empty() {
+                    continue;
+                }
+                let mu = crate::tan2005::lift(g.mean);
+                sum.diffuse += g.alpha * mu.dot(l).max(0.0);
+                sum.specular += iso(g.alpha, mu, g.variance.max(0.0));
+            }
+            sum
+        }
+        Method::Plain => {
+            let mu = v3(texels[0]).try_normalize().unwrap_or(DVec3::Z);
+            reference_brdf(mu, l, h, brdf)
+        }
+        Method::Toksvig => {
+            let m = v3(texels[0]);
+            let len = m.length();
+            let mu = if len > 1e-12 { m / len } else { DVec3::Z };
+            let ft = len.min(1.0);
+            let var = if ft > 0.0 { (1.0 - ft) / ft } else { 1e6 };
+            Shading {
+                diffuse: m.dot(l).max(0.0),
+                specular: iso(1.0, mu, var),
+            }
+        }
+        Method::Lean => {
+            let (b, cov) = lean_moments(texels);
+            let mu = DVec3::new(b.x, b.y, 1.0).normalize();
+            let cos_i = mu.dot(l).max(0.0);
+            let dir = if h.z > 1e-9 {
+                DVec2::new(h.x / h.z, h.y / h.z) - b
+            } else {
+                DVec2::ZERO
+            };
+            Shading {
+                diffuse: cos_i,
+                specular: torrance_sparrow_lobe(mu.dot(h), dir, sigma, cov) * cos_i,
+            }
+        }
+        Method::Olano => {
+            let (m, mu, (t1, t2), cov) = olano_moments(texels);
+            let dir = DVec2::new(h.dot(t1), h.dot(t2));
+            Shading {
+                diffuse: m.dot(l).max(0.0),
+                specular: torrance_sparrow_lobe(mu.dot(h), dir, sigma, cov) * mu.dot(l).max(0.0),
             }
         }
     }
@@ -274,6 +455,33 @@ mod tests {
             "rank 1 after clamping"
         );
         assert!((p[0] - 1.5).abs() < 1e-12 && (p[2] - 1.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn torrance_sparrow_lobe_is_eq_18_and_widens_by_eq_21() {
+        for sigma in [0.05, 0.2, 0.5] {
+            for beta in [0.0f64, 0.1, 0.4] {
+                let want =
+                    (-beta * beta / (4.0 * sigma * sigma)).exp() / (4.0 * PI * sigma * sigma);
+                let got = torrance_sparrow_lobe(beta.cos(), DVec2::new(0.3, 0.7), sigma, [0.0; 3]);
+                assert!(
+                    (got - want).abs() <= 1e-12 * want,
+                    "σ={sigma} β={beta}: {got} vs {want}"
+                );
+                // eq 21: an isotropic NDF variance 1/κ per axis gives σ'² = σ² + 1/(2κ).
+                let kappa = 40.0;
+                let s2 = (sigma * sigma + 0.5 / kappa).sqrt();
+                let want = (-beta * beta / (4.0 * s2 * s2)).exp() / (4.0 * PI * s2 * s2);
+                let got = torrance_sparrow_lobe(
+                    beta.cos(),
+                    DVec2::X,
+                    sigma,
+                    [1.0 / kappa, 1.0 / kappa, 0.0],
+                );
+                assert!((got - want).abs() <= 1e-12 * want);
+            }
+        }
+        assert_eq!(torrance_sparrow_lobe(-0.1, DVec2::X, 0.1, [0.0; 3]), 0.0);
     }
 
     #[test]

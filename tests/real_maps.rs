@@ -3,6 +3,7 @@
 
 use ndfmap::bake::{Bake, Method, bake};
 use ndfmap::eval::{default_directions, evaluate};
+use ndfmap::shade::Brdf;
 use ndfmap::{IngestOptions, NormalMap};
 use std::path::PathBuf;
 
@@ -35,15 +36,20 @@ fn toksvig_beats_plain_mip_on_rock_at_far_levels() {
     let plain = bake(&map, Method::Plain);
     let toksvig = bake(&map, Method::Toksvig);
     let refs: Vec<&Bake> = vec![&plain, &toksvig];
-    let errors = evaluate(&map, &refs, &[64.0, 512.0], &default_directions());
+    let errors = evaluate(
+        &map,
+        &refs,
+        &Brdf::blinn_phong(&[64.0, 512.0]),
+        &default_directions(),
+    );
     for s in [64.0, 512.0] {
         let p = errors
             .iter()
-            .find(|e| e.method == Method::Plain && e.s == s)
+            .find(|e| e.method == Method::Plain && e.brdf == Brdf::BlinnPhong { s })
             .unwrap();
         let t = errors
             .iter()
-            .find(|e| e.method == Method::Toksvig && e.s == s)
+            .find(|e| e.method == Method::Toksvig && e.brdf == Brdf::BlinnPhong { s })
             .unwrap();
         for k in 3..=8 {
             let (ps, ts) = (p.levels[k].specular, t.levels[k].specular);
@@ -70,11 +76,16 @@ fn vmf_beats_toksvig_and_lean_on_rock_at_far_levels() {
     let errors = evaluate(
         &map,
         &[&vmf, &toksvig, &lean],
-        &[32.0, 256.0],
+        &Brdf::blinn_phong(&[32.0, 256.0]),
         &default_directions(),
     );
     for s in [32.0, 256.0] {
-        let get = |m: Method| errors.iter().find(|e| e.method == m && e.s == s).unwrap();
+        let get = |m: Method| {
+            errors
+                .iter()
+                .find(|e| e.method == m && e.brdf == Brdf::BlinnPhong { s })
+                .unwrap()
+        };
         let (v, t, l) = (get(Method::Vmf), get(Method::Toksvig), get(Method::Lean));
         for k in 2..=6 {
             let (ve, te, le) = (

@@ -6,6 +6,7 @@ use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
 use ndfmap::eval::{default_directions, evaluate, format_table};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
 use ndfmap::output::{InputInfo, write_bake};
+use ndfmap::shade::Brdf;
 use ndfmap::{Error, IngestOptions, NormalMap, Result};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -118,6 +119,10 @@ enum Command {
             value_delimiter = ','
         )]
         s: Vec<f64>,
+        /// Torrance–Sparrow roughness values σ to measure as well, comma-separated (eq 18; vMF
+        /// lobes are shaded with eq 21, σ'² = σ² + 1/(2κ)).
+        #[arg(long, value_delimiter = ',')]
+        sigma: Vec<f64>,
         /// Storage formats to measure, comma-separated (f32, f16, unorm16, unorm8): each bake
         /// is rounded through the format before shading, so the format's own error shows.
         #[arg(long, default_value = "f32", value_delimiter = ',')]
@@ -382,6 +387,7 @@ fn run(cli: Cli) -> Result<()> {
             align,
             modes,
             s,
+            sigma,
             formats,
             json,
             ingest,
@@ -405,7 +411,17 @@ fn run(cli: Cli) -> Result<()> {
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
-            let errors = evaluate(&map, &refs, &s, &default_directions());
+            if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+                return Err(Error::InvalidOption(format!(
+                    "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
+                )));
+            }
+            let brdfs: Vec<Brdf> = s
+                .iter()
+                .map(|&s| Brdf::BlinnPhong { s })
+                .chain(sigma.iter().map(|&sigma| Brdf::TorranceSparrow { sigma }))
+                .collect();
+            let errors = evaluate(&map, &refs, &brdfs, &default_directions());
             // How well lobe j lines up across neighbouring texels (Sec 7.3), per vMF bake.
             let coherence: Vec<(String, Vec<Option<f64>>)> = bakes
                 .iter()
@@ -509,7 +525,8 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         println!("{:<8} bake: {}", b.method.name(), m.display());
     }
     let refs: Vec<&Bake> = bakes.iter().collect();
-    let errors = evaluate(&map, &refs, &[64.0, 512.0], &default_directions());
+    let brdfs = [Brdf::BlinnPhong { s: 64.0 }, Brdf::BlinnPhong { s: 512.0 }];
+    let errors = evaluate(&map, &refs, &brdfs, &default_directions());
     let table = format_table(&errors);
     let table_path = output.join("eval.txt");
     std::fs::write(&table_path, &table).map_err(|e| write_err(&table_path, &e))?;
