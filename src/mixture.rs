@@ -666,35 +666,37 @@ fn assemble<M: Model>(
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
     let j = options.lobes;
-    // Texture chain s from per-level values laid out `values[t * J + s]`.
-    fn chain(levels: &[&[[f32; 4]]], j: usize, s: usize) -> Vec<Vec<[f32; 4]>> {
-        levels
-            .iter()
-            .map(|v| v.iter().skip(s).step_by(j).copied().collect())
-            .collect()
-    }
-    let texels: Vec<&[[f32; 4]]> = fits.iter().map(|f| f.texels.as_slice()).collect();
-    let mut textures = Vec::new();
-    for (s, &name) in M::NAMES.iter().enumerate().take(j) {
-        textures.push(Texture {
+    let color = map.feature().is_some();
+    let mut textures: Vec<Texture> = M::NAMES
+        .iter()
+        .take(j)
+        .map(|&name| Texture {
             name,
             channels: M::CHANNELS,
             ranges: M::RANGES,
-            levels: chain(&texels, j, s),
-        });
+            levels: Vec::new(),
+        })
+        .collect();
+    if color {
+        textures.extend(COLOR_NAMES.iter().take(j).map(|&name| Texture {
+            name,
+            channels: ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
+            ranges: [ValueRange::Unit; 4],
+            levels: Vec::new(),
+        }));
     }
-    if map.feature().is_some() {
-        let colors: Vec<&[[f32; 4]]> = fits
-            .iter()
-            .map(|f| f.colors.as_deref().expect("features give colours"))
-            .collect();
-        for (s, &name) in COLOR_NAMES.iter().enumerate().take(j) {
-            textures.push(Texture {
-                name,
-                channels: ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
-                ranges: [ValueRange::Unit; 4],
-                levels: chain(&colors, j, s),
-            });
+    // De-interleave `values[t * J + s]` into chain s, one level at a time, freeing each level's
+    // fit as soon as it is laid out (peak memory: the textures plus one level).
+    for fit in fits {
+        let mut sources = vec![fit.texels];
+        if color {
+            sources.push(fit.colors.expect("features give colours"));
+        }
+        for (group, values) in sources.into_iter().enumerate() {
+            for s in 0..j {
+                let level = values.iter().skip(s).step_by(j).copied().collect();
+                textures[group * j + s].levels.push(level);
+            }
         }
     }
     let mut parameters = serde_json::json!({
