@@ -219,7 +219,8 @@ pub(crate) fn bake_tan2005(map: &NormalMap, options: &BakeOptions) -> Result<Bak
 
 /// Components and colours of every texel of one level, `components[t * J + j]`.
 struct LevelFit<C> {
-    /// Empty for the finest level, whose components are the normals themselves.
+    /// Empty for the finest level, whose components are the normals themselves (level 1 reads
+    /// the normals directly).
     components: Vec<C>,
     keep_components: bool,
     /// `α_j y_j` per component (eq 22), when a feature image is present, as stored (f32).
@@ -407,20 +408,27 @@ impl<C: Copy> LevelFit<C> {
 fn finest_level<M: Model>(
     map: &NormalMap,
     j: usize,
-    slot_of: impl Fn(usize) -> usize,
+    slot_of: impl Fn(usize) -> usize + Sync,
 ) -> LevelFit<M::C> {
-    let mut out = LevelFit::with_capacity(map.normals().len() * j, map.feature().is_some());
-    for (t, &n) in map.normals().iter().enumerate() {
-        let mut comps = vec![M::EMPTY; j];
-        comps[slot_of(t)] = M::single(n);
-        let colors = match map.feature() {
-            Some(f) => vec![f[t].map(|v| v as f64); j],
-            None => Vec::new(),
-        };
-        let texels = comps.iter().map(M::texel).collect();
-        out.push::<M>((comps, colors, texels));
+    let n = map.normals().len();
+    let mut texels = vec![[0.0f32; 4]; n * j];
+    texels.par_chunks_mut(j).enumerate().for_each(|(t, out)| {
+        out[slot_of(t)] = M::texel(&M::single(map.normals()[t])).map(|v| v as f32);
+    });
+    // α = 1 in the slot: the colour texel is the feature itself; other slots are empty.
+    let colors = map.feature().map(|f| {
+        let mut c = vec![[0.0f32; 4]; n * j];
+        c.par_chunks_mut(j)
+            .enumerate()
+            .for_each(|(t, out)| out[slot_of(t)] = f[t]);
+        c
+    });
+    LevelFit {
+        components: Vec::new(),
+        keep_components: false,
+        colors,
+        texels,
     }
-    out
 }
 
 /// Bakes the vMF mixture of `map` (module docs).

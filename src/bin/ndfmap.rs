@@ -375,7 +375,11 @@ fn run(cli: Cli) -> Result<()> {
             };
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
-            let b = ndfmap::pack::quantize(&bake_with(&map, method, &options)?, format)?;
+            let b = bake_with(&map, method, &options)?;
+            let b = match format {
+                Format::F32 => b,
+                f => ndfmap::pack::quantize(&b, f)?,
+            };
             let seconds = t.elapsed().as_secs_f64();
             let manifest = write_bake(&b, info, &output)?;
             println!("baked {method} in {seconds:.3} s: {}", manifest.display());
