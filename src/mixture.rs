@@ -562,13 +562,16 @@ fn top_down<M: Model>(
             let i = (parent_of(y, h, ph) * pw + parent_of(x, w, pw)) as usize;
             Some(&p.components[i * j..(i + 1) * j])
         };
-        if k == 0 && levels > 1 {
+        if k == 0 {
             // One normal per texel: it goes, unpulled, to the parent's component that explains
-            // it best (the E-step with the parent's components), so level 0 stays exact.
+            // it best (the E-step with the parent's components), so level 0 stays exact. A 1×1
+            // map has no parent and nothing to align: slot 0.
             let fit0 = finest_level::<M>(map, j, |t| {
                 let (x, y) = (t as u32 % w, t as u32 / w);
                 let n = map.normals()[t];
-                let comps = parent_of_texel(x, y).expect("level 0 has a parent");
+                let Some(comps) = parent_of_texel(x, y) else {
+                    return 0;
+                };
                 let mut best = (0, f64::NEG_INFINITY);
                 for (s, c) in comps.iter().enumerate() {
                     let score = M::log_score(c, n);
