@@ -183,108 +183,41 @@ fn bad_inputs_fail_with_one_line_and_leave_no_manifest() {
 
     let out = d("out");
     let o = out.to_str().unwrap();
+    // `bake INPUT -m METHOD -o OUT EXTRA...`
+    let bake = |input: &Path, method: &str, out: &str, extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = vec!["bake".into(), input.display().to_string()];
+        v.extend(["-m", method, "-o", out].map(String::from));
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let a_file_sub = d("a-file").join("sub").display().to_string();
+    let feature_small = d("feature-small.png").display().to_string();
     let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
         (
-            vec![
-                "bake".into(),
-                d("truncated.png").display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-            ],
+            bake(&d("truncated.png"), "plain", o, &[]),
             vec!["truncated.png"],
         ),
         (
-            vec![
-                "bake".into(),
-                d("corrupt.png").display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-            ],
+            bake(&d("corrupt.png"), "plain", o, &[]),
             vec!["corrupt.png"],
         ),
+        (bake(&d("empty.tga"), "plain", o, &[]), vec!["empty.tga"]),
         (
-            vec![
-                "bake".into(),
-                d("empty.tga").display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-            ],
-            vec!["empty.tga"],
-        ),
-        (
-            vec![
-                "bake".into(),
-                d("missing.png").display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-            ],
+            bake(&d("missing.png"), "plain", o, &[]),
             vec!["missing.png"],
         ),
         (
-            vec![
-                "bake".into(),
-                d("grey.png").display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-            ],
+            bake(&d("grey.png"), "plain", o, &[]),
             vec!["grey.png", "channel"],
         ),
         (
-            vec![
-                "bake".into(),
-                good.display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-                "--feature".into(),
-                d("feature-small.png").display().to_string(),
-            ],
+            bake(&good, "plain", o, &["--feature", &feature_small]),
             vec!["feature-small.png", "4x4", "8x8"],
         ),
+        (bake(&good, "mystery", o, &[]), vec!["mystery"]),
+        (bake(&good, "plain", &a_file_sub, &[]), vec!["a-file"]),
         (
-            vec![
-                "bake".into(),
-                good.display().to_string(),
-                "-m".into(),
-                "mystery".into(),
-                "-o".into(),
-                o.into(),
-            ],
-            vec!["mystery"],
-        ),
-        (
-            vec![
-                "bake".into(),
-                good.display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                d("a-file").join("sub").display().to_string(),
-            ],
-            vec!["a-file"],
-        ),
-        (
-            vec![
-                "bake".into(),
-                good.display().to_string(),
-                "-m".into(),
-                "plain".into(),
-                "-o".into(),
-                o.into(),
-                "--green".into(),
-                "sideways".into(),
-            ],
+            bake(&good, "plain", o, &["--green", "sideways"]),
             vec!["sideways"],
         ),
         (
