@@ -150,6 +150,15 @@ pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shad
     }
 }
 
+/// Toksvig's texel decoded: the mean normal `n̄`, its direction (+Z when `n̄ = 0`) and its
+/// length `|n̄|` clamped to 1.
+fn toksvig_mean(texels: &[[f32; 4]]) -> (DVec3, DVec3, f64) {
+    let m = v3(texels[0]);
+    let len = m.length();
+    let mu = if len > 1e-12 { m / len } else { DVec3::Z };
+    (m, mu, len.min(1.0))
+}
+
 /// LEAN's texels decoded: mean slope `E[b]` and the slope covariance (PSD-projected).
 fn lean_moments(texels: &[[f32; 4]]) -> (DVec2, [f64; 3]) {
     let (t0, t1) = (texels[0], texels[1]);
@@ -199,10 +208,7 @@ pub fn shade(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Sh
             reference(mu, l, h, s)
         }
         Method::Toksvig => {
-            let m = v3(texels[0]);
-            let len = m.length();
-            let mu = if len > 1e-12 { m / len } else { DVec3::Z };
-            let ft = len.min(1.0);
+            let (m, mu, ft) = toksvig_mean(texels);
             let den = ft + s * (1.0 - ft);
             let s_t = if den > 0.0 { ft * s / den } else { 0.0 };
             Shading {
@@ -361,10 +367,7 @@ pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: Br
             reference_brdf(mu, l, h, brdf)
         }
         Method::Toksvig => {
-            let m = v3(texels[0]);
-            let len = m.length();
-            let mu = if len > 1e-12 { m / len } else { DVec3::Z };
-            let ft = len.min(1.0);
+            let (m, mu, ft) = toksvig_mean(texels);
             let var = if ft > 0.0 { (1.0 - ft) / ft } else { 1e6 };
             Shading {
                 diffuse: m.dot(l).max(0.0),
