@@ -582,6 +582,38 @@ mod tests {
     }
 
     #[test]
+    fn colour_shading_with_white_albedo_is_the_scalar_shading() {
+        // y = 1 everywhere: every lobe's α·y is α, so Algorithm 2 line 14 with colour equals the
+        // uncoloured sum, for both methods and both BRDFs.
+        let sample = crate::procedural::generate(16, 5);
+        let white = vec![[1.0f32; 4]; sample.albedo.len()];
+        let map = sample.map.with_feature(white).unwrap();
+        let opts = crate::bake::BakeOptions {
+            lobes: 3,
+            ..Default::default()
+        };
+        let (l, h) = (
+            DVec3::new(0.2, -0.3, 0.93).normalize(),
+            DVec3::new(0.1, 0.05, 1.0).normalize(),
+        );
+        for method in [Method::Vmf, Method::Tan2005] {
+            let b = crate::bake::bake_with(&map, method, &opts).unwrap();
+            for brdf in [Brdf::BlinnPhong { s: 50.0 }, Brdf::TorranceSparrow { sigma: 0.2 }] {
+                for level in [0, 2] {
+                    let t = b.texel(level, 1, 1);
+                    let c = shade_rgb(&b, &t, l, h, brdf, true);
+                    let g = shade_brdf(&b, &t, l, h, brdf);
+                    for k in 0..3 {
+                        assert!((c.diffuse[k] - g.diffuse).abs() < 1e-6, "{method} {brdf}");
+                        let tol = 1e-6 * g.specular.max(1.0);
+                        assert!((c.specular[k] - g.specular).abs() < tol, "{method} {brdf}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn tangent_frame_is_orthonormal() {
         for n in [
             DVec3::Z,
