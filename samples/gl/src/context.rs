@@ -173,6 +173,12 @@ impl Gl {
         mask & glow::CONTEXT_CORE_PROFILE_BIT != 0
     }
 
+    /// Waits until every command issued so far has completed (`glFinish`), for timing.
+    pub fn finish(&self) {
+        // SAFETY: the context is current on this thread while `self` lives.
+        unsafe { self.glow().finish() };
+    }
+
     /// Returns [`Error::Gl`] naming `operation` if `glGetError` reports an error (and clears
     /// every pending error flag).
     pub fn check_error(&self, operation: &'static str) -> Result<()> {

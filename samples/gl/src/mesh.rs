@@ -133,7 +133,8 @@ impl Mesh {
         let g = gl.glow();
         let created = |e: String| Gl::creation_error("mesh upload", e);
         // SAFETY: the context is current on this thread while `gl` lives; the names are owned
-        // by the returned value; the attribute offsets and stride match the bytes built above.
+        // by the returned value (`glGen*` does not fail, so none is lost between the calls);
+        // the attribute offsets and stride match the bytes built above.
         unsafe {
             let mesh = Mesh {
                 gl: gl.clone(),

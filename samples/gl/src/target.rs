@@ -24,7 +24,8 @@ impl RenderTarget {
         let (w, h) = (width.max(1) as i32, height.max(1) as i32);
         let created = |e: String| Gl::creation_error("framebuffer creation", e);
         // SAFETY: the context is current on this thread while `gl` lives; the three names are
-        // created here and owned by the returned value (or deleted by its drop on error).
+        // created here and owned by the returned value, whose drop deletes them on any later
+        // error. (`glGen*` does not fail, so no name is lost between the three calls.)
         unsafe {
             let target = RenderTarget {
                 gl: gl.clone(),

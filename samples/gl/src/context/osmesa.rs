@@ -47,22 +47,27 @@ static FUNCTIONS: OnceLock<Result<Functions, String>> = OnceLock::new();
 fn load() -> Result<Functions, String> {
     // SAFETY: loading runs libOSMesa's (Mesa's) initializers, which have no preconditions.
     let library = unsafe { Library::new(LIBRARY) }.map_err(|e| e.to_string())?;
-    // SAFETY: the types are the prototypes of `GL/osmesa.h`; the pointers are used only while
-    // `_library` (kept beside them) is loaded.
+    /// Copies the function pointer `name` out of `library`.
+    ///
+    /// SAFETY (caller): `T` is the function's prototype from `GL/osmesa.h`, and the pointer is
+    /// used only while `library` is loaded.
+    unsafe fn symbol<T: Copy>(library: &Library, name: &[u8]) -> Result<T, String> {
+        // SAFETY: the caller's contract above.
+        unsafe {
+            library
+                .get::<T>(name)
+                .map(|s| *s)
+                .map_err(|e| e.to_string())
+        }
+    }
+    // SAFETY: the types are the prototypes of `GL/osmesa.h`; the pointers are kept beside
+    // `_library`, which stays loaded as long as they do (the whole process).
     unsafe {
         Ok(Functions {
-            create: *library
-                .get::<CreateContextAttribs>(b"OSMesaCreateContextAttribs\0")
-                .map_err(|e| e.to_string())?,
-            make_current: *library
-                .get::<MakeCurrent>(b"OSMesaMakeCurrent\0")
-                .map_err(|e| e.to_string())?,
-            destroy: *library
-                .get::<DestroyContext>(b"OSMesaDestroyContext\0")
-                .map_err(|e| e.to_string())?,
-            get_proc_address: *library
-                .get::<GetProcAddress>(b"OSMesaGetProcAddress\0")
-                .map_err(|e| e.to_string())?,
+            create: symbol(&library, b"OSMesaCreateContextAttribs\0")?,
+            make_current: symbol(&library, b"OSMesaMakeCurrent\0")?,
+            destroy: symbol(&library, b"OSMesaDestroyContext\0")?,
+            get_proc_address: symbol(&library, b"OSMesaGetProcAddress\0")?,
             _library: library,
         })
     }

@@ -15,33 +15,26 @@ use ndfmap_gl::{
 };
 use std::time::Instant;
 
-/// Defines one `#[test]` per check for `$route`.
+/// Defines one `#[test]` per check for `$route`, each calling the function of the same name.
 macro_rules! route_tests {
     ($route:expr) => {
-        #[test]
-        fn context_is_3_3_core_and_released() {
-            common::context_is_3_3_core_and_released($route);
-        }
-        #[test]
-        fn upload_reads_back_exactly_in_every_format() {
-            common::upload_reads_back_exactly_in_every_format($route);
-        }
-        #[test]
-        fn trilinear_matches_the_cpu_filter() {
-            common::trilinear_matches_the_cpu_filter($route);
-        }
-        #[test]
-        fn sphere_covers_the_middle_front_faces_win() {
-            common::sphere_covers_the_middle_front_faces_win($route);
-        }
-        #[test]
-        fn plane_attributes_and_orientation() {
-            common::plane_attributes_and_orientation($route);
-        }
-        #[test]
-        fn uniforms_set_by_name_and_errors_carry_logs() {
-            common::uniforms_set_by_name_and_errors_carry_logs($route);
-        }
+        common::route_tests!(
+            $route;
+            context_is_3_3_core_and_released,
+            upload_reads_back_exactly_in_every_format,
+            trilinear_matches_the_cpu_filter,
+            sphere_covers_the_middle_front_faces_win,
+            plane_attributes_and_orientation,
+            uniforms_set_by_name_and_errors_carry_logs
+        );
+    };
+    ($route:expr; $($check:ident),+) => {
+        $(
+            #[test]
+            fn $check() {
+                common::$check($route);
+            }
+        )+
     };
 }
 pub(crate) use route_tests;
@@ -366,6 +359,17 @@ void main() {
 }
 ";
 
+/// `mesh` drawn with [`MESH_VERTEX`] and `fragment` through `camera` (identity model) into a
+/// cleared `n × n` target, read back.
+fn mesh_image(gl: &Gl, mesh: &Mesh, fragment: &str, camera: &Camera, n: u32) -> Vec<[f32; 4]> {
+    let program = Program::new(gl, MESH_VERTEX, fragment).unwrap();
+    camera.set_uniforms(&program, &Mat4::IDENTITY);
+    let target = RenderTarget::new(gl, n, n).unwrap();
+    target.clear([0.0; 4]);
+    draw_mesh(&program, mesh, &target).unwrap();
+    read_rgba_f32(&target).unwrap()
+}
+
 /// A unit sphere 3 units from a 45° camera covers a disc of the predicted radius; the middle
 /// shows the front (normal towards the camera) and the top of the disc the north pole.
 pub fn sphere_covers_the_middle_front_faces_win(route: Route) {
@@ -375,15 +379,10 @@ in vec3 normal;
 out vec4 color;
 void main() { color = vec4(normalize(normal), 1.0); }
 ";
-    let program = Program::new(&gl, MESH_VERTEX, fragment).unwrap();
-    let mesh = Mesh::sphere(&gl, 1.0, 64, 32).unwrap();
     let camera = Camera::default();
-    camera.set_uniforms(&program, &Mat4::IDENTITY);
     let n = 64;
-    let target = RenderTarget::new(&gl, n, n).unwrap();
-    target.clear([0.0; 4]);
-    draw_mesh(&program, &mesh, &target).unwrap();
-    let px = read_rgba_f32(&target).unwrap();
+    let mesh = Mesh::sphere(&gl, 1.0, 64, 32).unwrap();
+    let px = mesh_image(&gl, &mesh, fragment, &camera, n);
     let at = |x: u32, y: u32| Vec4::from(px[(y * n + x) as usize]);
     let centre = at(n / 2, n / 2);
     assert!(centre.w == 1.0 && centre.z > 0.99, "centre {centre}");
@@ -418,16 +417,11 @@ void main() {
     color = vec4(uv, frame ? 1.0 : 0.5, 1.0);
 }
 ";
-    let program = Program::new(&gl, MESH_VERTEX, fragment).unwrap();
-    let mesh = Mesh::plane(&gl, 2.0, 1.0).unwrap();
     let mut camera = Camera::default();
     camera.orbit(0.0, std::f32::consts::FRAC_PI_2);
-    camera.set_uniforms(&program, &Mat4::IDENTITY);
     let n = 32;
-    let target = RenderTarget::new(&gl, n, n).unwrap();
-    target.clear([0.0; 4]);
-    draw_mesh(&program, &mesh, &target).unwrap();
-    let px = read_rgba_f32(&target).unwrap();
+    let mesh = Mesh::plane(&gl, 2.0, 1.0).unwrap();
+    let px = mesh_image(&gl, &mesh, fragment, &camera, n);
     let at = |x: u32, y: u32| Vec4::from(px[(y * n + x) as usize]);
     assert!(
         px.iter().all(|p| p[3] == 0.0 || p[2] == 1.0),
