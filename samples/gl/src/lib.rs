@@ -66,6 +66,7 @@ pub mod camera;
 pub mod context;
 pub mod mesh;
 pub mod program;
+pub mod render;
 pub mod target;
 pub mod texture;
 
@@ -75,6 +76,7 @@ pub use glam;
 pub use glow;
 pub use mesh::{Mesh, MeshData, Vertex, draw_mesh};
 pub use program::{FULLSCREEN_VERTEX_SHADER, Program};
+pub use render::{BakeRenderer, Lighting, Scene, Shape};
 pub use target::{RenderTarget, draw_fullscreen, read_rgba_f32};
 pub use texture::BakeTextures;
 
@@ -125,6 +127,9 @@ pub enum Error {
         /// The linker's info log.
         log: String,
     },
+    /// A call the API does not support, e.g. a BRDF the shader was not compiled for.
+    #[error("{0}")]
+    Usage(String),
     /// The bake cannot be packed in the requested format (e.g. unbounded values in unorm).
     #[error(transparent)]
     Pack(#[from] ndfmap::Error),

@@ -1,0 +1,164 @@
+//! Regression renders: the standard scenes (`Scene::standard`: plane far, plane grazing under a
+//! point light, sphere under a directional light) drawn with the product shaders for plain,
+//! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), through
+//! EGL and through OSMesa, against the reference images in `tests/reference/`.
+//!
+//! Images are compared after the same tone mapping the references are stored with (Reinhard
+//! `x/(1+x)` per channel, then the sRGB curve, 16-bit PNG):
+//! - RMSE of the tone-mapped values ≤ [`MAX_RMSE`] (1/1024: well under one 8-bit code, so any
+//!   visible change fails, while rounding differences between Mesa builds or GPUs pass);
+//! - mean FLIP (NVIDIA's perceptual metric, 8-bit sRGB, 67 pixels per degree) ≤ [`MAX_FLIP`].
+//!
+//! On a mismatch the actual image, the reference and a difference image (×8) are written to
+//! `target/ndfmap-regression/` and the test names them. `NDFMAP_BLESS=1` rewrites the references
+//! from the EGL route (do it only for an intended change, and look at the images).
+
+use ndfmap::bake::{BakeOptions, Method, bake, bake_with};
+use ndfmap::glsl::ShaderOptions;
+use ndfmap_gl::{BakeRenderer, Gl, Route, Scene};
+use std::path::{Path, PathBuf};
+
+/// Largest RMSE of tone-mapped values (module docs).
+const MAX_RMSE: f64 = 1.0 / 1024.0;
+/// Largest mean FLIP error (module docs).
+const MAX_FLIP: f32 = 0.01;
+/// Side of the rendered images.
+const SIZE: u32 = 128;
+
+fn reference_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference")
+}
+
+fn output_dir() -> PathBuf {
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target"));
+    target.join("ndfmap-regression")
+}
+
+/// Reinhard then the sRGB curve, per channel, in [0, 1).
+fn tone_map(v: f32) -> f32 {
+    let x = (v.max(0.0) / (1.0 + v.max(0.0))) as f64;
+    let s = if x <= 0.0031308 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    };
+    s as f32
+}
+
+/// Linear RGBA rows bottom-to-top → tone-mapped RGB16 image, top row first.
+fn to_image(pixels: &[[f32; 4]], size: u32) -> image::ImageBuffer<image::Rgb<u16>, Vec<u16>> {
+    image::ImageBuffer::from_fn(size, size, |x, y| {
+        let p = pixels[((size - 1 - y) * size + x) as usize];
+        image::Rgb([0, 1, 2].map(|c| (tone_map(p[c]) * 65535.0).round() as u16))
+    })
+}
+
+fn to_rgb8(img: &image::ImageBuffer<image::Rgb<u16>, Vec<u16>>) -> Vec<u8> {
+    img.pixels()
+        .flat_map(|p| p.0.map(|v| ((v as u32 * 255 + 32767) / 65535) as u8))
+        .collect()
+}
+
+/// The bakes drawn: name and (bake, shader options).
+fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
+    let map = ndfmap::procedural::generate(128, 3).map;
+    let lobes = |align: Option<f64>| BakeOptions {
+        lobes: 4,
+        align,
+        ..Default::default()
+    };
+    let bakes = vec![
+        bake(&map, Method::Plain),
+        bake(&map, Method::Toksvig),
+        bake(&map, Method::Lean),
+        bake_with(&map, Method::Vmf, &lobes(None)).unwrap(),
+        bake_with(&map, Method::Vmf, &lobes(Some(0.1))).unwrap(),
+    ];
+    bakes
+        .iter()
+        .map(|b| BakeRenderer::new(gl, b, &ShaderOptions::default()).unwrap())
+        .collect()
+}
+
+fn file_stem(scene: &Scene, renderer: &BakeRenderer) -> String {
+    format!("{}-{}", scene.name, renderer.label().replace(' ', "-"))
+}
+
+fn run(route: Route) {
+    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
+        println!("skipped: NDFMAP_SKIP_GL=1");
+        return;
+    }
+    let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    let bless = std::env::var("NDFMAP_BLESS").is_ok_and(|v| v == "1") && route == Route::Egl;
+    let renderers = renderers(&gl);
+    let mut failures = Vec::new();
+    for scene in Scene::standard() {
+        for r in &renderers {
+            let pixels = scene.render(&gl, r, SIZE).unwrap();
+            assert!(
+                pixels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+                "{route} {}: non-finite or negative radiance",
+                file_stem(&scene, r)
+            );
+            let actual = to_image(&pixels, SIZE);
+            let stem = file_stem(&scene, r);
+            let path = reference_dir().join(format!("{stem}.png"));
+            if bless {
+                std::fs::create_dir_all(reference_dir()).unwrap();
+                actual.save(&path).unwrap();
+                continue;
+            }
+            let reference = image::open(&path)
+                .unwrap_or_else(|e| panic!("{}: {e} (NDFMAP_BLESS=1 creates it)", path.display()))
+                .into_rgb16();
+            let (mut se, mut n) = (0.0f64, 0usize);
+            for (a, b) in actual.as_raw().iter().zip(reference.as_raw()) {
+                let d = (*a as f64 - *b as f64) / 65535.0;
+                se += d * d;
+                n += 1;
+            }
+            let rmse = (se / n as f64).sqrt();
+            let (ra, rr) = (to_rgb8(&actual), to_rgb8(&reference));
+            let flip_map = nv_flip::flip(
+                nv_flip::FlipImageRgb8::with_data(SIZE, SIZE, &rr),
+                nv_flip::FlipImageRgb8::with_data(SIZE, SIZE, &ra),
+                nv_flip::DEFAULT_PIXELS_PER_DEGREE,
+            );
+            let flip = nv_flip::FlipPool::from_image(&flip_map).mean();
+            println!("{route} {stem:<28} RMSE {rmse:.2e}  FLIP {flip:.4}");
+            if rmse > MAX_RMSE || flip > MAX_FLIP {
+                let out = output_dir();
+                std::fs::create_dir_all(&out).unwrap();
+                let base = out.join(format!("{route}-{stem}"));
+                actual.save(base.with_extension("actual.png")).unwrap();
+                reference.save(base.with_extension("reference.png")).unwrap();
+                let diff = image::ImageBuffer::from_fn(SIZE, SIZE, |x, y| {
+                    let (a, b) = (actual.get_pixel(x, y), reference.get_pixel(x, y));
+                    image::Rgb([0, 1, 2].map(|c| {
+                        ((a[c] as i32 - b[c] as i32).unsigned_abs() * 8).min(65535) as u16
+                    }))
+                });
+                diff.save(base.with_extension("diff.png")).unwrap();
+                failures.push(format!(
+                    "{stem}: RMSE {rmse:.2e} (max {MAX_RMSE:.2e}), FLIP {flip:.4} (max \
+                     {MAX_FLIP}); images in {}.*.png",
+                    base.display()
+                ));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{route}:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn standard_scenes_match_the_references_through_egl() {
+    run(Route::Egl);
+}
+
+#[test]
+fn standard_scenes_match_the_references_through_osmesa() {
+    run(Route::OsMesa);
+}
