@@ -96,3 +96,21 @@ impl Camera {
         program.set_vec3(UNIFORM_CAMERA_POS, self.eye());
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn orbit_camera_places_the_eye_and_centres_the_target() {
+        let mut c = Camera::default();
+        assert!((c.eye() - Vec3::new(0.0, 0.0, 3.0)).length() < 1e-6);
+        c.orbit(std::f32::consts::FRAC_PI_2, 0.0);
+        assert!((c.eye() - Vec3::new(3.0, 0.0, 0.0)).length() < 1e-5);
+        c.orbit(0.0, 10.0);
+        assert!(c.pitch < std::f32::consts::FRAC_PI_2 && c.eye().y > 2.99);
+        c.target = Vec3::new(1.0, 2.0, 3.0);
+        let clip = c.view_proj() * c.target.extend(1.0);
+        assert!(clip.x.abs() < 1e-4 && clip.y.abs() < 1e-4 && clip.w > 0.0);
+    }
+}

@@ -62,6 +62,8 @@
 //! Repeated runs on the loaded machine varied by up to 3×; the very first EGL context of a cold
 //! start (libraries not yet in the page cache) took 425 ms.
 
+#![warn(missing_docs)]
+
 pub mod camera;
 pub mod context;
 pub mod mesh;

@@ -94,11 +94,17 @@ impl MeshData {
             }
         }
         let row = segments + 1;
-        let mut indices = Vec::with_capacity((6 * segments * rings) as usize);
+        let mut indices = Vec::with_capacity((6 * segments * (rings - 1)) as usize);
         for i in 0..rings {
             for j in 0..segments {
                 let (a, b) = (i * row + j, (i + 1) * row + j);
-                indices.extend_from_slice(&[a, b, b + 1, a, b + 1, a + 1]);
+                // At a pole one of the quad's two triangles has no area: leave it out.
+                if i + 1 < rings {
+                    indices.extend_from_slice(&[a, b, b + 1]);
+                }
+                if i > 0 {
+                    indices.extend_from_slice(&[a, b + 1, a + 1]);
+                }
             }
         }
         MeshData { vertices, indices }
@@ -215,4 +221,65 @@ pub fn draw_mesh(program: &Program, mesh: &Mesh, target: &RenderTarget) -> Resul
         g.bind_vertex_array(None);
     }
     gl.check_error("mesh draw")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every triangle winds counter-clockwise seen from outside (its geometric normal agrees
+    /// with the vertex normals), the tangent is unit and orthogonal to the normal, and the
+    /// bitangent `w·cross(N, T)` points to decreasing v.
+    fn check_frames(mesh: &MeshData) {
+        let p = |i: u32| Vec3::from(mesh.vertices[i as usize].position);
+        for tri in mesh.indices.chunks_exact(3) {
+            let face = (p(tri[1]) - p(tri[0])).cross(p(tri[2]) - p(tri[0]));
+            assert!(face.length() > 1e-6, "triangle {tri:?} has no area");
+            let n: Vec3 = tri
+                .iter()
+                .map(|&i| Vec3::from(mesh.vertices[i as usize].normal))
+                .sum();
+            assert!(face.dot(n) > 0.0, "triangle {tri:?} winds inwards");
+            // Down the image (increasing v) along the triangle's edges, against the bitangent.
+            let v = |i: u32| mesh.vertices[i as usize].uv[1];
+            let (a, b) = (
+                tri[0],
+                tri[1..]
+                    .iter()
+                    .copied()
+                    .max_by(|&x, &y| v(x).total_cmp(&v(y)))
+                    .unwrap(),
+            );
+            let t = mesh.vertices[a as usize].tangent;
+            let (tangent, normal) = (
+                Vec3::new(t[0], t[1], t[2]),
+                Vec3::from(mesh.vertices[a as usize].normal),
+            );
+            let bitangent = t[3] * normal.cross(tangent);
+            if v(b) > v(a) {
+                assert!(
+                    bitangent.dot(p(b) - p(a)) < 0.0,
+                    "triangle {tri:?}: bitangent points down"
+                );
+            }
+        }
+        for vertex in &mesh.vertices {
+            let t = Vec3::new(vertex.tangent[0], vertex.tangent[1], vertex.tangent[2]);
+            assert!((t.length() - 1.0).abs() < 1e-5);
+            assert!(t.dot(Vec3::from(vertex.normal)).abs() < 1e-5);
+            assert_eq!(vertex.tangent[3].abs(), 1.0);
+        }
+    }
+
+    #[test]
+    fn plane_and_sphere_frames_follow_the_conventions() {
+        check_frames(&MeshData::plane(2.0, 3.0));
+        let sphere = MeshData::sphere(1.5, 24, 12);
+        assert_eq!(sphere.vertices.len(), 25 * 13);
+        assert_eq!(sphere.indices.len(), 6 * 24 * (12 - 1));
+        check_frames(&sphere);
+        for v in &sphere.vertices {
+            assert!((Vec3::from(v.position).length() - 1.5).abs() < 1e-5);
+        }
+    }
 }
