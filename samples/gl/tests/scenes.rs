@@ -71,7 +71,7 @@ fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
         align,
         ..Default::default()
     };
-    let bakes = vec![
+    let bakes = [
         bake(&map, Method::Plain),
         bake(&map, Method::Toksvig),
         bake(&map, Method::Lean),
