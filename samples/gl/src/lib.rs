@@ -16,6 +16,12 @@
 //!   `libosmesa6`; Mesa removed OSMesa in 25.1), a core 3.3 context current on a small buffer
 //!   the context owns.
 //!
+//! [`BakeRenderer`] joins the pieces for the product shaders: a bake's textures uploaded, its
+//! `ndfmap::glsl` vertex and fragment shaders compiled, meshes drawn under a [`Lighting`];
+//! [`Scene::standard`] lists the views the regression renders (`tests/scenes.rs`) and the
+//! frame-time table use. `tests/shaders.rs` proves the shaders equal their CPU twin texel for
+//! texel.
+//!
 //! Drawing always goes to a [`RenderTarget`] (an RGBA32F framebuffer object with a depth
 //! buffer), never to a default framebuffer, so both routes behave the same. A windowed route
 //! (glutin + winit) would be a third way to make a context current; everything past

@@ -63,7 +63,8 @@ fn to_rgb8(img: &image::ImageBuffer<image::Rgb<u16>, Vec<u16>>) -> Vec<u8> {
         .collect()
 }
 
-/// The bakes drawn: name and (bake, shader options).
+/// The bakes drawn, each with its default shader (aligned lobes sample in hardware, unaligned
+/// ones manually), on the 128² built-in sample.
 fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
     let map = ndfmap::procedural::generate(128, 3).map;
     let lobes = |align: Option<f64>| BakeOptions {
