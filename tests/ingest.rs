@@ -1081,3 +1081,45 @@ fn mutated_files_never_panic() {
     }
     assert!(start.elapsed() < Duration::from_secs(60));
 }
+
+#[test]
+fn load_memory_reads_every_format_as_load_reads_the_file() {
+    let tmp = dir();
+    let ns = normals(W, H);
+    let (rgb, _) = encode8(&ns, false);
+    let img = image::RgbImage::from_raw(W, H, rgb).unwrap();
+    let mut files = Vec::new();
+    for name in ["n.png", "n.tga", "n.tif"] {
+        let path = tmp.path().join(name);
+        img.save(&path).unwrap();
+        files.push(path);
+    }
+    let exr = tmp.path().join("n.exr");
+    let float: Vec<[f32; 3]> = ns.iter().map(|n| n.to_array()).collect();
+    write_exr_rgb(&exr, W as usize, H as usize, &float);
+    files.push(exr);
+    for path in &files {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        let bytes = std::fs::read(path).unwrap();
+        let from_file = NormalMap::load(path, &opts()).unwrap();
+        let from_memory = NormalMap::load_memory(name, &bytes, &opts()).unwrap();
+        assert_eq!(from_memory.normals(), from_file.normals(), "{name}");
+        assert_eq!(from_memory.stats(), from_file.stats(), "{name}");
+        // The feature counterpart.
+        let with = from_file.clone().with_feature_file(path, &opts()).unwrap();
+        let with_memory = from_file
+            .with_feature_memory(name, &bytes, &opts())
+            .unwrap();
+        assert_eq!(with.feature(), with_memory.feature(), "{name}");
+    }
+    // TGA has no signature: without its extension the bytes are not recognized.
+    let tga = std::fs::read(tmp.path().join("n.tga")).unwrap();
+    assert!(NormalMap::load_memory("buffer", &tga, &opts()).is_err());
+    // Errors name the buffer.
+    for bytes in [&[][..], &noise(512, 3)[..]] {
+        match NormalMap::load_memory("in-memory.png", bytes, &opts()) {
+            Err(Error::Decode { path, .. }) => assert_eq!(path, Path::new("in-memory.png")),
+            other => panic!("expected Decode, got {other:?}"),
+        }
+    }
+}
