@@ -201,7 +201,7 @@ pub extern "C" fn ndf_tan2005_options_default() -> ndf_tan2005_options {
 /// and write it at once.
 pub struct ndf_bake {
     pub(crate) bake: Bake,
-    input: InputInfo,
+    pub(crate) input: InputInfo,
     /// Per texture: its name, then the meaning of R, G, B, A, NUL-terminated for C.
     names: Vec<[CString; 5]>,
 }
