@@ -240,6 +240,28 @@ impl Bake {
     }
 }
 
+/// The value ranges of each texture a bake of `method` has, in texture order — what a shader
+/// needs to decode unsigned-normalized storage without a bake at hand: the baseline's textures,
+/// or `lobes` lobe textures followed, with `color`, by `lobes` colour textures (`α·y`, unit).
+pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRange; 4]> {
+    use crate::mixture::{Model, TanModel, VmfModel};
+    let lobe = match method {
+        Method::Vmf => VmfModel::RANGES,
+        Method::Tan2005 => TanModel::RANGES,
+        _ => {
+            return crate::baseline::layout(method)
+                .into_iter()
+                .map(|(_, _, ranges)| ranges)
+                .collect();
+        }
+    };
+    let mut ranges = vec![lobe; lobes];
+    if color {
+        ranges.extend(std::iter::repeat_n([ValueRange::Unit; 4], lobes));
+    }
+    ranges
+}
+
 /// Options of the mixture methods (ignored by the baselines).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeOptions {

@@ -48,7 +48,7 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
 }
 
 /// Texture names, channel meanings and value ranges of `method`.
-fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
+pub(crate) fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
     use ValueRange::{Any, Signed as S, Unit as U};
     match method {
         Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by crate::mixture"),

@@ -399,6 +399,100 @@ pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: Br
     }
 }
 
+/// Shading per colour channel: the Lambert and specular terms as RGB.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ShadingRgb {
+    /// Σ weight · max(ω_i·μ, 0) per channel.
+    pub diffuse: DVec3,
+    /// Σ weight · lobe · max(ω_i·μ, 0) per channel.
+    pub specular: DVec3,
+}
+
+/// One mixture component of a texel, decoded and shaded with unit weight under `brdf`:
+/// `(α, max(ω_i·μ, 0), lobe · max(ω_i·μ, 0))`, or `None` for an empty component. The terms of
+/// [`shade_brdf`]'s vMF and Tan 2005 arms before they are weighted by α.
+fn mixture_component(
+    bake: &Bake,
+    texel: [f32; 4],
+    l: DVec3,
+    h: DVec3,
+    brdf: Brdf,
+) -> Option<(f64, f64, f64)> {
+    let (alpha, mu, var, s_eff) = match bake.method {
+        Method::Vmf => {
+            let (alpha, mu, kappa) = vmf_decode(texel, crate::vmf::r_max(bake.format))?;
+            let var = if kappa > 0.0 { 1.0 / kappa } else { 1e6 };
+            let s = brdf.equivalent_exponent();
+            let s_eff = if kappa + s > 0.0 {
+                kappa * s / (kappa + s)
+            } else {
+                0.0
+            };
+            (alpha, mu, var, s_eff)
+        }
+        Method::Tan2005 => {
+            let g = crate::tan2005::Gaussian::from_texel(texel);
+            if g.is_empty() {
+                return None;
+            }
+            let var = g.variance.max(0.0);
+            let s = brdf.equivalent_exponent();
+            (
+                g.alpha,
+                crate::tan2005::lift(g.mean),
+                var,
+                s / (1.0 + s * var),
+            )
+        }
+        _ => return None,
+    };
+    let cos_i = mu.dot(l).max(0.0);
+    let lobe = match brdf {
+        Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
+        Brdf::TorranceSparrow { sigma } => {
+            let (t1, t2) = tangent_frame(mu);
+            let dir = DVec2::new(h.dot(t1), h.dot(t2));
+            torrance_sparrow_lobe(mu.dot(h), dir, sigma, [var, var, 0.0])
+        }
+    };
+    Some((alpha, cos_i, lobe * cos_i))
+}
+
+/// [`shade_brdf`] per colour channel. With `color`, a mixture bake's lobe j is weighted by its
+/// colour texture `α·y` (texture `lobes + j`) instead of α — Algorithm 2 line 14,
+/// `ρ += αy (K_s B + K_d)(ω_i·μ)` with the two terms apart; otherwise every channel is the
+/// scalar result. The CPU twin of the shaders' `NDF_COLOR` variant. `color` on a bake without
+/// colour textures is a programming error and panics.
+pub fn shade_rgb(
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    l: DVec3,
+    h: DVec3,
+    brdf: Brdf,
+    color: bool,
+) -> ShadingRgb {
+    if !color {
+        let s = shade_brdf(bake, texels, l, h, brdf);
+        return ShadingRgb {
+            diffuse: DVec3::splat(s.diffuse),
+            specular: DVec3::splat(s.specular),
+        };
+    }
+    assert!(
+        bake.lobes > 0 && texels.len() >= 2 * bake.lobes,
+        "colour shading needs a mixture bake with colour textures"
+    );
+    let mut sum = ShadingRgb::default();
+    for j in 0..bake.lobes {
+        if let Some((_, cos_i, spec)) = mixture_component(bake, texels[j], l, h, brdf) {
+            let y = v3(texels[bake.lobes + j]);
+            sum.diffuse += y * cos_i;
+            sum.specular += y * spec;
+        }
+    }
+    sum
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -485,6 +579,38 @@ mod tests {
             }
         }
         assert_eq!(torrance_sparrow_lobe(-0.1, DVec2::X, 0.1, [0.0; 3]), 0.0);
+    }
+
+    #[test]
+    fn colour_shading_with_white_albedo_is_the_scalar_shading() {
+        // y = 1 everywhere: every lobe's α·y is α, so Algorithm 2 line 14 with colour equals the
+        // uncoloured sum, for both methods and both BRDFs.
+        let sample = crate::procedural::generate(16, 5);
+        let white = vec![[1.0f32; 4]; sample.albedo.len()];
+        let map = sample.map.with_feature(white).unwrap();
+        let opts = crate::bake::BakeOptions {
+            lobes: 3,
+            ..Default::default()
+        };
+        let (l, h) = (
+            DVec3::new(0.2, -0.3, 0.93).normalize(),
+            DVec3::new(0.1, 0.05, 1.0).normalize(),
+        );
+        for method in [Method::Vmf, Method::Tan2005] {
+            let b = crate::bake::bake_with(&map, method, &opts).unwrap();
+            for brdf in [Brdf::BlinnPhong { s: 50.0 }, Brdf::TorranceSparrow { sigma: 0.2 }] {
+                for level in [0, 2] {
+                    let t = b.texel(level, 1, 1);
+                    let c = shade_rgb(&b, &t, l, h, brdf, true);
+                    let g = shade_brdf(&b, &t, l, h, brdf);
+                    for k in 0..3 {
+                        assert!((c.diffuse[k] - g.diffuse).abs() < 1e-6, "{method} {brdf}");
+                        let tol = 1e-6 * g.specular.max(1.0);
+                        assert!((c.specular[k] - g.specular).abs() < tol, "{method} {brdf}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]

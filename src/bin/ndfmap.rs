@@ -4,6 +4,7 @@
 use clap::{Args, Parser, Subcommand};
 use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
 use ndfmap::eval::{default_directions, evaluate, format_table};
+use ndfmap::glsl::{Sampling, ShaderBrdf, Stage};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
 use ndfmap::output::{InputInfo, write_bake};
 use ndfmap::shade::Brdf;
@@ -89,6 +90,42 @@ enum Command {
         format: String,
         #[command(flatten)]
         ingest: IngestArgs,
+    },
+    /// Print a method's GLSL 3.30 shader, specialized by #defines, for an engine to compile or
+    /// a tool to validate (e.g. `| glslangValidator --stdin -S frag`).
+    Shader {
+        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf.
+        #[arg(short, long)]
+        method: String,
+        /// vmf, tan2005: lobes per texel, 1 to 8.
+        #[arg(long, default_value_t = 6)]
+        lobes: usize,
+        /// vmf, tan2005: the lobes were baked aligned (`bake --align`): sample them with one
+        /// hardware trilinear fetch. Unaligned lobes are shaded per texel and blended.
+        #[arg(long)]
+        aligned: bool,
+        /// Texture format the bake is uploaded in: f32, f16, unorm16, unorm8.
+        #[arg(long, default_value = "f32")]
+        format: String,
+        /// vmf, tan2005: weight each lobe by its colour texture (a bake with --color).
+        #[arg(long)]
+        color: bool,
+        /// Specular BRDF: blinn-phong (uniform ndf_s) or torrance-sparrow (uniform ndf_sigma).
+        #[arg(long, default_value = "blinn-phong")]
+        brdf: String,
+        /// Sampling: auto (the bake's natural mode), hardware, or manual.
+        #[arg(long, default_value = "auto")]
+        sampling: String,
+        /// The texture addressing of the bake: wrap or clamp.
+        #[arg(long, default_value = "wrap")]
+        addressing: String,
+        /// Stage to print: fragment or vertex.
+        #[arg(long, default_value = "fragment")]
+        stage: String,
+        /// The probe variant (full-screen, uniforms for uv, LOD, light and half vector) used by
+        /// the GL-versus-CPU tests.
+        #[arg(long)]
+        probe: bool,
     },
     /// Measure each method's texel-space error against the exact footprint average.
     Eval {
@@ -464,6 +501,56 @@ fn run(cli: Cli) -> Result<()> {
                     t.elapsed().as_secs_f64()
                 );
             }
+        }
+        Command::Shader {
+            method,
+            lobes,
+            aligned,
+            format,
+            color,
+            brdf,
+            sampling,
+            addressing,
+            stage,
+            probe,
+        } => {
+            let method: Method = method.parse()?;
+            let mixture = matches!(method, Method::Vmf | Method::Tan2005);
+            if mixture && !(1..=ndfmap::em::MAX_LOBES).contains(&lobes) {
+                return Err(Error::InvalidOption(format!(
+                    "--lobes {lobes} (expected 1 to {})",
+                    ndfmap::em::MAX_LOBES
+                )));
+            }
+            let lobes = if mixture { lobes } else { 0 };
+            let pick = |what: &str, value: &str, names: &[&str]| -> Result<usize> {
+                names.iter().position(|n| *n == value).ok_or_else(|| {
+                    Error::InvalidOption(format!(
+                        "--{what} {value} (expected one of: {})",
+                        names.join(", ")
+                    ))
+                })
+            };
+            let spec = ndfmap::glsl::ShaderSpec {
+                method,
+                lobes,
+                ranges: ndfmap::bake::texture_ranges(method, lobes, color && mixture),
+                format: format.parse()?,
+                aligned,
+                addressing: [Addressing::Wrap, Addressing::Clamp]
+                    [pick("addressing", &addressing, &["wrap", "clamp"])?],
+            };
+            let options = ndfmap::glsl::ShaderOptions {
+                brdf: [ShaderBrdf::BlinnPhong, ShaderBrdf::TorranceSparrow]
+                    [pick("brdf", &brdf, &["blinn-phong", "torrance-sparrow"])?],
+                sampling: [Sampling::Auto, Sampling::Hardware, Sampling::Manual]
+                    [pick("sampling", &sampling, &["auto", "hardware", "manual"])?],
+                color,
+                probe,
+            };
+            let stage =
+                [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];
+            print!("{}", ndfmap::glsl::source_for(&spec, stage, &options)?);
         }
         Command::Demo { output, size } => demo(&output, size)?,
         Command::Bench {

@@ -1,0 +1,68 @@
+// ndf_baselines.glsl - the single-lobe baselines: plain MIP-mapping, Toksvig, LEAN and
+// Olano-North (DESIGN.md "Texture layouts"). CPU twin: shade::shade and shade::shade_brdf,
+// one arm per method; see src/shade.rs for the derivations.
+
+void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+#if defined(NDF_METHOD_PLAIN)
+    // The normalized mean normal shaded with the unchanged BRDF.
+    vec3 mu = ndf_normalize_or_z(t[0].xyz);
+    float d = max(dot(mu, l), 0.0);
+#ifdef NDF_BRDF_TORRANCE_SPARROW
+    float spec = ndf_ts_lobe(dot(mu, h), vec2(1.0, 0.0), ndf_sigma, vec3(0.0)) * d;
+#else
+    float spec = ndf_blinn_phong(dot(mu, h), ndf_s) * d;
+#endif
+
+#elif defined(NDF_METHOD_TOKSVIG)
+    // Toksvig: the mean normal m shortens with variation; with f = |m|,
+    // s' = f s / (f + s (1 - f)); diffuse from m itself.
+    vec3 m = t[0].xyz;
+    float len = length(m);
+    vec3 mu = len > 1e-12 ? m / len : vec3(0.0, 0.0, 1.0);
+    float ft = min(len, 1.0);
+    float d = max(dot(m, l), 0.0);
+#ifdef NDF_BRDF_TORRANCE_SPARROW
+    float var = ft > 0.0 ? (1.0 - ft) / ft : 1e6;
+    float spec = ndf_ts_iso(1.0, mu, var, l, h, ndf_sigma);
+#else
+    float den = ft + ndf_s * (1.0 - ft);
+    float s_t = den > 0.0 ? ft * ndf_s / den : 0.0;
+    float spec = ndf_blinn_phong(dot(mu, h), s_t) * max(dot(mu, l), 0.0);
+#endif
+
+#elif defined(NDF_METHOD_LEAN)
+    // LEAN: mean slope b and slope covariance E[bb^T] - E[b]E[b]^T; the lobe is offset in slope
+    // space, d = w_h.xy/w_h.z - b.
+    vec2 b = t[0].xy;
+    vec3 cov = ndf_psd(vec3(t[0].z - b.x * b.x, t[0].w - b.y * b.y, t[1].x - b.x * b.y));
+    vec3 mu = normalize(vec3(b, 1.0));
+    float d = max(dot(mu, l), 0.0);
+    vec2 dir = h.z > 1e-9 ? h.xy / h.z - b : vec2(0.0);
+#ifdef NDF_BRDF_TORRANCE_SPARROW
+    float spec = ndf_ts_lobe(dot(mu, h), dir, ndf_sigma, cov) * d;
+#else
+    float spec = h.z > 1e-9 ? ndf_widened_lobe(dot(mu, h), dir, cov, ndf_s) * d : 0.0;
+#endif
+
+#elif defined(NDF_METHOD_OLANO)
+    // Olano-North: E[n] and E[nn^T]; the covariance of n projected on mu's tangent plane.
+    vec3 m = t[0].xyz;
+    mat3 second = mat3(t[1].x, t[2].x, t[2].y,
+                       t[2].x, t[1].y, t[2].z,
+                       t[2].y, t[2].z, t[1].z);
+    vec3 mu = ndf_normalize_or_z(m);
+    vec3 t1;
+    vec3 t2;
+    ndf_tangent_frame(mu, t1, t2);
+    vec3 cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
+    vec2 dir = vec2(dot(h, t1), dot(h, t2));
+    float d = max(dot(m, l), 0.0);
+#ifdef NDF_BRDF_TORRANCE_SPARROW
+    float spec = ndf_ts_lobe(dot(mu, h), dir, ndf_sigma, cov) * max(dot(mu, l), 0.0);
+#else
+    float spec = ndf_widened_lobe(dot(mu, h), dir, cov, ndf_s) * max(dot(mu, l), 0.0);
+#endif
+#endif
+    diffuse = vec3(d);
+    specular = vec3(spec);
+}

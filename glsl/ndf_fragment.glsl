@@ -1,0 +1,125 @@
+// ndf_fragment.glsl - the fragment stage: light and view in the tangent frame, the level of
+// detail, texture sampling (hardware trilinear or manual 8-texel), and the method's shading
+// (ndf_shade_texel, from the method file included before this one).
+//
+// Sampling (Han et al. 2007, Sec 7.3):
+//   hardware (default): one trilinear fetch per texture, then one shading - exact for aligned
+//     lobes and for the baselines' linear moments;
+//   NDF_MANUAL: shade the 4 texels around uv on each of the two nearest levels and blend the
+//     results with the trilinear weights - what unaligned lobes need.
+// Both use the LOD of ndf_lod() (GL's formula) and GL's LINEAR_MIPMAP_LINEAR rules, so the CPU
+// twin (src/sample.rs) can reproduce either bit for bit up to f32 rounding.
+//
+// NDF_PROBE replaces the mesh inputs by uniforms (uv from gl_FragCoord, given LOD, light and half
+// vector in tangent space) and writes (diffuse, specular) of one colour channel: what the
+// GL-versus-CPU tests compare texel by texel.
+
+layout(location = 0) out vec4 ndf_out;
+
+// Largest MIP level: ndfmap's chains always end at 1x1 (GL's full chain for the base size).
+int ndf_max_level() {
+    ivec2 size = textureSize(ndf_tex0, 0);
+    return int(floor(log2(float(max(size.x, size.y)))));
+}
+
+#ifdef NDF_MANUAL
+// Texel coordinates wrapped (REPEAT) or clamped (CLAMP_TO_EDGE) like the sampler would.
+ivec2 ndf_address(ivec2 q, ivec2 size) {
+#ifdef NDF_CLAMP
+    return clamp(q, ivec2(0), size - 1);
+#else
+    return q - size * ivec2(floor(vec2(q) / vec2(size)));
+#endif
+}
+
+// The shading of the 4 texels around uv on `level`, blended with bilinear weights. Texels of
+// zero weight are skipped (the CPU twin skips them too).
+void ndf_shade_level(vec2 uv, int level, vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+    ivec2 size = textureSize(ndf_tex0, level);
+    vec2 p = uv * vec2(size) - 0.5;
+    vec2 i0 = floor(p);
+    vec2 f = p - i0;
+    diffuse = vec3(0.0);
+    specular = vec3(0.0);
+    for (int k = 0; k < 4; ++k) {
+        ivec2 o = ivec2(k & 1, k >> 1);
+        float w = (o.x == 1 ? f.x : 1.0 - f.x) * (o.y == 1 ? f.y : 1.0 - f.y);
+        if (w == 0.0) continue;
+        vec4 t[NDF_TEXTURES];
+        ndf_fetch_texel(ndf_address(ivec2(i0) + o, size), level, t);
+        vec3 d;
+        vec3 s;
+        ndf_shade_texel(t, l, h, d, s);
+        diffuse += w * d;
+        specular += w * s;
+    }
+}
+#endif
+
+// Filtered shading at uv and level of detail lod, for light l and half vector h in tangent
+// space: the diffuse (Lambert) and specular terms, per colour channel.
+void ndf_shade(vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+#ifdef NDF_MANUAL
+    float lambda = clamp(lod, 0.0, float(ndf_max_level()));
+    int level = int(floor(lambda));
+    float f = lambda - float(level);
+    ndf_shade_level(uv, level, l, h, diffuse, specular);
+    if (f > 0.0) {
+        vec3 d;
+        vec3 s;
+        ndf_shade_level(uv, level + 1, l, h, d, s);
+        diffuse = (1.0 - f) * diffuse + f * d;
+        specular = (1.0 - f) * specular + f * s;
+    }
+#else
+    vec4 t[NDF_TEXTURES];
+    ndf_fetch_lod(uv, lod, t);
+    ndf_shade_texel(t, l, h, diffuse, specular);
+#endif
+}
+
+#ifdef NDF_PROBE
+uniform vec2 ndf_probe_size;   // framebuffer size in pixels: uv = gl_FragCoord.xy / size
+uniform float ndf_probe_lod;   // level of detail
+uniform vec3 ndf_probe_l;      // light direction, tangent space, unit
+uniform vec3 ndf_probe_h;      // half vector, tangent space, unit
+uniform int ndf_probe_channel; // colour channel written (0, 1, 2)
+
+void main() {
+    vec3 d;
+    vec3 s;
+    ndf_shade(gl_FragCoord.xy / ndf_probe_size, ndf_probe_lod, ndf_probe_l, ndf_probe_h, d, s);
+    int c = ndf_probe_channel;
+    ndf_out = vec4(c == 0 ? d.x : (c == 1 ? d.y : d.z), c == 0 ? s.x : (c == 1 ? s.y : s.z),
+                   0.0, 1.0);
+}
+#else
+in vec3 ndf_v_position;  // world space
+in vec3 ndf_v_normal;    // world space, geometric
+in vec4 ndf_v_tangent;   // world space, along +u; w = sign of the bitangent cross(n, t)
+in vec2 ndf_v_uv;
+
+uniform vec3 ndf_camera_pos;   // world space
+uniform vec4 ndf_light;        // w = 0: direction towards the light; w = 1: point light position
+uniform vec3 ndf_light_color;  // radiance scale (point lights fall off with 1/d^2)
+uniform vec3 ndf_kd;           // K_d
+uniform vec3 ndf_ks;           // K_s
+
+void main() {
+    vec3 n = normalize(ndf_v_normal);
+    vec3 tg = normalize(ndf_v_tangent.xyz - n * dot(n, ndf_v_tangent.xyz));
+    vec3 bt = (ndf_v_tangent.w < 0.0 ? -1.0 : 1.0) * cross(n, tg);
+    vec3 to_light = ndf_light.w == 0.0 ? ndf_light.xyz : ndf_light.xyz - ndf_v_position;
+    float falloff = ndf_light.w == 0.0 ? 1.0 : 1.0 / max(dot(to_light, to_light), 1e-12);
+    vec3 lw = normalize(to_light);
+    vec3 vw = normalize(ndf_camera_pos - ndf_v_position);
+    vec3 l = vec3(dot(lw, tg), dot(lw, bt), dot(lw, n));
+    vec3 v = vec3(dot(vw, tg), dot(vw, bt), dot(vw, n));
+    vec3 h = ndf_normalize_or_z(l + v);
+    float lod = ndf_lod(ndf_v_uv, vec2(textureSize(ndf_tex0, 0)));
+    vec3 d;
+    vec3 s;
+    ndf_shade(ndf_v_uv, lod, l, h, d, s);
+    ndf_out = vec4(ndf_light_color * falloff * (ndf_kd * d + ndf_ks * s), 1.0);
+}
+#endif

@@ -1,0 +1,45 @@
+// ndf_tan2005.glsl - Tan et al. 2005 planar Gaussian mixture (the paper's comparison row).
+//
+// Texture j < NDF_LOBES holds component j as (a, a*mu.x, a*mu.y, a*(sigma^2 + |mu|^2)) with
+// a = alpha, which filters linearly (Tan's Appendix); with NDF_COLOR, texture NDF_LOBES + j
+// holds alpha*y. Per component (CPU twin: tan2005::shade_gaussian):
+//   mu = (a*mu)/a, sigma^2 = max(0, a*(sigma^2 + |mu|^2)/a - |mu|^2),
+//   lifted to the sphere mu3 = (mu, sqrt(1 - |mu|^2)) with mu clamped to the unit disk;
+//   Blinn-Phong: s' = s/(1 + s sigma^2); Torrance-Sparrow adds sigma^2 to the lobe's variance.
+// alpha <= 0 contributes nothing.
+
+vec3 ndf_tan_lift(vec2 m) {
+    float len2 = dot(m, m);
+    if (len2 > 1.0) {
+        m = m / max(abs(m.x), abs(m.y));
+        m = m / length(m);
+        len2 = dot(m, m);
+    }
+    return vec3(m, sqrt(max(1.0 - len2, 0.0)));
+}
+
+void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+    diffuse = vec3(0.0);
+    specular = vec3(0.0);
+    for (int j = 0; j < NDF_LOBES; ++j) {
+        float alpha = t[j].x;
+        if (!(alpha > 0.0 && alpha < 1e30)) continue;
+        vec2 mean = t[j].yz / alpha;
+        float var = t[j].w / alpha - dot(mean, mean);
+        var = var > 0.0 && var < 1e30 ? var : 0.0;
+        vec3 mu = ndf_tan_lift(mean);
+#ifdef NDF_COLOR
+        vec3 weight = t[NDF_LOBES + j].rgb;
+#else
+        vec3 weight = vec3(alpha);
+#endif
+        float cos_i = max(dot(mu, l), 0.0);
+#ifdef NDF_BRDF_TORRANCE_SPARROW
+        float lobe = ndf_ts_iso(1.0, mu, var, l, h, ndf_sigma);
+#else
+        float lobe = ndf_blinn_phong(dot(mu, h), ndf_s / (1.0 + ndf_s * var)) * cos_i;
+#endif
+        diffuse += weight * cos_i;
+        specular += weight * lobe;
+    }
+}

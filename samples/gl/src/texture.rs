@@ -1,0 +1,160 @@
+//! Bake upload: [`BakeTextures`] holds one 2D texture per texture chain of an
+//! [`ndfmap::bake::Bake`], every MIP level uploaded from `ndfmap::pack::pack_level`, sampled
+//! trilinearly with the bake's addressing.
+
+use crate::program::Program;
+use crate::{Error, Gl, Result};
+use glow::{HasContext, PixelUnpackData};
+use ndfmap::bake::{Bake, Format};
+use ndfmap::ingest::Addressing;
+
+/// The GL enums of a storage format: `(internal format, pixel type)`; the pixel format is
+/// always `GL_RGBA`. f32 → `RGBA32F`/`FLOAT`, f16 → `RGBA16F`/`HALF_FLOAT`, unorm16 →
+/// `RGBA16`/`UNSIGNED_SHORT`, unorm8 → `RGBA8`/`UNSIGNED_BYTE`.
+pub fn gl_format(format: Format) -> (u32, u32) {
+    match format {
+        Format::F32 => (glow::RGBA32F, glow::FLOAT),
+        Format::F16 => (glow::RGBA16F, glow::HALF_FLOAT),
+        Format::Unorm16 => (glow::RGBA16, glow::UNSIGNED_SHORT),
+        Format::Unorm8 => (glow::RGBA8, glow::UNSIGNED_BYTE),
+    }
+}
+
+/// The name of the sampler uniform for bake texture `index`: `ndf_tex{index}`.
+pub fn sampler_name(index: usize) -> String {
+    format!("ndf_tex{index}")
+}
+
+/// The textures of one bake on the GPU, in the bake's texture order.
+pub struct BakeTextures {
+    gl: Gl,
+    textures: Vec<glow::Texture>,
+    format: Format,
+    sizes: Vec<(u32, u32)>,
+}
+
+impl BakeTextures {
+    /// Uploads every texture of `bake` in `format`: a 2D texture per `bake.textures[i]` with
+    /// all its levels (level 0 the finest; within a level, bake row 0 first, so it lies at
+    /// `t = 0`), `GL_TEXTURE_MAX_LEVEL` = levels − 1, minification `LINEAR_MIPMAP_LINEAR`,
+    /// magnification `LINEAR`, wrap `REPEAT` for [`Addressing::Wrap`] and `CLAMP_TO_EDGE` for
+    /// [`Addressing::Clamp`]. Unsigned-normalized formats hold signed channels biased
+    /// (`0.5 + 0.5·v`). Fails, creating nothing, when the format cannot hold a texture.
+    pub fn upload(gl: &Gl, bake: &Bake, format: Format) -> Result<BakeTextures> {
+        for i in 0..bake.textures.len() {
+            ndfmap::pack::check(bake, i, format)?;
+        }
+        let mut out = BakeTextures {
+            gl: gl.clone(),
+            textures: Vec::with_capacity(bake.textures.len()),
+            format,
+            sizes: bake.sizes.clone(),
+        };
+        let (internal, pixel_type) = gl_format(format);
+        let wrap = match bake.addressing {
+            Addressing::Wrap => glow::REPEAT,
+            Addressing::Clamp => glow::CLAMP_TO_EDGE,
+        } as i32;
+        let max_len = (0..bake.level_count())
+            .map(|k| ndfmap::pack::packed_len(bake, k, format))
+            .max()
+            .unwrap_or(0);
+        let mut bytes = vec![0u8; max_len];
+        let g = gl.glow();
+        for t in 0..bake.textures.len() {
+            // SAFETY: the context is current on this thread while `gl` lives; the new texture
+            // is owned by `out` at once, so an early return deletes it.
+            let texture = unsafe { g.create_texture() }
+                .map_err(|e| Gl::creation_error("glCreateTexture", e))?;
+            out.textures.push(texture);
+            gl.with_texture_2d(texture, || {
+                // SAFETY: as above, with `texture` bound; the parameters are valid enums for a
+                // 2D texture.
+                unsafe {
+                    g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
+                    let last = bake.level_count() as i32 - 1;
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, last);
+                    let min = glow::LINEAR_MIPMAP_LINEAR as i32;
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, min);
+                    let mag = glow::LINEAR as i32;
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, mag);
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_S, wrap);
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_T, wrap);
+                }
+                for (level, &(w, h)) in bake.sizes.iter().enumerate() {
+                    let n = ndfmap::pack::pack_level(bake, t, level, format, &mut bytes)?;
+                    // SAFETY: `bytes[..n]` holds w·h RGBA texels of `pixel_type`, tightly
+                    // packed (unpack alignment 1), as `pack_level` documents.
+                    unsafe {
+                        g.tex_image_2d(
+                            glow::TEXTURE_2D,
+                            level as i32,
+                            internal as i32,
+                            w as i32,
+                            h as i32,
+                            0,
+                            glow::RGBA,
+                            pixel_type,
+                            PixelUnpackData::Slice(Some(&bytes[..n])),
+                        );
+                    }
+                }
+                Ok::<_, Error>(())
+            })?;
+        }
+        gl.check_error("texture upload")?;
+        Ok(out)
+    }
+
+    /// Binds texture `i` to texture unit `i` for every texture, and sets the sampler uniform
+    /// `ndf_tex{i}` of `program` to `i` where the program has it.
+    pub fn bind(&self, program: &Program) {
+        let g = self.gl.glow();
+        for (i, &texture) in self.textures.iter().enumerate() {
+            // SAFETY: the context is current while `self.gl` lives; the texture is alive while
+            // `self` is; units up to the 48 GL 3.3 guarantees are valid.
+            unsafe {
+                g.active_texture(glow::TEXTURE0 + i as u32);
+                g.bind_texture(glow::TEXTURE_2D, Some(texture));
+            }
+            program.set_i32(&sampler_name(i), i as i32);
+        }
+        // SAFETY: as above; leaves unit 0 active, the GL default.
+        unsafe { g.active_texture(glow::TEXTURE0) };
+    }
+
+    /// Number of textures (the bake's `textures.len()`).
+    pub fn len(&self) -> usize {
+        self.textures.len()
+    }
+
+    /// Whether there is no texture.
+    pub fn is_empty(&self) -> bool {
+        self.textures.is_empty()
+    }
+
+    /// The GL name of texture `i`, for calls this crate does not wrap.
+    pub fn raw(&self, i: usize) -> glow::Texture {
+        self.textures[i]
+    }
+
+    /// The storage format the textures were uploaded in.
+    pub fn format(&self) -> Format {
+        self.format
+    }
+
+    /// Width and height of every level, finest first (the bake's sizes).
+    pub fn sizes(&self) -> &[(u32, u32)] {
+        &self.sizes
+    }
+}
+
+impl Drop for BakeTextures {
+    fn drop(&mut self) {
+        for &t in &self.textures {
+            // SAFETY: the context is current while `self.gl` lives; each texture is deleted once.
+            unsafe { self.gl.glow().delete_texture(t) };
+        }
+    }
+}

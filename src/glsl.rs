@@ -1,0 +1,369 @@
+//! The GLSL 3.30 shaders of `glsl/`, embedded and specialized for a bake.
+//!
+//! The shader files are the product (engines compile them); this module only glues them:
+//! `#version 330 core`, the `#define`s of a [`ShaderSpec`] (method, lobe count, BRDF, colour,
+//! sampling, addressing, the format's |r| clamp), then `ndf_common.glsl` (lobe math), a
+//! generated block declaring exactly the samplers the method reads (no dead samplers) with their
+//! fetch functions (which undo the bias of unsigned-normalized storage, DESIGN.md "Texture
+//! layouts"), the method's file (`ndf_vmf.glsl` = Algorithm 2, `ndf_tan2005.glsl`,
+//! `ndf_baselines.glsl`), and `ndf_fragment.glsl`. The vertex stage is `ndf_vertex.glsl`.
+//!
+//! The CPU twin of every fragment shader is [`crate::shade`] (one texel) and
+//! [`crate::sample`] (sampling at uv and LOD); the GL tests in `samples/gl` compare them.
+//!
+//! Interface (both stages): samplers `ndf_tex0 … ndf_tex{N−1}` are texture `i` of the bake
+//! (lobes first, then colours); uniform `ndf_s` (Blinn-Phong) or `ndf_sigma` (Torrance–Sparrow);
+//! mesh mode: attributes 0–3 (position, normal, tangent, uv), uniforms `ndf_model`,
+//! `ndf_view_proj`, `ndf_camera_pos`, `ndf_light`, `ndf_light_color`, `ndf_kd`, `ndf_ks`;
+//! probe mode ([`ShaderOptions::probe`]): `ndf_probe_size`, `ndf_probe_lod`, `ndf_probe_l`,
+//! `ndf_probe_h`, `ndf_probe_channel`. Output: `layout(location = 0) out vec4 ndf_out`.
+
+use crate::bake::{Bake, Format, Method, ValueRange};
+use crate::error::{Error, Result};
+use crate::ingest::Addressing;
+use std::fmt::Write;
+
+/// `glsl/ndf_common.glsl`: shared lobe math.
+pub const COMMON: &str = include_str!("../glsl/ndf_common.glsl");
+/// `glsl/ndf_vmf.glsl`: the vMF lobes of Algorithm 2.
+pub const VMF: &str = include_str!("../glsl/ndf_vmf.glsl");
+/// `glsl/ndf_tan2005.glsl`: Tan et al. 2005's planar Gaussians.
+pub const TAN2005: &str = include_str!("../glsl/ndf_tan2005.glsl");
+/// `glsl/ndf_baselines.glsl`: plain, Toksvig, LEAN and Olano–North.
+pub const BASELINES: &str = include_str!("../glsl/ndf_baselines.glsl");
+/// `glsl/ndf_fragment.glsl`: sampling and the fragment entry point.
+pub const FRAGMENT: &str = include_str!("../glsl/ndf_fragment.glsl");
+/// `glsl/ndf_vertex.glsl`: the vertex entry point.
+pub const VERTEX: &str = include_str!("../glsl/ndf_vertex.glsl");
+
+/// A shader stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// The vertex shader.
+    Vertex,
+    /// The fragment shader.
+    Fragment,
+}
+
+/// How the fragment shader filters between texels (Sec 7.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Sampling {
+    /// The bake's natural mode: manual for unaligned mixtures, hardware otherwise.
+    #[default]
+    Auto,
+    /// One hardware trilinear fetch per texture, then shading (aligned lobes, baselines).
+    Hardware,
+    /// Shade the 8 texels of the two nearest levels, blend with trilinear weights (unaligned).
+    Manual,
+}
+
+/// The specular BRDF the shader evaluates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ShaderBrdf {
+    /// Normalized Blinn-Phong, uniform `ndf_s` (eq 20).
+    #[default]
+    BlinnPhong,
+    /// The Torrance–Sparrow-like Gaussian of eq 18, uniform `ndf_sigma` (eq 21).
+    TorranceSparrow,
+}
+
+/// Options of a specialized shader.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ShaderOptions {
+    /// The specular BRDF.
+    pub brdf: ShaderBrdf,
+    /// Hardware or manual filtering.
+    pub sampling: Sampling,
+    /// Multiply each lobe by its colour texture `α·y` (eq 22; mixtures baked with colour).
+    pub color: bool,
+    /// The probe variant used by tests: full-screen, uniforms for uv/LOD/light/half vector.
+    pub probe: bool,
+}
+
+/// What a shader is specialized for: everything about a bake that changes the GLSL.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShaderSpec {
+    /// The method.
+    pub method: Method,
+    /// Lobe textures (mixtures), 0 for baselines.
+    pub lobes: usize,
+    /// The value range of each channel of each texture the shader may read, in texture order.
+    pub ranges: Vec<[ValueRange; 4]>,
+    /// The storage format the textures are uploaded in.
+    pub format: Format,
+    /// Whether the mixture's lobes were aligned (eq 23): decides [`Sampling::Auto`].
+    pub aligned: bool,
+    /// The bake's addressing (wrap or clamp).
+    pub addressing: Addressing,
+}
+
+impl ShaderSpec {
+    /// The specification of `bake`'s shader when its textures are uploaded in `bake.format`.
+    pub fn of(bake: &Bake) -> Self {
+        ShaderSpec {
+            method: bake.method,
+            lobes: bake.lobes,
+            ranges: bake.textures.iter().map(|t| t.ranges).collect(),
+            format: bake.format,
+            aligned: bake.parameters["aligned"] == serde_json::Value::Bool(true),
+            addressing: bake.addressing,
+        }
+    }
+}
+
+/// The `#define` name of a method.
+fn method_define(method: Method) -> &'static str {
+    match method {
+        Method::Plain => "NDF_METHOD_PLAIN",
+        Method::Toksvig => "NDF_METHOD_TOKSVIG",
+        Method::Lean => "NDF_METHOD_LEAN",
+        Method::Olano => "NDF_METHOD_OLANO",
+        Method::Tan2005 => "NDF_METHOD_TAN2005",
+        Method::Vmf => "NDF_METHOD_VMF",
+    }
+}
+
+/// A float literal that parses back to exactly `v` as f32.
+fn float_literal(v: f32) -> String {
+    let s = format!("{v:?}");
+    if s.contains(['.', 'e', 'E']) {
+        s
+    } else {
+        format!("{s}.0")
+    }
+}
+
+/// The specialized source of `bake`'s shader for `stage` (see [`source_for`]).
+pub fn source(bake: &Bake, stage: Stage, options: &ShaderOptions) -> Result<String> {
+    source_for(&ShaderSpec::of(bake), stage, options)
+}
+
+/// Whether `spec` with `options` filters manually (the resolved [`Sampling`]).
+pub fn manual_sampling(spec: &ShaderSpec, options: &ShaderOptions) -> bool {
+    match options.sampling {
+        Sampling::Manual => true,
+        Sampling::Hardware => false,
+        Sampling::Auto => spec.lobes > 0 && !spec.aligned,
+    }
+}
+
+/// The textures the shader samples: the lobes (or the baseline's textures), plus the colours
+/// when [`ShaderOptions::color`] asks for them. Fails when colour is asked of a bake without
+/// colour textures or of a baseline.
+pub fn sampled_textures(spec: &ShaderSpec, options: &ShaderOptions) -> Result<usize> {
+    let own = if spec.lobes > 0 {
+        spec.lobes
+    } else {
+        spec.ranges.len()
+    };
+    if !options.color {
+        return Ok(own);
+    }
+    if spec.lobes == 0 || spec.ranges.len() < 2 * spec.lobes {
+        return Err(Error::InvalidOption(format!(
+            "colour shading needs a mixture bake with colour textures ({} has none)",
+            spec.method
+        )));
+    }
+    Ok(2 * spec.lobes)
+}
+
+/// The specialized GLSL 3.30 source for `stage`: `#version 330 core`, the `#define`s of `spec`
+/// and `options`, then the shader files (module docs). The vertex stage depends on
+/// [`ShaderOptions::probe`] only.
+pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> Result<String> {
+    let textures = sampled_textures(spec, options)?;
+    if spec.ranges.len() < textures || textures == 0 {
+        return Err(Error::InvalidOption(format!(
+            "the {} bake has {} textures, the shader needs {textures}",
+            spec.method,
+            spec.ranges.len()
+        )));
+    }
+    let mut out = String::from("#version 330 core\n");
+    out += &format!(
+        "// ndfmap {} - {} shader for {}\n",
+        env!("CARGO_PKG_VERSION"),
+        match stage {
+            Stage::Vertex => "vertex",
+            Stage::Fragment => "fragment",
+        },
+        spec.method
+    );
+    if options.probe {
+        out += "#define NDF_PROBE 1\n";
+    }
+    if stage == Stage::Vertex {
+        out += VERTEX;
+        return Ok(out);
+    }
+    let manual = manual_sampling(spec, options);
+    let mut d = |name: &str, value: &str| {
+        let _ = writeln!(out, "#define {name} {value}");
+    };
+    d(method_define(spec.method), "1");
+    if spec.lobes > 0 {
+        d("NDF_LOBES", &spec.lobes.to_string());
+    }
+    d("NDF_TEXTURES", &textures.to_string());
+    if options.brdf == ShaderBrdf::TorranceSparrow {
+        d("NDF_BRDF_TORRANCE_SPARROW", "1");
+    }
+    if options.color {
+        d("NDF_COLOR", "1");
+    }
+    if manual {
+        d("NDF_MANUAL", "1");
+    }
+    if spec.addressing == Addressing::Clamp {
+        d("NDF_CLAMP", "1");
+    }
+    if spec.method == Method::Vmf {
+        d(
+            "NDF_R_MAX",
+            &float_literal(crate::vmf::r_max(spec.format) as f32),
+        );
+    }
+    out += COMMON;
+    out += &bindings(spec, textures, manual);
+    out += match spec.method {
+        Method::Vmf => VMF,
+        Method::Tan2005 => TAN2005,
+        _ => BASELINES,
+    };
+    out += FRAGMENT;
+    Ok(out)
+}
+
+/// The generated block: one sampler per texture read, and the fetch function (`textureLod` for
+/// hardware sampling, `texelFetch` for manual) that decodes unsigned-normalized storage.
+fn bindings(spec: &ShaderSpec, textures: usize, manual: bool) -> String {
+    let unorm = matches!(spec.format, Format::Unorm16 | Format::Unorm8);
+    let mut s = String::from("\n// Generated by ndfmap::glsl: the samplers this shader reads.\n");
+    for i in 0..textures {
+        let _ = writeln!(s, "uniform sampler2D ndf_tex{i};");
+    }
+    let (signature, call) = if manual {
+        (
+            "void ndf_fetch_texel(ivec2 p, int level, out vec4 t[NDF_TEXTURES])",
+            "texelFetch(ndf_tex{i}, p, level)",
+        )
+    } else {
+        (
+            "void ndf_fetch_lod(vec2 uv, float lod, out vec4 t[NDF_TEXTURES])",
+            "textureLod(ndf_tex{i}, uv, lod)",
+        )
+    };
+    let _ = writeln!(s, "{signature} {{");
+    for (i, ranges) in spec.ranges.iter().take(textures).enumerate() {
+        let fetch = call.replace("{i}", &i.to_string());
+        let signed = ranges.map(|r| r == ValueRange::Signed);
+        if unorm && signed.contains(&true) {
+            // Signed channels are stored as 0.5 + 0.5 v: v = 2u − 1 (linear, so it commutes
+            // with filtering).
+            let scale = signed.map(|b| if b { "2.0" } else { "1.0" }).join(", ");
+            let offset = signed.map(|b| if b { "-1.0" } else { "0.0" }).join(", ");
+            let _ = writeln!(s, "    t[{i}] = {fetch} * vec4({scale}) + vec4({offset});");
+        } else {
+            let _ = writeln!(s, "    t[{i}] = {fetch};");
+        }
+    }
+    s += "}\n\n";
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::{BakeOptions, bake, bake_with};
+    use crate::ingest::NormalMap;
+
+    fn map() -> NormalMap {
+        crate::procedural::generate(8, 1).map
+    }
+
+    #[test]
+    fn texture_ranges_match_what_bakes_produce() {
+        let sample = crate::procedural::generate(8, 2);
+        let colored = sample
+            .map
+            .clone()
+            .with_feature(sample.albedo.clone())
+            .unwrap();
+        for method in Method::ALL {
+            for color in [false, true] {
+                if color && !matches!(method, Method::Vmf | Method::Tan2005) {
+                    continue;
+                }
+                let opts = BakeOptions {
+                    lobes: 2,
+                    ..Default::default()
+                };
+                let m = if color { &colored } else { &sample.map };
+                let b = bake_with(m, method, &opts).unwrap();
+                let want = crate::bake::texture_ranges(method, b.lobes, color);
+                assert_eq!(ShaderSpec::of(&b).ranges, want, "{method} color={color}");
+            }
+        }
+    }
+
+    #[test]
+    fn float_literals_round_trip() {
+        for v in [
+            1.0f32,
+            0.5,
+            1.0 - 2f32.powi(-22),
+            1.0 - 2f32.powi(-11),
+            3.0e-7,
+        ] {
+            let s = float_literal(v);
+            assert!(s.contains('.') || s.contains('e'), "{s}");
+            assert_eq!(s.parse::<f32>().unwrap(), v);
+        }
+    }
+
+    #[test]
+    fn only_the_samplers_read_are_declared() {
+        let opts = BakeOptions {
+            lobes: 3,
+            ..Default::default()
+        };
+        let b = bake_with(&map(), Method::Vmf, &opts).unwrap();
+        let src = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(src.starts_with("#version 330 core\n"));
+        assert!(src.contains("uniform sampler2D ndf_tex2;"));
+        assert!(!src.contains("ndf_tex3"));
+        assert!(
+            src.contains("#define NDF_MANUAL 1"),
+            "unaligned vMF filters manually"
+        );
+        let err = source(
+            &b,
+            Stage::Fragment,
+            &ShaderOptions {
+                color: true,
+                ..Default::default()
+            },
+        );
+        assert!(matches!(err, Err(Error::InvalidOption(_))));
+        let toksvig = bake(&map(), Method::Toksvig);
+        let src = source(&toksvig, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(
+            src.contains("#define NDF_METHOD_TOKSVIG 1") && !src.contains("#define NDF_MANUAL")
+        );
+    }
+
+    #[test]
+    fn unorm_formats_undo_the_bias_of_signed_channels_only() {
+        let mut b = bake(&map(), Method::Toksvig);
+        b.format = Format::Unorm8;
+        let src = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(src.contains(
+            "t[0] = textureLod(ndf_tex0, uv, lod) * vec4(2.0, 2.0, 2.0, 1.0) \
+             + vec4(-1.0, -1.0, -1.0, 0.0);"
+        ));
+        b.format = Format::F16;
+        let src = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(src.contains("t[0] = textureLod(ndf_tex0, uv, lod);"));
+    }
+}

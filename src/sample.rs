@@ -1,0 +1,183 @@
+//! CPU texture sampling with OpenGL's rules, and filtered shading at a texture coordinate: the
+//! CPU twin of `glsl/ndf_fragment.glsl`'s `ndf_lod` and `ndf_shade` (hardware and manual
+//! sampling, Han et al. 2007 Sec 7.3).
+//!
+//! Conventions (OpenGL 3.3 core, Sec 3.8.11): texel `i` of a level of width `w` has its centre at
+//! `u = (i + 0.5)/w`; `LINEAR` blends the two texels around `u·w − 0.5` per axis, wrapped
+//! (`REPEAT`) or clamped (`CLAMP_TO_EDGE`) as the bake's addressing says; `LINEAR_MIPMAP_LINEAR`
+//! with level of detail λ ≤ 0 samples level 0, otherwise blends levels `⌊λ⌋` and `⌊λ⌋ + 1` with
+//! weight `frac(λ)`, clamped to the last level. Row 0 of a level is `v` near 0.
+
+use crate::bake::Bake;
+use crate::pyramid::bilinear_taps;
+use crate::shade::{Brdf, ShadingRgb, shade_rgb};
+use glam::{DVec2, DVec3};
+
+/// GL's level of detail for screen derivatives of uv on a texture of base `size`:
+/// `λ = log2 max(|∂(uv·size)/∂x|, |∂(uv·size)/∂y|)` (the shaders' `ndf_lod`).
+pub fn lod(duv_dx: DVec2, duv_dy: DVec2, size: (u32, u32)) -> f64 {
+    let s = DVec2::new(size.0 as f64, size.1 as f64);
+    let (dx, dy) = (duv_dx * s, duv_dy * s);
+    0.5 * dx
+        .length_squared()
+        .max(dy.length_squared())
+        .max(1e-30)
+        .log2()
+}
+
+/// The levels and weights `LINEAR_MIPMAP_LINEAR` blends at level of detail `lod` on a chain of
+/// `levels` levels: one or two `(level, weight)` pairs, weights summing to 1.
+pub fn level_weights(lod: f64, levels: usize) -> Vec<(usize, f64)> {
+    let last = levels.saturating_sub(1);
+    let lambda = if lod.is_nan() {
+        0.0
+    } else {
+        lod.clamp(0.0, last as f64)
+    };
+    let level = lambda.floor() as usize;
+    let f = lambda - level as f64;
+    if f > 0.0 {
+        vec![(level, 1.0 - f), (level + 1, f)]
+    } else {
+        vec![(level, 1.0)]
+    }
+}
+
+/// The texels of `level` around `uv` with their bilinear weights (zero weights left out, as the
+/// manual shader skips them): up to four `(row-major index, weight)` pairs.
+pub fn bilinear(bake: &Bake, level: usize, uv: DVec2) -> Vec<(usize, f64)> {
+    let (w, h) = bake.sizes[level];
+    let xs = bilinear_taps(uv.x, w, bake.addressing);
+    let ys = bilinear_taps(uv.y, h, bake.addressing);
+    let mut taps = Vec::with_capacity(4);
+    for &(y, wy) in &ys {
+        for &(x, wx) in &xs {
+            let weight = wx * wy;
+            if weight != 0.0 {
+                taps.push((y as usize * w as usize + x as usize, weight));
+            }
+        }
+    }
+    taps
+}
+
+/// Trilinear (`LINEAR_MIPMAP_LINEAR`) sample of every texture of `bake` at `uv` and level of
+/// detail `lod`, accumulated in f64 and rounded to f32: what one hardware fetch per texture
+/// returns (up to the GPU's own weight precision).
+pub fn trilinear(bake: &Bake, uv: DVec2, lod: f64) -> Vec<[f32; 4]> {
+    let n = bake.textures.len();
+    let mut acc = vec![[0.0f64; 4]; n];
+    let mut texel = vec![[0.0f32; 4]; n];
+    for (level, lw) in level_weights(lod, bake.level_count()) {
+        for (index, bw) in bilinear(bake, level, uv) {
+            bake.texel_into(level, index, &mut texel);
+            for (a, t) in acc.iter_mut().zip(&texel) {
+                for c in 0..4 {
+                    a[c] += lw * bw * t[c] as f64;
+                }
+            }
+        }
+    }
+    acc.iter().map(|a| a.map(|v| v as f32)).collect()
+}
+
+/// How [`shade_at`] filters and shades: the shader's specialization.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Filtering {
+    /// The BRDF.
+    pub brdf: Brdf,
+    /// Manual sampling (shade each texel, then blend) instead of hardware trilinear sampling.
+    pub manual: bool,
+    /// Weight mixture lobes by their colour textures ([`shade_rgb`]).
+    pub color: bool,
+}
+
+/// Filtered shading of `bake` at `uv` and level of detail `lod` for light `l` and half vector
+/// `h` (tangent space): with `f.manual`, every texel of the trilinear footprint is shaded and the
+/// results blended with the trilinear weights (unaligned lobes); otherwise the textures are
+/// sampled trilinearly and shaded once (aligned lobes, baselines).
+pub fn shade_at(bake: &Bake, uv: DVec2, lod: f64, l: DVec3, h: DVec3, f: Filtering) -> ShadingRgb {
+    let Filtering {
+        brdf,
+        manual,
+        color,
+    } = f;
+    if !manual {
+        return shade_rgb(bake, &trilinear(bake, uv, lod), l, h, brdf, color);
+    }
+    let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
+    let mut sum = ShadingRgb::default();
+    for (level, lw) in level_weights(lod, bake.level_count()) {
+        for (index, bw) in bilinear(bake, level, uv) {
+            bake.texel_into(level, index, &mut texel);
+            let s = shade_rgb(bake, &texel, l, h, brdf, color);
+            sum.diffuse += lw * bw * s.diffuse;
+            sum.specular += lw * bw * s.specular;
+        }
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::{Method, bake};
+
+    #[test]
+    fn lod_is_log2_of_the_texel_footprint() {
+        // One pixel spans 4 texels along x on a 256-wide texture: λ = 2.
+        let l = lod(
+            DVec2::new(4.0 / 256.0, 0.0),
+            DVec2::new(0.0, 1.0 / 256.0),
+            (256, 256),
+        );
+        assert!((l - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn level_weights_follow_linear_mipmap_linear() {
+        assert_eq!(level_weights(-1.0, 5), vec![(0, 1.0)]);
+        assert_eq!(level_weights(2.0, 5), vec![(2, 1.0)]);
+        assert_eq!(level_weights(9.0, 5), vec![(4, 1.0)]);
+        assert_eq!(level_weights(1.25, 5), vec![(1, 0.75), (2, 0.25)]);
+        assert_eq!(level_weights(f64::NAN, 3), vec![(0, 1.0)]);
+    }
+
+    #[test]
+    fn trilinear_at_texel_centres_returns_the_texel() {
+        let map = crate::procedural::generate(8, 3).map;
+        let b = bake(&map, Method::Olano);
+        for level in 0..b.level_count() {
+            let (w, h) = b.sizes[level];
+            for y in 0..h {
+                for x in 0..w {
+                    let uv = DVec2::new((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+                    assert_eq!(trilinear(&b, uv, level as f64), b.texel(level, x, y));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn manual_and_hardware_agree_for_linear_shading() {
+        // Plain mipmapping's diffuse term is not linear in the texel (normalization), but for a
+        // flat map every texel is the same: both modes give the texel's shading.
+        let flat = vec![glam::Vec3::Z; 16];
+        use crate::ingest::{Addressing, BadNormals, NormalMap};
+        let map =
+            NormalMap::from_vectors(4, 4, flat, Addressing::Wrap, BadNormals::Repair).unwrap();
+        let b = bake(&map, Method::Toksvig);
+        let (l, h) = (DVec3::new(0.3, 0.1, 0.9).normalize(), DVec3::Z);
+        let brdf = Brdf::BlinnPhong { s: 32.0 };
+        let uv = DVec2::new(0.37, 0.81);
+        let f = |manual| Filtering {
+            brdf,
+            manual,
+            color: false,
+        };
+        let a = shade_at(&b, uv, 0.6, l, h, f(true));
+        let c = shade_at(&b, uv, 0.6, l, h, f(false));
+        assert!((a.specular - c.specular).abs().max_element() < 1e-12);
+        assert!((a.diffuse - DVec3::splat(l.z)).abs().max_element() < 1e-6);
+    }
+}

@@ -1,0 +1,150 @@
+//! Every specialization of the shipped shaders compiles as GLSL 3.30 core: each method, lobe
+//! counts 1, 3 and 8, both BRDFs, colour on and off, hardware and manual sampling, mesh and probe
+//! variants, float and unsigned-normalized formats, wrap and clamp — checked offline by Khronos'
+//! reference compiler (`glslangValidator`, Debian `glslang-tools`, installed by scripts/test).
+//! The GL tests in `samples/gl` then run them on Mesa and compare with the CPU twin.
+
+use ndfmap::bake::{Format, Method, texture_ranges};
+use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage, source_for};
+use ndfmap::ingest::Addressing;
+use std::process::Command;
+
+fn validator() -> Option<&'static str> {
+    let ok = Command::new("glslangValidator")
+        .arg("--version")
+        .output()
+        .is_ok();
+    if ok {
+        return Some("glslangValidator");
+    }
+    if std::env::var_os("NDFMAP_SKIP_GL").is_some() {
+        eprintln!("skipped: glslangValidator not found and NDFMAP_SKIP_GL is set");
+        return None;
+    }
+    panic!("glslangValidator not found: install Debian's glslang-tools (scripts/test does)");
+}
+
+/// All the specializations, named.
+fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
+    let mut out = Vec::new();
+    for method in Method::ALL {
+        let mixture = matches!(method, Method::Vmf | Method::Tan2005);
+        let lobe_counts: &[usize] = if mixture { &[1, 3, 8] } else { &[0] };
+        for &lobes in lobe_counts {
+            for color in [false, true] {
+                if color && !mixture {
+                    continue;
+                }
+                for brdf in [ShaderBrdf::BlinnPhong, ShaderBrdf::TorranceSparrow] {
+                    for sampling in [Sampling::Hardware, Sampling::Manual] {
+                        for probe in [false, true] {
+                            // Formats change the decode lines and NDF_R_MAX only: vary them with
+                            // the addressing on one BRDF to keep the count down.
+                            let formats: &[Format] = if brdf == ShaderBrdf::BlinnPhong {
+                                &[Format::F32, Format::Unorm8]
+                            } else {
+                                &[Format::F16]
+                            };
+                            for &format in formats {
+                                let clamp = format == Format::Unorm8;
+                                let spec = ShaderSpec {
+                                    method,
+                                    lobes,
+                                    ranges: texture_ranges(method, lobes, color),
+                                    format,
+                                    aligned: false,
+                                    addressing: if clamp {
+                                        Addressing::Clamp
+                                    } else {
+                                        Addressing::Wrap
+                                    },
+                                };
+                                let opts = ShaderOptions {
+                                    brdf,
+                                    sampling,
+                                    color,
+                                    probe,
+                                };
+                                let name = format!(
+                                    "{method}{lobes}-c{}-{brdf:?}-{sampling:?}-p{}-{format}",
+                                    color as u8, probe as u8
+                                );
+                                out.push((name, spec, opts));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn every_specialization_compiles_as_glsl_330_core() {
+    let Some(tool) = validator() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let mut files = Vec::new();
+    for (name, spec, opts) in variants() {
+        let src = source_for(&spec, Stage::Fragment, &opts).unwrap();
+        // GLSL 3.30's character set is ASCII (non-ASCII even in comments trips some drivers).
+        assert!(src.is_ascii(), "{name} has non-ASCII characters");
+        let path = dir.path().join(format!("{name}.frag"));
+        std::fs::write(&path, src).unwrap();
+        files.push(path);
+    }
+    for probe in [false, true] {
+        let spec = ShaderSpec {
+            method: Method::Vmf,
+            lobes: 1,
+            ranges: texture_ranges(Method::Vmf, 1, false),
+            format: Format::F32,
+            aligned: true,
+            addressing: Addressing::Wrap,
+        };
+        let opts = ShaderOptions {
+            probe,
+            ..Default::default()
+        };
+        let path = dir.path().join(format!("probe{}.vert", probe as u8));
+        std::fs::write(&path, source_for(&spec, Stage::Vertex, &opts).unwrap()).unwrap();
+        files.push(path);
+    }
+    let mut failures = Vec::new();
+    // One validator run per shader (it stops at the first file's errors otherwise), in
+    // batches of threads to keep the test short.
+    let results: Vec<_> = std::thread::scope(|scope| {
+        let handles: Vec<_> = files
+            .chunks(files.len().div_ceil(4))
+            .map(|chunk| {
+                scope.spawn(move || {
+                    chunk
+                        .iter()
+                        .map(|f| (f.clone(), Command::new(tool).arg(f).output().unwrap()))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    });
+    for (file, output) in &results {
+        if !output.status.success() {
+            failures.push(format!(
+                "{}:\n{}",
+                file.file_name().unwrap().to_string_lossy(),
+                String::from_utf8_lossy(&output.stdout)
+            ));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} of {} shaders failed to compile:\n{}",
+        failures.len(),
+        results.len(),
+        failures.join("\n")
+    );
+    assert!(results.len() > 100, "{} variants", results.len());
+}
