@@ -345,6 +345,54 @@ typedef uint32_t ndf_value_range;
 typedef uint32_t ndf_format;
 
 /**
+ * The specular BRDF a shader evaluates: one of the `NDF_BRDF_*` values.
+ */
+typedef uint32_t ndf_brdf;
+
+/**
+ * How the fragment shader filters between texels: one of the `NDF_SAMPLING_*` values.
+ */
+typedef uint32_t ndf_sampling;
+
+/**
+ * Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
+ */
+typedef struct ndf_shader_options {
+  /**
+   * `sizeof(ndf_shader_options)`, set by `ndf_shader_options_default()`.
+   */
+  size_t struct_size;
+  /**
+   * The specular BRDF, `NDF_BRDF_*`. Default `NDF_BRDF_BLINN_PHONG`.
+   */
+  ndf_brdf brdf;
+  /**
+   * Hardware or manual filtering, `NDF_SAMPLING_*`. Default `NDF_SAMPLING_AUTO`.
+   */
+  ndf_sampling sampling;
+  /**
+   * The format the textures are uploaded in (`NDF_FORMAT_*`, as given to `ndf_bake_pack`):
+   * decides the unorm decoding and the vMF |r| clamp. Default `NDF_FORMAT_RGBA_F32`.
+   */
+  ndf_format format;
+  /**
+   * Nonzero: multiply each lobe by its colour texture (eq 22); the bake needs colour
+   * textures (a vMF or Tan 2005 bake of a map with a feature image). Default 0.
+   */
+  uint32_t color;
+  /**
+   * Nonzero: the probe variant (full-screen triangle, uniforms for uv, LOD, light and half
+   * vector) that ndfmap's tests render. Default 0: the mesh variant.
+   */
+  uint32_t probe;
+} ndf_shader_options;
+
+/**
+ * A shader stage: one of the `NDF_SHADER_STAGE_*` values.
+ */
+typedef uint32_t ndf_shader_stage;
+
+/**
  * +Y up (OpenGL, Blender, most CC0 libraries): green is the bitangent as stored. Default.
  */
 #define NDF_GREEN_OPENGL 0
@@ -507,6 +555,41 @@ typedef uint32_t ndf_format;
  * The exact maximum-likelihood κ (slower; every EM step then increases the likelihood).
  */
 #define NDF_KAPPA_ESTIMATOR_EXACT 1
+
+/**
+ * The vertex shader (mesh or, with `probe`, full-screen triangle).
+ */
+#define NDF_SHADER_STAGE_VERTEX 0
+
+/**
+ * The fragment shader: samples the bake's textures and shades.
+ */
+#define NDF_SHADER_STAGE_FRAGMENT 1
+
+/**
+ * The bake's natural mode: manual for unaligned mixtures, hardware otherwise. Default.
+ */
+#define NDF_SAMPLING_AUTO 0
+
+/**
+ * One hardware trilinear fetch per texture, then shading (aligned lobes, baselines).
+ */
+#define NDF_SAMPLING_HARDWARE 1
+
+/**
+ * Shade the 8 texels of the two nearest levels and blend (unaligned lobes, Sec 7.3).
+ */
+#define NDF_SAMPLING_MANUAL 2
+
+/**
+ * Normalized Blinn-Phong, exponent in uniform `ndf_s` (eq 20). Default.
+ */
+#define NDF_BRDF_BLINN_PHONG 0
+
+/**
+ * The Torrance–Sparrow-like Gaussian of eq 18, roughness in uniform `ndf_sigma` (eq 21).
+ */
+#define NDF_BRDF_TORRANCE_SPARROW 1
 
 #ifdef __cplusplus
 extern "C" {
@@ -874,6 +957,49 @@ ndf_status ndf_bake_write(const struct ndf_bake *bake, const char *directory, nd
  * `bake` is NULL or a bake from this library not yet freed.
  */
 void ndf_bake_free(struct ndf_bake *bake);
+
+/**
+ * The default shader options: Blinn-Phong, automatic sampling, f32 textures, no colour, the
+ * mesh variant.
+ */
+struct ndf_shader_options ndf_shader_options_default(void);
+
+/**
+ * Bytes `ndf_bake_shader_source` writes for the same arguments: the source's length plus its
+ * NUL terminator.
+ * - `stage`: `NDF_SHADER_STAGE_*`; `options`: from `ndf_shader_options_default()`.
+ * - `NDF_STATUS_INVALID_ARGUMENT` for unknown values or colour asked of a bake without colour
+ *   textures; `NDF_STATUS_UNSUPPORTED_FORMAT` when `options->format` cannot hold the bake.
+ *
+ * # Safety
+ * `bake` is NULL or a live bake; `options` is NULL or initialized by
+ * `ndf_shader_options_default()`; `size_out` is NULL or writable.
+ */
+ndf_status ndf_bake_shader_source_size(const struct ndf_bake *bake,
+                                       ndf_shader_stage stage,
+                                       const struct ndf_shader_options *options,
+                                       size_t *size_out);
+
+/**
+ * Writes the GLSL 3.30 source of `bake`'s shader for `stage` into `buffer`, NUL-terminated:
+ * `#version 330 core`, the `#define`s of the bake (method, lobe count, textures, format clamp,
+ * addressing) and of `options`, then the shader files of `glsl/`. Samplers are
+ * `ndf_tex0` ... (texture `i` of the bake); `glsl/README.md` lists the uniforms.
+ * - `buffer`, `capacity`: the destination and its size in bytes; it must hold
+ *   `ndf_bake_shader_source_size()` bytes (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise, and
+ *   nothing is written).
+ * - `length_out`: receives the bytes written, the NUL terminator included.
+ * - Other failures as for `ndf_bake_shader_source_size`.
+ *
+ * # Safety
+ * As for `ndf_bake_shader_source_size`, and `buffer` is NULL or writable for `capacity` bytes.
+ */
+ndf_status ndf_bake_shader_source(const struct ndf_bake *bake,
+                                  ndf_shader_stage stage,
+                                  const struct ndf_shader_options *options,
+                                  char *buffer,
+                                  size_t capacity,
+                                  size_t *length_out);
 
 #ifdef __cplusplus
 }  // extern "C"

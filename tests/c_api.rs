@@ -12,6 +12,7 @@
 
 use ndfmap::bake::ValueRange;
 use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use ndfmap::glsl::{ShaderOptions, ShaderSpec, Stage, source_for};
 use ndfmap::ingest::Samples;
 use ndfmap::{IngestOptions, NormalMap};
 use std::path::{Path, PathBuf};
@@ -229,6 +230,22 @@ fn expected_c_output() -> String {
                 }
             }
         }
+    }
+    let vmf = bakes().pop().unwrap();
+    let spec = ShaderSpec {
+        format: Format::F16,
+        ..ShaderSpec::of(&vmf)
+    };
+    for (i, stage) in [Stage::Vertex, Stage::Fragment].into_iter().enumerate() {
+        let mut source = source_for(&spec, stage, &ShaderOptions::default())
+            .unwrap()
+            .into_bytes();
+        source.push(0);
+        out.push(format!(
+            "shader {i} {} {:016x}",
+            source.len(),
+            fnv1a(&source)
+        ));
     }
     out.push("bad input checked".into());
     out.join("\n") + "\n"

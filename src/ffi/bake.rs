@@ -55,7 +55,7 @@ pub const NDF_FORMAT_RGBA_UNORM16: ndf_format = 2;
 pub const NDF_FORMAT_RGBA_UNORM8: ndf_format = 3;
 
 /// The `NDF_FORMAT_*` values, in order.
-const FORMATS: [Format; 4] = [Format::F32, Format::F16, Format::Unorm16, Format::Unorm8];
+pub(crate) const FORMATS: [Format; 4] = [Format::F32, Format::F16, Format::Unorm16, Format::Unorm8];
 
 /// The range of a channel's values: one of the `NDF_VALUE_RANGE_*` values.
 pub type ndf_value_range = u32;

@@ -1,8 +1,8 @@
 //! The C ABI: what `include/ndfmap.h` declares (generated from these files by cbindgen, see
 //! `tests/header.rs`). C and C++ engines load a normal map ([`map`]), bake it with one of the
-//! methods and pack, query or write the result ([`bake`]); this file holds what every entry
-//! point shares: [`ndf_status`], the thread-local error message, the panic guard, argument
-//! checks, the enumerations' integer values and the version.
+//! methods and pack, query or write the result ([`bake`]), and get the GLSL source that reads
+//! it ([`shader`]). This file holds what every entry point shares: [`ndf_status`], the
+//! thread-local error message, the panic guard, argument checks and the version.
 //!
 //! Conventions (DESIGN.md "C API conventions"):
 //! - Functions are `ndf_<object>_<verb>`, constants `NDF_*`, types `ndf_*`; handles are opaque
@@ -17,11 +17,13 @@
 
 #![allow(non_camel_case_types)]
 
-// The header declares the maps' functions before the bakes' (cbindgen keeps this order; the
-// blank line keeps rustfmt from sorting the two).
+// The header declares the maps' functions, then the bakes', then the shaders' (cbindgen keeps
+// this order; the blank lines keep rustfmt from sorting them).
 pub mod map;
 
 pub mod bake;
+
+pub mod shader;
 #[cfg(test)]
 mod tests;
 

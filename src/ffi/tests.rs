@@ -16,10 +16,11 @@ pub(super) fn maybe_inject_panic() {
 
 use super::bake::*;
 use super::map::*;
+use super::shader::*;
 use super::*;
 use crate::bake::{Format, Method, bake_with};
 use crate::ingest::{IngestOptions, NormalMap, Samples};
-use std::ffi::{CStr, c_int, c_void};
+use std::ffi::{CStr, c_char, c_int, c_void};
 use std::ptr::{null, null_mut};
 
 /// The thread's last error message.
@@ -1480,6 +1481,7 @@ fn every_entry_point<'a>(
         lobes: 1,
         ..ndf_tan2005_options_default()
     };
+    let so = ndf_shader_options_default();
     let (pxp, pngp) = (px.as_ptr().cast::<c_void>(), png.as_ptr().cast::<c_void>());
     let name = c"n.png".as_ptr();
     let missing = c"/no/such/file.png".as_ptr();
@@ -1598,6 +1600,17 @@ fn every_entry_point<'a>(
             }),
         ),
         (
+            "ndf_bake_shader_source_size",
+            Box::new(move || unsafe { ndf_bake_shader_source_size(bake, 1, &so, &mut 0) }),
+        ),
+        (
+            "ndf_bake_shader_source",
+            Box::new(move || unsafe {
+                let mut buf = vec![0 as c_char; 1 << 16];
+                ndf_bake_shader_source(bake, 1, &so, buf.as_mut_ptr(), buf.len(), &mut 0)
+            }),
+        ),
+        (
             "ndf_bake_write",
             Box::new(move || unsafe { ndf_bake_write(bake, dir.as_ptr(), 0) }),
         ),
@@ -1649,6 +1662,172 @@ fn a_panic_inside_any_entry_point_is_a_status_not_an_unwind() {
     // SAFETY: live handles, freed once.
     unsafe {
         ndf_bake_free(bake);
+        ndf_normal_map_free(map);
+    }
+}
+
+#[test]
+fn shader_source_is_the_glsl_modules_for_the_upload_format() {
+    let map = c_map();
+    let vmf = c_bake(map, NDF_METHOD_VMF);
+    let lean = c_bake(map, NDF_METHOD_LEAN);
+    let o = ndf_shader_options_default();
+    // SAFETY: every pointer is NULL or valid for what it claims; freed once.
+    unsafe {
+        for (stage, rust_stage) in [
+            (0, crate::glsl::Stage::Vertex),
+            (1, crate::glsl::Stage::Fragment),
+        ] {
+            for (format, rust_format) in [(1, Format::F16), (3, Format::Unorm8)] {
+                let opts = ndf_shader_options {
+                    format,
+                    sampling: NDF_SAMPLING_MANUAL,
+                    brdf: NDF_BRDF_TORRANCE_SPARROW,
+                    ..o
+                };
+                let spec = crate::glsl::ShaderSpec {
+                    format: rust_format,
+                    ..crate::glsl::ShaderSpec::of(&(*vmf).bake)
+                };
+                let rust_opts = crate::glsl::ShaderOptions {
+                    brdf: crate::glsl::ShaderBrdf::TorranceSparrow,
+                    sampling: crate::glsl::Sampling::Manual,
+                    ..Default::default()
+                };
+                let want = crate::glsl::source_for(&spec, rust_stage, &rust_opts).unwrap();
+                let mut size = 0;
+                expect(
+                    ndf_bake_shader_source_size(vmf, stage, &opts, &mut size),
+                    ndf_status::Ok,
+                    "",
+                    "",
+                );
+                assert_eq!(size, want.len() + 1);
+                let mut buf = vec![1 as c_char; size + 1];
+                let mut written = 0;
+                let s = ndf_bake_shader_source(
+                    vmf,
+                    stage,
+                    &opts,
+                    buf.as_mut_ptr(),
+                    size - 1,
+                    &mut written,
+                );
+                expect(
+                    s,
+                    ndf_status::BufferTooSmall,
+                    "ndf_bake_shader_source",
+                    "needs",
+                );
+                assert!(
+                    buf.iter().all(|&c| c == 1) && written == 0,
+                    "nothing written"
+                );
+                expect(
+                    ndf_bake_shader_source(vmf, stage, &opts, buf.as_mut_ptr(), size, &mut written),
+                    ndf_status::Ok,
+                    "",
+                    "",
+                );
+                assert_eq!(written, size);
+                assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
+                assert_eq!(buf[size], 1, "nothing past the NUL");
+            }
+        }
+        let mut n = 0;
+        let mut buf = [0 as c_char; 16];
+        let f = "ndf_bake_shader_source_size";
+        expect(
+            ndf_bake_shader_source_size(null(), 1, &o, &mut n),
+            ndf_status::NullArgument,
+            f,
+            "bake is NULL",
+        );
+        expect(
+            ndf_bake_shader_source_size(vmf, 1, null(), &mut n),
+            ndf_status::NullArgument,
+            f,
+            "options is NULL",
+        );
+        expect(
+            ndf_bake_shader_source_size(vmf, 1, &o, null_mut()),
+            ndf_status::NullArgument,
+            f,
+            "size_out is NULL",
+        );
+        expect(
+            ndf_bake_shader_source_size(vmf, 2, &o, &mut n),
+            ndf_status::InvalidArgument,
+            f,
+            "unknown stage value 2",
+        );
+        for (bad, words) in [
+            (ndf_shader_options { brdf: 2, ..o }, "unknown brdf value 2"),
+            (
+                ndf_shader_options { sampling: 3, ..o },
+                "unknown sampling value 3",
+            ),
+            (
+                ndf_shader_options { format: 4, ..o },
+                "unknown format value 4",
+            ),
+            (
+                ndf_shader_options {
+                    struct_size: 1,
+                    ..o
+                },
+                "struct_size is 1",
+            ),
+            (
+                ndf_shader_options { color: 1, ..o },
+                "colour shading needs a mixture bake with colour textures",
+            ),
+        ] {
+            expect(
+                ndf_bake_shader_source_size(vmf, 1, &bad, &mut n),
+                ndf_status::InvalidArgument,
+                f,
+                words,
+            );
+        }
+        let unorm = ndf_shader_options {
+            format: NDF_FORMAT_RGBA_UNORM8,
+            ..o
+        };
+        expect(
+            ndf_bake_shader_source_size(lean, 1, &unorm, &mut n),
+            ndf_status::UnsupportedFormat,
+            f,
+            "unbounded",
+        );
+        let f = "ndf_bake_shader_source";
+        expect(
+            ndf_bake_shader_source(null(), 1, &o, buf.as_mut_ptr(), 16, &mut n),
+            ndf_status::NullArgument,
+            f,
+            "bake is NULL",
+        );
+        expect(
+            ndf_bake_shader_source(vmf, 1, &o, null_mut(), 16, &mut n),
+            ndf_status::NullArgument,
+            f,
+            "buffer is NULL",
+        );
+        expect(
+            ndf_bake_shader_source(vmf, 1, &o, buf.as_mut_ptr(), 16, null_mut()),
+            ndf_status::NullArgument,
+            f,
+            "length_out is NULL",
+        );
+        expect(
+            ndf_bake_shader_source(vmf, 9, &o, buf.as_mut_ptr(), 16, &mut n),
+            ndf_status::InvalidArgument,
+            f,
+            "stage",
+        );
+        assert_eq!(n, 0);
+        ndf_bake_free(vmf);
+        ndf_bake_free(lean);
         ndf_normal_map_free(map);
     }
 }

@@ -3,8 +3,8 @@
  * once against libndfmap.a, and under valgrind when it is installed).
  *
  * It builds a 16x16 normal map from pixels in memory, bakes every method, packs every level of
- * every texture in every format, and prints one line per query and per packed level (a 64-bit
- * FNV-1a hash of the bytes); the Rust test computes the same lines with the Rust API and
+ * every texture in every format, gets the vMF shader sources, and prints one line per query,
+ * per packed level and per shader (a 64-bit FNV-1a hash of the bytes); the Rust test computes the same lines with the Rust API and
  * compares. It also exercises bad input from C (NULLs, a buffer one byte short, unknown enum
  * values, indices out of range, a cancelled bake, free(NULL)) and exits non-zero at the first
  * unexpected status.
@@ -115,6 +115,30 @@ static void describe(const ndf_bake *bake) {
                 free(buffer);
             }
         }
+    }
+}
+
+/* Prints the size and hash of both shader stages of `bake`, for f16 textures. */
+static void shaders(const ndf_bake *bake) {
+    ndf_shader_options so = ndf_shader_options_default();
+    ndf_shader_stage stage;
+    so.format = NDF_FORMAT_RGBA_F16;
+    for (stage = NDF_SHADER_STAGE_VERTEX; stage <= NDF_SHADER_STAGE_FRAGMENT; stage++) {
+        size_t size = 0, written = 0;
+        char *source;
+        expect(ndf_bake_shader_source_size(bake, stage, &so, &size), NDF_STATUS_OK, "shader size");
+        source = (char *)malloc(size);
+        expect(ndf_bake_shader_source(bake, stage, &so, source, size - 1, &written),
+               NDF_STATUS_BUFFER_TOO_SMALL, "shader one byte short");
+        expect(ndf_bake_shader_source(bake, stage, &so, source, size, &written), NDF_STATUS_OK,
+               "shader");
+        if (written != size || strlen(source) + 1 != size) {
+            fprintf(stderr, "FAIL shader length\n");
+            failures++;
+        }
+        printf("shader %u %lu %016llx\n", (unsigned)stage, (unsigned long)written,
+               (unsigned long long)fnv1a((const unsigned char *)source, written));
+        free(source);
     }
 }
 
@@ -248,6 +272,7 @@ int main(int argc, char **argv) {
     }
     expect(ndf_bake_write(bakes[NDF_METHOD_VMF], argv[1], NDF_FORMAT_RGBA_F16), NDF_STATUS_OK,
            "write");
+    shaders(bakes[NDF_METHOD_VMF]);
     bad_input(map, bakes[NDF_METHOD_PLAIN], rgb);
 
     for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_VMF; m++) {
