@@ -385,3 +385,83 @@ fn consumers_run_clean_under_valgrind() {
         "consumer.cpp under valgrind",
     );
 }
+
+#[test]
+fn sample_builds_with_the_pkg_config_file_and_prints_every_upload() {
+    if !(have("gcc") && have("pkg-config") && have("sed")) {
+        return;
+    }
+    // An install tree as scripts/install makes it, with the library of this build.
+    let tmp = tempfile::tempdir().unwrap();
+    let prefix = tmp.path().join("prefix");
+    let lib = prefix.join("lib");
+    std::fs::create_dir_all(lib.join("pkgconfig")).unwrap();
+    std::fs::create_dir_all(prefix.join("include")).unwrap();
+    std::fs::copy(
+        root().join("include/ndfmap.h"),
+        prefix.join("include/ndfmap.h"),
+    )
+    .unwrap();
+    std::os::unix::fs::symlink(lib_dir().join("libndfmap.so"), lib.join("libndfmap.so")).unwrap();
+    // The sed line of scripts/install and ndfmap.pc.in.
+    let pc = Command::new("sed")
+        .arg("-e")
+        .arg(format!("s|@PREFIX@|{}|", prefix.display()))
+        .arg("-e")
+        .arg(format!("s|@VERSION@|{}|", env!("CARGO_PKG_VERSION")))
+        .arg(root().join("ndfmap.pc.in"))
+        .output()
+        .unwrap();
+    assert!(pc.status.success());
+    std::fs::write(lib.join("pkgconfig/ndfmap.pc"), pc.stdout).unwrap();
+    let pkg_config = |args: &[&str]| {
+        let out = Command::new("pkg-config")
+            .args(args)
+            .arg("ndfmap")
+            .env("PKG_CONFIG_PATH", lib.join("pkgconfig"))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap().trim().to_string()
+    };
+    assert_eq!(pkg_config(&["--modversion"]), env!("CARGO_PKG_VERSION"));
+    let flags = pkg_config(&["--cflags", "--libs"]);
+
+    let exe = tmp.path().join("ndf_upload");
+    let result = Command::new("gcc")
+        .args(C_FLAGS)
+        .arg(root().join("samples/c/ndf_upload.c"))
+        .arg("-o")
+        .arg(&exe)
+        .args(flags.split_whitespace())
+        .arg(format!("-Wl,-rpath,{}", lib.display()))
+        .arg("-lm")
+        .output()
+        .unwrap();
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let map = png(tmp.path());
+    let out = run(&[], &exe, &[&map]);
+    assert!(out.starts_with("// 4 vMF lobes, 5 MIP levels"), "{out}");
+    let uploads: Vec<_> = out
+        .lines()
+        .filter(|l| l.starts_with("glTexImage2D("))
+        .collect();
+    assert_eq!(uploads.len(), 4 * 5, "{out}");
+    assert!(
+        uploads[0].contains("GL_RGBA16F, 16, 16, 0, GL_RGBA, GL_HALF_FLOAT")
+            && uploads[0].contains("2048 bytes"),
+        "{}",
+        uploads[0]
+    );
+    assert!(out.contains("bytes of GLSL 3.30"), "{out}");
+    // Without an argument it bakes its own map.
+    assert!(run(&[], &exe, &[]).contains("// 4 vMF lobes, 7 MIP levels"));
+}
