@@ -362,17 +362,10 @@ impl<'a> Progress<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ingest::BadNormals;
-    use glam::Vec3;
 
-    fn bumpy(w: u32, h: u32) -> NormalMap {
-        let v = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f32, (i / w) as f32);
-                Vec3::new((x * 0.7).sin() * 0.5, (y * 1.1 + x * 0.3).cos() * 0.4, 1.0)
-            })
-            .collect();
-        NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
+    /// The built-in sample of side `size` (at least 8).
+    fn bumpy(size: u32) -> NormalMap {
+        crate::procedural::generate(size, 3).map
     }
 
     fn cases() -> Vec<(Method, BakeOptions)> {
@@ -392,10 +385,10 @@ mod tests {
 
     #[test]
     fn progress_rises_from_zero_to_one_and_leaves_the_bake_unchanged() {
-        // 512×256: level 1 has two chunks of PROGRESS_CHUNK texels.
-        for (map, (method, options)) in [(bumpy(512, 256), (Method::Vmf, cases()[2].1))]
+        // 512²: level 1 has four chunks of PROGRESS_CHUNK texels.
+        for (map, (method, options)) in [(bumpy(512), (Method::Vmf, cases()[2].1))]
             .into_iter()
-            .chain(cases().into_iter().map(|c| (bumpy(12, 9), c)))
+            .chain(cases().into_iter().map(|c| (bumpy(9), c)))
         {
             let mut seen = Vec::new();
             let with = bake_with_progress(&map, method, &options, &mut |f| {
@@ -413,7 +406,7 @@ mod tests {
 
     #[test]
     fn a_callback_that_says_stop_cancels_the_bake() {
-        let map = bumpy(12, 9);
+        let map = bumpy(9);
         for (method, options) in cases() {
             for stop_at in [0, 1, 2] {
                 let mut calls = 0;

@@ -31,6 +31,14 @@ fn message() -> String {
         .into_owned()
 }
 
+/// `check!(ndf_function(args) => Status, "words")`: the call returns `ndf_status::Status`; on
+/// failure the thread's message starts with the function's name and contains `words`.
+macro_rules! check {
+    ($f:ident($($arg:expr),* $(,)?) => $status:ident, $words:expr) => {
+        expect($f($($arg),*), ndf_status::$status, stringify!($f), $words)
+    };
+}
+
 /// Asserts `status` is `want` and, for a failure, that the message names `function` and
 /// contains `words`.
 #[track_caller]
@@ -41,21 +49,6 @@ fn expect(status: ndf_status, want: ndf_status, function: &str, words: &str) {
         assert!(m.starts_with(&format!("{function}: ")), "{m}");
         assert!(m.contains(words), "{function}: '{words}' not in '{m}'");
     }
-}
-
-/// A call's status with the error message as it was right after the call.
-fn called(status: ndf_status) -> (ndf_status, String) {
-    (status, message())
-}
-
-/// [`expect`] for a status taken with [`called`].
-#[track_caller]
-fn expect_called((status, m): (ndf_status, String), want: ndf_status, function: &str, words: &str) {
-    assert_eq!(status, want, "{function}: {m}");
-    assert!(
-        m.starts_with(&format!("{function}: ")) && m.contains(words),
-        "{function}: '{words}' not in '{m}'"
-    );
 }
 
 /// 8-bit RGB pixels of a small bumpy map.
@@ -266,75 +259,24 @@ fn bad_pixel_arguments_are_errors_that_leave_the_out_pointer_alone() {
         s
     };
     let p = px.as_ptr().cast();
-    let f = "ndf_normal_map_from_pixels";
-    expect(
-        call(null(), px.len(), W, H, 3, 0, &opts, true),
-        ndf_status::NullArgument,
-        f,
-        "pixels is NULL",
-    );
-    expect(
-        call(p, px.len(), W, H, 3, 0, null(), true),
-        ndf_status::NullArgument,
-        f,
-        "options is NULL",
-    );
-    expect(
-        call(p, px.len(), W, H, 3, 0, &opts, false),
-        ndf_status::NullArgument,
-        f,
-        "map_out is NULL",
-    );
+    macro_rules! bad {
+        ($($arg:expr),* => $status:ident, $words:expr) => {
+            expect(call($($arg),*), ndf_status::$status, "ndf_normal_map_from_pixels", $words)
+        };
+    }
+    bad!(null(), px.len(), W, H, 3, 0, &opts, true => NullArgument, "pixels is NULL");
+    bad!(p, px.len(), W, H, 3, 0, null(), true => NullArgument, "options is NULL");
+    bad!(p, px.len(), W, H, 3, 0, &opts, false => NullArgument, "map_out is NULL");
     // One byte short of width × height × channels.
-    expect(
-        call(p, px.len() - 1, W, H, 3, 0, &opts, true),
-        ndf_status::ShortPixels,
-        f,
-        "360 are needed",
-    );
-    expect(
-        call(p, px.len(), 0, H, 3, 0, &opts, true),
-        ndf_status::Dimensions,
-        f,
-        "at least 1",
-    );
+    bad!(p, px.len() - 1, W, H, 3, 0, &opts, true => ShortPixels, "360 are needed");
+    bad!(p, px.len(), 0, H, 3, 0, &opts, true => Dimensions, "at least 1");
     // width × height overflows 32 bits (and the supported texel count).
-    expect(
-        call(p, px.len(), 65536, 65536, 3, 0, &opts, true),
-        ndf_status::Dimensions,
-        f,
-        "texels",
-    );
-    expect(
-        call(p, px.len(), 70000, 1, 3, 0, &opts, true),
-        ndf_status::Dimensions,
-        f,
-        "at most 65536",
-    );
-    expect(
-        call(p, px.len(), W, H, 1, 0, &opts, true),
-        ndf_status::UnsupportedLayout,
-        f,
-        "one channel",
-    );
-    expect(
-        call(p, px.len(), W, H, 9, 0, &opts, true),
-        ndf_status::UnsupportedLayout,
-        f,
-        "9 channels",
-    );
-    expect(
-        call(p, px.len(), W, H, 3, 3, &opts, true),
-        ndf_status::InvalidArgument,
-        f,
-        "unknown sample_type value 3",
-    );
-    expect(
-        call(p, usize::MAX, W, H, 3, 0, &opts, true),
-        ndf_status::InvalidArgument,
-        f,
-        "largest possible",
-    );
+    bad!(p, px.len(), 65536, 65536, 3, 0, &opts, true => Dimensions, "texels");
+    bad!(p, px.len(), 70000, 1, 3, 0, &opts, true => Dimensions, "at most 65536");
+    bad!(p, px.len(), W, H, 1, 0, &opts, true => UnsupportedLayout, "one channel");
+    bad!(p, px.len(), W, H, 9, 0, &opts, true => UnsupportedLayout, "9 channels");
+    bad!(p, px.len(), W, H, 3, 3, &opts, true => InvalidArgument, "unknown sample_type value 3");
+    bad!(p, usize::MAX, W, H, 3, 0, &opts, true => InvalidArgument, "largest possible");
     for (field, o) in [
         ("green", ndf_ingest_options { green: 2, ..opts }),
         (
@@ -373,23 +315,13 @@ fn bad_pixel_arguments_are_errors_that_leave_the_out_pointer_alone() {
             },
         ),
     ] {
-        expect(
-            call(p, px.len(), W, H, 3, 0, &o, true),
-            ndf_status::InvalidArgument,
-            f,
-            &format!("unknown {field} value"),
-        );
+        bad!(p, px.len(), W, H, 3, 0, &o, true => InvalidArgument, &format!("unknown {field} value"));
     }
     let small = ndf_ingest_options {
         struct_size: 8,
         ..opts
     };
-    expect(
-        call(p, px.len(), W, H, 3, 0, &small, true),
-        ndf_status::InvalidArgument,
-        f,
-        "struct_size is 8",
-    );
+    bad!(p, px.len(), W, H, 3, 0, &small, true => InvalidArgument, "struct_size is 8");
     // Bad normals rejected: a zero vector (snorm 0, 0, 0).
     let reject = ndf_ingest_options {
         bad_normals: NDF_BAD_NORMALS_REJECT,
@@ -397,12 +329,7 @@ fn bad_pixel_arguments_are_errors_that_leave_the_out_pointer_alone() {
         ..opts
     };
     let zero = [0u8; 3];
-    expect(
-        call(zero.as_ptr().cast(), 3, 1, 1, 3, 0, &reject, true),
-        ndf_status::BadNormals,
-        f,
-        "zero length",
-    );
+    bad!(zero.as_ptr().cast(), 3, 1, 1, 3, 0, &reject, true => BadNormals, "zero length");
 }
 
 /// `bytes` of a PNG of `rgb8(W, H)`.
@@ -428,102 +355,29 @@ fn files_and_memory_load_like_pixels_and_bad_ones_fail_with_their_status() {
     let mut from_memory = null_mut();
     // SAFETY: valid paths, buffers, options and out-pointers; maps freed once.
     unsafe {
-        expect(
-            ndf_normal_map_load_file(c_file.as_ptr(), &opts, &mut from_file),
-            ndf_status::Ok,
-            "",
-            "",
-        );
-        expect(
-            ndf_normal_map_load_memory(
-                data.as_ptr().cast(),
-                data.len(),
-                c"n.png".as_ptr(),
-                &opts,
-                &mut from_memory,
-            ),
-            ndf_status::Ok,
-            "",
-            "",
-        );
+        check!(ndf_normal_map_load_file(c_file.as_ptr(), &opts, &mut from_file) => Ok, "");
+        check!(ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), c"n.png".as_ptr(), &opts, &mut from_memory,) => Ok, "");
         assert_eq!((*from_file).map.normals(), want.normals());
         assert_eq!((*from_memory).map.normals(), want.normals());
         assert_eq!((*from_file).input.path.as_deref(), file.to_str());
         let (mut w, mut h, mut bad) = (0, 0, 1);
-        expect(
-            ndf_normal_map_size(from_file, &mut w, &mut h),
-            ndf_status::Ok,
-            "",
-            "",
-        );
-        expect(
-            ndf_normal_map_bad_normal_count(from_file, &mut bad),
-            ndf_status::Ok,
-            "",
-            "",
-        );
+        check!(ndf_normal_map_size(from_file, &mut w, &mut h) => Ok, "");
+        check!(ndf_normal_map_bad_normal_count(from_file, &mut bad) => Ok, "");
         assert_eq!((w, h, bad), (W, H, 0));
         ndf_normal_map_free(from_file);
         ndf_normal_map_free(from_memory);
 
         let mut map = null_mut();
-        let f = "ndf_normal_map_load_file";
-        expect(
-            ndf_normal_map_load_file(null(), &opts, &mut map),
-            ndf_status::NullArgument,
-            f,
-            "path is NULL",
-        );
-        expect(
-            ndf_normal_map_load_file(c_file.as_ptr(), null(), &mut map),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
-        expect(
-            ndf_normal_map_load_file(c_file.as_ptr(), &opts, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "map_out",
-        );
-        expect(
-            ndf_normal_map_load_file(c"/no/such/file.png".as_ptr(), &opts, &mut map),
-            ndf_status::Read,
-            f,
-            "/no/such/file.png: cannot read",
-        );
-        let f = "ndf_normal_map_load_memory";
+        check!(ndf_normal_map_load_file(null(), &opts, &mut map) => NullArgument, "path is NULL");
+        check!(ndf_normal_map_load_file(c_file.as_ptr(), null(), &mut map) => NullArgument, "options");
+        check!(ndf_normal_map_load_file(c_file.as_ptr(), &opts, null_mut()) => NullArgument, "map_out");
+        check!(ndf_normal_map_load_file(c"/no/such/file.png".as_ptr(), &opts, &mut map) => Read, "/no/such/file.png: cannot read");
         let name = c"in-memory.png".as_ptr();
-        expect(
-            ndf_normal_map_load_memory(null(), 5, name, &opts, &mut map),
-            ndf_status::NullArgument,
-            f,
-            "data is NULL",
-        );
-        expect(
-            ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), null(), &opts, &mut map),
-            ndf_status::NullArgument,
-            f,
-            "name is NULL",
-        );
-        expect(
-            ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), name, null(), &mut map),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
-        expect(
-            ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), name, &opts, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "map_out",
-        );
-        expect(
-            ndf_normal_map_load_memory(data.as_ptr().cast(), 0, name, &opts, &mut map),
-            ndf_status::Decode,
-            f,
-            "in-memory.png: cannot decode image: the file is empty",
-        );
+        check!(ndf_normal_map_load_memory(null(), 5, name, &opts, &mut map) => NullArgument, "data is NULL");
+        check!(ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), null(), &opts, &mut map) => NullArgument, "name is NULL");
+        check!(ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), name, null(), &mut map) => NullArgument, "options");
+        check!(ndf_normal_map_load_memory(data.as_ptr().cast(), data.len(), name, &opts, null_mut()) => NullArgument, "map_out");
+        check!(ndf_normal_map_load_memory(data.as_ptr().cast(), 0, name, &opts, &mut map) => Decode, "in-memory.png: cannot decode image: the file is empty");
         // Every truncation of the file is a clean error.
         for len in 1..data.len() {
             let s = ndf_normal_map_load_memory(data.as_ptr().cast(), len, name, &opts, &mut map);
@@ -560,189 +414,38 @@ fn a_feature_attaches_from_pixels_files_and_memory_and_a_bad_one_leaves_the_map_
     // SAFETY: a live map and valid buffers, paths and options; the map is freed once.
     unsafe {
         let px = colour.as_ptr().cast();
-        expect(
-            ndf_normal_map_attach_feature_pixels(
-                map,
-                px,
-                colour.len(),
-                W,
-                H,
-                3,
-                NDF_SAMPLE_UINT8,
-                &opts,
-            ),
-            ndf_status::Ok,
-            "",
-            "",
-        );
+        check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, NDF_SAMPLE_UINT8, &opts,) => Ok, "");
         assert_eq!((*map).map.feature(), want.feature());
-        expect(
-            ndf_normal_map_attach_feature_file(map, c_file.as_ptr(), &opts),
-            ndf_status::Ok,
-            "",
-            "",
-        );
+        check!(ndf_normal_map_attach_feature_file(map, c_file.as_ptr(), &opts) => Ok, "");
         assert_eq!((*map).map.feature(), want.feature());
-        expect(
-            ndf_normal_map_attach_feature_memory(
-                map,
-                data.as_ptr().cast(),
-                data.len(),
-                c"a.png".as_ptr(),
-                &opts,
-            ),
-            ndf_status::Ok,
-            "",
-            "",
-        );
+        check!(ndf_normal_map_attach_feature_memory(map, data.as_ptr().cast(), data.len(), c"a.png".as_ptr(), &opts,) => Ok, "");
         assert_eq!((*map).map.feature(), want.feature());
 
-        let f = "ndf_normal_map_attach_feature_pixels";
-        expect(
-            ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W + 1, H, 3, 0, &opts),
-            ndf_status::FeatureSize,
-            f,
-            "feature image is 13x10",
-        );
-        expect(
-            ndf_normal_map_attach_feature_pixels(map, px, colour.len() - 1, W, H, 3, 0, &opts),
-            ndf_status::ShortPixels,
-            f,
-            "",
-        );
-        expect(
-            ndf_normal_map_attach_feature_pixels(null_mut(), px, colour.len(), W, H, 3, 0, &opts),
-            ndf_status::NullArgument,
-            f,
-            "map is NULL",
-        );
-        expect(
-            ndf_normal_map_attach_feature_pixels(map, null(), colour.len(), W, H, 3, 0, &opts),
-            ndf_status::NullArgument,
-            f,
-            "pixels",
-        );
-        expect(
-            ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, 9, &opts),
-            ndf_status::InvalidArgument,
-            f,
-            "sample_type",
-        );
-        expect(
-            ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, 0, null()),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
-        let f = "ndf_normal_map_attach_feature_file";
-        expect(
-            ndf_normal_map_attach_feature_file(map, c"/no/such.png".as_ptr(), &opts),
-            ndf_status::Read,
-            f,
-            "cannot read",
-        );
-        expect(
-            ndf_normal_map_attach_feature_file(null_mut(), c_file.as_ptr(), &opts),
-            ndf_status::NullArgument,
-            f,
-            "map",
-        );
-        expect(
-            ndf_normal_map_attach_feature_file(map, null(), &opts),
-            ndf_status::NullArgument,
-            f,
-            "path",
-        );
-        expect(
-            ndf_normal_map_attach_feature_file(map, c_file.as_ptr(), null()),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
-        let f = "ndf_normal_map_attach_feature_memory";
-        expect(
-            ndf_normal_map_attach_feature_memory(
-                map,
-                data.as_ptr().cast(),
-                10,
-                c"a.png".as_ptr(),
-                &opts,
-            ),
-            ndf_status::Decode,
-            f,
-            "a.png",
-        );
-        expect(
-            ndf_normal_map_attach_feature_memory(
-                null_mut(),
-                data.as_ptr().cast(),
-                10,
-                c"a.png".as_ptr(),
-                &opts,
-            ),
-            ndf_status::NullArgument,
-            f,
-            "map",
-        );
-        expect(
-            ndf_normal_map_attach_feature_memory(map, null(), 10, c"a.png".as_ptr(), &opts),
-            ndf_status::NullArgument,
-            f,
-            "data",
-        );
-        expect(
-            ndf_normal_map_attach_feature_memory(map, data.as_ptr().cast(), 10, null(), &opts),
-            ndf_status::NullArgument,
-            f,
-            "name",
-        );
-        expect(
-            ndf_normal_map_attach_feature_memory(
-                map,
-                data.as_ptr().cast(),
-                10,
-                c"a.png".as_ptr(),
-                null(),
-            ),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
+        check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W + 1, H, 3, 0, &opts) => FeatureSize, "feature image is 13x10");
+        check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len() - 1, W, H, 3, 0, &opts) => ShortPixels, "");
+        check!(ndf_normal_map_attach_feature_pixels(null_mut(), px, colour.len(), W, H, 3, 0, &opts) => NullArgument, "map is NULL");
+        check!(ndf_normal_map_attach_feature_pixels(map, null(), colour.len(), W, H, 3, 0, &opts) => NullArgument, "pixels");
+        check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, 9, &opts) => InvalidArgument, "sample_type");
+        check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, 0, null()) => NullArgument, "options");
+        check!(ndf_normal_map_attach_feature_file(map, c"/no/such.png".as_ptr(), &opts) => Read, "cannot read");
+        check!(ndf_normal_map_attach_feature_file(null_mut(), c_file.as_ptr(), &opts) => NullArgument, "map");
+        check!(ndf_normal_map_attach_feature_file(map, null(), &opts) => NullArgument, "path");
+        check!(ndf_normal_map_attach_feature_file(map, c_file.as_ptr(), null()) => NullArgument, "options");
+        check!(ndf_normal_map_attach_feature_memory(map, data.as_ptr().cast(), 10, c"a.png".as_ptr(), &opts,) => Decode, "a.png");
+        check!(ndf_normal_map_attach_feature_memory(null_mut(), data.as_ptr().cast(), 10, c"a.png".as_ptr(), &opts,) => NullArgument, "map");
+        check!(ndf_normal_map_attach_feature_memory(map, null(), 10, c"a.png".as_ptr(), &opts) => NullArgument, "data");
+        check!(ndf_normal_map_attach_feature_memory(map, data.as_ptr().cast(), 10, null(), &opts) => NullArgument, "name");
+        check!(ndf_normal_map_attach_feature_memory(map, data.as_ptr().cast(), 10, c"a.png".as_ptr(), null(),) => NullArgument, "options");
         // Failures left the feature as it was.
         assert_eq!((*map).map.feature(), want.feature());
 
         let (mut w, mut h, mut n) = (0, 0, 0);
-        expect(
-            ndf_normal_map_size(null(), &mut w, &mut h),
-            ndf_status::NullArgument,
-            "ndf_normal_map_size",
-            "map is NULL",
-        );
-        expect(
-            ndf_normal_map_size(map, null_mut(), &mut h),
-            ndf_status::NullArgument,
-            "ndf_normal_map_size",
-            "width_out",
-        );
-        expect(
-            ndf_normal_map_size(map, &mut w, null_mut()),
-            ndf_status::NullArgument,
-            "ndf_normal_map_size",
-            "height_out",
-        );
+        check!(ndf_normal_map_size(null(), &mut w, &mut h) => NullArgument, "map is NULL");
+        check!(ndf_normal_map_size(map, null_mut(), &mut h) => NullArgument, "width_out");
+        check!(ndf_normal_map_size(map, &mut w, null_mut()) => NullArgument, "height_out");
         assert_eq!((w, h), (0, 0));
-        expect(
-            ndf_normal_map_bad_normal_count(null(), &mut n),
-            ndf_status::NullArgument,
-            "ndf_normal_map_bad_normal_count",
-            "map",
-        );
-        expect(
-            ndf_normal_map_bad_normal_count(map, null_mut()),
-            ndf_status::NullArgument,
-            "ndf_normal_map_bad_normal_count",
-            "count_out",
-        );
+        check!(ndf_normal_map_bad_normal_count(null(), &mut n) => NullArgument, "map");
+        check!(ndf_normal_map_bad_normal_count(map, null_mut()) => NullArgument, "count_out");
         ndf_normal_map_free(map);
         ndf_normal_map_free(null_mut());
         ndf_bake_free(null_mut());
@@ -780,7 +483,7 @@ fn bakes_equal_the_rust_bakes_and_report_progress() {
     let mut bake = null_mut();
     // SAFETY: a live map, valid options and out-pointer; the bake is freed once.
     unsafe {
-        expect(ndf_bake_vmf(map, &o, &mut bake), ndf_status::Ok, "", "");
+        check!(ndf_bake_vmf(map, &o, &mut bake) => Ok, "");
         let want = bake_with(
             &rust,
             Method::Vmf,
@@ -836,25 +539,9 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
     let mut out = sentinel;
     // SAFETY: every pointer is NULL or valid for what it claims.
     unsafe {
-        let f = "ndf_bake_vmf";
-        expect(
-            ndf_bake_vmf(null(), &vmf, &mut out),
-            ndf_status::NullArgument,
-            f,
-            "map is NULL",
-        );
-        expect(
-            ndf_bake_vmf(map, null(), &mut out),
-            ndf_status::NullArgument,
-            f,
-            "options is NULL",
-        );
-        expect(
-            ndf_bake_vmf(map, &vmf, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "bake_out is NULL",
-        );
+        check!(ndf_bake_vmf(null(), &vmf, &mut out) => NullArgument, "map is NULL");
+        check!(ndf_bake_vmf(map, null(), &mut out) => NullArgument, "options is NULL");
+        check!(ndf_bake_vmf(map, &vmf, null_mut()) => NullArgument, "bake_out is NULL");
         for (o, words) in [
             (ndf_vmf_options { lobes: 0, ..vmf }, "lobe count 0"),
             (ndf_vmf_options { lobes: 9, ..vmf }, "lobe count 9"),
@@ -903,80 +590,23 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
                 "struct_size is 0",
             ),
         ] {
-            expect(
-                ndf_bake_vmf(map, &o, &mut out),
-                ndf_status::InvalidArgument,
-                f,
-                words,
-            );
+            check!(ndf_bake_vmf(map, &o, &mut out) => InvalidArgument, words);
         }
-        let f = "ndf_bake_tan2005";
-        expect(
-            ndf_bake_tan2005(null(), &tan, &mut out),
-            ndf_status::NullArgument,
-            f,
-            "map",
-        );
-        expect(
-            ndf_bake_tan2005(map, null(), &mut out),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
-        expect(
-            ndf_bake_tan2005(map, &tan, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "bake_out",
-        );
+        check!(ndf_bake_tan2005(null(), &tan, &mut out) => NullArgument, "map");
+        check!(ndf_bake_tan2005(map, null(), &mut out) => NullArgument, "options");
+        check!(ndf_bake_tan2005(map, &tan, null_mut()) => NullArgument, "bake_out");
         let o = ndf_tan2005_options { lobes: 100, ..tan };
-        expect(
-            ndf_bake_tan2005(map, &o, &mut out),
-            ndf_status::InvalidArgument,
-            f,
-            "lobe count 100",
-        );
+        check!(ndf_bake_tan2005(map, &o, &mut out) => InvalidArgument, "lobe count 100");
         let o = ndf_tan2005_options {
             struct_size: size_of::<ndf_vmf_options>(),
             ..tan
         };
-        expect(
-            ndf_bake_tan2005(map, &o, &mut out),
-            ndf_status::InvalidArgument,
-            f,
-            "struct_size",
-        );
-        let f = "ndf_bake_baseline";
-        expect(
-            ndf_bake_baseline(null(), 0, &base, &mut out),
-            ndf_status::NullArgument,
-            f,
-            "map",
-        );
-        expect(
-            ndf_bake_baseline(map, 0, null(), &mut out),
-            ndf_status::NullArgument,
-            f,
-            "options",
-        );
-        expect(
-            ndf_bake_baseline(map, 0, &base, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "bake_out",
-        );
-        expect(
-            ndf_bake_baseline(map, 6, &base, &mut out),
-            ndf_status::InvalidArgument,
-            f,
-            "unknown method value 6",
-        );
-        expect(
-            ndf_bake_baseline(map, NDF_METHOD_VMF, &base, &mut out),
-            ndf_status::InvalidArgument,
-            f,
-            "use ndf_bake_vmf",
-        );
+        check!(ndf_bake_tan2005(map, &o, &mut out) => InvalidArgument, "struct_size");
+        check!(ndf_bake_baseline(null(), 0, &base, &mut out) => NullArgument, "map");
+        check!(ndf_bake_baseline(map, 0, null(), &mut out) => NullArgument, "options");
+        check!(ndf_bake_baseline(map, 0, &base, null_mut()) => NullArgument, "bake_out");
+        check!(ndf_bake_baseline(map, 6, &base, &mut out) => InvalidArgument, "unknown method value 6");
+        check!(ndf_bake_baseline(map, NDF_METHOD_VMF, &base, &mut out) => InvalidArgument, "use ndf_bake_vmf");
         // Cancelled at the first report, and half-way.
         for stop_after in [0, 3] {
             let mut r = Recorder {
@@ -990,12 +620,7 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
                 progress_user_data: user,
                 ..vmf
             };
-            expect(
-                ndf_bake_vmf(map, &o, &mut out),
-                ndf_status::Cancelled,
-                "ndf_bake_vmf",
-                "cancelled",
-            );
+            check!(ndf_bake_vmf(map, &o, &mut out) => Cancelled, "cancelled");
             assert_eq!(r.seen.len(), stop_after + 1);
             let o = ndf_baseline_options {
                 progress: Some(record),
@@ -1003,12 +628,7 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
                 ..base
             };
             r.seen.clear();
-            expect(
-                ndf_bake_baseline(map, NDF_METHOD_LEAN, &o, &mut out),
-                ndf_status::Cancelled,
-                "ndf_bake_baseline",
-                "cancelled",
-            );
+            check!(ndf_bake_baseline(map, NDF_METHOD_LEAN, &o, &mut out) => Cancelled, "cancelled");
             r.seen.clear();
             let o = ndf_tan2005_options {
                 lobes: 2,
@@ -1016,12 +636,7 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
                 progress_user_data: user,
                 ..tan
             };
-            expect(
-                ndf_bake_tan2005(map, &o, &mut out),
-                ndf_status::Cancelled,
-                "ndf_bake_tan2005",
-                "cancelled",
-            );
+            check!(ndf_bake_tan2005(map, &o, &mut out) => Cancelled, "cancelled");
         }
         assert_eq!(out, sentinel, "no bake handed out");
         ndf_normal_map_free(map);
@@ -1036,41 +651,26 @@ fn queries_describe_the_bake_and_refuse_bad_arguments() {
     unsafe {
         let b = &(*bake).bake;
         let (mut n, mut w, mut h) = (0u32, 0u32, 0u32);
-        expect(ndf_bake_lobe_count(bake, &mut n), ndf_status::Ok, "", "");
+        check!(ndf_bake_lobe_count(bake, &mut n) => Ok, "");
         assert_eq!(n, 2);
-        expect(ndf_bake_level_count(bake, &mut n), ndf_status::Ok, "", "");
+        check!(ndf_bake_level_count(bake, &mut n) => Ok, "");
         assert_eq!(n as usize, b.level_count());
         for level in 0..n {
-            expect(
-                ndf_bake_level_size(bake, level, &mut w, &mut h),
-                ndf_status::Ok,
-                "",
-                "",
-            );
+            check!(ndf_bake_level_size(bake, level, &mut w, &mut h) => Ok, "");
             assert_eq!((w, h), b.sizes[level as usize]);
         }
-        expect(ndf_bake_texture_count(bake, &mut n), ndf_status::Ok, "", "");
+        check!(ndf_bake_texture_count(bake, &mut n) => Ok, "");
         assert_eq!(n, 2);
         for t in 0..n {
             let mut name = null();
-            expect(
-                ndf_bake_texture_name(bake, t, &mut name),
-                ndf_status::Ok,
-                "",
-                "",
-            );
+            check!(ndf_bake_texture_name(bake, t, &mut name) => Ok, "");
             assert_eq!(
                 CStr::from_ptr(name).to_str().unwrap(),
                 b.textures[t as usize].name
             );
             for c in 0..4 {
                 let (mut meaning, mut range) = (null(), 9);
-                expect(
-                    ndf_bake_texture_channel(bake, t, c, &mut meaning, &mut range),
-                    ndf_status::Ok,
-                    "",
-                    "",
-                );
+                check!(ndf_bake_texture_channel(bake, t, c, &mut meaning, &mut range) => Ok, "");
                 assert_eq!(
                     CStr::from_ptr(meaning).to_str().unwrap(),
                     b.textures[t as usize].channels[c as usize]
@@ -1087,166 +687,33 @@ fn queries_describe_the_bake_and_refuse_bad_arguments() {
         }
 
         let levels = b.level_count() as u32;
-        let mut m = 0;
-        let mut s = 0usize;
-        let mut name = null();
+        let (mut m, mut s, mut name) = (0, 0usize, null());
         let (mut meaning, mut range) = (null(), 0);
-        for (f, status) in [
-            ("ndf_bake_method", called(ndf_bake_method(null(), &mut m))),
-            (
-                "ndf_bake_lobe_count",
-                called(ndf_bake_lobe_count(null(), &mut n)),
-            ),
-            (
-                "ndf_bake_level_count",
-                called(ndf_bake_level_count(null(), &mut n)),
-            ),
-            (
-                "ndf_bake_level_size",
-                called(ndf_bake_level_size(null(), 0, &mut w, &mut h)),
-            ),
-            (
-                "ndf_bake_texture_count",
-                called(ndf_bake_texture_count(null(), &mut n)),
-            ),
-            (
-                "ndf_bake_texture_name",
-                called(ndf_bake_texture_name(null(), 0, &mut name)),
-            ),
-            (
-                "ndf_bake_texture_channel",
-                called(ndf_bake_texture_channel(
-                    null(),
-                    0,
-                    0,
-                    &mut meaning,
-                    &mut range,
-                )),
-            ),
-            (
-                "ndf_bake_packed_size",
-                called(ndf_bake_packed_size(null(), 0, 0, 0, &mut s)),
-            ),
-        ] {
-            expect_called(status, ndf_status::NullArgument, f, "bake is NULL");
-        }
-        for (f, status, out) in [
-            (
-                "ndf_bake_method",
-                called(ndf_bake_method(bake, null_mut())),
-                "method_out",
-            ),
-            (
-                "ndf_bake_lobe_count",
-                called(ndf_bake_lobe_count(bake, null_mut())),
-                "count_out",
-            ),
-            (
-                "ndf_bake_level_count",
-                called(ndf_bake_level_count(bake, null_mut())),
-                "count_out",
-            ),
-            (
-                "ndf_bake_level_size",
-                called(ndf_bake_level_size(bake, 0, null_mut(), &mut h)),
-                "width_out",
-            ),
-            (
-                "ndf_bake_level_size",
-                called(ndf_bake_level_size(bake, 0, &mut w, null_mut())),
-                "height_out",
-            ),
-            (
-                "ndf_bake_texture_count",
-                called(ndf_bake_texture_count(bake, null_mut())),
-                "count_out",
-            ),
-            (
-                "ndf_bake_texture_name",
-                called(ndf_bake_texture_name(bake, 0, null_mut())),
-                "name_out",
-            ),
-            (
-                "ndf_bake_texture_channel",
-                called(ndf_bake_texture_channel(bake, 0, 0, null_mut(), &mut range)),
-                "meaning_out",
-            ),
-            (
-                "ndf_bake_texture_channel",
-                called(ndf_bake_texture_channel(
-                    bake,
-                    0,
-                    0,
-                    &mut meaning,
-                    null_mut(),
-                )),
-                "range_out",
-            ),
-            (
-                "ndf_bake_packed_size",
-                called(ndf_bake_packed_size(bake, 0, 0, 0, null_mut())),
-                "size_out",
-            ),
-        ] {
-            expect_called(
-                status,
-                ndf_status::NullArgument,
-                f,
-                &format!("{out} is NULL"),
-            );
-        }
-        for (f, status, words) in [
-            (
-                "ndf_bake_level_size",
-                called(ndf_bake_level_size(bake, levels, &mut w, &mut h)),
-                "level 4 is out of range (there are 4)",
-            ),
-            (
-                "ndf_bake_texture_name",
-                called(ndf_bake_texture_name(bake, 2, &mut name)),
-                "texture 2",
-            ),
-            (
-                "ndf_bake_texture_channel",
-                called(ndf_bake_texture_channel(
-                    bake,
-                    2,
-                    0,
-                    &mut meaning,
-                    &mut range,
-                )),
-                "texture 2",
-            ),
-            (
-                "ndf_bake_texture_channel",
-                called(ndf_bake_texture_channel(
-                    bake,
-                    0,
-                    4,
-                    &mut meaning,
-                    &mut range,
-                )),
-                "channel 4",
-            ),
-            (
-                "ndf_bake_packed_size",
-                called(ndf_bake_packed_size(bake, 2, 0, 0, &mut s)),
-                "texture 2",
-            ),
-            (
-                "ndf_bake_packed_size",
-                called(ndf_bake_packed_size(bake, 0, u32::MAX, 0, &mut s)),
-                "level 4294967295",
-            ),
-        ] {
-            expect_called(status, ndf_status::OutOfRange, f, words);
-        }
-        expect(
-            ndf_bake_packed_size(bake, 0, 0, 4, &mut s),
-            ndf_status::InvalidArgument,
-            "ndf_bake_packed_size",
-            "unknown format value 4",
-        );
+        check!(ndf_bake_method(null(), &mut m) => NullArgument, "bake is NULL");
+        check!(ndf_bake_lobe_count(null(), &mut n) => NullArgument, "bake is NULL");
+        check!(ndf_bake_level_count(null(), &mut n) => NullArgument, "bake is NULL");
+        check!(ndf_bake_level_size(null(), 0, &mut w, &mut h) => NullArgument, "bake is NULL");
+        check!(ndf_bake_texture_count(null(), &mut n) => NullArgument, "bake is NULL");
+        check!(ndf_bake_texture_name(null(), 0, &mut name) => NullArgument, "bake is NULL");
+        check!(ndf_bake_texture_channel(null(), 0, 0, &mut meaning, &mut range) => NullArgument, "bake is NULL");
+        check!(ndf_bake_packed_size(null(), 0, 0, 0, &mut s) => NullArgument, "bake is NULL");
+        check!(ndf_bake_method(bake, null_mut()) => NullArgument, "method_out is NULL");
+        check!(ndf_bake_lobe_count(bake, null_mut()) => NullArgument, "count_out is NULL");
+        check!(ndf_bake_level_count(bake, null_mut()) => NullArgument, "count_out is NULL");
+        check!(ndf_bake_level_size(bake, 0, null_mut(), &mut h) => NullArgument, "width_out is NULL");
+        check!(ndf_bake_level_size(bake, 0, &mut w, null_mut()) => NullArgument, "height_out is NULL");
+        check!(ndf_bake_texture_count(bake, null_mut()) => NullArgument, "count_out is NULL");
+        check!(ndf_bake_texture_name(bake, 0, null_mut()) => NullArgument, "name_out is NULL");
+        check!(ndf_bake_texture_channel(bake, 0, 0, null_mut(), &mut range) => NullArgument, "meaning_out is NULL");
+        check!(ndf_bake_texture_channel(bake, 0, 0, &mut meaning, null_mut()) => NullArgument, "range_out is NULL");
+        check!(ndf_bake_packed_size(bake, 0, 0, 0, null_mut()) => NullArgument, "size_out is NULL");
+        check!(ndf_bake_level_size(bake, levels, &mut w, &mut h) => OutOfRange, "level 4 is out of range (there are 4)");
+        check!(ndf_bake_texture_name(bake, 2, &mut name) => OutOfRange, "texture 2");
+        check!(ndf_bake_texture_channel(bake, 2, 0, &mut meaning, &mut range) => OutOfRange, "texture 2");
+        check!(ndf_bake_texture_channel(bake, 0, 4, &mut meaning, &mut range) => OutOfRange, "channel 4");
+        check!(ndf_bake_packed_size(bake, 2, 0, 0, &mut s) => OutOfRange, "texture 2");
+        check!(ndf_bake_packed_size(bake, 0, u32::MAX, 0, &mut s) => OutOfRange, "level 4294967295");
+        check!(ndf_bake_packed_size(bake, 0, 0, 4, &mut s) => InvalidArgument, "unknown format value 4");
         assert_eq!((w, h, s), (1, 1, 0), "untouched by the failures");
         ndf_bake_free(bake);
         ndf_normal_map_free(map);
@@ -1308,20 +775,7 @@ fn packing_gives_the_rust_bytes_and_refuses_a_buffer_one_byte_short() {
                             buf.iter().all(|&x| x == 0xee) && written == 0,
                             "nothing written"
                         );
-                        expect(
-                            ndf_bake_pack(
-                                bake,
-                                t as u32,
-                                level as u32,
-                                format,
-                                dst,
-                                size,
-                                &mut written,
-                            ),
-                            ndf_status::Ok,
-                            "",
-                            "",
-                        );
+                        check!(ndf_bake_pack(bake, t as u32, level as u32, format, dst, size, &mut written,) => Ok, "");
                         assert_eq!(written, size);
                         assert_eq!(&buf[1..=size], &want[..]);
                         assert_eq!((buf[0], buf[size + 1]), (0xee, 0xee));
@@ -1331,43 +785,12 @@ fn packing_gives_the_rust_bytes_and_refuses_a_buffer_one_byte_short() {
             let mut buf = [0u8; 64];
             let mut written = 0;
             let p = buf.as_mut_ptr().cast();
-            let f = "ndf_bake_pack";
-            expect(
-                ndf_bake_pack(null(), 0, 0, 0, p, 64, &mut written),
-                ndf_status::NullArgument,
-                f,
-                "bake is NULL",
-            );
-            expect(
-                ndf_bake_pack(bake, 0, 0, 0, null_mut(), 64, &mut written),
-                ndf_status::NullArgument,
-                f,
-                "buffer is NULL",
-            );
-            expect(
-                ndf_bake_pack(bake, 0, 0, 0, p, 64, null_mut()),
-                ndf_status::NullArgument,
-                f,
-                "written_out is NULL",
-            );
-            expect(
-                ndf_bake_pack(bake, 99, 0, 0, p, 64, &mut written),
-                ndf_status::OutOfRange,
-                f,
-                "texture 99",
-            );
-            expect(
-                ndf_bake_pack(bake, 0, 99, 0, p, 64, &mut written),
-                ndf_status::OutOfRange,
-                f,
-                "level 99",
-            );
-            expect(
-                ndf_bake_pack(bake, 0, 0, 7, p, 64, &mut written),
-                ndf_status::InvalidArgument,
-                f,
-                "unknown format value 7",
-            );
+            check!(ndf_bake_pack(null(), 0, 0, 0, p, 64, &mut written) => NullArgument, "bake is NULL");
+            check!(ndf_bake_pack(bake, 0, 0, 0, null_mut(), 64, &mut written) => NullArgument, "buffer is NULL");
+            check!(ndf_bake_pack(bake, 0, 0, 0, p, 64, null_mut()) => NullArgument, "written_out is NULL");
+            check!(ndf_bake_pack(bake, 99, 0, 0, p, 64, &mut written) => OutOfRange, "texture 99");
+            check!(ndf_bake_pack(bake, 0, 99, 0, p, 64, &mut written) => OutOfRange, "level 99");
+            check!(ndf_bake_pack(bake, 0, 0, 7, p, 64, &mut written) => InvalidArgument, "unknown format value 7");
             ndf_bake_free(bake);
         }
     }
@@ -1384,12 +807,7 @@ fn written_bakes_are_the_command_lines_and_bad_folders_fail() {
     let c_out = CString::new(out.to_str().unwrap()).unwrap();
     // SAFETY: every pointer is NULL or valid for what it claims; freed once.
     unsafe {
-        expect(
-            ndf_bake_write(bake, c_out.as_ptr(), NDF_FORMAT_RGBA_F16),
-            ndf_status::Ok,
-            "",
-            "",
-        );
+        check!(ndf_bake_write(bake, c_out.as_ptr(), NDF_FORMAT_RGBA_F16) => Ok, "");
         // The command line writes this manifest for the same bake and format.
         let text = std::fs::read_to_string(out.join("manifest.json")).unwrap();
         let want = crate::output::Manifest::new(
@@ -1403,40 +821,14 @@ fn written_bakes_are_the_command_lines_and_bad_folders_fail() {
                 assert!(out.join(f).is_file(), "{f}");
             }
         }
-        let f = "ndf_bake_write";
-        expect(
-            ndf_bake_write(bake, c_out.as_ptr(), NDF_FORMAT_RGBA_UNORM8),
-            ndf_status::UnsupportedFormat,
-            f,
-            "unorm8 cannot hold texture 'slopes'",
-        );
-        expect(
-            ndf_bake_write(bake, c_out.as_ptr(), 4),
-            ndf_status::InvalidArgument,
-            f,
-            "unknown format value 4",
-        );
-        expect(
-            ndf_bake_write(null(), c_out.as_ptr(), 0),
-            ndf_status::NullArgument,
-            f,
-            "bake is NULL",
-        );
-        expect(
-            ndf_bake_write(bake, null(), 0),
-            ndf_status::NullArgument,
-            f,
-            "directory is NULL",
-        );
+        check!(ndf_bake_write(bake, c_out.as_ptr(), NDF_FORMAT_RGBA_UNORM8) => UnsupportedFormat, "unorm8 cannot hold texture 'slopes'");
+        check!(ndf_bake_write(bake, c_out.as_ptr(), 4) => InvalidArgument, "unknown format value 4");
+        check!(ndf_bake_write(null(), c_out.as_ptr(), 0) => NullArgument, "bake is NULL");
+        check!(ndf_bake_write(bake, null(), 0) => NullArgument, "directory is NULL");
         let file = dir.path().join("a-file");
         std::fs::write(&file, b"x").unwrap();
         let below_file = CString::new(file.join("sub").to_str().unwrap()).unwrap();
-        expect(
-            ndf_bake_write(bake, below_file.as_ptr(), 0),
-            ndf_status::Write,
-            f,
-            "cannot write",
-        );
+        check!(ndf_bake_write(bake, below_file.as_ptr(), 0) => Write, "cannot write");
         ndf_bake_free(bake);
         ndf_normal_map_free(map);
     }
@@ -1696,12 +1088,7 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
                 };
                 let want = crate::glsl::source_for(&spec, rust_stage, &rust_opts).unwrap();
                 let mut size = 0;
-                expect(
-                    ndf_bake_shader_source_size(vmf, stage, &opts, &mut size),
-                    ndf_status::Ok,
-                    "",
-                    "",
-                );
+                check!(ndf_bake_shader_source_size(vmf, stage, &opts, &mut size) => Ok, "");
                 assert_eq!(size, want.len() + 1);
                 let mut buf = vec![1 as c_char; size + 1];
                 let mut written = 0;
@@ -1723,12 +1110,7 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
                     buf.iter().all(|&c| c == 1) && written == 0,
                     "nothing written"
                 );
-                expect(
-                    ndf_bake_shader_source(vmf, stage, &opts, buf.as_mut_ptr(), size, &mut written),
-                    ndf_status::Ok,
-                    "",
-                    "",
-                );
+                check!(ndf_bake_shader_source(vmf, stage, &opts, buf.as_mut_ptr(), size, &mut written) => Ok, "");
                 assert_eq!(written, size);
                 assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
                 assert_eq!(buf[size], 1, "nothing past the NUL");
@@ -1736,31 +1118,10 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
         }
         let mut n = 0;
         let mut buf = [0 as c_char; 16];
-        let f = "ndf_bake_shader_source_size";
-        expect(
-            ndf_bake_shader_source_size(null(), 1, &o, &mut n),
-            ndf_status::NullArgument,
-            f,
-            "bake is NULL",
-        );
-        expect(
-            ndf_bake_shader_source_size(vmf, 1, null(), &mut n),
-            ndf_status::NullArgument,
-            f,
-            "options is NULL",
-        );
-        expect(
-            ndf_bake_shader_source_size(vmf, 1, &o, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "size_out is NULL",
-        );
-        expect(
-            ndf_bake_shader_source_size(vmf, 2, &o, &mut n),
-            ndf_status::InvalidArgument,
-            f,
-            "unknown stage value 2",
-        );
+        check!(ndf_bake_shader_source_size(null(), 1, &o, &mut n) => NullArgument, "bake is NULL");
+        check!(ndf_bake_shader_source_size(vmf, 1, null(), &mut n) => NullArgument, "options is NULL");
+        check!(ndf_bake_shader_source_size(vmf, 1, &o, null_mut()) => NullArgument, "size_out is NULL");
+        check!(ndf_bake_shader_source_size(vmf, 2, &o, &mut n) => InvalidArgument, "unknown stage value 2");
         for (bad, words) in [
             (ndf_shader_options { brdf: 2, ..o }, "unknown brdf value 2"),
             (
@@ -1783,48 +1144,17 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
                 "colour shading needs a mixture bake with colour textures",
             ),
         ] {
-            expect(
-                ndf_bake_shader_source_size(vmf, 1, &bad, &mut n),
-                ndf_status::InvalidArgument,
-                f,
-                words,
-            );
+            check!(ndf_bake_shader_source_size(vmf, 1, &bad, &mut n) => InvalidArgument, words);
         }
         let unorm = ndf_shader_options {
             format: NDF_FORMAT_RGBA_UNORM8,
             ..o
         };
-        expect(
-            ndf_bake_shader_source_size(lean, 1, &unorm, &mut n),
-            ndf_status::UnsupportedFormat,
-            f,
-            "unbounded",
-        );
-        let f = "ndf_bake_shader_source";
-        expect(
-            ndf_bake_shader_source(null(), 1, &o, buf.as_mut_ptr(), 16, &mut n),
-            ndf_status::NullArgument,
-            f,
-            "bake is NULL",
-        );
-        expect(
-            ndf_bake_shader_source(vmf, 1, &o, null_mut(), 16, &mut n),
-            ndf_status::NullArgument,
-            f,
-            "buffer is NULL",
-        );
-        expect(
-            ndf_bake_shader_source(vmf, 1, &o, buf.as_mut_ptr(), 16, null_mut()),
-            ndf_status::NullArgument,
-            f,
-            "length_out is NULL",
-        );
-        expect(
-            ndf_bake_shader_source(vmf, 9, &o, buf.as_mut_ptr(), 16, &mut n),
-            ndf_status::InvalidArgument,
-            f,
-            "stage",
-        );
+        check!(ndf_bake_shader_source_size(lean, 1, &unorm, &mut n) => UnsupportedFormat, "unbounded");
+        check!(ndf_bake_shader_source(null(), 1, &o, buf.as_mut_ptr(), 16, &mut n) => NullArgument, "bake is NULL");
+        check!(ndf_bake_shader_source(vmf, 1, &o, null_mut(), 16, &mut n) => NullArgument, "buffer is NULL");
+        check!(ndf_bake_shader_source(vmf, 1, &o, buf.as_mut_ptr(), 16, null_mut()) => NullArgument, "length_out is NULL");
+        check!(ndf_bake_shader_source(vmf, 9, &o, buf.as_mut_ptr(), 16, &mut n) => InvalidArgument, "stage");
         assert_eq!(n, 0);
         ndf_bake_free(vmf);
         ndf_bake_free(lean);
