@@ -1123,3 +1123,29 @@ fn load_memory_reads_every_format_as_load_reads_the_file() {
         }
     }
 }
+
+/// Fuzzing finding 1 (fuzz/README.md): an OpenEXR file whose scan line lies outside the level
+/// being read makes `exr` 1.74.2 panic inside its decoder (a debug assertion; without debug
+/// assertions the line is written at a wrong place or an index panics). Ingest's decoder guard
+/// turns the panic into a decode error; nothing unwinds into the caller.
+#[test]
+fn fuzz_finding_exr_line_outside_its_level_is_a_decode_error() {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fuzz/exr-line-outside-level.exr");
+    let bytes = std::fs::read(&path).unwrap();
+    for result in [
+        NormalMap::load(&path, &opts()),
+        NormalMap::load_memory("f.exr", &bytes, &opts()),
+    ] {
+        match result {
+            Err(Error::Decode { message, .. }) => {
+                assert!(
+                    message.contains("the decoder failed unexpectedly"),
+                    "{message}"
+                )
+            }
+            Ok(_) if !cfg!(debug_assertions) => {}
+            other => panic!("expected a decode error, got {other:?}"),
+        }
+    }
+}

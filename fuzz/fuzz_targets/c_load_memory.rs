@@ -11,7 +11,7 @@ use ndfmap::ffi::map::*;
 use ndfmap::ffi::ndf_status;
 use std::ptr::null_mut;
 
-fuzz_target!(|data: &[u8]| {
+fuzz_target!(init: ndfmap_fuzz::contain_dependency_panics(), |data: &[u8]| {
     let Some((head, bytes)) = data.split_first_chunk::<3>() else {
         return;
     };

@@ -11,7 +11,7 @@ use ndfmap::{IngestOptions, NormalMap};
 
 const NAMES: [&str; 7] = ["f.png", "f.tga", "f.tif", "f.jpg", "f.exr", "f", "f.bin"];
 
-fuzz_target!(|data: &[u8]| {
+fuzz_target!(init: ndfmap_fuzz::contain_dependency_panics(), |data: &[u8]| {
     let Some((&selector, bytes)) = data.split_first() else {
         return;
     };

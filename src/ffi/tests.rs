@@ -1161,3 +1161,35 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
         ndf_normal_map_free(map);
     }
 }
+
+/// Fuzzing finding 1 (fuzz/README.md) through the C API: a decoder panic is a decode status.
+#[test]
+fn fuzz_finding_exr_line_outside_its_level_is_a_decode_status() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/fuzz/exr-line-outside-level.exr"
+    );
+    let bytes = std::fs::read(path).unwrap();
+    let opts = ndf_ingest_options_default();
+    let mut map = null_mut();
+    // SAFETY: valid bytes, name, options and out-pointer; the map (if any) is freed once.
+    let status = unsafe {
+        ndf_normal_map_load_memory(
+            bytes.as_ptr().cast(),
+            bytes.len(),
+            c"f.exr".as_ptr(),
+            &opts,
+            &mut map,
+        )
+    };
+    if cfg!(debug_assertions) || status != ndf_status::Ok {
+        expect(
+            status,
+            ndf_status::Decode,
+            "ndf_normal_map_load_memory",
+            "the decoder failed unexpectedly",
+        );
+    }
+    // SAFETY: NULL or the map just made.
+    unsafe { ndf_normal_map_free(map) };
+}
