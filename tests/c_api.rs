@@ -5,7 +5,8 @@
 //! folder, because the library's crate types include `cdylib` and `staticlib`), run, and their
 //! output compared line by line with what the Rust API gives for the same map. The C consumer
 //! and the C++ one also run under valgrind (no invalid access, no definite or indirect leak)
-//! when it is installed, and the C sample (`samples/c/`) is built and run.
+//! when it is installed; the C sample (`samples/c/`) is built with the flags of `ndfmap.pc` and
+//! run; and the shared library exports exactly the functions the header declares.
 //!
 //! A missing gcc, g++ or valgrind skips the part that needs it, except under CI (`CI` set),
 //! where `scripts/test` installs them and their absence is a failure.
@@ -464,4 +465,42 @@ fn sample_builds_with_the_pkg_config_file_and_prints_every_upload() {
     assert!(out.contains("bytes of GLSL 3.30"), "{out}");
     // Without an argument it bakes its own map.
     assert!(run(&[], &exe, &[]).contains("// 4 vMF lobes, 7 MIP levels"));
+}
+
+#[test]
+fn the_shared_library_exports_exactly_the_functions_the_header_declares() {
+    if !have("nm") {
+        return;
+    }
+    let out = Command::new("nm")
+        .args(["-D", "--defined-only"])
+        .arg(lib_dir().join("libndfmap.so"))
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let mut exported: Vec<String> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.split_whitespace().nth(2))
+        .filter(|s| !s.starts_with('_'))
+        .map(str::to_string)
+        .collect();
+    exported.sort();
+    let header = std::fs::read_to_string(root().join("include/ndfmap.h")).unwrap();
+    // Declarations start a line with their return type: `ndf_status ndf_bake_pack(...`.
+    let mut declared: Vec<String> = header
+        .lines()
+        .filter(|l| l.starts_with(|c: char| c.is_ascii_lowercase()) && l.contains('('))
+        .filter_map(|l| {
+            l.split('(')
+                .next()?
+                .split([' ', '*'])
+                .next_back()
+                .map(str::to_string)
+        })
+        .filter(|name| name.starts_with("ndf_"))
+        .collect();
+    declared.sort();
+    assert!(declared.len() > 30, "{declared:?}");
+    assert_eq!(exported, declared);
 }
