@@ -255,10 +255,10 @@ fn pixels(data: &[u8], sample_type: ndf_sample_type) -> Outcome<Pixels<'_>> {
     Ok(match choose("sample_type", sample_type, &TYPES)? {
         NDF_SAMPLE_UINT8 => Pixels::Borrowed(Samples::U8(data)),
         NDF_SAMPLE_UINT16 => {
-            // SAFETY: u16 has no invalid bit patterns; align_to returns an empty middle part
-            // (not a misaligned one) when `data` is not aligned.
+            // SAFETY: u16 has no invalid bit patterns, and align_to never returns a misaligned
+            // middle part. Borrowed only when the middle holds every whole sample.
             match unsafe { data.align_to::<u16>() } {
-                ([], mid, _) => Pixels::Borrowed(Samples::U16(mid)),
+                ([], mid, rest) if rest.len() < 2 => Pixels::Borrowed(Samples::U16(mid)),
                 _ => Pixels::U16(
                     data.chunks_exact(2)
                         .map(|c| u16::from_ne_bytes([c[0], c[1]]))
@@ -269,7 +269,7 @@ fn pixels(data: &[u8], sample_type: ndf_sample_type) -> Outcome<Pixels<'_>> {
         _ => {
             // SAFETY: as above, f32 has no invalid bit patterns.
             match unsafe { data.align_to::<f32>() } {
-                ([], mid, _) => Pixels::Borrowed(Samples::F32(mid)),
+                ([], mid, rest) if rest.len() < 4 => Pixels::Borrowed(Samples::F32(mid)),
                 _ => Pixels::F32(
                     data.chunks_exact(4)
                         .map(|c| f32::from_ne_bytes([c[0], c[1], c[2], c[3]]))
