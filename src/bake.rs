@@ -297,9 +297,129 @@ pub fn bake(map: &NormalMap, method: Method) -> Bake {
 
 /// Bakes `method` for `map` with `options`; fails only on invalid options.
 pub fn bake_with(map: &NormalMap, method: Method, options: &BakeOptions) -> Result<Bake> {
-    match method {
-        Method::Vmf => crate::mixture::bake_vmf(map, options),
-        Method::Tan2005 => crate::mixture::bake_tan2005(map, options),
-        _ => Ok(crate::baseline::bake(map, method)),
+    bake_with_progress(map, method, options, &mut |_| true)
+}
+
+/// Bakes like [`bake_with`], reporting progress to `progress` and letting it cancel.
+///
+/// `progress` is called on the calling thread (between parallel chunks of work, never from a
+/// worker) with the fraction done: first 0.0, then non-decreasing values at least every 0.1 %
+/// of the work's progress (per MIP level for the baselines, per chunk of texels or wavefront
+/// for the mixtures), last 1.0. Returning `false` stops the bake with [`Error::Cancelled`];
+/// the result does not depend on the callback otherwise (same bits as [`bake_with`]).
+pub fn bake_with_progress(
+    map: &NormalMap,
+    method: Method,
+    options: &BakeOptions,
+    progress: &mut dyn FnMut(f32) -> bool,
+) -> Result<Bake> {
+    let mut progress = Progress::new(progress);
+    progress.report(0.0)?;
+    let bake = match method {
+        Method::Vmf => crate::mixture::bake_vmf(map, options, &mut progress),
+        Method::Tan2005 => crate::mixture::bake_tan2005(map, options, &mut progress),
+        _ => crate::baseline::bake(map, method, &mut progress),
+    }?;
+    progress.report(1.0)?;
+    Ok(bake)
+}
+
+/// A bake's progress reporting: forwards the fraction done to the caller's callback (at most
+/// once per 0.1 % of progress, plus the first and the last call) and turns "stop" into
+/// [`Error::Cancelled`].
+pub(crate) struct Progress<'a> {
+    callback: &'a mut dyn FnMut(f32) -> bool,
+    /// The last fraction passed to the callback (−1 before the first call).
+    reported: f32,
+}
+
+impl<'a> Progress<'a> {
+    /// Reports to `callback`.
+    pub(crate) fn new(callback: &'a mut dyn FnMut(f32) -> bool) -> Self {
+        Progress {
+            callback,
+            reported: -1.0,
+        }
+    }
+
+    /// Reports that `fraction` (0 to 1) of the whole bake is done; fractions never go back.
+    pub(crate) fn report(&mut self, fraction: f64) -> Result<()> {
+        let f = (fraction.clamp(0.0, 1.0) as f32).max(self.reported.max(0.0));
+        let first = self.reported < 0.0;
+        let finished = f == 1.0 && self.reported < 1.0;
+        if !first && !finished && f - self.reported < 1e-3 {
+            return Ok(());
+        }
+        self.reported = f;
+        if (self.callback)(f) {
+            Ok(())
+        } else {
+            Err(Error::Cancelled)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The built-in sample of side `size` (at least 8).
+    fn bumpy(size: u32) -> NormalMap {
+        crate::procedural::generate(size, 3).map
+    }
+
+    fn cases() -> Vec<(Method, BakeOptions)> {
+        let lobes = |n, align| BakeOptions {
+            lobes: n,
+            align,
+            ..BakeOptions::default()
+        };
+        vec![
+            (Method::Plain, BakeOptions::default()),
+            (Method::Olano, BakeOptions::default()),
+            (Method::Vmf, lobes(2, None)),
+            (Method::Vmf, lobes(2, Some(0.1))),
+            (Method::Tan2005, lobes(2, Some(1.0))),
+        ]
+    }
+
+    #[test]
+    fn progress_rises_from_zero_to_one_and_leaves_the_bake_unchanged() {
+        // 512²: level 1 has four chunks of PROGRESS_CHUNK texels.
+        for (map, (method, options)) in [(bumpy(512), (Method::Vmf, cases()[2].1))]
+            .into_iter()
+            .chain(cases().into_iter().map(|c| (bumpy(9), c)))
+        {
+            let mut seen = Vec::new();
+            let with = bake_with_progress(&map, method, &options, &mut |f| {
+                seen.push(f);
+                true
+            })
+            .unwrap();
+            assert_eq!(with, bake_with(&map, method, &options).unwrap(), "{method}");
+            assert_eq!(seen.first(), Some(&0.0), "{method}: {seen:?}");
+            assert_eq!(seen.last(), Some(&1.0), "{method}: {seen:?}");
+            assert!(seen.len() >= 3, "{method}: {seen:?}");
+            assert!(seen.windows(2).all(|p| p[0] < p[1]), "{method}: {seen:?}");
+        }
+    }
+
+    #[test]
+    fn a_callback_that_says_stop_cancels_the_bake() {
+        let map = bumpy(9);
+        for (method, options) in cases() {
+            for stop_at in [0, 1, 2] {
+                let mut calls = 0;
+                let r = bake_with_progress(&map, method, &options, &mut |_| {
+                    calls += 1;
+                    calls <= stop_at
+                });
+                assert!(
+                    matches!(r, Err(Error::Cancelled)),
+                    "{method} stop at {stop_at}"
+                );
+                assert_eq!(calls, stop_at + 1, "{method}: no call after the stop");
+            }
+        }
     }
 }

@@ -11,7 +11,8 @@
 //!
 //! Moments are accumulated in f64 and stored as f32. Shading from them is in [`crate::shade`].
 
-use crate::bake::{Bake, Format, Method, Texture, ValueRange};
+use crate::bake::{Bake, Format, Method, Progress, Texture, ValueRange};
+use crate::error::Result;
 use crate::ingest::NormalMap;
 use crate::pyramid::{pyramid, reduce};
 use glam::Vec3;
@@ -118,8 +119,9 @@ fn finalize(method: Method, m: &[f64], out: &mut [[f32; 4]]) {
     }
 }
 
-/// Bakes a baseline method: moments at the finest level, box-filtered onto every level.
-pub(crate) fn bake(map: &NormalMap, method: Method) -> Bake {
+/// Bakes a baseline method: moments at the finest level, box-filtered onto every level,
+/// reporting progress after each level.
+pub(crate) fn bake(map: &NormalMap, method: Method, progress: &mut Progress) -> Result<Bake> {
     let (w, h) = (map.width(), map.height());
     let c = moment_count(method);
     let mut finest = vec![0.0f64; w as usize * h as usize * c];
@@ -138,7 +140,7 @@ pub(crate) fn bake(map: &NormalMap, method: Method) -> Bake {
         })
         .collect();
     let levels = pyramid(w, h);
-    for lf in &levels {
+    for (k, lf) in levels.iter().enumerate() {
         let avg = reduce(&finest, c, w, lf);
         let texels = (lf.size.0 * lf.size.1) as usize;
         let mut per_texture = vec![vec![[0.0f32; 4]; texels]; textures.len()];
@@ -152,8 +154,9 @@ pub(crate) fn bake(map: &NormalMap, method: Method) -> Bake {
         for (t, level) in textures.iter_mut().zip(per_texture) {
             t.levels.push(level);
         }
+        progress.report((k + 1) as f64 / levels.len() as f64)?;
     }
-    Bake {
+    Ok(Bake {
         method,
         sizes: levels.iter().map(|l| l.size).collect(),
         textures,
@@ -161,7 +164,7 @@ pub(crate) fn bake(map: &NormalMap, method: Method) -> Bake {
         lobes: 0,
         parameters: serde_json::json!({}),
         format: Format::F32,
-    }
+    })
 }
 
 #[cfg(test)]
@@ -208,7 +211,7 @@ mod tests {
     fn every_baseline_matches_a_direct_moment_computation() {
         let map = test_map(13, 6);
         for method in Method::BASELINES {
-            let b = bake(&map, method);
+            let b = crate::bake::bake(&map, method);
             assert_eq!(b.sizes, crate::pyramid::level_sizes(13, 6));
             for level in 0..b.level_count() {
                 let (lw, lh) = b.sizes[level];
@@ -270,7 +273,7 @@ mod tests {
     #[test]
     fn coarsest_level_is_the_mean_of_the_whole_map() {
         let map = test_map(8, 8);
-        let b = bake(&map, Method::Toksvig);
+        let b = crate::bake::bake(&map, Method::Toksvig);
         let mean: DVec3 = map.normals().iter().map(|n| n.as_dvec3()).sum::<DVec3>() / 64.0;
         let t = b.texel(b.level_count() - 1, 0, 0)[0];
         for c in 0..3 {

@@ -287,10 +287,24 @@ impl NormalMap {
     /// or a channel layout that contradicts `opts.channels`, and [`Error::BadNormals`] if
     /// `opts.bad_normals` is [`BadNormals::Reject`] and a texel is bad.
     pub fn load(path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
-        let decoded = decode_file(path, Purpose::Normals)?;
-        let what = path.display().to_string();
+        Self::from_decoded(path, decode_file(path, Purpose::Normals)?, opts)
+    }
+
+    /// Reads a normal map from the bytes of an image file held in memory, exactly as
+    /// [`NormalMap::load`] reads a file. `name` stands for the file name: errors name it, and
+    /// its extension decides the format when the content does not (TGA has no signature).
+    ///
+    /// # Errors
+    ///
+    /// Those of [`NormalMap::load`] except [`Error::Read`].
+    pub fn load_memory(name: &str, bytes: &[u8], opts: &IngestOptions) -> Result<NormalMap> {
+        let path = Path::new(name);
+        Self::from_decoded(path, decode_bytes(path, bytes, Purpose::Normals)?, opts)
+    }
+
+    fn from_decoded(path: &Path, decoded: Decoded, opts: &IngestOptions) -> Result<NormalMap> {
         convert_normals(
-            &what,
+            &path.display().to_string(),
             decoded.width,
             decoded.height,
             decoded.channels,
@@ -348,10 +362,30 @@ impl NormalMap {
     /// The decoding errors of [`NormalMap::load`], and [`Error::FeatureSize`] if the image's
     /// size differs from the normal map's.
     pub fn with_feature_file(self, path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
-        let decoded = decode_file(path, Purpose::Feature)?;
-        let what = path.display().to_string();
+        self.with_feature_decoded(path, decode_file(path, Purpose::Feature)?, opts)
+    }
+
+    /// Attaches a feature (albedo colour) image read from the bytes of an image file held in
+    /// memory, as [`NormalMap::with_feature_file`] reads a file; `name` is as for
+    /// [`NormalMap::load_memory`].
+    pub fn with_feature_memory(
+        self,
+        name: &str,
+        bytes: &[u8],
+        opts: &IngestOptions,
+    ) -> Result<NormalMap> {
+        let path = Path::new(name);
+        self.with_feature_decoded(path, decode_bytes(path, bytes, Purpose::Feature)?, opts)
+    }
+
+    fn with_feature_decoded(
+        self,
+        path: &Path,
+        decoded: Decoded,
+        opts: &IngestOptions,
+    ) -> Result<NormalMap> {
         self.with_feature_samples(
-            &what,
+            &path.display().to_string(),
             decoded.width,
             decoded.height,
             decoded.channels,
@@ -707,6 +741,12 @@ fn decode_file(path: &Path, purpose: Purpose) -> Result<Decoded> {
         path: path.to_path_buf(),
         source,
     })?;
+    decode_bytes(path, &bytes, purpose)
+}
+
+/// Decodes the bytes of an image file (any supported format) to interleaved samples; `path`
+/// names it in errors and gives the extension.
+fn decode_bytes(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
     if bytes.is_empty() {
         return Err(decode_error(path, "the file is empty"));
     }
@@ -714,9 +754,9 @@ fn decode_file(path: &Path, purpose: Purpose) -> Result<Decoded> {
     // becomes a decode error instead of unwinding into the caller (or across the C API).
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         if bytes.starts_with(&EXR_MAGIC) {
-            decode_exr(path, &bytes, purpose)
+            decode_exr(path, bytes, purpose)
         } else {
-            decode_image(path, &bytes, purpose)
+            decode_image(path, bytes, purpose)
         }
     }))
     .unwrap_or_else(|payload| {

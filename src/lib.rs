@@ -3,13 +3,15 @@
 //! Implements "Frequency Domain Normal Map Filtering" (Han, Sun, Ramamoorthi, Grinspun 2007)
 //! and the baselines it compares with. Data flows forward through one module per stage:
 //! [`ingest`] → [`pyramid`] → methods ([`baseline`]; [`vmf`] and [`em`] for the paper's
-//! Sec 7) → [`bake`] → [`shade`] / [`eval`] / [`pack`] / [`output`].
+//! Sec 7) → [`bake`] → [`shade`] / [`eval`] / [`pack`] / [`output`]; [`ffi`] is the C ABI
+//! (`include/ndfmap.h`).
 
 pub mod bake;
 pub mod baseline;
 pub mod em;
 pub mod error;
 pub mod eval;
+pub mod ffi;
 pub mod glsl;
 pub mod ingest;
 pub mod mixture;

@@ -21,7 +21,7 @@
 //! Colour (eq 22): with a feature image, each component also gets `y_j = Σ z_ij y_i / Σ z_ij`,
 //! stored as `α_j y_j`.
 
-use crate::bake::{Bake, BakeOptions, Format, Method, Texture, ValueRange};
+use crate::bake::{Bake, BakeOptions, Format, Method, Progress, Texture, ValueRange};
 use crate::em::{self, Alignment, EmInput, EmOptions, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::ingest::NormalMap;
@@ -213,8 +213,12 @@ impl Model for TanModel {
 }
 
 /// Bakes Tan et al. 2005's Gaussian mixture of `map` with the same driver as vMF.
-pub(crate) fn bake_tan2005(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
-    bake_mixture::<TanModel>(map, options)
+pub(crate) fn bake_tan2005(
+    map: &NormalMap,
+    options: &BakeOptions,
+    progress: &mut Progress,
+) -> Result<Bake> {
+    bake_mixture::<TanModel>(map, options, progress)
 }
 
 /// Components and colours of every texel of one level, `components[t * J + j]`.
@@ -432,18 +436,34 @@ fn finest_level<M: Model>(
 }
 
 /// Bakes the vMF mixture of `map` (module docs).
-pub(crate) fn bake_vmf(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
-    bake_mixture::<VmfModel>(map, options)
+pub(crate) fn bake_vmf(
+    map: &NormalMap,
+    options: &BakeOptions,
+    progress: &mut Progress,
+) -> Result<Bake> {
+    bake_mixture::<VmfModel>(map, options, progress)
 }
 
-/// Bakes a mixture model for `map`: unaligned, or aligned from the unaligned fits.
-pub(crate) fn bake_mixture<M: Model>(map: &NormalMap, options: &BakeOptions) -> Result<Bake> {
+/// Texels fitted in parallel between two progress reports of the unaligned pass.
+const PROGRESS_CHUNK: u32 = 1 << 14;
+
+/// The part of the whole bake that one pass over the levels covers: `(start, span)`.
+type Pass = (f64, f64);
+
+/// Bakes a mixture model for `map`: unaligned, or aligned from the unaligned fits. Each level
+/// of a pass counts as an equal share of its progress (every level covers all normals).
+pub(crate) fn bake_mixture<M: Model>(
+    map: &NormalMap,
+    options: &BakeOptions,
+    progress: &mut Progress,
+) -> Result<Bake> {
     check(options)?;
     let sizes = level_sizes(map.width(), map.height());
-    let unaligned = bottom_up::<M>(map, options, &sizes);
+    let first_pass = if options.align.is_some() { 0.5 } else { 1.0 };
+    let unaligned = bottom_up::<M>(map, options, &sizes, progress, (0.0, first_pass))?;
     let fits = match options.align {
         None => unaligned,
-        Some(c) => top_down::<M>(map, options, &sizes, c, &unaligned),
+        Some(c) => top_down::<M>(map, options, &sizes, c, &unaligned, progress, (0.5, 0.5))?,
     };
     Ok(assemble::<M>(map, options, sizes, fits))
 }
@@ -453,54 +473,62 @@ fn bottom_up<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     sizes: &[(u32, u32)],
-) -> Vec<LevelFit<M::C>> {
+    progress: &mut Progress,
+    (start, span): Pass,
+) -> Result<Vec<LevelFit<M::C>>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
     let mut fits = vec![finest_level::<M>(map, j, |_| 0)];
+    let steps = sizes.len().saturating_sub(1).max(1) as f64;
     for k in 1..sizes.len() {
         let (w, h) = sizes[k];
         let (pw, ph) = sizes[k - 1];
         let level = LevelFootprints::new(finest, (w, h));
         let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
         let prev = &fits[k - 1];
-        let results: Vec<TexelFit<M::C>> = (0..w * h)
-            .into_par_iter()
-            .map_init(Gather::<M>::default, |g, t| {
-                let (x, y) = (t % w, t / w);
-                let fast = options.approximate
-                    && k >= 2
-                    && g.collect_children(prev, pw, &cx, &cy, x, y, j);
-                if !fast {
-                    g.collect(map, &level, x, y);
-                    if g.normals.len() <= j {
-                        return g.one_per_normal(j);
-                    }
+        let fit_texel = |g: &mut Gather<M>, t: u32| -> TexelFit<M::C> {
+            let (x, y) = (t % w, t / w);
+            let fast =
+                options.approximate && k >= 2 && g.collect_children(prev, pw, &cx, &cy, x, y, j);
+            if !fast {
+                g.collect(map, &level, x, y);
+                if g.normals.len() <= j {
+                    return g.one_per_normal(j);
                 }
-                g.candidates.clear();
-                for (py, wy) in cy.taps(y as usize) {
-                    for (px, wx) in cx.taps(x as usize) {
-                        let p = (py * pw + px) as usize;
-                        if k == 1 {
-                            let c = M::single(map.normals()[p]);
-                            g.candidates.push(M::with_alpha(&c, wx * wy));
-                        } else {
-                            for c in &prev.components[p * j..(p + 1) * j] {
-                                g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
-                            }
+            }
+            g.candidates.clear();
+            for (py, wy) in cy.taps(y as usize) {
+                for (px, wx) in cx.taps(x as usize) {
+                    let p = (py * pw + px) as usize;
+                    if k == 1 {
+                        let c = M::single(map.normals()[p]);
+                        g.candidates.push(M::with_alpha(&c, wx * wy));
+                    } else {
+                        for c in &prev.components[p * j..(p + 1) * j] {
+                            g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
                         }
                     }
                 }
-                let init = M::farthest_first(&g.candidates, j);
-                g.fit(&init, options, None)
-            })
-            .collect();
+            }
+            let init = M::farthest_first(&g.candidates, j);
+            g.fit(&init, options, None)
+        };
         let mut out = LevelFit::with_capacity((w * h) as usize * j, map.feature().is_some());
-        for r in results {
-            out.push::<M>(r);
+        for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
+            let hi = (lo + PROGRESS_CHUNK).min(w * h);
+            let results: Vec<TexelFit<M::C>> = (lo..hi)
+                .into_par_iter()
+                .map_init(Gather::<M>::default, &fit_texel)
+                .collect();
+            for r in results {
+                out.push::<M>(r);
+            }
+            let done = (k - 1) as f64 + hi as f64 / (w * h) as f64;
+            progress.report(start + span * done / steps)?;
         }
         fits.push(out);
     }
-    fits
+    Ok(fits)
 }
 
 /// Index of the parent (next coarser level) texel containing the centre of `x` on an axis of
@@ -548,7 +576,9 @@ fn top_down<M: Model>(
     sizes: &[(u32, u32)],
     strength: f64,
     unaligned: &[LevelFit<M::C>],
-) -> Vec<LevelFit<M::C>> {
+    progress: &mut Progress,
+    (start, span): Pass,
+) -> Result<Vec<LevelFit<M::C>>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
     let levels = sizes.len();
@@ -599,7 +629,10 @@ fn top_down<M: Model>(
             texels: vec![[0.0; 4]; texels],
         };
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
-        for d in 0..(w + 2 * (h - 1)) {
+        let wavefronts = w + 2 * (h - 1);
+        for d in 0..wavefronts {
+            let done = (levels - 1 - k) as f64 + d as f64 / wavefronts as f64;
+            progress.report(start + span * done / levels as f64)?;
             // x = d − 2y must lie in [0, w): y > (d − w)/2 and y ≤ d/2.
             let y_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
             let y_hi = (d / 2).min(h - 1);
@@ -661,9 +694,10 @@ fn top_down<M: Model>(
         }
         fits[k] = Some(out);
     }
-    fits.into_iter()
+    Ok(fits
+        .into_iter()
         .map(|f| f.expect("every level fitted"))
-        .collect()
+        .collect())
 }
 
 /// Lays the fits out as textures: J component chains, then J colour chains `α·y`.

@@ -1,0 +1,693 @@
+//! C API, bakes: bake a normal map with one method (options struct per method, progress
+//! callback that can cancel), query the result, pack a level of a texture into a caller
+//! buffer, write the bake to files as the command line does, free it. Wraps [`crate::bake`],
+//! [`crate::pack`] and [`crate::output`].
+
+use super::map::ndf_normal_map;
+use super::{
+    Out, Outcome, arg, c_str, choose, fail, guard, guard_value, index, ndf_status, path,
+    read_options,
+};
+use crate::bake::{Bake, BakeOptions, Format, Method, ValueRange, bake_with_progress};
+use crate::em::{EmOptions, KappaEstimator};
+use crate::output::InputInfo;
+use std::ffi::{CString, c_char, c_int, c_void};
+
+/// A filtering method: one of the `NDF_METHOD_*` values.
+pub type ndf_method = u32;
+/// Plain MIP-mapping of the normal: one texture `normal` (normalized mean normal).
+pub const NDF_METHOD_PLAIN: ndf_method = 0;
+/// Toksvig 2005: one texture `mean` (mean normal, its length in alpha).
+pub const NDF_METHOD_TOKSVIG: ndf_method = 1;
+/// LEAN mapping (Olano & Baker 2010): textures `slopes` and `cross` (slope moments, unbounded:
+/// float formats only).
+pub const NDF_METHOD_LEAN: ndf_method = 2;
+/// Olano & North 1997: textures `mean`, `diagonal`, `offdiagonal` (9 moments).
+pub const NDF_METHOD_OLANO: ndf_method = 3;
+/// Tan et al. 2005: J planar Gaussians per texel, textures `gauss0` ... (float formats only).
+pub const NDF_METHOD_TAN2005: ndf_method = 4;
+/// The paper's von Mises–Fisher lobes (Han et al. 2007, Sec 7): textures `lobe0` ... holding
+/// `(α, α·r)`, then `color0` ... holding `α·y` when the map has a feature image.
+pub const NDF_METHOD_VMF: ndf_method = 5;
+
+/// The `NDF_METHOD_*` values, in order.
+const METHODS: [Method; 6] = [
+    Method::Plain,
+    Method::Toksvig,
+    Method::Lean,
+    Method::Olano,
+    Method::Tan2005,
+    Method::Vmf,
+];
+
+/// A texel storage format for packing and writing: one of the `NDF_FORMAT_*` values. Every
+/// format has four channels (RGBA) per texel, in the host's byte order, rows top to bottom.
+pub type ndf_format = u32;
+/// 32-bit float per channel, 16 bytes per texel (`GL_RGBA32F`, `GL_FLOAT`).
+pub const NDF_FORMAT_RGBA_F32: ndf_format = 0;
+/// 16-bit float per channel, 8 bytes per texel (`GL_RGBA16F`, `GL_HALF_FLOAT`).
+pub const NDF_FORMAT_RGBA_F16: ndf_format = 1;
+/// 16-bit unsigned-normalized, 8 bytes per texel (`GL_RGBA16`, `GL_UNSIGNED_SHORT`); channels
+/// whose range is `NDF_VALUE_RANGE_SIGNED` store `0.5 + 0.5·v`.
+pub const NDF_FORMAT_RGBA_UNORM16: ndf_format = 2;
+/// 8-bit unsigned-normalized, 4 bytes per texel (`GL_RGBA8`, `GL_UNSIGNED_BYTE`); signed
+/// channels biased as for `NDF_FORMAT_RGBA_UNORM16`.
+pub const NDF_FORMAT_RGBA_UNORM8: ndf_format = 3;
+
+/// The `NDF_FORMAT_*` values, in order.
+pub(crate) const FORMATS: [Format; 4] = [Format::F32, Format::F16, Format::Unorm16, Format::Unorm8];
+
+/// The range of a channel's values: one of the `NDF_VALUE_RANGE_*` values.
+pub type ndf_value_range = u32;
+/// In [0, 1], stored as is by unorm formats.
+pub const NDF_VALUE_RANGE_UNIT: ndf_value_range = 0;
+/// In [−1, 1]; unorm formats store `0.5 + 0.5·v` (the shader undoes the bias).
+pub const NDF_VALUE_RANGE_SIGNED: ndf_value_range = 1;
+/// Unbounded: float formats only.
+pub const NDF_VALUE_RANGE_ANY: ndf_value_range = 2;
+
+/// How vMF EM derives κ from the mean resultant length: one of `NDF_KAPPA_ESTIMATOR_*`.
+pub type ndf_kappa_estimator = u32;
+/// Banerjee's approximation `(3r − r³)/(1 − r²)` (the paper's; the shader inverts it). Default.
+pub const NDF_KAPPA_ESTIMATOR_BANERJEE: ndf_kappa_estimator = 0;
+/// The exact maximum-likelihood κ (slower; every EM step then increases the likelihood).
+pub const NDF_KAPPA_ESTIMATOR_EXACT: ndf_kappa_estimator = 1;
+
+/// A progress callback, called on the thread that called the bake, between chunks of work,
+/// with the fraction done: first 0, then increasing, last 1. Return nonzero to go on, 0 to
+/// cancel (the bake then fails with `NDF_STATUS_CANCELLED` and makes no handle).
+/// `user_data` is the options' `progress_user_data`. The callback must not throw (C++) and must
+/// not call back into the bake being made.
+pub type ndf_progress_fn =
+    Option<unsafe extern "C" fn(fraction: f32, user_data: *mut c_void) -> c_int>;
+
+/// Options of the baselines (`NDF_METHOD_PLAIN`, `_TOKSVIG`, `_LEAN`, `_OLANO`). Initialize
+/// with `ndf_baseline_options_default()`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct ndf_baseline_options {
+    /// `sizeof(ndf_baseline_options)`, set by `ndf_baseline_options_default()`.
+    pub struct_size: usize,
+    /// Progress callback, or NULL (default) for none.
+    pub progress: ndf_progress_fn,
+    /// Passed to `progress` unchanged. Default NULL.
+    pub progress_user_data: *mut c_void,
+}
+
+/// Options of the vMF bake (`NDF_METHOD_VMF`, the paper's method). Initialize with
+/// `ndf_vmf_options_default()`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct ndf_vmf_options {
+    /// `sizeof(ndf_vmf_options)`, set by `ndf_vmf_options_default()`.
+    pub struct_size: usize,
+    /// Lobes per texel J, 1 to 8. Default 6 (the paper's choice). One texture per lobe.
+    pub lobes: u32,
+    /// Nonzero: coherent lobes (eq 23), so that hardware trilinear filtering of the lobe
+    /// textures is valid; 0 (default): each texel fitted on its own.
+    pub aligned: u32,
+    /// Alignment strength C when `aligned`, finite and ≥ 0. Default 0.1.
+    pub align_strength: f64,
+    /// Nonzero: approximate mode, levels 2 and coarser fitted to the lobes of the level below
+    /// (about 3.5× faster on a 1024² map, less accurate at coarse levels). Default 0.
+    pub approximate: u32,
+    /// Most EM iterations per texel, at least 1. Default 20.
+    pub em_max_iterations: u32,
+    /// EM convergence tolerance on the mean log-likelihood, ≥ 0. Default 1e-6.
+    pub em_tolerance: f64,
+    /// κ estimator, `NDF_KAPPA_ESTIMATOR_*`. Default `NDF_KAPPA_ESTIMATOR_BANERJEE`.
+    pub kappa_estimator: ndf_kappa_estimator,
+    /// Progress callback, or NULL (default) for none.
+    pub progress: ndf_progress_fn,
+    /// Passed to `progress` unchanged. Default NULL.
+    pub progress_user_data: *mut c_void,
+}
+
+/// Options of the Tan et al. 2005 bake (`NDF_METHOD_TAN2005`). Initialize with
+/// `ndf_tan2005_options_default()`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct ndf_tan2005_options {
+    /// `sizeof(ndf_tan2005_options)`, set by `ndf_tan2005_options_default()`.
+    pub struct_size: usize,
+    /// Gaussians per texel J, 1 to 8. Default 6. One texture per Gaussian.
+    pub lobes: u32,
+    /// Nonzero: coherent Gaussians (Tan's alignment prior); 0 (default): unaligned.
+    pub aligned: u32,
+    /// Prior strength c when `aligned`, finite and ≥ 0. Default 1 (Tan's choice).
+    pub align_strength: f64,
+    /// Most EM iterations per texel, at least 1. Default 20.
+    pub em_max_iterations: u32,
+    /// EM convergence tolerance, ≥ 0. Default 1e-6.
+    pub em_tolerance: f64,
+    /// Progress callback, or NULL (default) for none.
+    pub progress: ndf_progress_fn,
+    /// Passed to `progress` unchanged. Default NULL.
+    pub progress_user_data: *mut c_void,
+}
+
+/// The default baseline options: no progress callback.
+#[unsafe(no_mangle)]
+pub extern "C" fn ndf_baseline_options_default() -> ndf_baseline_options {
+    let o = ndf_baseline_options {
+        struct_size: size_of::<ndf_baseline_options>(),
+        progress: None,
+        progress_user_data: std::ptr::null_mut(),
+    };
+    guard_value(o, || o)
+}
+
+/// The default vMF options: 6 unaligned lobes, exact mode, 20 EM iterations, tolerance 1e-6,
+/// Banerjee's κ, no progress callback.
+#[unsafe(no_mangle)]
+pub extern "C" fn ndf_vmf_options_default() -> ndf_vmf_options {
+    let d = BakeOptions::default();
+    let o = ndf_vmf_options {
+        struct_size: size_of::<ndf_vmf_options>(),
+        lobes: d.lobes as u32,
+        aligned: 0,
+        align_strength: 0.1,
+        approximate: 0,
+        em_max_iterations: d.em.max_iterations,
+        em_tolerance: d.em.tolerance,
+        kappa_estimator: NDF_KAPPA_ESTIMATOR_BANERJEE,
+        progress: None,
+        progress_user_data: std::ptr::null_mut(),
+    };
+    guard_value(o, || o)
+}
+
+/// The default Tan 2005 options: 6 unaligned Gaussians, 20 EM iterations, tolerance 1e-6, no
+/// progress callback.
+#[unsafe(no_mangle)]
+pub extern "C" fn ndf_tan2005_options_default() -> ndf_tan2005_options {
+    let d = BakeOptions::default();
+    let o = ndf_tan2005_options {
+        struct_size: size_of::<ndf_tan2005_options>(),
+        lobes: d.lobes as u32,
+        aligned: 0,
+        align_strength: 1.0,
+        em_max_iterations: d.em.max_iterations,
+        em_tolerance: d.em.tolerance,
+        progress: None,
+        progress_user_data: std::ptr::null_mut(),
+    };
+    guard_value(o, || o)
+}
+
+/// A baked set of filtered textures (opaque): per texture an RGBA MIP chain, finest level
+/// first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf` or `ndf_bake_tan2005`;
+/// released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
+/// and write it at once.
+pub struct ndf_bake {
+    pub(crate) bake: Bake,
+    pub(crate) input: InputInfo,
+    /// Per texture: its name, then the meaning of R, G, B, A, NUL-terminated for C.
+    names: Vec<[CString; 5]>,
+}
+
+/// The C string of a texture or channel name (they are identifiers; never contain NUL).
+fn c_name(s: &str) -> CString {
+    CString::new(s).unwrap_or_default()
+}
+
+/// Bakes `map` and stores the handle in `out`.
+///
+/// # Safety
+/// `progress` is NULL or a callback that may be called with `user_data`; `out` is writable.
+unsafe fn run(
+    map: &ndf_normal_map,
+    method: Method,
+    options: &BakeOptions,
+    progress: ndf_progress_fn,
+    user_data: *mut c_void,
+    out: Out<*mut ndf_bake>,
+) -> Outcome {
+    let mut report = |fraction: f32| match progress {
+        // SAFETY: a callback of type ndf_progress_fn with the caller's user data, called on
+        // the caller's thread (the function's contract).
+        Some(callback) => (unsafe { callback(fraction, user_data) }) != 0,
+        None => true,
+    };
+    let bake = bake_with_progress(&map.map, method, options, &mut report)?;
+    let names = bake
+        .textures
+        .iter()
+        .map(|t| {
+            let [r, g, b, a] = t.channels.map(c_name);
+            [c_name(t.name), r, g, b, a]
+        })
+        .collect();
+    let handle = ndf_bake {
+        bake,
+        input: map.input.clone(),
+        names,
+    };
+    // SAFETY: writable (the caller's contract); the Box is released by ndf_bake_free.
+    unsafe { out.write(Box::into_raw(Box::new(handle))) };
+    Ok(())
+}
+
+/// Bakes a baseline method (plain, Toksvig, LEAN, Olano–North) of `map`.
+/// - `method`: `NDF_METHOD_PLAIN`, `_TOKSVIG`, `_LEAN` or `_OLANO`; the mixtures have their
+///   own functions (`NDF_STATUS_INVALID_ARGUMENT` otherwise).
+/// - `options`: from `ndf_baseline_options_default()`.
+/// - `bake_out`: receives the bake, to be released with `ndf_bake_free`.
+///
+/// # Safety
+/// `map` is NULL or a live map; `options` is NULL or initialized by
+/// `ndf_baseline_options_default()`; `bake_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_baseline(
+    map: *const ndf_normal_map,
+    method: ndf_method,
+    options: *const ndf_baseline_options,
+    bake_out: *mut *mut ndf_bake,
+) -> ndf_status {
+    guard("ndf_bake_baseline", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let map = unsafe { arg(map, "map") }?;
+        let m = choose("method", method, &METHODS)?;
+        let o = unsafe { read_options(options, "options", "ndf_baseline_options_default") }?;
+        let out = Out::new(bake_out, "bake_out")?;
+        if !Method::BASELINES.contains(&m) {
+            return Err(fail(
+                ndf_status::InvalidArgument,
+                format!("method {m} is not a baseline (use ndf_bake_{m})"),
+            ));
+        }
+        let none = BakeOptions::default();
+        unsafe { run(map, m, &none, o.progress, o.progress_user_data, out) }
+    })
+}
+
+/// Bakes the paper's vMF lobes (Algorithm 1) of `map`; with a feature image attached, the
+/// colour per lobe too (eq 22).
+/// - `options`: from `ndf_vmf_options_default()`; out-of-range values give
+///   `NDF_STATUS_INVALID_ARGUMENT`.
+/// - `bake_out`: receives the bake, to be released with `ndf_bake_free`.
+/// - A cancelled bake returns `NDF_STATUS_CANCELLED`.
+///
+/// # Safety
+/// As for `ndf_bake_baseline`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_vmf(
+    map: *const ndf_normal_map,
+    options: *const ndf_vmf_options,
+    bake_out: *mut *mut ndf_bake,
+) -> ndf_status {
+    guard("ndf_bake_vmf", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let map = unsafe { arg(map, "map") }?;
+        let o = unsafe { read_options(options, "options", "ndf_vmf_options_default") }?;
+        let out = Out::new(bake_out, "bake_out")?;
+        let kappa = [KappaEstimator::Banerjee, KappaEstimator::Exact];
+        let bake_options = BakeOptions {
+            lobes: o.lobes as usize,
+            align: (o.aligned != 0).then_some(o.align_strength),
+            approximate: o.approximate != 0,
+            em: EmOptions {
+                max_iterations: o.em_max_iterations,
+                tolerance: o.em_tolerance,
+                kappa_estimator: choose("kappa_estimator", o.kappa_estimator, &kappa)?,
+            },
+        };
+        unsafe {
+            run(
+                map,
+                Method::Vmf,
+                &bake_options,
+                o.progress,
+                o.progress_user_data,
+                out,
+            )
+        }
+    })
+}
+
+/// Bakes Tan et al. 2005's planar Gaussian mixture of `map`.
+/// - `options`: from `ndf_tan2005_options_default()`; out-of-range values give
+///   `NDF_STATUS_INVALID_ARGUMENT`.
+/// - `bake_out`, cancellation: as for `ndf_bake_vmf`.
+///
+/// # Safety
+/// As for `ndf_bake_baseline`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_tan2005(
+    map: *const ndf_normal_map,
+    options: *const ndf_tan2005_options,
+    bake_out: *mut *mut ndf_bake,
+) -> ndf_status {
+    guard("ndf_bake_tan2005", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let map = unsafe { arg(map, "map") }?;
+        let o = unsafe { read_options(options, "options", "ndf_tan2005_options_default") }?;
+        let out = Out::new(bake_out, "bake_out")?;
+        let bake_options = BakeOptions {
+            lobes: o.lobes as usize,
+            align: (o.aligned != 0).then_some(o.align_strength),
+            approximate: false,
+            em: EmOptions {
+                max_iterations: o.em_max_iterations,
+                tolerance: o.em_tolerance,
+                ..EmOptions::default()
+            },
+        };
+        unsafe {
+            run(
+                map,
+                Method::Tan2005,
+                &bake_options,
+                o.progress,
+                o.progress_user_data,
+                out,
+            )
+        }
+    })
+}
+
+/// Runs a query body for entry point `function` with the bake behind `bake`, writing the
+/// query's value to `out` on success.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `out` is NULL or writable.
+unsafe fn query<T>(
+    function: &str,
+    bake: *const ndf_bake,
+    out: *mut T,
+    out_name: &str,
+    body: impl FnOnce(&ndf_bake) -> Outcome<T>,
+) -> ndf_status {
+    guard(function, || {
+        // SAFETY: NULL or a live bake, as the caller guarantees.
+        let b = unsafe { arg(bake, "bake") }?;
+        let out = Out::new(out, out_name)?;
+        let value = body(b)?;
+        // SAFETY: writable, as the caller guarantees.
+        unsafe { out.write(value) };
+        Ok(())
+    })
+}
+
+/// The method that made the bake (`NDF_METHOD_*`).
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `method_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_method(
+    bake: *const ndf_bake,
+    method_out: *mut ndf_method,
+) -> ndf_status {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        query("ndf_bake_method", bake, method_out, "method_out", |b| {
+            let i = METHODS.iter().position(|&m| m == b.bake.method);
+            Ok(i.unwrap_or_default() as ndf_method)
+        })
+    }
+}
+
+/// Lobes (mixture components) per texel J for vMF and Tan 2005; 0 for the baselines. The
+/// first J textures are the lobes; with colour, the next J are their colours.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `count_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_lobe_count(
+    bake: *const ndf_bake,
+    count_out: *mut u32,
+) -> ndf_status {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        query("ndf_bake_lobe_count", bake, count_out, "count_out", |b| {
+            Ok(b.bake.lobes as u32)
+        })
+    }
+}
+
+/// Number of MIP levels: from the map's size (level 0) halving, rounded down, to 1×1.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `count_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_level_count(
+    bake: *const ndf_bake,
+    count_out: *mut u32,
+) -> ndf_status {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        query("ndf_bake_level_count", bake, count_out, "count_out", |b| {
+            Ok(b.bake.level_count() as u32)
+        })
+    }
+}
+
+/// Width and height of level `level` (0 = finest), as `glTexImage2D` takes them.
+/// - `level` below the level count (`NDF_STATUS_OUT_OF_RANGE` otherwise).
+///
+/// # Safety
+/// `bake` is NULL or a live bake; the out-pointers are NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_level_size(
+    bake: *const ndf_bake,
+    level: u32,
+    width_out: *mut u32,
+    height_out: *mut u32,
+) -> ndf_status {
+    guard("ndf_bake_level_size", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let b = unsafe { arg(bake, "bake") }?;
+        let (w, h) = (
+            Out::new(width_out, "width_out")?,
+            Out::new(height_out, "height_out")?,
+        );
+        let (width, height) = b.bake.sizes[index("level", level, b.bake.level_count())?];
+        unsafe { w.write(width) };
+        unsafe { h.write(height) };
+        Ok(())
+    })
+}
+
+/// Number of textures (RGBA MIP chains) a shader samples; each is packed and uploaded on its
+/// own. Their meaning: `ndf_bake_texture_name` and `ndf_bake_texture_channel`.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `count_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_texture_count(
+    bake: *const ndf_bake,
+    count_out: *mut u32,
+) -> ndf_status {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        query(
+            "ndf_bake_texture_count",
+            bake,
+            count_out,
+            "count_out",
+            |b| Ok(b.bake.textures.len() as u32),
+        )
+    }
+}
+
+/// The name of texture `texture` (`"lobe0"`, `"color0"`, `"mean"`, ...), as used in file names
+/// and the manifest.
+/// - The string belongs to the bake and lives as long as it; do not free it.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `name_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_texture_name(
+    bake: *const ndf_bake,
+    texture: u32,
+    name_out: *mut *const c_char,
+) -> ndf_status {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        query("ndf_bake_texture_name", bake, name_out, "name_out", |b| {
+            Ok(b.names[index("texture", texture, b.names.len())?][0].as_ptr())
+        })
+    }
+}
+
+/// What channel `channel` (0 = R, 1 = G, 2 = B, 3 = A) of texture `texture` holds
+/// (`"alpha*r_x"`, `"mean_length"`, `"unused"`, ...) and its value range
+/// (`NDF_VALUE_RANGE_*`, which decides the unorm bias).
+/// - The string belongs to the bake and lives as long as it; do not free it.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; the out-pointers are NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_texture_channel(
+    bake: *const ndf_bake,
+    texture: u32,
+    channel: u32,
+    meaning_out: *mut *const c_char,
+    range_out: *mut ndf_value_range,
+) -> ndf_status {
+    guard("ndf_bake_texture_channel", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let b = unsafe { arg(bake, "bake") }?;
+        let meaning = Out::new(meaning_out, "meaning_out")?;
+        let range = Out::new(range_out, "range_out")?;
+        let t = index("texture", texture, b.names.len())?;
+        let c = index("channel", channel, 4)?;
+        let r = match b.bake.textures[t].ranges[c] {
+            ValueRange::Unit => NDF_VALUE_RANGE_UNIT,
+            ValueRange::Signed => NDF_VALUE_RANGE_SIGNED,
+            ValueRange::Any => NDF_VALUE_RANGE_ANY,
+        };
+        unsafe { meaning.write(b.names[t][1 + c].as_ptr()) };
+        unsafe { range.write(r) };
+        Ok(())
+    })
+}
+
+/// Validated texture, level and format of a pack call, and the byte length it needs.
+fn pack_args(b: &ndf_bake, texture: u32, level: u32, format: ndf_format) -> Outcome<Packing> {
+    let texture = index("texture", texture, b.bake.textures.len())?;
+    let level = index("level", level, b.bake.level_count())?;
+    let format = choose("format", format, &FORMATS)?;
+    crate::pack::check(&b.bake, texture, format)
+        .map_err(|e| fail(ndf_status::UnsupportedFormat, e.to_string()))?;
+    let bytes = crate::pack::packed_len(&b.bake, level, format);
+    Ok(Packing {
+        texture,
+        level,
+        format,
+        bytes,
+    })
+}
+
+/// A checked pack request.
+struct Packing {
+    texture: usize,
+    level: usize,
+    format: Format,
+    bytes: usize,
+}
+
+/// Bytes that `ndf_bake_pack` writes for level `level` of texture `texture` in `format`:
+/// width × height × 4 channels × the format's channel size.
+/// - `NDF_STATUS_OUT_OF_RANGE` for a texture or level past the end,
+///   `NDF_STATUS_INVALID_ARGUMENT` for an unknown format, `NDF_STATUS_UNSUPPORTED_FORMAT` when
+///   the format cannot hold the texture.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `size_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_packed_size(
+    bake: *const ndf_bake,
+    texture: u32,
+    level: u32,
+    format: ndf_format,
+    size_out: *mut usize,
+) -> ndf_status {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        query("ndf_bake_packed_size", bake, size_out, "size_out", |b| {
+            Ok(pack_args(b, texture, level, format)?.bytes)
+        })
+    }
+}
+
+/// Packs level `level` of texture `texture` into `buffer` in `format`: RGBA texels, rows top
+/// to bottom, tightly packed, host byte order — the data `glTexImage2D` takes.
+/// - `buffer`, `capacity`: the destination and its size in bytes; it must hold
+///   `ndf_bake_packed_size()` bytes (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise, and nothing is
+///   written). Any alignment.
+/// - `written_out`: receives the number of bytes written.
+/// - Other failures as for `ndf_bake_packed_size`.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `buffer` is NULL or writable for `capacity` bytes;
+/// `written_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_pack(
+    bake: *const ndf_bake,
+    texture: u32,
+    level: u32,
+    format: ndf_format,
+    buffer: *mut c_void,
+    capacity: usize,
+    written_out: *mut usize,
+) -> ndf_status {
+    guard("ndf_bake_pack", || {
+        // SAFETY: NULL or a live bake, as this function requires.
+        let b = unsafe { arg(bake, "bake") }?;
+        if buffer.is_null() {
+            return Err(super::null("buffer"));
+        }
+        let out = Out::new(written_out, "written_out")?;
+        let p = pack_args(b, texture, level, format)?;
+        if capacity < p.bytes {
+            return Err(fail(
+                ndf_status::BufferTooSmall,
+                format!(
+                    "buffer of {capacity} bytes is too small: level {} of texture {} in {} \
+                     needs {} (ndf_bake_packed_size)",
+                    p.level, p.texture, p.format, p.bytes
+                ),
+            ));
+        }
+        // SAFETY: `buffer` is writable for `capacity` ≥ `p.bytes` bytes (the caller's
+        // contract). Zeroing first makes every byte initialized before a `&mut [u8]` covers
+        // them (the caller's memory may be uninitialized); u8 needs no alignment.
+        let dst = unsafe {
+            std::ptr::write_bytes(buffer.cast::<u8>(), 0, p.bytes);
+            std::slice::from_raw_parts_mut(buffer.cast::<u8>(), p.bytes)
+        };
+        let written = crate::pack::pack_level(&b.bake, p.texture, p.level, p.format, dst)?;
+        // SAFETY: writable, as this function requires.
+        unsafe { out.write(written) };
+        Ok(())
+    })
+}
+
+/// Writes the bake to folder `directory` (created if missing) exactly as the command line's
+/// `ndfmap bake` does: `manifest.json` and one file per texture per level, OpenEXR for the
+/// float formats and PNG for the unorm ones, all-or-nothing.
+/// - `format`: the texel format of the files (`NDF_FORMAT_*`).
+/// - Fails with `NDF_STATUS_UNSUPPORTED_FORMAT` when a texture does not fit the format and
+///   `NDF_STATUS_WRITE` when the folder or a file cannot be written.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `directory` is NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_write(
+    bake: *const ndf_bake,
+    directory: *const c_char,
+    format: ndf_format,
+) -> ndf_status {
+    guard("ndf_bake_write", || {
+        // SAFETY (both blocks): the pointers are NULL or valid, as this function requires.
+        let b = unsafe { arg(bake, "bake") }?;
+        let dir = path(unsafe { c_str(directory, "directory") }?, "directory")?;
+        let format = choose("format", format, &FORMATS)?;
+        let quantized;
+        let to_write = if format == Format::F32 {
+            &b.bake
+        } else {
+            quantized = crate::pack::quantize(&b.bake, format)
+                .map_err(|e| fail(ndf_status::UnsupportedFormat, e.to_string()))?;
+            &quantized
+        };
+        crate::output::write_bake(to_write, b.input.clone(), &dir)?;
+        Ok(())
+    })
+}
+
+/// Releases a bake. NULL is fine. Must not be called twice with the same bake (undefined
+/// behaviour), nor while another call uses it; strings it handed out die with it.
+///
+/// # Safety
+/// `bake` is NULL or a bake from this library not yet freed.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_free(bake: *mut ndf_bake) {
+    guard_value((), || {
+        if !bake.is_null() {
+            // SAFETY: a live bake was made by Box::into_raw in `run` and is freed once.
+            drop(unsafe { Box::from_raw(bake) });
+        }
+    })
+}

@@ -1,0 +1,181 @@
+//! C API, shaders: the GLSL 3.30 source that reads a bake — the files of `glsl/`, specialized
+//! with `#define`s for the method, lobe count, upload format and options. Wraps [`crate::glsl`].
+
+use super::bake::{FORMATS, ndf_bake, ndf_format};
+use super::{Out, Outcome, arg, choose, fail, guard, guard_value, ndf_status, read_options};
+use crate::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage};
+use std::ffi::c_char;
+
+/// A shader stage: one of the `NDF_SHADER_STAGE_*` values.
+pub type ndf_shader_stage = u32;
+/// The vertex shader (mesh or, with `probe`, full-screen triangle).
+pub const NDF_SHADER_STAGE_VERTEX: ndf_shader_stage = 0;
+/// The fragment shader: samples the bake's textures and shades.
+pub const NDF_SHADER_STAGE_FRAGMENT: ndf_shader_stage = 1;
+
+/// How the fragment shader filters between texels: one of the `NDF_SAMPLING_*` values.
+pub type ndf_sampling = u32;
+/// The bake's natural mode: manual for unaligned mixtures, hardware otherwise. Default.
+pub const NDF_SAMPLING_AUTO: ndf_sampling = 0;
+/// One hardware trilinear fetch per texture, then shading (aligned lobes, baselines).
+pub const NDF_SAMPLING_HARDWARE: ndf_sampling = 1;
+/// Shade the 8 texels of the two nearest levels and blend (unaligned lobes, Sec 7.3).
+pub const NDF_SAMPLING_MANUAL: ndf_sampling = 2;
+
+/// The specular BRDF a shader evaluates: one of the `NDF_BRDF_*` values.
+pub type ndf_brdf = u32;
+/// Normalized Blinn-Phong, exponent in uniform `ndf_s` (eq 20). Default.
+pub const NDF_BRDF_BLINN_PHONG: ndf_brdf = 0;
+/// The Torrance–Sparrow-like Gaussian of eq 18, roughness in uniform `ndf_sigma` (eq 21).
+pub const NDF_BRDF_TORRANCE_SPARROW: ndf_brdf = 1;
+
+/// Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct ndf_shader_options {
+    /// `sizeof(ndf_shader_options)`, set by `ndf_shader_options_default()`.
+    pub struct_size: usize,
+    /// The specular BRDF, `NDF_BRDF_*`. Default `NDF_BRDF_BLINN_PHONG`.
+    pub brdf: ndf_brdf,
+    /// Hardware or manual filtering, `NDF_SAMPLING_*`. Default `NDF_SAMPLING_AUTO`.
+    pub sampling: ndf_sampling,
+    /// The format the textures are uploaded in (`NDF_FORMAT_*`, as given to `ndf_bake_pack`):
+    /// decides the unorm decoding and the vMF |r| clamp. Default `NDF_FORMAT_RGBA_F32`.
+    pub format: ndf_format,
+    /// Nonzero: multiply each lobe by its colour texture (eq 22); the bake needs colour
+    /// textures (a vMF or Tan 2005 bake of a map with a feature image). Default 0.
+    pub color: u32,
+    /// Nonzero: the probe variant (full-screen triangle, uniforms for uv, LOD, light and half
+    /// vector) that ndfmap's tests render. Default 0: the mesh variant.
+    pub probe: u32,
+}
+
+/// The default shader options: Blinn-Phong, automatic sampling, f32 textures, no colour, the
+/// mesh variant.
+#[unsafe(no_mangle)]
+pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
+    let o = ndf_shader_options {
+        struct_size: size_of::<ndf_shader_options>(),
+        brdf: NDF_BRDF_BLINN_PHONG,
+        sampling: NDF_SAMPLING_AUTO,
+        format: super::bake::NDF_FORMAT_RGBA_F32,
+        color: 0,
+        probe: 0,
+    };
+    guard_value(o, || o)
+}
+
+/// The NUL-terminated source of `bake`'s shader for `stage` with `options`.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `options` is NULL or initialized by
+/// `ndf_shader_options_default()`.
+unsafe fn shader(
+    bake: *const ndf_bake,
+    stage: ndf_shader_stage,
+    options: *const ndf_shader_options,
+) -> Outcome<Vec<u8>> {
+    // SAFETY (both blocks): forwarded from the caller's contract.
+    let b = unsafe { arg(bake, "bake") }?;
+    let o = unsafe { read_options(options, "options", "ndf_shader_options_default") }?;
+    let stage = choose("stage", stage, &[Stage::Vertex, Stage::Fragment])?;
+    let sampling = [Sampling::Auto, Sampling::Hardware, Sampling::Manual];
+    let brdf = [ShaderBrdf::BlinnPhong, ShaderBrdf::TorranceSparrow];
+    let shader_options = ShaderOptions {
+        brdf: choose("brdf", o.brdf, &brdf)?,
+        sampling: choose("sampling", o.sampling, &sampling)?,
+        color: o.color != 0,
+        probe: o.probe != 0,
+    };
+    let format = choose("format", o.format, &FORMATS)?;
+    for t in 0..b.bake.textures.len() {
+        crate::pack::check(&b.bake, t, format)
+            .map_err(|e| fail(ndf_status::UnsupportedFormat, e.to_string()))?;
+    }
+    let spec = ShaderSpec {
+        format,
+        ..ShaderSpec::of(&b.bake)
+    };
+    let mut source = crate::glsl::source_for(&spec, stage, &shader_options)?.into_bytes();
+    if source.contains(&0) {
+        return Err(fail(
+            ndf_status::Panic,
+            "the shader source contains a NUL byte",
+        ));
+    }
+    source.push(0);
+    Ok(source)
+}
+
+/// Bytes `ndf_bake_shader_source` writes for the same arguments: the source's length plus its
+/// NUL terminator.
+/// - `stage`: `NDF_SHADER_STAGE_*`; `options`: from `ndf_shader_options_default()`.
+/// - `NDF_STATUS_INVALID_ARGUMENT` for unknown values or colour asked of a bake without colour
+///   textures; `NDF_STATUS_UNSUPPORTED_FORMAT` when `options->format` cannot hold the bake.
+///
+/// # Safety
+/// `bake` is NULL or a live bake; `options` is NULL or initialized by
+/// `ndf_shader_options_default()`; `size_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_shader_source_size(
+    bake: *const ndf_bake,
+    stage: ndf_shader_stage,
+    options: *const ndf_shader_options,
+    size_out: *mut usize,
+) -> ndf_status {
+    guard("ndf_bake_shader_source_size", || {
+        let out = Out::new(size_out, "size_out")?;
+        // SAFETY (both blocks): the pointers are NULL or valid, as this function requires.
+        let source = unsafe { shader(bake, stage, options) }?;
+        unsafe { out.write(source.len()) };
+        Ok(())
+    })
+}
+
+/// Writes the GLSL 3.30 source of `bake`'s shader for `stage` into `buffer`, NUL-terminated:
+/// `#version 330 core`, the `#define`s of the bake (method, lobe count, textures, format clamp,
+/// addressing) and of `options`, then the shader files of `glsl/`. Samplers are
+/// `ndf_tex0` ... (texture `i` of the bake); `glsl/README.md` lists the uniforms.
+/// - `buffer`, `capacity`: the destination and its size in bytes; it must hold
+///   `ndf_bake_shader_source_size()` bytes (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise, and
+///   nothing is written).
+/// - `length_out`: receives the bytes written, the NUL terminator included.
+/// - Other failures as for `ndf_bake_shader_source_size`.
+///
+/// # Safety
+/// As for `ndf_bake_shader_source_size`, and `buffer` is NULL or writable for `capacity` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_shader_source(
+    bake: *const ndf_bake,
+    stage: ndf_shader_stage,
+    options: *const ndf_shader_options,
+    buffer: *mut c_char,
+    capacity: usize,
+    length_out: *mut usize,
+) -> ndf_status {
+    guard("ndf_bake_shader_source", || {
+        if buffer.is_null() {
+            return Err(super::null("buffer"));
+        }
+        let out = Out::new(length_out, "length_out")?;
+        // SAFETY: the pointers are NULL or valid, as this function requires.
+        let source = unsafe { shader(bake, stage, options) }?;
+        if capacity < source.len() {
+            return Err(fail(
+                ndf_status::BufferTooSmall,
+                format!(
+                    "buffer of {capacity} bytes is too small: the source needs {} with its NUL \
+                     (ndf_bake_shader_source_size)",
+                    source.len()
+                ),
+            ));
+        }
+        // SAFETY: `buffer` is writable for `capacity` ≥ `source.len()` bytes (the caller's
+        // contract) and cannot overlap the freshly allocated `source`.
+        unsafe {
+            std::ptr::copy_nonoverlapping(source.as_ptr(), buffer.cast::<u8>(), source.len());
+            out.write(source.len());
+        }
+        Ok(())
+    })
+}

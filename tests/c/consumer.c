@@ -1,0 +1,288 @@
+/*
+ * C consumer of include/ndfmap.h, run by tests/c_api.rs (linked once against libndfmap.so and
+ * once against libndfmap.a, and under valgrind when it is installed).
+ *
+ * It builds a 16x16 normal map from pixels in memory, bakes every method, packs every level of
+ * every texture in every format, gets the vMF shader sources, and prints one line per query,
+ * per packed level and per shader (a 64-bit FNV-1a hash of the bytes); the Rust test computes the same lines with the Rust API and
+ * compares. It also exercises bad input from C (NULLs, a buffer one byte short, unknown enum
+ * values, indices out of range, a cancelled bake, free(NULL)) and exits non-zero at the first
+ * unexpected status.
+ *
+ * Usage: consumer OUTPUT_DIR PNG_FILE  (PNG_FILE holds the same pixels as an image file)
+ */
+#include "ndfmap.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define SIZE 16
+
+static int failures = 0;
+
+/* Checks that `got` is `want`; on a failure also that the message names `function`. */
+static void expect(ndf_status got, ndf_status want, const char *what) {
+    if (got != want) {
+        fprintf(stderr, "FAIL %s: got %s, want %s (%s)\n", what, ndf_status_str(got),
+                ndf_status_str(want), ndf_last_error_message());
+        failures++;
+    } else if (want != NDF_STATUS_OK && strstr(ndf_last_error_message(), "ndf_") == NULL) {
+        fprintf(stderr, "FAIL %s: message '%s' does not name the function\n", what,
+                ndf_last_error_message());
+        failures++;
+    }
+}
+
+static uint64_t fnv1a(const unsigned char *bytes, size_t length) {
+    uint64_t h = 14695981039346656037ull;
+    size_t i;
+    for (i = 0; i < length; i++) {
+        h ^= bytes[i];
+        h *= 1099511628211ull;
+    }
+    return h;
+}
+
+/* The test map: integer formulas, so that Rust builds exactly the same pixels. */
+static void make_pixels(unsigned char *rgb) {
+    int x, y;
+    for (y = 0; y < SIZE; y++) {
+        for (x = 0; x < SIZE; x++) {
+            unsigned char *p = rgb + 3 * (y * SIZE + x);
+            p[0] = (unsigned char)((x * 37 + y * 11) % 256);
+            p[1] = (unsigned char)((x * 13 + y * 29 + 64) % 256);
+            p[2] = (unsigned char)(200 + (x + y) % 56);
+        }
+    }
+}
+
+static const char *method_names[] = {"plain", "toksvig", "lean", "olano", "tan2005", "vmf"};
+static const char *format_names[] = {"f32", "f16", "unorm16", "unorm8"};
+
+/* Prints the bake's description and every packed level in every format. */
+static void describe(const ndf_bake *bake) {
+    ndf_method method;
+    uint32_t lobes, levels, textures, t, k, c;
+    ndf_format f;
+    expect(ndf_bake_method(bake, &method), NDF_STATUS_OK, "method");
+    expect(ndf_bake_lobe_count(bake, &lobes), NDF_STATUS_OK, "lobe count");
+    expect(ndf_bake_level_count(bake, &levels), NDF_STATUS_OK, "level count");
+    expect(ndf_bake_texture_count(bake, &textures), NDF_STATUS_OK, "texture count");
+    printf("bake %s lobes %u levels %u textures %u\n", method_names[method], (unsigned)lobes,
+           (unsigned)levels, (unsigned)textures);
+    for (k = 0; k < levels; k++) {
+        uint32_t w, h;
+        expect(ndf_bake_level_size(bake, k, &w, &h), NDF_STATUS_OK, "level size");
+        printf("level %u %ux%u\n", (unsigned)k, (unsigned)w, (unsigned)h);
+    }
+    for (t = 0; t < textures; t++) {
+        const char *name;
+        expect(ndf_bake_texture_name(bake, t, &name), NDF_STATUS_OK, "texture name");
+        printf("texture %u %s", (unsigned)t, name);
+        for (c = 0; c < 4; c++) {
+            const char *meaning;
+            ndf_value_range range;
+            expect(ndf_bake_texture_channel(bake, t, c, &meaning, &range), NDF_STATUS_OK,
+                   "texture channel");
+            printf(" %s:%u", meaning, (unsigned)range);
+        }
+        printf("\n");
+        for (k = 0; k < levels; k++) {
+            for (f = NDF_FORMAT_RGBA_F32; f <= NDF_FORMAT_RGBA_UNORM8; f++) {
+                size_t size = 0, written = 0;
+                unsigned char *buffer;
+                ndf_status s = ndf_bake_packed_size(bake, t, k, f, &size);
+                if (s == NDF_STATUS_UNSUPPORTED_FORMAT) {
+                    printf("pack %u %u %s unsupported\n", (unsigned)t, (unsigned)k,
+                           format_names[f]);
+                    continue;
+                }
+                expect(s, NDF_STATUS_OK, "packed size");
+                /* One byte too small: refused, nothing written. */
+                buffer = (unsigned char *)malloc(size);
+                memset(buffer, 0xab, size);
+                expect(ndf_bake_pack(bake, t, k, f, buffer, size - 1, &written),
+                       NDF_STATUS_BUFFER_TOO_SMALL, "pack one byte short");
+                if (written != 0 || buffer[0] != 0xab || buffer[size - 1] != 0xab) {
+                    fprintf(stderr, "FAIL pack one byte short wrote\n");
+                    failures++;
+                }
+                expect(ndf_bake_pack(bake, t, k, f, buffer, size, &written), NDF_STATUS_OK,
+                       "pack");
+                printf("pack %u %u %s %lu %016llx\n", (unsigned)t, (unsigned)k, format_names[f],
+                       (unsigned long)written, (unsigned long long)fnv1a(buffer, written));
+                free(buffer);
+            }
+        }
+    }
+}
+
+/* Prints the size and hash of both shader stages of `bake`, for f16 textures. */
+static void shaders(const ndf_bake *bake) {
+    ndf_shader_options so = ndf_shader_options_default();
+    ndf_shader_stage stage;
+    so.format = NDF_FORMAT_RGBA_F16;
+    for (stage = NDF_SHADER_STAGE_VERTEX; stage <= NDF_SHADER_STAGE_FRAGMENT; stage++) {
+        size_t size = 0, written = 0;
+        char *source;
+        expect(ndf_bake_shader_source_size(bake, stage, &so, &size), NDF_STATUS_OK, "shader size");
+        source = (char *)malloc(size);
+        expect(ndf_bake_shader_source(bake, stage, &so, source, size - 1, &written),
+               NDF_STATUS_BUFFER_TOO_SMALL, "shader one byte short");
+        expect(ndf_bake_shader_source(bake, stage, &so, source, size, &written), NDF_STATUS_OK,
+               "shader");
+        if (written != size || strlen(source) + 1 != size) {
+            fprintf(stderr, "FAIL shader length\n");
+            failures++;
+        }
+        printf("shader %u %lu %016llx\n", (unsigned)stage, (unsigned long)written,
+               (unsigned long long)fnv1a((const unsigned char *)source, written));
+        free(source);
+    }
+}
+
+static int calls = 0;
+
+static int stop_at_third_call(float fraction, void *user_data) {
+    (void)fraction;
+    (void)user_data;
+    return ++calls < 3;
+}
+
+static void bad_input(ndf_normal_map *map, ndf_bake *bake, const unsigned char *rgb) {
+    ndf_ingest_options io = ndf_ingest_options_default();
+    ndf_vmf_options vo = ndf_vmf_options_default();
+    ndf_normal_map *no_map = NULL;
+    ndf_bake *no_bake = NULL;
+    uint32_t n = 0, w, h;
+    unsigned char small[8];
+    size_t written;
+
+    expect(ndf_normal_map_from_pixels(NULL, 3, 1, 1, 3, NDF_SAMPLE_UINT8, &io, &no_map),
+           NDF_STATUS_NULL_ARGUMENT, "NULL pixels");
+    expect(ndf_normal_map_from_pixels(rgb, 3 * SIZE * SIZE - 1, SIZE, SIZE, 3, NDF_SAMPLE_UINT8,
+                                      &io, &no_map),
+           NDF_STATUS_SHORT_PIXELS, "pixels one byte short");
+    expect(ndf_normal_map_from_pixels(rgb, 3 * SIZE * SIZE, 65536, 65536, 3, NDF_SAMPLE_UINT8,
+                                      &io, &no_map),
+           NDF_STATUS_DIMENSIONS, "width x height overflow");
+    expect(ndf_normal_map_from_pixels(rgb, 3 * SIZE * SIZE, SIZE, SIZE, 3, 42, &io, &no_map),
+           NDF_STATUS_INVALID_ARGUMENT, "unknown sample type");
+    io.green = 7;
+    expect(ndf_normal_map_from_pixels(rgb, 3 * SIZE * SIZE, SIZE, SIZE, 3, NDF_SAMPLE_UINT8, &io,
+                                      &no_map),
+           NDF_STATUS_INVALID_ARGUMENT, "unknown green");
+    expect(ndf_normal_map_load_memory(rgb, 10, "noise.png", &io, &no_map),
+           NDF_STATUS_INVALID_ARGUMENT, "unknown green before decoding");
+    io = ndf_ingest_options_default();
+    expect(ndf_normal_map_load_memory(rgb, 10, "noise.png", &io, &no_map), NDF_STATUS_DECODE,
+           "garbage bytes");
+    expect(ndf_normal_map_load_file("/no/such/map.png", &io, &no_map), NDF_STATUS_READ,
+           "missing file");
+    if (no_map != NULL) {
+        fprintf(stderr, "FAIL out-parameter written on failure\n");
+        failures++;
+    }
+
+    expect(ndf_bake_vmf(map, NULL, &no_bake), NDF_STATUS_NULL_ARGUMENT, "NULL options");
+    expect(ndf_bake_vmf(NULL, &vo, &no_bake), NDF_STATUS_NULL_ARGUMENT, "NULL map");
+    expect(ndf_bake_vmf(map, &vo, NULL), NDF_STATUS_NULL_ARGUMENT, "NULL bake_out");
+    vo.lobes = 9;
+    expect(ndf_bake_vmf(map, &vo, &no_bake), NDF_STATUS_INVALID_ARGUMENT, "9 lobes");
+    vo = ndf_vmf_options_default();
+    vo.struct_size = sizeof(vo) - 8;
+    expect(ndf_bake_vmf(map, &vo, &no_bake), NDF_STATUS_INVALID_ARGUMENT, "struct_size");
+    vo = ndf_vmf_options_default();
+    vo.lobes = 2;
+    vo.progress = stop_at_third_call;
+    expect(ndf_bake_vmf(map, &vo, &no_bake), NDF_STATUS_CANCELLED, "cancelled bake");
+    if (calls != 3 || no_bake != NULL) {
+        fprintf(stderr, "FAIL cancel: %d calls\n", calls);
+        failures++;
+    }
+    expect(ndf_bake_baseline(map, 77, NULL, &no_bake), NDF_STATUS_INVALID_ARGUMENT,
+           "unknown method");
+
+    expect(ndf_bake_level_count(NULL, &n), NDF_STATUS_NULL_ARGUMENT, "NULL bake");
+    expect(ndf_bake_level_count(bake, NULL), NDF_STATUS_NULL_ARGUMENT, "NULL out");
+    expect(ndf_bake_level_size(bake, 99, &w, &h), NDF_STATUS_OUT_OF_RANGE, "level 99");
+    expect(ndf_bake_pack(bake, 99, 0, NDF_FORMAT_RGBA_F32, small, sizeof small, &written),
+           NDF_STATUS_OUT_OF_RANGE, "texture 99");
+    expect(ndf_bake_pack(bake, 0, 0, 4, small, sizeof small, &written),
+           NDF_STATUS_INVALID_ARGUMENT, "format 4");
+    expect(ndf_bake_pack(bake, 0, 0, NDF_FORMAT_RGBA_F32, NULL, 0, &written),
+           NDF_STATUS_NULL_ARGUMENT, "NULL buffer");
+    expect(ndf_bake_write(bake, NULL, NDF_FORMAT_RGBA_F32), NDF_STATUS_NULL_ARGUMENT,
+           "NULL directory");
+    if (strcmp(ndf_status_str(1000), "NDF_STATUS_UNKNOWN") != 0) {
+        fprintf(stderr, "FAIL unknown status name\n");
+        failures++;
+    }
+    ndf_bake_free(NULL);
+    ndf_normal_map_free(NULL);
+    printf("bad input checked\n");
+}
+
+int main(int argc, char **argv) {
+    unsigned char rgb[3 * SIZE * SIZE];
+    ndf_ingest_options io = ndf_ingest_options_default();
+    ndf_baseline_options bo = ndf_baseline_options_default();
+    ndf_vmf_options vo = ndf_vmf_options_default();
+    ndf_tan2005_options to = ndf_tan2005_options_default();
+    ndf_normal_map *map = NULL, *from_file = NULL;
+    ndf_bake *bakes[6] = {NULL, NULL, NULL, NULL, NULL, NULL};
+    ndf_method m;
+    uint32_t w = 0, h = 0;
+
+    if (argc != 3) {
+        fprintf(stderr, "usage: consumer OUTPUT_DIR PNG_FILE\n");
+        return 2;
+    }
+    if (ndf_version() != NDF_VERSION) {
+        fprintf(stderr, "FAIL header %d, library %u\n", NDF_VERSION, (unsigned)ndf_version());
+        return 1;
+    }
+    printf("version %s\n", ndf_version_string());
+    make_pixels(rgb);
+    expect(ndf_normal_map_from_pixels(rgb, sizeof rgb, SIZE, SIZE, 3, NDF_SAMPLE_UINT8, &io, &map),
+           NDF_STATUS_OK, "from pixels");
+    expect(ndf_normal_map_load_file(argv[2], &io, &from_file), NDF_STATUS_OK, "load file");
+    expect(ndf_normal_map_size(from_file, &w, &h), NDF_STATUS_OK, "map size");
+    printf("map %ux%u\n", (unsigned)w, (unsigned)h);
+    if (failures) {
+        return 1;
+    }
+
+    vo.lobes = 2;
+    vo.aligned = 1;
+    to.lobes = 2;
+    for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_VMF; m++) {
+        /* The file and the pixels are the same map: the vMF bake comes from the file. */
+        if (m == NDF_METHOD_VMF) {
+            expect(ndf_bake_vmf(from_file, &vo, &bakes[m]), NDF_STATUS_OK, "bake vmf");
+        } else if (m == NDF_METHOD_TAN2005) {
+            expect(ndf_bake_tan2005(map, &to, &bakes[m]), NDF_STATUS_OK, "bake tan2005");
+        } else {
+            expect(ndf_bake_baseline(map, m, &bo, &bakes[m]), NDF_STATUS_OK, "bake baseline");
+        }
+        if (bakes[m] != NULL) {
+            describe(bakes[m]);
+        }
+    }
+    expect(ndf_bake_write(bakes[NDF_METHOD_VMF], argv[1], NDF_FORMAT_RGBA_F16), NDF_STATUS_OK,
+           "write");
+    shaders(bakes[NDF_METHOD_VMF]);
+    bad_input(map, bakes[NDF_METHOD_PLAIN], rgb);
+
+    for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_VMF; m++) {
+        ndf_bake_free(bakes[m]);
+    }
+    ndf_normal_map_free(map);
+    ndf_normal_map_free(from_file);
+    if (failures) {
+        fprintf(stderr, "%d failures\n", failures);
+        return 1;
+    }
+    return 0;
+}
