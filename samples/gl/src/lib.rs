@@ -67,20 +67,26 @@
 pub mod camera;
 pub mod context;
 pub mod mesh;
+pub mod present;
 pub mod program;
 pub mod render;
 pub mod target;
 pub mod texture;
+#[cfg(feature = "window")]
+pub mod window;
 
 pub use camera::Camera;
 pub use context::{Gl, Route};
 pub use glam;
 pub use glow;
 pub use mesh::{Mesh, MeshData, Vertex, draw_mesh};
+pub use present::{Accumulator, Destination, Layer, Presenter, tone_map};
 pub use program::{FULLSCREEN_VERTEX_SHADER, Program};
 pub use render::{BakeRenderer, Lighting, Scene, Shape};
 pub use target::{RenderTarget, draw_fullscreen, read_rgba_f32};
 pub use texture::BakeTextures;
+#[cfg(feature = "window")]
+pub use winit;
 
 /// What can go wrong in this crate.
 #[derive(Debug, thiserror::Error)]

@@ -3,8 +3,8 @@
 //! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), through
 //! EGL and through OSMesa, against the reference images in `tests/reference/`.
 //!
-//! Images are compared after the same tone mapping the references are stored with (Reinhard
-//! `x/(1+x)` per channel, then the sRGB curve, 16-bit PNG):
+//! Images are compared after the same tone mapping the references are stored with
+//! ([`ndfmap_gl::tone_map`]: Reinhard `x/(1+x)` per channel, then the sRGB curve, 16-bit PNG):
 //! - RMSE of the tone-mapped values ≤ [`MAX_RMSE`] (1/1024: well under one 8-bit code, so any
 //!   visible change fails, while rounding differences between Mesa builds or GPUs pass);
 //! - mean FLIP (NVIDIA's perceptual metric, 8-bit sRGB, 67 pixels per degree) ≤ [`MAX_FLIP`].
@@ -15,7 +15,7 @@
 
 use ndfmap::bake::{BakeOptions, Method, bake, bake_with};
 use ndfmap::glsl::ShaderOptions;
-use ndfmap_gl::{BakeRenderer, Gl, Route, Scene};
+use ndfmap_gl::{BakeRenderer, Gl, Route, Scene, tone_map};
 use std::path::{Path, PathBuf};
 
 /// Largest RMSE of tone-mapped values (module docs).
@@ -34,17 +34,6 @@ fn output_dir() -> PathBuf {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target"));
     target.join("ndfmap-regression")
-}
-
-/// Reinhard then the sRGB curve, per channel, in [0, 1).
-fn tone_map(v: f32) -> f32 {
-    let x = (v.max(0.0) / (1.0 + v.max(0.0))) as f64;
-    let s = if x <= 0.0031308 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    };
-    s as f32
 }
 
 /// Linear RGBA rows bottom-to-top → tone-mapped RGB16 image, top row first.
@@ -69,7 +58,7 @@ fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
         align,
         ..Default::default()
     };
-    let bakes = vec![
+    let bakes = [
         bake(&map, Method::Plain),
         bake(&map, Method::Toksvig),
         bake(&map, Method::Lean),
@@ -134,7 +123,9 @@ fn run(route: Route) {
                 std::fs::create_dir_all(&out).unwrap();
                 let base = out.join(format!("{route}-{stem}"));
                 actual.save(base.with_extension("actual.png")).unwrap();
-                reference.save(base.with_extension("reference.png")).unwrap();
+                reference
+                    .save(base.with_extension("reference.png"))
+                    .unwrap();
                 let diff = image::ImageBuffer::from_fn(SIZE, SIZE, |x, y| {
                     let (a, b) = (actual.get_pixel(x, y), reference.get_pixel(x, y));
                     image::Rgb([0, 1, 2].map(|c| {
