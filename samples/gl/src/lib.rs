@@ -1,12 +1,12 @@
-//! ndfmap-gl: the OpenGL 3.3 core runtime that draws ndfmap bakes — headless contexts, texture
-//! upload, shader programs, float render targets, meshes and an orbit camera. The core `ndfmap`
-//! crate has no GL dependency; this crate is what the sample viewer and the headless render tests
-//! build on.
+//! ndfmap-gl: the OpenGL 3.3 core runtime that draws ndfmap bakes — headless and windowed
+//! contexts, texture upload, shader programs, float render targets, meshes, an orbit camera and
+//! tone-mapped presentation. The core `ndfmap` crate has no GL dependency; this crate is what
+//! the sample viewer (`samples/viewer`) and the headless render tests build on.
 //!
 //! # Routes to a context
 //!
 //! [`Gl::new`] creates a headless context with no window and no display server, by one of two
-//! [`Route`]s (both give Mesa's llvmpipe a 3.3 core request; it answers with 4.5 core):
+//! headless [`Route`]s (both give Mesa's llvmpipe a 3.3 core request; it answers with 4.5 core):
 //!
 //! - [`Route::Egl`]: glutin's EGL device platform. Devices with `EGL_MESA_device_software` are
 //!   tried first, then any other; the config is asked for with an empty surface-type mask and the
@@ -16,10 +16,26 @@
 //!   `libosmesa6`; Mesa removed OSMesa in 25.1), a core 3.3 context current on a small buffer
 //!   the context owns.
 //!
+//! A third route, [`Route::Window`], is a window: with the `window` feature,
+//! `window::Window::new` opens a winit window (X11) and makes a glutin context (EGL on the X11
+//! display) current on its surface, handing the window, surface and context to [`Gl`] through
+//! the same owner hook the headless routes use. It needs an X server (`DISPLAY`; Xvfb works).
+//!
 //! Drawing always goes to a [`RenderTarget`] (an RGBA32F framebuffer object with a depth
-//! buffer), never to a default framebuffer, so both routes behave the same. A windowed route
-//! (glutin + winit) would be a third way to make a context current; everything past
-//! [`Gl`] is independent of how the context was made.
+//! buffer), never to a default framebuffer, so every route behaves the same; everything past
+//! [`Gl`] is independent of how the context was made. Only the last step differs:
+//! [`Presenter`] tone-maps a target into a window's default framebuffer
+//! ([`Destination::Window`]) or into another target for a headless screenshot
+//! ([`Destination::Target`]).
+//!
+//! # Presentation
+//!
+//! Shaders write linear radiance. [`tone_map`] (Reinhard `x/(1+x)` per channel, then the sRGB
+//! curve) is the one tone map of the project: the regression references, the viewer's window
+//! and its screenshots; [`present::TONE_MAP_GLSL`] is its GLSL twin, which [`Presenter`] runs
+//! (the route tests check that they agree to 1e-6). [`Presenter`] can show two images split at
+//! a column (a method beside its reference), and [`Accumulator`] sums passes on the GPU (the
+//! viewer's jittered supersampling, with [`Camera::jitter`]).
 //!
 //! # Ownership and threads
 //!

@@ -61,6 +61,9 @@ struct Cli {
     /// The view shown first.
     #[arg(long, value_enum, default_value = "far")]
     view: ViewName,
+    /// Camera distance instead of the view's (0.06 to 600).
+    #[arg(long)]
+    distance: Option<f32>,
     /// Image size, WxH (window, screenshot; for --compare the size of each panel).
     #[arg(long, value_parser = parse_size)]
     size: Option<(u32, u32)>,
@@ -154,6 +157,10 @@ fn settings(cli: &Cli) -> Settings {
     let mut s = Settings::new(methods, cli.view);
     s.repeat = cli.repeat.map(|r| r.max(0.01));
     s.set_view(cli.view);
+    if let Some(d) = cli.distance {
+        s.camera.distance = 1.0;
+        s.zoom(d);
+    }
     s.current = current;
     s.exponent = cli.exponent;
     if let Some(kd) = cli.kd {

@@ -74,43 +74,30 @@ impl ViewName {
                 .find(|s| s.name == name)
                 .expect("a standard scene")
         };
-        // A directional light mirroring the eye direction about the plane's normal: the
-        // highlight of a flat plane would sit at its centre.
-        let mirrored = |camera: &Camera| {
+        // The plane seen from `distance` at elevation `pitch`, under a directional light that
+        // mirrors the eye direction about the plane's normal: a flat plane's highlight would
+        // sit at its centre.
+        let mirrored = |shape: Shape, distance: f32, pitch: f32| {
+            let camera = Camera {
+                distance,
+                pitch,
+                yaw: 0.35,
+                ..Camera::default()
+            };
             let e = camera.eye().normalize();
-            Vec4::new(-e.x, e.y, -e.z, 0.0)
+            let lighting = Lighting {
+                light: Vec4::new(-e.x, e.y, -e.z, 0.0),
+                ..Lighting::default()
+            };
+            (shape, camera, lighting)
         };
         match self {
-            ViewName::Far => {
-                let camera = Camera {
-                    distance: 6.5,
-                    pitch: 0.58,
-                    yaw: 0.35,
-                    ..Camera::default()
-                };
-                let lighting = Lighting {
-                    light: mirrored(&camera),
-                    ..Lighting::default()
-                };
-                (TILED_PLANE, camera, lighting)
-            }
+            ViewName::Far => mirrored(TILED_PLANE, 6.5, 0.58),
             ViewName::Grazing => {
                 let s = standard("plane-grazing");
                 (s.shape, s.camera, s.lighting)
             }
-            ViewName::Macro => {
-                let camera = Camera {
-                    distance: 0.15,
-                    pitch: 0.9,
-                    yaw: 0.35,
-                    ..Camera::default()
-                };
-                let lighting = Lighting {
-                    light: mirrored(&camera),
-                    ..Lighting::default()
-                };
-                (PLANE, camera, lighting)
-            }
+            ViewName::Macro => mirrored(PLANE, 0.15, 0.9),
             ViewName::Sphere => {
                 // `Scene::standard`'s sphere, lit from just above the eye: the highlight lies
                 // on the image's middle column, where the split screen divides.
