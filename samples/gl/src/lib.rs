@@ -16,6 +16,12 @@
 //!   `libosmesa6`; Mesa removed OSMesa in 25.1), a core 3.3 context current on a small buffer
 //!   the context owns.
 //!
+//! [`BakeRenderer`] joins the pieces for the product shaders: a bake's textures uploaded, its
+//! `ndfmap::glsl` vertex and fragment shaders compiled, meshes drawn under a [`Lighting`];
+//! [`Scene::standard`] lists the views the regression renders (`tests/scenes.rs`) and the
+//! frame-time table use. `tests/shaders.rs` proves the shaders equal their CPU twin texel for
+//! texel.
+//!
 //! A third route, [`Route::Window`], is a window: with the `window` feature,
 //! `window::Window::new` opens a winit window (X11) and makes a glutin context (EGL on the X11
 //! display) current on its surface, handing the window, surface and context to [`Gl`] through

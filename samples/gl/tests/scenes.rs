@@ -5,9 +5,11 @@
 //!
 //! Images are compared after the same tone mapping the references are stored with
 //! ([`ndfmap_gl::tone_map`]: Reinhard `x/(1+x)` per channel, then the sRGB curve, 16-bit PNG):
-//! - RMSE of the tone-mapped values ≤ [`MAX_RMSE`] (1/1024: well under one 8-bit code, so any
-//!   visible change fails, while rounding differences between Mesa builds or GPUs pass);
-//! - mean FLIP (NVIDIA's perceptual metric, 8-bit sRGB, 67 pixels per degree) ≤ [`MAX_FLIP`].
+//! - RMSE of the tone-mapped values ≤ [`MAX_RMSE`] (1/4096, a sixteenth of an 8-bit code: a 4 %
+//!   change of K_s gives 5e-4 to 9e-4 on the far views and fails, while f32 rounding differences
+//!   between drivers stay far below; EGL and OSMesa on llvmpipe match the references exactly);
+//! - mean FLIP (NVIDIA's perceptual metric, 8-bit sRGB, 67 pixels per degree) ≤ [`MAX_FLIP`]
+//!   (that 4 % change gives 0.0024 to 0.0039 on the far views).
 //!
 //! On a mismatch the actual image, the reference and a difference image (×8) are written to
 //! `target/ndfmap-regression/` and the test names them. `NDFMAP_BLESS=1` rewrites the references
@@ -19,9 +21,9 @@ use ndfmap_gl::{BakeRenderer, Gl, Route, Scene, tone_map};
 use std::path::{Path, PathBuf};
 
 /// Largest RMSE of tone-mapped values (module docs).
-const MAX_RMSE: f64 = 1.0 / 1024.0;
+const MAX_RMSE: f64 = 1.0 / 4096.0;
 /// Largest mean FLIP error (module docs).
-const MAX_FLIP: f32 = 0.01;
+const MAX_FLIP: f32 = 0.002;
 /// Side of the rendered images.
 const SIZE: u32 = 128;
 
@@ -50,7 +52,8 @@ fn to_rgb8(img: &image::ImageBuffer<image::Rgb<u16>, Vec<u16>>) -> Vec<u8> {
         .collect()
 }
 
-/// The bakes drawn: name and (bake, shader options).
+/// The bakes drawn, each with its default shader (aligned lobes sample in hardware, unaligned
+/// ones manually), on the 128² built-in sample.
 fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
     let map = ndfmap::procedural::generate(128, 3).map;
     let lobes = |align: Option<f64>| BakeOptions {
