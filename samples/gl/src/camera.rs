@@ -4,7 +4,7 @@
 
 use crate::program::Program;
 use glam::camera::rh;
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 
 /// The model matrix uniform (`mat4`).
 pub const UNIFORM_MODEL: &str = "ndf_model";
@@ -32,10 +32,14 @@ pub struct Camera {
     pub near: f32,
     /// Far clip distance.
     pub far: f32,
+    /// Offset of the image in normalized device coordinates (one pixel is `2/width` by
+    /// `2/height`): sub-pixel jitter for supersampling. Zero by default.
+    pub jitter: Vec2,
 }
 
 impl Default for Camera {
-    /// The origin seen from 3 units along +z, 45° field of view, square image, clip 0.05–100.
+    /// The origin seen from 3 units along +z, 45° field of view, square image, clip 0.05–100,
+    /// no jitter.
     fn default() -> Self {
         Camera {
             target: Vec3::ZERO,
@@ -46,6 +50,7 @@ impl Default for Camera {
             aspect: 1.0,
             near: 0.05,
             far: 100.0,
+            jitter: Vec2::ZERO,
         }
     }
 }
@@ -67,9 +72,10 @@ impl Camera {
         rh::view::look_at_mat4(self.eye(), self.target, Vec3::Y)
     }
 
-    /// View → OpenGL clip space (depth −1..1).
+    /// View → OpenGL clip space (depth −1..1), shifted by [`Camera::jitter`].
     pub fn projection(&self) -> Mat4 {
-        rh::proj::opengl::perspective(self.fov_y, self.aspect, self.near, self.far)
+        let shift = Mat4::from_translation(self.jitter.extend(0.0));
+        shift * rh::proj::opengl::perspective(self.fov_y, self.aspect, self.near, self.far)
     }
 
     /// `projection · view`.
@@ -112,5 +118,10 @@ mod tests {
         c.target = Vec3::new(1.0, 2.0, 3.0);
         let clip = c.view_proj() * c.target.extend(1.0);
         assert!(clip.x.abs() < 1e-4 && clip.y.abs() < 1e-4 && clip.w > 0.0);
+        // Jitter moves every point by the same offset in normalized device coordinates.
+        c.jitter = Vec2::new(0.01, -0.02);
+        let clip = c.view_proj() * c.target.extend(1.0);
+        let ndc = clip.truncate().truncate() / clip.w;
+        assert!((ndc - c.jitter).length() < 1e-5);
     }
 }

@@ -1,5 +1,6 @@
-//! Headless contexts: [`Route`] picks how one is made, [`Gl`] owns it with the `glow` function
-//! table, and releases it (not current, then destroyed) when the last handle is dropped.
+//! Contexts: [`Route`] says how one was made (two headless routes, and the window of
+//! `crate::window` with the `window` feature), [`Gl`] owns it with the `glow` function table, and
+//! releases it (not current, then destroyed) when the last handle is dropped.
 
 mod egl;
 mod osmesa;
@@ -11,24 +12,28 @@ use std::cell::Cell;
 use std::fmt;
 use std::rc::Rc;
 
-/// How a headless OpenGL 3.3 core context is created (see the crate docs).
+/// How an OpenGL 3.3 core context is created (see the crate docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Route {
     /// glutin's EGL device platform, surfaceless (libEGL at run time).
     Egl,
     /// Mesa's OSMesa (`libOSMesa.so.8` at run time), current on an owned buffer.
     OsMesa,
+    /// A winit window with a glutin context on its surface (EGL on X11), made by
+    /// `window::Window::new` (the `window` feature); [`Gl::new`] cannot make it.
+    Window,
 }
 
 impl Route {
-    /// Every route, in the order [`Gl::any`] tries them.
+    /// Every headless route, in the order [`Gl::any`] tries them.
     pub const ALL: [Route; 2] = [Route::Egl, Route::OsMesa];
 
-    /// Lower-case name: `egl` or `osmesa`.
+    /// Lower-case name: `egl`, `osmesa` or `window`.
     pub fn name(self) -> &'static str {
         match self {
             Route::Egl => "egl",
             Route::OsMesa => "osmesa",
+            Route::Window => "window",
         }
     }
 
@@ -37,6 +42,7 @@ impl Route {
         match self {
             Route::Egl => "libegl1 libegl-mesa0 libgl1-mesa-dri",
             Route::OsMesa => "libosmesa6",
+            Route::Window => "libegl1 libegl-mesa0 libgl1-mesa-dri, and an X server",
         }
     }
 }
@@ -50,6 +56,12 @@ impl fmt::Display for Route {
 thread_local! {
     /// Whether a context created by this crate lives on this thread.
     static CONTEXT_ON_THREAD: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Whether a context created by this crate lives on this thread.
+#[cfg(feature = "window")]
+pub(crate) fn context_on_thread() -> bool {
+    CONTEXT_ON_THREAD.get()
 }
 
 /// A current OpenGL 3.3+ core context and its `glow` functions.
@@ -69,8 +81,8 @@ struct Inner {
     version: (u32, u32),
     route: Route,
     /// What keeps the route's context alive and current (declared last: dropped after the
-    /// fields above, it makes the context not current and destroys it). A windowed route would
-    /// put its window and surface here.
+    /// fields above, it makes the context not current and destroys it). The windowed route puts
+    /// a shared handle to its window, surface and context here.
     _owner: Box<dyn Any>,
 }
 
@@ -78,8 +90,9 @@ impl Gl {
     /// Creates a headless 3.3 core context by `route` and makes it current on this thread.
     ///
     /// Fails with [`Error::LibraryMissing`] when the route's library is not installed,
-    /// [`Error::Context`] when it gives no 3.3 core context, and [`Error::ContextOnThread`] when
-    /// this thread already has one.
+    /// [`Error::Context`] when it gives no 3.3 core context, [`Error::ContextOnThread`] when
+    /// this thread already has one, and [`Error::Usage`] for [`Route::Window`] (made by
+    /// `window::Window::new`).
     pub fn new(route: Route) -> Result<Gl> {
         if CONTEXT_ON_THREAD.get() {
             return Err(Error::ContextOnThread);
@@ -93,9 +106,38 @@ impl Gl {
                 let (c, glow) = osmesa::create()?;
                 (Box::new(c), glow)
             }
+            Route::Window => {
+                return Err(Error::Usage(
+                    "a windowed context is made by ndfmap_gl::window::Window::new (the `window` \
+                     feature), not Gl::new"
+                        .into(),
+                ));
+            }
         };
+        // SAFETY: the route made the context behind `glow` current on this thread just now, and
+        // `owner` keeps it alive.
+        unsafe { Gl::from_current(route, owner, glow) }
+    }
+
+    /// Wraps a context `route` made: checks that it is 3.3+ core, creates the empty vertex
+    /// array, and marks the thread as having a context. Dropping `owner` must make the context
+    /// not current and destroy it; it is dropped (also on error) after every GL call of this
+    /// crate on the context.
+    ///
+    /// # Safety
+    ///
+    /// The context behind `glow` must be current on this thread and stay current and alive for
+    /// as long as `owner` lives, and no other context of this crate may live on this thread.
+    pub(crate) unsafe fn from_current(
+        route: Route,
+        owner: Box<dyn Any>,
+        glow: glow::Context,
+    ) -> Result<Gl> {
+        if CONTEXT_ON_THREAD.get() {
+            return Err(Error::ContextOnThread);
+        }
         let version = (glow.version().major, glow.version().minor);
-        // SAFETY: the context behind `glow` was made current on this thread just now and is
+        // SAFETY: the caller guarantees the context behind `glow` is current on this thread and
         // kept alive by `owner`; these calls only read state and create one object.
         let (renderer, core, empty_vao) = unsafe {
             let renderer = glow.get_parameter_string(glow::RENDERER);

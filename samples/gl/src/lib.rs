@@ -1,12 +1,12 @@
-//! ndfmap-gl: the OpenGL 3.3 core runtime that draws ndfmap bakes — headless contexts, texture
-//! upload, shader programs, float render targets, meshes and an orbit camera. The core `ndfmap`
-//! crate has no GL dependency; this crate is what the sample viewer and the headless render tests
-//! build on.
+//! ndfmap-gl: the OpenGL 3.3 core runtime that draws ndfmap bakes — headless and windowed
+//! contexts, texture upload, shader programs, float render targets, meshes, an orbit camera and
+//! tone-mapped presentation. The core `ndfmap` crate has no GL dependency; this crate is what
+//! the sample viewer (`samples/viewer`) and the headless render tests build on.
 //!
 //! # Routes to a context
 //!
 //! [`Gl::new`] creates a headless context with no window and no display server, by one of two
-//! [`Route`]s (both give Mesa's llvmpipe a 3.3 core request; it answers with 4.5 core):
+//! headless [`Route`]s (both give Mesa's llvmpipe a 3.3 core request; it answers with 4.5 core):
 //!
 //! - [`Route::Egl`]: glutin's EGL device platform. Devices with `EGL_MESA_device_software` are
 //!   tried first, then any other; the config is asked for with an empty surface-type mask and the
@@ -22,10 +22,26 @@
 //! frame-time table use. `tests/shaders.rs` proves the shaders equal their CPU twin texel for
 //! texel.
 //!
+//! A third route, [`Route::Window`], is a window: with the `window` feature,
+//! `window::Window::new` opens a winit window (X11) and makes a glutin context (EGL on the X11
+//! display) current on its surface, handing the window, surface and context to [`Gl`] through
+//! the same owner hook the headless routes use. It needs an X server (`DISPLAY`; Xvfb works).
+//!
 //! Drawing always goes to a [`RenderTarget`] (an RGBA32F framebuffer object with a depth
-//! buffer), never to a default framebuffer, so both routes behave the same. A windowed route
-//! (glutin + winit) would be a third way to make a context current; everything past
-//! [`Gl`] is independent of how the context was made.
+//! buffer), never to a default framebuffer, so every route behaves the same; everything past
+//! [`Gl`] is independent of how the context was made. Only the last step differs:
+//! [`Presenter`] tone-maps a target into a window's default framebuffer
+//! ([`Destination::Window`]) or into another target for a headless screenshot
+//! ([`Destination::Target`]).
+//!
+//! # Presentation
+//!
+//! Shaders write linear radiance. [`tone_map`] (Reinhard `x/(1+x)` per channel, then the sRGB
+//! curve) is the one tone map of the project: the regression references, the viewer's window
+//! and its screenshots; [`present::TONE_MAP_GLSL`] is its GLSL twin, which [`Presenter`] runs
+//! (the route tests check that they agree to 1e-6). [`Presenter`] can show two images split at
+//! a column (a method beside its reference), and [`Accumulator`] sums passes on the GPU (the
+//! viewer's jittered supersampling, with [`Camera::jitter`]).
 //!
 //! # Ownership and threads
 //!
@@ -73,20 +89,26 @@
 pub mod camera;
 pub mod context;
 pub mod mesh;
+pub mod present;
 pub mod program;
 pub mod render;
 pub mod target;
 pub mod texture;
+#[cfg(feature = "window")]
+pub mod window;
 
 pub use camera::Camera;
 pub use context::{Gl, Route};
 pub use glam;
 pub use glow;
 pub use mesh::{Mesh, MeshData, Vertex, draw_mesh};
+pub use present::{Accumulator, Destination, Layer, Presenter, tone_map};
 pub use program::{FULLSCREEN_VERTEX_SHADER, Program};
 pub use render::{BakeRenderer, Lighting, Scene, Shape};
 pub use target::{RenderTarget, draw_fullscreen, read_rgba_f32};
 pub use texture::BakeTextures;
+#[cfg(feature = "window")]
+pub use winit;
 
 /// What can go wrong in this crate.
 #[derive(Debug, thiserror::Error)]

@@ -3,8 +3,8 @@
 //! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), through
 //! EGL and through OSMesa, against the reference images in `tests/reference/`.
 //!
-//! Images are compared after the same tone mapping the references are stored with (Reinhard
-//! `x/(1+x)` per channel, then the sRGB curve, 16-bit PNG):
+//! Images are compared after the same tone mapping the references are stored with
+//! ([`ndfmap_gl::tone_map`]: Reinhard `x/(1+x)` per channel, then the sRGB curve, 16-bit PNG):
 //! - RMSE of the tone-mapped values ≤ [`MAX_RMSE`] (1/4096, a sixteenth of an 8-bit code: a 4 %
 //!   change of K_s gives 5e-4 to 9e-4 on the far views and fails, while f32 rounding differences
 //!   between drivers stay far below; EGL and OSMesa on llvmpipe match the references exactly);
@@ -17,7 +17,7 @@
 
 use ndfmap::bake::{BakeOptions, Method, bake, bake_with};
 use ndfmap::glsl::ShaderOptions;
-use ndfmap_gl::{BakeRenderer, Gl, Route, Scene};
+use ndfmap_gl::{BakeRenderer, Gl, Route, Scene, tone_map};
 use std::path::{Path, PathBuf};
 
 /// Largest RMSE of tone-mapped values (module docs).
@@ -36,17 +36,6 @@ fn output_dir() -> PathBuf {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target"));
     target.join("ndfmap-regression")
-}
-
-/// Reinhard then the sRGB curve, per channel, in [0, 1).
-fn tone_map(v: f32) -> f32 {
-    let x = (v.max(0.0) / (1.0 + v.max(0.0))) as f64;
-    let s = if x <= 0.0031308 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    };
-    s as f32
 }
 
 /// Linear RGBA rows bottom-to-top → tone-mapped RGB16 image, top row first.

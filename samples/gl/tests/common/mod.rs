@@ -10,8 +10,8 @@ use ndfmap::ingest::Addressing;
 use ndfmap::pack::{pack_level, packed_len};
 use ndfmap_gl::texture::sampler_name;
 use ndfmap_gl::{
-    BakeTextures, Camera, Error, Gl, Mesh, Program, RenderTarget, Route, draw_fullscreen,
-    draw_mesh, read_rgba_f32,
+    Accumulator, BakeTextures, Camera, Destination, Error, Gl, Layer, Mesh, Presenter, Program,
+    RenderTarget, Route, draw_fullscreen, draw_mesh, read_rgba_f32,
 };
 use std::time::Instant;
 
@@ -25,7 +25,8 @@ macro_rules! route_tests {
             trilinear_matches_the_cpu_filter,
             sphere_covers_the_middle_front_faces_win,
             plane_attributes_and_orientation,
-            uniforms_set_by_name_and_errors_carry_logs
+            uniforms_set_by_name_and_errors_carry_logs,
+            presenter_tone_maps_like_the_cpu_and_splits
         );
     };
     ($route:expr; $($check:ident),+) => {
@@ -483,4 +484,101 @@ void main() { color = vec4(a, b.y, c.z, float(e)) + m * d; }
         Err(Error::Link { log }) if !log.is_empty()
     ));
     gl.check_error("after the failed builds").unwrap();
+}
+
+/// Fills `target` with a ramp of linear radiance over x and y, times `scale` (negative in a
+/// corner, up to a few units), so the tone map is checked over its whole range.
+fn ramp(gl: &Gl, target: &RenderTarget, scale: f32) {
+    let program = Program::fullscreen(
+        gl,
+        "#version 330 core
+uniform float scale;
+out vec4 color;
+void main() {
+    vec2 p = floor(gl_FragCoord.xy);
+    color = vec4(scale * p.x * 0.05, scale * p.y * 0.3, scale * (p.x + p.y) * 0.01 - 0.1, 1.0);
+}
+",
+    )
+    .unwrap();
+    program.set_f32("scale", scale);
+    draw_fullscreen(&program, target).unwrap();
+}
+
+/// The presentation pass tone-maps like `ndfmap_gl::tone_map` (the GLSL and CPU twins agree
+/// to float rounding), scales each layer, splits at the given column with a white line left of
+/// it, and writes the window's default framebuffer or a target alike; the accumulator's mean
+/// of passes is their average.
+pub fn presenter_tone_maps_like_the_cpu_and_splits(route: Route) {
+    let Some(gl) = context(route) else { return };
+    let (w, h) = (40, 8);
+    let (left, right, out) = (
+        RenderTarget::new(&gl, w, h).unwrap(),
+        RenderTarget::new(&gl, w, h).unwrap(),
+        RenderTarget::new(&gl, w, h).unwrap(),
+    );
+    ramp(&gl, &left, 1.0);
+    ramp(&gl, &right, 3.0);
+    let presenter = Presenter::new(&gl).unwrap();
+    let layer = |image, scale| Layer { image, scale };
+    presenter
+        .draw(layer(&left, 2.0), None, Destination::Target(&out))
+        .unwrap();
+    let (linear, shown) = (read_rgba_f32(&left).unwrap(), read_rgba_f32(&out).unwrap());
+    let mut worst = 0.0f32;
+    for (l, s) in linear.iter().zip(&shown) {
+        for c in 0..3 {
+            worst = worst.max((ndfmap_gl::tone_map(2.0 * l[c]) - s[c]).abs());
+        }
+    }
+    println!("{route}: GLSL vs CPU tone map, worst difference {worst:.2e}");
+    assert!(worst < 2e-6, "GLSL and CPU tone maps differ by {worst}");
+
+    let split = 17;
+    presenter
+        .draw(
+            layer(&left, 1.0),
+            Some((layer(&right, 0.5), split)),
+            Destination::Target(&out),
+        )
+        .unwrap();
+    let (right_linear, shown) = (read_rgba_f32(&right).unwrap(), read_rgba_f32(&out).unwrap());
+    for y in 0..h as usize {
+        for x in 0..w as usize {
+            let i = y * w as usize + x;
+            let want: [f32; 3] = match x as u32 {
+                x if x + 1 < split => std::array::from_fn(|c| ndfmap_gl::tone_map(linear[i][c])),
+                x if x + 1 == split => [ndfmap_gl::tone_map(1e6); 3],
+                _ => std::array::from_fn(|c| ndfmap_gl::tone_map(0.5 * right_linear[i][c])),
+            };
+            for c in 0..3 {
+                assert!((shown[i][c] - want[c]).abs() < 2e-6, "pixel ({x}, {y})");
+            }
+        }
+    }
+
+    let mut sum = Accumulator::new(&gl, w, h).unwrap();
+    assert_eq!(sum.mean().scale, 0.0);
+    for scale in [1.0, 2.0, 6.0] {
+        sum.add_pass(|t| {
+            ramp(&gl, t, scale);
+            Ok(())
+        })
+        .unwrap();
+    }
+    assert_eq!(sum.passes(), 3);
+    presenter
+        .draw(sum.mean(), None, Destination::Target(&out))
+        .unwrap();
+    let shown = read_rgba_f32(&out).unwrap();
+    for (i, s) in shown.iter().enumerate() {
+        for c in 0..3 {
+            // The mean of scales 1, 2, 6 is 3: the right image.
+            let want = ndfmap_gl::tone_map(right_linear[i][c]);
+            assert!((s[c] - want).abs() < 2e-6, "accumulated pixel {i}");
+        }
+    }
+    sum.reset();
+    assert_eq!(sum.passes(), 0);
+    gl.check_error("presentation").unwrap();
 }

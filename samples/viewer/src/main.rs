@@ -1,0 +1,227 @@
+//! ndfmap-viewer: shows a normal map filtered by each ndfmap method — in a window (orbit, zoom,
+//! method and lobe switching, split screen against a supersampled reference, BRDF and light
+//! controls, frame time in the title), as headless screenshots (`--headless --screenshot`,
+//! `--compare`), or as a frame-time table (`--bench`). The keys are listed in `--help` and in
+//! README.md.
+
+mod bench;
+mod headless;
+mod methods;
+mod viewer;
+mod window;
+
+use clap::Parser;
+use methods::{Bakes, MethodSpec};
+use ndfmap::bake::Format;
+use ndfmap::{IngestOptions, NormalMap};
+use ndfmap_gl::glam::Vec3;
+use std::path::PathBuf;
+use viewer::{Settings, Show, ViewName};
+
+/// Keys of the window, also printed by `--help`.
+const KEYS: &str = "\
+Window controls:
+  mouse drag        orbit the camera          wheel, +/-   zoom (macro to far)
+  M / Shift+M       next / previous method    1-8          lobe count of vMF / Tan 2005 (re-bakes)
+  V                 next preset view          P            plane / sphere
+  S                 split screen: method | supersampled reference
+  X                 show the reference alone  C            albedo colour on / off
+  ] / [             BRDF exponent s x2 / /2   T            Torrance-Sparrow / Blinn-Phong
+  arrows            turn the light            F            f32 / f16 textures
+  R                 reset the view            Esc, Q       quit
+The title shows the method, BRDF, reference passes and the method's draw time (glFinish).";
+
+/// Shows a normal map filtered by the ndfmap methods.
+#[derive(Parser, Debug)]
+#[command(version, after_help = KEYS)]
+struct Cli {
+    /// Normal map (PNG, JPEG, TGA, TIFF, OpenEXR); default: the built-in procedural sample
+    /// with its albedo.
+    #[arg(long)]
+    map: Option<PathBuf>,
+    /// Albedo image of the map's size (sRGB), used as colour by the vMF and Tan 2005 bakes.
+    #[arg(long, requires = "map")]
+    albedo: Option<PathBuf>,
+    /// Side of the built-in sample.
+    #[arg(long, default_value_t = 512)]
+    sample_size: u32,
+    /// Methods to cycle (`plain,toksvig,lean,olano,vmf6a,vmf4,tan2005-4`, …; `a` = aligned).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "plain,toksvig,lean,vmf6a"
+    )]
+    methods: Vec<MethodSpec>,
+    /// The method shown first (added to the list if absent).
+    #[arg(long)]
+    method: Option<MethodSpec>,
+    /// Alignment strength C of the aligned mixtures (eq 23).
+    #[arg(long, default_value_t = 0.1)]
+    align: f64,
+    /// The view shown first.
+    #[arg(long, value_enum, default_value = "far")]
+    view: ViewName,
+    /// Camera distance instead of the view's (0.06 to 600).
+    #[arg(long)]
+    distance: Option<f32>,
+    /// Image size, WxH (window, screenshot; for --compare the size of each panel).
+    #[arg(long, value_parser = parse_size)]
+    size: Option<(u32, u32)>,
+    /// Start in split screen: method left, supersampled reference right.
+    #[arg(long)]
+    split: bool,
+    /// Show the supersampled reference alone.
+    #[arg(long, conflicts_with = "split")]
+    reference: bool,
+    /// Blinn-Phong exponent s (Torrance-Sparrow: sigma = sqrt(1/(2s))).
+    #[arg(short = 's', long, default_value_t = 256.0)]
+    exponent: f64,
+    /// Diffuse coefficient K_d (grey; the view's own when absent).
+    #[arg(long)]
+    kd: Option<f32>,
+    /// Specular coefficient K_s (grey; the view's own when absent).
+    #[arg(long)]
+    ks: Option<f32>,
+    /// Torrance-Sparrow (eq 18) instead of Blinn-Phong.
+    #[arg(long)]
+    torrance_sparrow: bool,
+    /// Ignore the map's albedo.
+    #[arg(long)]
+    no_color: bool,
+    /// Texture format of the uploads.
+    #[arg(long, default_value = "f32")]
+    format: Format,
+    /// Repetitions of the map per side of the plane (default: 32 in the far view, else 8).
+    #[arg(long)]
+    repeat: Option<f32>,
+    /// Reference supersampling: k x k jittered passes (the window adds them progressively).
+    #[arg(long, default_value_t = 16)]
+    ss: u32,
+    /// Render offscreen (EGL, else OSMesa) instead of opening a window.
+    #[arg(long)]
+    headless: bool,
+    /// Write the frame to this PNG (headless; in a window, after the last of --frames).
+    #[arg(long)]
+    screenshot: Option<PathBuf>,
+    /// Write the methods side by side, then the reference, into --screenshot (headless).
+    #[arg(long, requires = "screenshot")]
+    compare: bool,
+    /// Print the frame time of every method's shader at 1280x720 (headless).
+    #[arg(long)]
+    bench: bool,
+    /// Window: quit after this many frames. Bench: timed frames per shader and view.
+    #[arg(long)]
+    frames: Option<u32>,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}': expected WxH"))?;
+    let parse = |v: &str| {
+        v.parse::<u32>()
+            .ok()
+            .filter(|v| (1..=8192).contains(v))
+            .ok_or_else(|| format!("'{s}': sizes are 1 to 8192"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
+/// The map to show: `--map` (with `--albedo`), or the built-in sample with its albedo.
+fn load_map(cli: &Cli) -> Result<NormalMap, String> {
+    let Some(path) = &cli.map else {
+        let sample = ndfmap::procedural::generate(cli.sample_size, 1);
+        return sample
+            .map
+            .with_feature(sample.albedo)
+            .map_err(|e| e.to_string());
+    };
+    let opts = IngestOptions::default();
+    let map = NormalMap::load(path, &opts).map_err(|e| e.to_string())?;
+    match &cli.albedo {
+        Some(a) => map.with_feature_file(a, &opts).map_err(|e| e.to_string()),
+        None => Ok(map),
+    }
+}
+
+/// The settings the command line asks for.
+fn settings(cli: &Cli) -> Settings {
+    let mut methods = cli.methods.clone();
+    let mut current = 0;
+    if let Some(m) = cli.method {
+        current = methods.iter().position(|x| *x == m).unwrap_or_else(|| {
+            methods.push(m);
+            methods.len() - 1
+        });
+    }
+    let mut s = Settings::new(methods, cli.view);
+    s.repeat = cli.repeat.map(|r| r.max(0.01));
+    s.set_view(cli.view);
+    if let Some(d) = cli.distance {
+        s.camera.distance = 1.0;
+        s.zoom(d);
+    }
+    s.current = current;
+    s.exponent = cli.exponent;
+    if let Some(kd) = cli.kd {
+        s.lighting.kd = Vec3::splat(kd);
+    }
+    if let Some(ks) = cli.ks {
+        s.lighting.ks = Vec3::splat(ks);
+    }
+    s.torrance_sparrow = cli.torrance_sparrow;
+    s.color = !cli.no_color;
+    s.format = cli.format;
+    s.supersampling = cli.ss.max(1);
+    s.show = match (cli.split, cli.reference) {
+        (true, _) => Show::Split,
+        (_, true) => Show::Reference,
+        _ => Show::Method,
+    };
+    s
+}
+
+fn run(cli: Cli) -> Result<(), String> {
+    if cli.methods.is_empty() {
+        return Err("--methods: give at least one method".into());
+    }
+    if cli.bench {
+        return bench::run(cli.frames.unwrap_or(20), cli.align, cli.sample_size);
+    }
+    let map = load_map(&cli)?;
+    let bakes = Bakes::new(map, cli.align);
+    let settings = settings(&cli);
+    if cli.headless || cli.compare {
+        let path = cli
+            .screenshot
+            .as_deref()
+            .ok_or("--headless needs --screenshot PATH")?;
+        if cli.compare {
+            let (w, h) = cli.size.unwrap_or((360, 360));
+            let methods = if cli.methods == MethodSpec::defaults() {
+                headless::COMPARED.to_vec()
+            } else {
+                cli.methods.clone()
+            };
+            headless::compare(bakes, settings, &methods, w, h, path)
+        } else {
+            let (w, h) = cli.size.unwrap_or((1280, 720));
+            headless::screenshot(bakes, settings, w, h, path)
+        }
+    } else {
+        window::run(
+            bakes,
+            settings,
+            cli.size.unwrap_or((1280, 720)),
+            cli.frames,
+            cli.screenshot,
+        )
+    }
+}
+
+fn main() {
+    if let Err(e) = run(Cli::parse()) {
+        eprintln!("ndfmap-viewer: {e}");
+        std::process::exit(1);
+    }
+}

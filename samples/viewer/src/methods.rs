@@ -1,0 +1,286 @@
+//! What the viewer draws with: [`MethodSpec`] names a method with its lobe count and alignment
+//! (`plain`, `toksvig`, `lean`, `olano`, `vmf6a`, `vmf4`, `tan2005-4`, …, the labels of
+//! `ndfmap::bake::Bake::label`), and [`Bakes`] bakes them once each, on a background thread.
+
+use ndfmap::NormalMap;
+use ndfmap::bake::{Bake, BakeOptions, Method, bake_with};
+use std::collections::{HashMap, HashSet};
+use std::fmt;
+use std::str::FromStr;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, Sender, channel};
+
+/// A method and, for the mixtures, its lobe count and whether the lobes are aligned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct MethodSpec {
+    /// The method.
+    pub method: Method,
+    /// Lobes (mixtures), 0 for the baselines.
+    pub lobes: usize,
+    /// Aligned lobes (eq 23, hardware filtering); mixtures only.
+    pub aligned: bool,
+}
+
+impl MethodSpec {
+    /// A baseline method.
+    pub const fn baseline(method: Method) -> Self {
+        MethodSpec {
+            method,
+            lobes: 0,
+            aligned: false,
+        }
+    }
+
+    /// A mixture method with `lobes` lobes.
+    pub const fn mixture(method: Method, lobes: usize, aligned: bool) -> Self {
+        MethodSpec {
+            method,
+            lobes,
+            aligned,
+        }
+    }
+
+    /// Whether the method is a mixture (vMF or Tan 2005), whose lobe count can change.
+    pub fn is_mixture(&self) -> bool {
+        matches!(self.method, Method::Vmf | Method::Tan2005)
+    }
+
+    /// The same method with `lobes` lobes (baselines are unchanged).
+    pub fn with_lobes(self, lobes: usize) -> Self {
+        if self.is_mixture() {
+            MethodSpec { lobes, ..self }
+        } else {
+            self
+        }
+    }
+
+    /// The viewer's default list: plain, Toksvig, LEAN and vMF J = 6 aligned.
+    pub fn defaults() -> Vec<MethodSpec> {
+        vec![
+            MethodSpec::baseline(Method::Plain),
+            MethodSpec::baseline(Method::Toksvig),
+            MethodSpec::baseline(Method::Lean),
+            MethodSpec::mixture(Method::Vmf, 6, true),
+        ]
+    }
+}
+
+impl fmt::Display for MethodSpec {
+    /// The label `Bake::label` gives the bake (without the format).
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.method.name())?;
+        if self.is_mixture() {
+            if self.method.name().ends_with(|c: char| c.is_ascii_digit()) {
+                f.write_str("-")?;
+            }
+            write!(f, "{}{}", self.lobes, if self.aligned { "a" } else { "" })?;
+        }
+        Ok(())
+    }
+}
+
+impl FromStr for MethodSpec {
+    type Err = String;
+
+    /// `plain`, `toksvig`, `lean`, `olano`; `vmf` or `tan2005` followed by a lobe count (1–8,
+    /// `-` optional) and `a` for aligned lobes: `vmf6a`, `vmf4`, `tan2005-4a`. A bare `vmf` is
+    /// `vmf6a`, a bare `tan2005` is `tan2005-4`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let s = s.trim().to_ascii_lowercase();
+        let name_end = if let Some(rest) = s.strip_prefix("tan2005") {
+            s.len() - rest.len()
+        } else {
+            s.find(|c: char| c.is_ascii_digit() || c == '-')
+                .unwrap_or(s.len())
+        };
+        let method: Method = s[..name_end].parse().map_err(|e| format!("{e}"))?;
+        let rest = s[name_end..].trim_start_matches('-');
+        match method {
+            Method::Vmf | Method::Tan2005 => {
+                if rest.is_empty() {
+                    return Ok(match method {
+                        Method::Vmf => MethodSpec::mixture(method, 6, true),
+                        _ => MethodSpec::mixture(method, 4, false),
+                    });
+                }
+                let (digits, aligned) = match rest.strip_suffix('a') {
+                    Some(d) => (d, true),
+                    None => (rest, false),
+                };
+                let lobes: usize = digits
+                    .parse()
+                    .ok()
+                    .filter(|j| (1..=8).contains(j))
+                    .ok_or_else(|| format!("'{s}': the lobe count must be 1 to 8"))?;
+                Ok(MethodSpec::mixture(method, lobes, aligned))
+            }
+            _ if rest.is_empty() => Ok(MethodSpec::baseline(method)),
+            _ => Err(format!("'{s}': {method} takes no lobe count")),
+        }
+    }
+}
+
+/// What a bake is made of: the method, and whether the map's albedo is baked in as colour
+/// textures (mixtures only).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct BakeKey {
+    /// The method.
+    pub spec: MethodSpec,
+    /// Colour textures from the map's albedo.
+    pub color: bool,
+}
+
+/// Bakes of one map, each made once: on a background thread ([`Bakes::request`], then
+/// [`Bakes::poll`]) or on the caller's ([`Bakes::get_blocking`]).
+pub struct Bakes {
+    map: Arc<NormalMap>,
+    align: f64,
+    done: HashMap<BakeKey, Arc<Bake>>,
+    pending: HashSet<BakeKey>,
+    sender: Sender<(BakeKey, Result<Bake, String>)>,
+    receiver: Receiver<(BakeKey, Result<Bake, String>)>,
+}
+
+impl Bakes {
+    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 23).
+    pub fn new(map: NormalMap, align: f64) -> Bakes {
+        let (sender, receiver) = channel();
+        Bakes {
+            map: Arc::new(map),
+            align,
+            done: HashMap::new(),
+            pending: HashSet::new(),
+            sender,
+            receiver,
+        }
+    }
+
+    /// Whether the map has an albedo to bake as colour.
+    pub fn has_albedo(&self) -> bool {
+        self.map.feature().is_some()
+    }
+
+    /// The bake of `key` if it is done.
+    pub fn get(&self, key: &BakeKey) -> Option<Arc<Bake>> {
+        self.done.get(key).cloned()
+    }
+
+    /// Whether any bake is running.
+    pub fn busy(&self) -> bool {
+        !self.pending.is_empty()
+    }
+
+    /// Starts baking `key` on a background thread unless it is done or running.
+    pub fn request(&mut self, key: BakeKey) {
+        if self.done.contains_key(&key) || !self.pending.insert(key) {
+            return;
+        }
+        let (map, align, sender) = (self.map.clone(), self.align, self.sender.clone());
+        std::thread::spawn(move || {
+            // The receiver may be gone when the viewer quits mid-bake; nothing to do then.
+            let _ = sender.send((key, bake_key(&map, key, align)));
+        });
+    }
+
+    /// Collects finished background bakes; returns the errors of failed ones.
+    pub fn poll(&mut self) -> Vec<String> {
+        let mut errors = Vec::new();
+        while let Ok((key, result)) = self.receiver.try_recv() {
+            self.pending.remove(&key);
+            match result {
+                Ok(b) => {
+                    self.done.insert(key, Arc::new(b));
+                }
+                Err(e) => errors.push(format!("{}: {e}", key.spec)),
+            }
+        }
+        errors
+    }
+
+    /// The bake of `key`, baked on this thread if it is not done yet.
+    pub fn get_blocking(&mut self, key: BakeKey) -> Result<Arc<Bake>, String> {
+        if let Some(b) = self.get(&key) {
+            return Ok(b);
+        }
+        let b = Arc::new(bake_key(&self.map, key, self.align)?);
+        self.done.insert(key, b.clone());
+        Ok(b)
+    }
+}
+
+/// Bakes `key` of `map` at f32.
+fn bake_key(map: &NormalMap, key: BakeKey, align: f64) -> Result<Bake, String> {
+    let spec = key.spec;
+    let options = BakeOptions {
+        lobes: spec.lobes.max(1),
+        align: spec.aligned.then_some(align),
+        ..BakeOptions::default()
+    };
+    if key.color && spec.is_mixture() {
+        bake_with(map, spec.method, &options).map_err(|e| e.to_string())
+    } else if spec.is_mixture() {
+        // Without colour the lobes alone: bake a copy of the map without its albedo.
+        let plain = NormalMap::from_vectors(
+            map.width(),
+            map.height(),
+            map.normals().to_vec(),
+            map.addressing(),
+            ndfmap::ingest::BadNormals::Repair,
+        )
+        .map_err(|e| e.to_string())?;
+        bake_with(&plain, spec.method, &options).map_err(|e| e.to_string())
+    } else {
+        bake_with(map, spec.method, &options).map_err(|e| e.to_string())
+    }
+}
+
+/// `bake` with only its finest level: sampled with `GL_TEXTURE_MAX_LEVEL` 0 (the upload sets it
+/// to the level count − 1), it is the unfiltered map, which the supersampled reference shades.
+pub fn finest_level_only(bake: &Bake) -> Bake {
+    let mut out = bake.clone();
+    out.sizes.truncate(1);
+    for t in &mut out.textures {
+        t.levels.truncate(1);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn specs_parse_and_print_as_bake_labels() {
+        for (text, want) in [
+            ("plain", "plain"),
+            ("Toksvig", "toksvig"),
+            ("vmf6a", "vmf6a"),
+            ("vmf-3", "vmf3"),
+            ("vmf", "vmf6a"),
+            ("tan2005-4a", "tan2005-4a"),
+            ("tan20054", "tan2005-4"),
+            ("tan2005", "tan2005-4"),
+            ("olano", "olano"),
+        ] {
+            let spec: MethodSpec = text.parse().unwrap();
+            assert_eq!(spec.to_string(), want, "{text}");
+        }
+        for bad in ["vmf9", "vmf0a", "plain2", "phong", "vmfx"] {
+            assert!(bad.parse::<MethodSpec>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn labels_match_the_bakes() {
+        let map = ndfmap::procedural::generate(16, 1).map;
+        for spec in ["plain", "lean", "vmf2a", "vmf2", "tan2005-2"] {
+            let spec: MethodSpec = spec.parse().unwrap();
+            let key = BakeKey { spec, color: false };
+            let b = bake_key(&map, key, 0.1).unwrap();
+            assert_eq!(b.label(), spec.to_string());
+            let finest = finest_level_only(&b);
+            assert_eq!(finest.level_count(), 1);
+            assert!(finest.textures.iter().all(|t| t.levels.len() == 1));
+        }
+    }
+}

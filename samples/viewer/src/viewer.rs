@@ -1,0 +1,696 @@
+//! The viewer's frames, independent of how the context was made (window or headless): the
+//! [`Settings`] a user changes, the preset views, and [`Viewer`], which keeps the bakes, the
+//! compiled shaders and the targets, draws the current method, accumulates the supersampled
+//! reference, and presents the result tone-mapped (method, reference, or split screen).
+//!
+//! The reference is the unfiltered map shaded exactly: the plain bake cut to its finest level
+//! (one MIP level, so `GL_TEXTURE_MAX_LEVEL` 0 and no filtering of normals at any distance),
+//! drawn `k × k` times with stratified, jittered sub-pixel offsets and box-averaged. With the
+//! map's albedo as colour it is the vMF J = 1 colour bake cut the same way, whose finest texels
+//! are the normal (κ at its cap) and the albedo. It is drawn with hardware sampling: the
+//! shaders' manual path takes its level count from `ndf_max_level()`, which assumes a full MIP
+//! chain.
+
+use crate::methods::{BakeKey, Bakes, MethodSpec, finest_level_only};
+use ndfmap::bake::{Format, Method};
+use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions};
+use ndfmap::shade::Brdf;
+use ndfmap_gl::glam::{Mat4, Vec2, Vec3, Vec4};
+use ndfmap_gl::present::read_presented_rgb8;
+use ndfmap_gl::{
+    Accumulator, BakeRenderer, Camera, Destination, Gl, Layer, Lighting, Mesh, Presenter,
+    RenderTarget, Scene, Shape,
+};
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+/// The plane of the close views: 4 units wide, the map repeated 8 times per side.
+const PLANE: Shape = Shape::Plane {
+    size: 4.0,
+    uv_repeat: 8.0,
+};
+
+/// The plane of the far view: the map repeated 32 times, so that a pixel covers 50 or so
+/// texels across (the deep MIP levels) while the plane still fills the image.
+const TILED_PLANE: Shape = Shape::Plane {
+    size: 4.0,
+    uv_repeat: 32.0,
+};
+
+/// Closest and farthest camera distance the zoom allows: texels several pixels wide, and the
+/// whole plane a few pixels across.
+pub const DISTANCE_RANGE: (f32, f32) = (0.06, 600.0);
+
+/// The preset views.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ViewName {
+    /// The plane with the map tiled 32 × 32, from 6.5 units at 33° elevation, lit so that the
+    /// mirror direction of the view falls on the plane's centre: every pixel covers many
+    /// texels, and the highlight shows how each method filters.
+    Far,
+    /// The plane at a grazing angle under a point light behind it (`Scene::standard`'s
+    /// `plane-grazing`): all MIP levels across the image.
+    Grazing,
+    /// The plane from close by: texels several pixels wide (magnification).
+    Macro,
+    /// The sphere of `Scene::standard`, lit from just above the eye.
+    Sphere,
+}
+
+impl ViewName {
+    /// Every view, in the order the `V` key cycles them.
+    pub const ALL: [ViewName; 4] = [
+        ViewName::Far,
+        ViewName::Grazing,
+        ViewName::Macro,
+        ViewName::Sphere,
+    ];
+
+    /// The shape, camera and lighting of this view (Blinn-Phong s = 256 unless said).
+    pub fn scene(self) -> (Shape, Camera, Lighting) {
+        let standard = |name: &str| {
+            Scene::standard()
+                .into_iter()
+                .find(|s| s.name == name)
+                .expect("a standard scene")
+        };
+        // The plane seen from `distance` at elevation `pitch`, under a directional light that
+        // mirrors the eye direction about the plane's normal: a flat plane's highlight would
+        // sit at its centre.
+        let mirrored = |shape: Shape, distance: f32, pitch: f32| {
+            let camera = Camera {
+                distance,
+                pitch,
+                yaw: 0.35,
+                ..Camera::default()
+            };
+            let e = camera.eye().normalize();
+            let lighting = Lighting {
+                light: Vec4::new(-e.x, e.y, -e.z, 0.0),
+                ..Lighting::default()
+            };
+            (shape, camera, lighting)
+        };
+        match self {
+            ViewName::Far => mirrored(TILED_PLANE, 6.5, 0.58),
+            ViewName::Grazing => {
+                let s = standard("plane-grazing");
+                (s.shape, s.camera, s.lighting)
+            }
+            ViewName::Macro => mirrored(PLANE, 0.15, 0.9),
+            ViewName::Sphere => {
+                // `Scene::standard`'s sphere, lit from just above the eye: the highlight lies
+                // on the image's middle column, where the split screen divides.
+                let s = standard("sphere");
+                let e = s.camera.eye().normalize();
+                let light = (e + Vec3::new(0.0, 0.5, 0.0)).normalize().extend(0.0);
+                let lighting = Lighting {
+                    light,
+                    ..s.lighting
+                };
+                (s.shape, s.camera, lighting)
+            }
+        }
+    }
+}
+
+/// What the image shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Show {
+    /// The current method.
+    Method,
+    /// The supersampled reference.
+    Reference,
+    /// The method on the left half, the reference on the right half.
+    Split,
+}
+
+/// Everything a user changes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Settings {
+    /// The methods `M` cycles through.
+    pub methods: Vec<MethodSpec>,
+    /// Index of the current method.
+    pub current: usize,
+    /// The shape drawn.
+    pub shape: Shape,
+    /// The camera (aspect and clip distances are set per frame).
+    pub camera: Camera,
+    /// Light, its colour, K_d and K_s (the BRDF comes from `exponent` and `torrance_sparrow`).
+    pub lighting: Lighting,
+    /// Blinn-Phong exponent s; Torrance–Sparrow uses the σ of the same width, `sqrt(1/(2s))`.
+    pub exponent: f64,
+    /// Torrance–Sparrow (eq 18) instead of Blinn-Phong.
+    pub torrance_sparrow: bool,
+    /// The map's albedo as colour (mixtures baked with colour textures, and their reference).
+    pub color: bool,
+    /// What the image shows.
+    pub show: Show,
+    /// Texture format of the uploads.
+    pub format: Format,
+    /// Supersampling of the reference: k × k jittered passes.
+    pub supersampling: u32,
+    /// Repetitions of the map per side of the plane, instead of the view's own.
+    pub repeat: Option<f32>,
+    /// The plane the `P` key brings back.
+    plane: Shape,
+}
+
+impl Settings {
+    /// `methods` seen in `view`, Blinn-Phong s = 256, f32 textures, 16 × 16 reference samples.
+    pub fn new(methods: Vec<MethodSpec>, view: ViewName) -> Settings {
+        let (shape, camera, lighting) = view.scene();
+        Settings {
+            methods,
+            current: 0,
+            shape,
+            camera,
+            lighting,
+            exponent: 256.0,
+            torrance_sparrow: false,
+            color: true,
+            show: Show::Method,
+            format: Format::F32,
+            supersampling: 16,
+            repeat: None,
+            plane: PLANE,
+        }
+    }
+
+    /// Switches to the preset `view` (shape, camera, light), keeping the rest (a plane
+    /// repeats the map [`Settings::repeat`] times if that is set).
+    pub fn set_view(&mut self, view: ViewName) {
+        let (shape, camera, lighting) = view.scene();
+        self.shape = match (shape, self.repeat) {
+            (Shape::Plane { size, .. }, Some(uv_repeat)) => Shape::Plane { size, uv_repeat },
+            (shape, _) => shape,
+        };
+        if let Shape::Plane { .. } = self.shape {
+            self.plane = self.shape;
+        }
+        self.camera = camera;
+        self.lighting.light = lighting.light;
+        self.lighting.color = lighting.color;
+    }
+
+    /// Switches between the sphere and the plane.
+    pub fn toggle_shape(&mut self) {
+        self.shape = match self.shape {
+            Shape::Sphere => self.plane,
+            Shape::Plane { .. } => Shape::Sphere,
+        };
+    }
+
+    /// The current method.
+    pub fn method(&self) -> MethodSpec {
+        self.methods[self.current]
+    }
+
+    /// The BRDF of the current settings.
+    pub fn brdf(&self) -> Brdf {
+        if self.torrance_sparrow {
+            Brdf::TorranceSparrow {
+                sigma: (0.5 / self.exponent).sqrt(),
+            }
+        } else {
+            Brdf::BlinnPhong { s: self.exponent }
+        }
+    }
+
+    /// The lighting with the current BRDF.
+    pub fn lighting(&self) -> Lighting {
+        Lighting {
+            brdf: self.brdf(),
+            ..self.lighting
+        }
+    }
+
+    /// Multiplies the exponent by `factor`, within 1 … 8192.
+    pub fn scale_exponent(&mut self, factor: f64) {
+        self.exponent = (self.exponent * factor).clamp(1.0, 8192.0);
+    }
+
+    /// Turns the light by `d_azimuth` about the vertical axis and raises it by `d_elevation`
+    /// (radians), keeping its distance (point light) and kind.
+    pub fn turn_light(&mut self, d_azimuth: f32, d_elevation: f32) {
+        let l = self.lighting.light;
+        let v = l.truncate();
+        let r = v.length().max(1e-6);
+        let elevation = (v.y / r).clamp(-1.0, 1.0).asin();
+        let azimuth = v.x.atan2(v.z);
+        let limit = std::f32::consts::FRAC_PI_2 - 0.01;
+        let e = (elevation + d_elevation).clamp(-limit, limit);
+        let a = azimuth + d_azimuth;
+        let dir = Vec3::new(e.cos() * a.sin(), e.sin(), e.cos() * a.cos());
+        self.lighting.light = (r * dir).extend(l.w);
+    }
+
+    /// Moves the camera closer (factor < 1) or away, within [`DISTANCE_RANGE`].
+    pub fn zoom(&mut self, factor: f32) {
+        self.camera.distance =
+            (self.camera.distance * factor).clamp(DISTANCE_RANGE.0, DISTANCE_RANGE.1);
+    }
+
+    /// The camera for a `width × height` image: aspect, and clip distances that follow the
+    /// distance so that both macro and far views keep their depth precision.
+    pub fn camera_for(&self, width: u32, height: u32) -> Camera {
+        let d = self.camera.distance;
+        Camera {
+            aspect: width as f32 / height.max(1) as f32,
+            near: (0.01 * d).clamp(1e-3, 1.0),
+            far: d + 20.0,
+            ..self.camera
+        }
+    }
+}
+
+/// The compiled shader and uploaded textures of one bake.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct RendererKey {
+    bake: BakeKey,
+    torrance_sparrow: bool,
+    format: Format,
+    /// Cut to the finest level (the reference).
+    finest: bool,
+}
+
+/// The state a reference image was accumulated for: when any of it changes, it restarts.
+#[derive(Debug, Clone, PartialEq)]
+struct ReferenceState {
+    key: RendererKey,
+    shape: Shape,
+    camera: Camera,
+    lighting: Lighting,
+    size: (u32, u32),
+}
+
+/// Targets of one image size.
+struct Targets {
+    method: RenderTarget,
+    reference: Accumulator,
+}
+
+/// The sub-pixel offset (in pixels, each in [−½, ½)) of reference pass `pass` of `k × k`:
+/// strata visited in a well-spread order (a step of about 0.618·k² coprime with k²), a
+/// quasi-random point (the R2 sequence) inside each.
+pub fn jitter(k: u32, pass: u32) -> Vec2 {
+    let n = (k * k).max(1);
+    let mut step = ((n as f64 * 0.618_034).round() as u32).max(1);
+    while gcd(step, n) != 1 {
+        step += 1;
+    }
+    let stratum = (pass % n) * step % n;
+    let (sx, sy) = (stratum % k.max(1), stratum / k.max(1));
+    let t = pass as f64 + 1.0;
+    let fx = (0.5 + t * 0.754_877_666_246_692_8).fract();
+    let fy = (0.5 + t * 0.569_840_290_998_053_3).fract();
+    let k = k.max(1) as f64;
+    Vec2::new(
+        ((sx as f64 + fx) / k - 0.5) as f32,
+        ((sy as f64 + fy) / k - 0.5) as f32,
+    )
+}
+
+fn gcd(a: u32, b: u32) -> u32 {
+    if b == 0 { a } else { gcd(b, a % b) }
+}
+
+/// What a rendered frame drew.
+#[derive(Debug, Clone, Default)]
+pub struct FrameInfo {
+    /// The label of the bake drawn (`vmf6a f16`), or `None` before the first bake is done.
+    pub drawn: Option<String>,
+    /// Milliseconds of the method's draw, between two `glFinish` calls.
+    pub draw_ms: f64,
+    /// Reference passes accumulated so far, and the target (k²); 0 when not shown.
+    pub reference_passes: (u32, u32),
+}
+
+/// The viewer: bakes, shaders, targets and the presentation pass on one context.
+pub struct Viewer {
+    gl: Gl,
+    /// What is drawn.
+    pub settings: Settings,
+    bakes: Bakes,
+    renderers: HashMap<RendererKey, BakeRenderer>,
+    meshes: Vec<(Shape, Mesh)>,
+    targets: Option<Targets>,
+    presenter: Presenter,
+    reference_state: Option<ReferenceState>,
+    /// The method drawn while the current one bakes.
+    shown: Option<MethodSpec>,
+}
+
+impl Viewer {
+    /// A viewer of `bakes` on `gl` with `settings`.
+    pub fn new(gl: &Gl, bakes: Bakes, settings: Settings) -> Result<Viewer, ndfmap_gl::Error> {
+        Ok(Viewer {
+            gl: gl.clone(),
+            presenter: Presenter::new(gl)?,
+            settings,
+            bakes,
+            renderers: HashMap::new(),
+            meshes: Vec::new(),
+            targets: None,
+            reference_state: None,
+            shown: None,
+        })
+    }
+
+    /// The context.
+    pub fn gl(&self) -> &Gl {
+        &self.gl
+    }
+
+    /// Whether the map's albedo is used as colour by `spec` under the current settings.
+    fn uses_color(&self, spec: MethodSpec) -> bool {
+        self.settings.color && self.bakes.has_albedo() && spec.is_mixture()
+    }
+
+    /// The bake the current method needs.
+    fn method_key(&self, spec: MethodSpec) -> BakeKey {
+        BakeKey {
+            spec,
+            color: self.uses_color(spec),
+        }
+    }
+
+    /// The bake the reference for `spec` needs: plain, or vMF J = 1 with colour when `spec`
+    /// is shown in colour.
+    fn reference_key(&self, spec: MethodSpec) -> BakeKey {
+        if self.uses_color(spec) {
+            BakeKey {
+                spec: MethodSpec::mixture(Method::Vmf, 1, true),
+                color: true,
+            }
+        } else {
+            BakeKey {
+                spec: MethodSpec::baseline(Method::Plain),
+                color: false,
+            }
+        }
+    }
+
+    /// Collects background bakes and starts the ones the current settings need (on this
+    /// thread when `blocking`); returns bake errors.
+    pub fn update_bakes(&mut self, blocking: bool) -> Vec<String> {
+        let mut errors = self.bakes.poll();
+        let spec = self.settings.method();
+        let mut keys = vec![self.method_key(spec)];
+        if self.settings.show != Show::Method {
+            keys.push(self.reference_key(spec));
+        }
+        for key in keys {
+            if blocking {
+                if let Err(e) = self.bakes.get_blocking(key) {
+                    errors.push(format!("{}: {e}", key.spec));
+                }
+            } else {
+                self.bakes.request(key);
+            }
+        }
+        errors
+    }
+
+    /// Whether a bake the current settings need is still running.
+    pub fn baking(&self) -> bool {
+        self.bakes.busy()
+    }
+
+    fn renderer_key(&self, bake: BakeKey, finest: bool) -> RendererKey {
+        RendererKey {
+            bake,
+            torrance_sparrow: self.settings.torrance_sparrow,
+            format: self.settings.format,
+            finest,
+        }
+    }
+
+    /// Compiles and uploads `key` if its bake is done; whether it is ready.
+    fn prepare(&mut self, key: RendererKey) -> Result<bool, String> {
+        if self.renderers.contains_key(&key) {
+            return Ok(true);
+        }
+        let Some(b) = self.bakes.get(&key.bake) else {
+            return Ok(false);
+        };
+        let cut;
+        let b = if key.finest {
+            cut = finest_level_only(&b);
+            &cut
+        } else {
+            &*b
+        };
+        let b = ndfmap::pack::quantize(b, key.format).map_err(|e| e.to_string())?;
+        let options = ShaderOptions {
+            brdf: match key.torrance_sparrow {
+                true => ShaderBrdf::TorranceSparrow,
+                false => ShaderBrdf::BlinnPhong,
+            },
+            // The reference: hardware sampling of its single level (see the module docs).
+            sampling: if key.finest {
+                Sampling::Hardware
+            } else {
+                Sampling::Auto
+            },
+            color: key.bake.color,
+            probe: false,
+        };
+        let r = BakeRenderer::new(&self.gl, &b, &options).map_err(|e| e.to_string())?;
+        self.renderers.insert(key, r);
+        Ok(true)
+    }
+
+    fn mesh(&mut self, shape: Shape) -> Result<&Mesh, ndfmap_gl::Error> {
+        let i = match self.meshes.iter().position(|(s, _)| *s == shape) {
+            Some(i) => i,
+            None => {
+                let mesh = shape.mesh(&self.gl)?;
+                self.meshes.push((shape, mesh));
+                self.meshes.len() - 1
+            }
+        };
+        Ok(&self.meshes[i].1)
+    }
+
+    fn targets(&mut self, width: u32, height: u32) -> Result<&mut Targets, ndfmap_gl::Error> {
+        let fits = self
+            .targets
+            .as_ref()
+            .is_some_and(|t| t.method.size() == (width, height));
+        if !fits {
+            self.targets = None; // free the old ones first
+            self.targets = Some(Targets {
+                method: RenderTarget::new(&self.gl, width, height)?,
+                reference: Accumulator::new(&self.gl, width, height)?,
+            });
+            self.reference_state = None;
+        }
+        Ok(self.targets.as_mut().expect("just made"))
+    }
+
+    /// Draws a `width × height` frame: the current method (or the last one drawn while it
+    /// bakes) and, when the reference is shown, more passes of it (restarting when the view
+    /// changed): at least one and as many as fit in `reference_budget`, or all of them when it
+    /// is `None`. Call [`Viewer::present`] to show it.
+    pub fn render(
+        &mut self,
+        width: u32,
+        height: u32,
+        reference_budget: Option<Duration>,
+    ) -> Result<FrameInfo, String> {
+        let gl_err = |e: ndfmap_gl::Error| e.to_string();
+        let camera = self.settings.camera_for(width, height);
+        let lighting = self.settings.lighting();
+        let shape = self.settings.shape;
+        let spec = self.settings.method();
+        let mut info = FrameInfo::default();
+
+        // The method: the current one if ready, else the one shown before.
+        let mut drawn = None;
+        for candidate in [Some(spec), self.shown].into_iter().flatten() {
+            let key = self.renderer_key(self.method_key(candidate), false);
+            if self.prepare(key)? {
+                drawn = Some(key);
+                self.shown = Some(candidate);
+                break;
+            }
+        }
+        let reference = match self.settings.show {
+            Show::Method => None,
+            _ => {
+                let key = self.renderer_key(self.reference_key(spec), true);
+                self.prepare(key)?.then_some(key)
+            }
+        };
+        self.mesh(shape).map_err(gl_err)?;
+        self.targets(width, height).map_err(gl_err)?;
+        let targets = self.targets.as_mut().expect("made above");
+        let mesh = &self
+            .meshes
+            .iter()
+            .find(|(s, _)| *s == shape)
+            .expect("made")
+            .1;
+        targets.method.clear([0.0, 0.0, 0.0, 1.0]);
+        if let Some(key) = drawn {
+            let r = &self.renderers[&key];
+            self.gl.finish();
+            let start = Instant::now();
+            r.draw(mesh, &Mat4::IDENTITY, &camera, &lighting, &targets.method)
+                .map_err(gl_err)?;
+            self.gl.finish();
+            info.draw_ms = start.elapsed().as_secs_f64() * 1e3;
+            info.drawn = Some(r.label().to_string());
+        }
+
+        let Some(key) = reference else {
+            return Ok(info);
+        };
+        let state = ReferenceState {
+            key,
+            shape,
+            camera,
+            lighting,
+            size: (width, height),
+        };
+        let targets = self.targets.as_mut().expect("made above");
+        if self.reference_state.as_ref() != Some(&state) {
+            targets.reference.reset();
+            self.reference_state = Some(state);
+        }
+        let k = self.settings.supersampling.max(1);
+        let r = &self.renderers[&key];
+        let start = Instant::now();
+        let mut passes = 0;
+        while targets.reference.passes() < k * k
+            && (passes == 0 || reference_budget.is_none_or(|b| start.elapsed() < b))
+        {
+            let offset = jitter(k, targets.reference.passes());
+            let jittered = Camera {
+                jitter: Vec2::new(
+                    2.0 * offset.x / width as f32,
+                    2.0 * offset.y / height as f32,
+                ),
+                ..camera
+            };
+            targets
+                .reference
+                .add_pass(|t| r.draw(mesh, &Mat4::IDENTITY, &jittered, &lighting, t))
+                .map_err(gl_err)?;
+            passes += 1;
+        }
+        info.reference_passes = (targets.reference.passes(), k * k);
+        Ok(info)
+    }
+
+    /// Tone-maps the last frame into `destination` (the frame's size): the method, the
+    /// reference, or the method left of the middle column and the reference right of it.
+    pub fn present(&self, destination: Destination) -> Result<(), ndfmap_gl::Error> {
+        let Some(t) = &self.targets else {
+            return Ok(());
+        };
+        let method = Layer {
+            image: &t.method,
+            scale: 1.0,
+        };
+        let reference = t.reference.mean();
+        match self.settings.show {
+            Show::Method => self.presenter.draw(method, None, destination),
+            Show::Reference => self.presenter.draw(reference, None, destination),
+            Show::Split => {
+                let split = t.method.size().0 / 2;
+                self.presenter
+                    .draw(method, Some((reference, split)), destination)
+            }
+        }
+    }
+
+    /// Renders a `width × height` frame with the whole reference and returns it tone-mapped,
+    /// 8-bit RGB, top row first.
+    pub fn screenshot(&mut self, width: u32, height: u32) -> Result<Vec<u8>, String> {
+        let errors = self.update_bakes(true);
+        if let Some(e) = errors.into_iter().next() {
+            return Err(e);
+        }
+        self.render(width, height, None)?;
+        let out = RenderTarget::new(&self.gl, width, height).map_err(|e| e.to_string())?;
+        self.present(Destination::Target(&out))
+            .map_err(|e| e.to_string())?;
+        read_presented_rgb8(&out).map_err(|e| e.to_string())
+    }
+
+    /// One line for the window title: method, format, BRDF, colour, what is shown, frame time.
+    pub fn status(&self, info: &FrameInfo, frame_ms: f64) -> String {
+        let s = &self.settings;
+        let wanted = s.method();
+        let mut line = format!(
+            "ndfmap-viewer | {} | {} | {}",
+            info.drawn.as_deref().unwrap_or("-"),
+            match s.brdf() {
+                Brdf::BlinnPhong { s } => format!("Blinn-Phong s={s}"),
+                Brdf::TorranceSparrow { sigma } => format!("Torrance-Sparrow sigma={sigma:.4}"),
+            },
+            if self.uses_color(wanted) {
+                "albedo"
+            } else {
+                "no colour"
+            }
+        );
+        if self.shown != Some(wanted) || self.baking() {
+            line += &format!(" | baking {wanted}...");
+        }
+        match s.show {
+            Show::Method => {}
+            Show::Reference => line += " | reference",
+            Show::Split => line += " | split: method | reference",
+        }
+        if s.show != Show::Method {
+            let (n, k2) = info.reference_passes;
+            line += &format!(" {n}/{k2} passes");
+        }
+        line += &format!(" | draw {:.1} ms, frame {:.1} ms", info.draw_ms, frame_ms);
+        line
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jitter_visits_every_stratum_once() {
+        for k in [1, 2, 3, 4, 8] {
+            let mut seen = vec![false; (k * k) as usize];
+            for pass in 0..k * k {
+                let o = jitter(k, pass);
+                assert!(o.x >= -0.5 && o.x < 0.5 && o.y >= -0.5 && o.y < 0.5);
+                let sx = ((o.x + 0.5) * k as f32).floor() as u32;
+                let sy = ((o.y + 0.5) * k as f32).floor() as u32;
+                let i = (sy * k + sx) as usize;
+                assert!(!seen[i], "k = {k}: stratum {i} twice");
+                seen[i] = true;
+            }
+        }
+    }
+
+    #[test]
+    fn light_turns_keep_distance_and_kind() {
+        let mut s = Settings::new(MethodSpec::defaults(), ViewName::Grazing);
+        let before = s.lighting.light;
+        s.turn_light(0.3, -0.2);
+        let after = s.lighting.light;
+        assert_eq!(after.w, before.w);
+        assert!((after.truncate().length() - before.truncate().length()).abs() < 1e-4);
+        s.turn_light(-0.3, 0.2);
+        assert!((s.lighting.light - before).length() < 1e-4);
+    }
+
+    #[test]
+    fn far_view_light_mirrors_the_eye() {
+        let (_, camera, lighting) = ViewName::Far.scene();
+        let e = camera.eye().normalize();
+        let h = (e + lighting.light.truncate()).normalize();
+        assert!(h.dot(Vec3::Y) > 0.9999);
+    }
+}

@@ -1,0 +1,142 @@
+//! The viewer's screenshot paths, run as the command: headless frames (method, reference, split
+//! screen) and the comparison strip through EGL/OSMesa, and the windowed route when an X server
+//! is at hand (`DISPLAY` set, e.g. under `xvfb-run`; skipped otherwise — scripts/test does not
+//! install one). `NDFMAP_SKIP_GL=1` skips them all, like the other GL tests.
+
+use std::path::Path;
+use std::process::Command;
+
+const W: u32 = 96;
+const H: u32 = 64;
+
+fn skip_gl() -> bool {
+    let skip = std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1");
+    if skip {
+        println!("skipped: NDFMAP_SKIP_GL=1");
+    }
+    skip
+}
+
+/// Runs the viewer with a small built-in sample, a small image and 2 × 2 reference passes.
+fn viewer(args: &[&str], out: &Path) {
+    let status = Command::new(env!("CARGO_BIN_EXE_ndfmap-viewer"))
+        .args([
+            "--sample-size",
+            "64",
+            "--ss",
+            "2",
+            "--size",
+            &format!("{W}x{H}"),
+        ])
+        .args(args)
+        .arg("--screenshot")
+        .arg(out)
+        .env("MESA_SHADER_CACHE_DISABLE", "true")
+        .status()
+        .expect("the viewer runs");
+    assert!(status.success(), "ndfmap-viewer {args:?} failed");
+}
+
+fn load(path: &Path) -> image::RgbImage {
+    image::open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .into_rgb8()
+}
+
+/// Mean absolute difference of two images over the columns `columns`, per channel code.
+fn difference(a: &image::RgbImage, b: &image::RgbImage, columns: std::ops::Range<u32>) -> f64 {
+    let (mut sum, mut n) = (0u64, 0u64);
+    for y in 0..a.height() {
+        for x in columns.clone() {
+            for c in 0..3 {
+                sum += a.get_pixel(x, y)[c].abs_diff(b.get_pixel(x, y)[c]) as u64;
+                n += 1;
+            }
+        }
+    }
+    sum as f64 / n as f64
+}
+
+fn lit_fraction(img: &image::RgbImage) -> f64 {
+    let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 8)).count();
+    lit as f64 / (img.width() * img.height()) as f64
+}
+
+#[test]
+fn headless_split_screen_shows_the_method_left_and_the_reference_right() {
+    if skip_gl() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    // The far view with the plane close enough to fill the middle of the image.
+    let common = [
+        "--headless",
+        "--view",
+        "far",
+        "--method",
+        "plain",
+        "--no-color",
+    ];
+    viewer(&common, &path("method.png"));
+    viewer(
+        &[&common[..], &["--reference"]].concat(),
+        &path("reference.png"),
+    );
+    viewer(&[&common[..], &["--split"]].concat(), &path("split.png"));
+    let (method, reference, split) = (
+        load(&path("method.png")),
+        load(&path("reference.png")),
+        load(&path("split.png")),
+    );
+    for img in [&method, &reference, &split] {
+        assert_eq!(img.dimensions(), (W, H));
+        assert!(lit_fraction(img) > 0.02, "the image is (nearly) black");
+    }
+    let half = W / 2;
+    // Left of the divider (column half − 1) the split is the method, right of it the reference.
+    assert_eq!(difference(&split, &method, 0..half - 1), 0.0);
+    assert_eq!(difference(&split, &reference, half..W), 0.0);
+    assert!(
+        split.get_pixel(half - 1, H / 2).0.iter().all(|&c| c == 255),
+        "a white divider"
+    );
+    // And the two halves differ: plain MIP-mapping is not the supersampled reference.
+    let d = difference(&method, &reference, half..W);
+    assert!(d > 0.5, "method and reference agree (mean difference {d})");
+}
+
+#[test]
+fn compare_writes_the_methods_and_the_reference_side_by_side() {
+    if skip_gl() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("compare.png");
+    viewer(&["--compare", "--methods", "plain,vmf2a"], &out);
+    let img = load(&out);
+    // Three panels (plain, vmf2a, reference) and two 4-pixel gaps.
+    assert_eq!(img.dimensions(), (3 * W + 2 * 4, H));
+    let panel = |i: u32| image::imageops::crop_imm(&img, i * (W + 4), 0, W, H).to_image();
+    for i in 0..3 {
+        assert!(lit_fraction(&panel(i)) > 0.02, "panel {i} is black");
+    }
+    assert!(difference(&panel(0), &panel(1), 0..W) > 0.5);
+}
+
+#[test]
+fn window_route_draws_into_the_window_under_an_x_server() {
+    if skip_gl() {
+        return;
+    }
+    if std::env::var_os("DISPLAY").is_none() {
+        println!("skipped: DISPLAY is not set (run under xvfb-run to test the window)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("window.png");
+    viewer(&["--frames", "2", "--split", "--method", "toksvig"], &out);
+    let img = load(&out);
+    assert_eq!(img.dimensions(), (W, H));
+    assert!(lit_fraction(&img) > 0.02, "the window's frame is black");
+}
