@@ -442,6 +442,82 @@ pub fn render_filtered_with(scene: &Scene, bake: &Bake, manual: bool) -> Image {
     }
 }
 
+/// The *ideal* NDF method under GL's sampling (the floor every filtered render shares): at
+/// each pixel centre, the same LOD, levels, bilinear taps and weights as hardware trilinear
+/// filtering, but each tap texel's value is the exact average of the unfiltered shading over
+/// the finest normals its square covers, estimated with `n × n` stratified samples per texel
+/// (`samples_per_texel` rounded up to a square; nearest finest normal, as the ground truth).
+/// Its difference from the ground truth is the error of GL's footprint (bilinear taps over two
+/// levels, a square texel grid) against the box pixel, which no per-texel NDF can remove. For
+/// sizes that are not powers of two the texel squares approximate [`crate::pyramid`]'s exact
+/// footprints.
+pub fn render_oracle(scene: &Scene, map: &NormalMap, samples_per_texel: u32, seed: u64) -> Image {
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let sizes = crate::pyramid::level_sizes(map.width(), map.height());
+    let n = (samples_per_texel.max(1) as f64).sqrt().ceil() as u32;
+    let mut pixels = vec![0.0f64; (w * h) as usize];
+    let mut coverage = vec![0.0f32; (w * h) as usize];
+    pixels
+        .par_chunks_mut(w as usize)
+        .zip(coverage.par_chunks_mut(w as usize))
+        .enumerate()
+        .for_each(|(y, (row, cov))| {
+            let mut rng = Rng(row_seed(seed ^ 0x6F72_6163_6C65, y as u32));
+            for (x, (px, c)) in row.iter_mut().zip(cov.iter_mut()).enumerate() {
+                let Some(g) = pixel_geometry(scene, x as u32, y as u32) else {
+                    continue;
+                };
+                let lambda = lod(g.duv_dx, g.duv_dy, sizes[0]);
+                let frames: Vec<(DVec3, DVec3, f64)> = scene
+                    .lights
+                    .iter()
+                    .map(|light| tangent_space(&g.hit, scene.camera.eye, light))
+                    .collect();
+                let mut sum = 0.0;
+                for (level, lw) in crate::sample::level_weights(lambda, sizes.len()) {
+                    let (lw_, lh_) = sizes[level];
+                    let xs = crate::pyramid::bilinear_taps(g.hit.uv.x, lw_, map.addressing());
+                    let ys = crate::pyramid::bilinear_taps(g.hit.uv.y, lh_, map.addressing());
+                    for &(ty, wy) in &ys {
+                        for &(tx, wx) in &xs {
+                            let weight = lw * wx * wy;
+                            if weight == 0.0 {
+                                continue;
+                            }
+                            let mut texel = 0.0;
+                            for sy in 0..n {
+                                for sx in 0..n {
+                                    let u = (tx as f64
+                                        + (sx as f64 + rng.range(0.0, 1.0)) / n as f64)
+                                        / lw_ as f64;
+                                    let v = (ty as f64
+                                        + (sy as f64 + rng.range(0.0, 1.0)) / n as f64)
+                                        / lh_ as f64;
+                                    let normal = nearest_normal(map, DVec2::new(u, v));
+                                    for &(l, hv, scale) in &frames {
+                                        let s = reference_brdf(normal, l, hv, scene.material.brdf);
+                                        texel += scale
+                                            * (scene.material.kd * s.diffuse
+                                                + scene.material.ks * s.specular);
+                                    }
+                                }
+                            }
+                            sum += weight * texel / (n * n) as f64;
+                        }
+                    }
+                }
+                *px = sum;
+                *c = 1.0;
+            }
+        });
+    Image {
+        width: w,
+        height: h,
+        pixels,
+        coverage,
+    }
+}
+
 /// Pixels where both images are fully covered (edge pixels of the ground truth are partly
 /// covered, a difference of antialiasing, not of filtering).
 pub fn common_mask(a: &Image, b: &Image) -> Vec<bool> {
@@ -681,6 +757,44 @@ mod tests {
             // The vMF κ cap (s/κ_max) and f32 storage are far below the pixel-integration term.
             assert!(e < 2e-3, "{method}: {e}");
         }
+    }
+
+    #[test]
+    fn oracle_of_a_flat_map_is_the_filtered_render_and_tends_to_the_footprint_average() {
+        let flat = NormalMap::from_vectors(
+            16,
+            16,
+            vec![Vec3::Z; 256],
+            Addressing::Wrap,
+            BadNormals::Repair,
+        )
+        .unwrap();
+        let scene = head_on(1.5, 16);
+        let oracle = render_oracle(&scene, &flat, 4, 3);
+        let plain = render_filtered(&scene, &bake(&flat, Method::Plain));
+        let mask = common_mask(&oracle, &plain);
+        assert!(relative_rmse(&plain, &oracle, &mask) < 1e-12);
+        // Bumpy map, Lambert only, a directional light: the tap texels' exact averages are the
+        // mean of n·l over their squares, which Olano–North's E[n]·l reproduces exactly when
+        // no normal faces away from the light (n·l > 0 everywhere: max() is inactive).
+        let bumpy = crate::procedural::generate(16, 9).map;
+        let l = DVec3::new(0.1, 0.05, 1.0).normalize();
+        assert!(bumpy.normals().iter().all(|n| n.as_dvec3().dot(l) > 0.0));
+        let mut scene = head_on(1.5, 16);
+        scene.lights = vec![Light::Directional {
+            direction: l,
+            radiance: 1.0,
+        }];
+        scene.material = Material {
+            kd: 1.0,
+            ks: 0.0,
+            brdf: Brdf::BlinnPhong { s: 1.0 },
+        };
+        let oracle = render_oracle(&scene, &bumpy, 1024, 5);
+        let olano = render_filtered(&scene, &bake(&bumpy, Method::Olano));
+        let mask = common_mask(&oracle, &olano);
+        let e = relative_rmse(&olano, &oracle, &mask);
+        assert!(e < 2e-3, "{e}");
     }
 
     #[test]

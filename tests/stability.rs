@@ -92,28 +92,34 @@ fn algorithm_2_divides_by_alpha_only_behind_the_guard() {
             assert_eq!((out.diffuse, out.specular), (0.0, 0.0));
         }
     }
-    // A vMF bake whose lobes are empty at a texel (identical normals: one lobe takes all).
-    let map = NormalMap::from_vectors(
-        4,
-        4,
-        vec![Vec3::new(0.1, 0.2, 0.97); 16],
-        Addressing::Wrap,
-        BadNormals::Repair,
-    )
-    .unwrap();
-    let b = bake_with(
+    // A lobe quantized away: a tiny α (here 10⁻³) rounds to 0 in unorm8 while the biased α·r
+    // decodes to a small non-zero vector — the 0/0 of line 8 in a real bake.
+    let map = ndfmap::procedural::generate(16, 4).map;
+    let mut b = bake_with(
         &map,
         Method::Vmf,
         &BakeOptions {
-            lobes: 4,
+            lobes: 3,
             ..Default::default()
         },
     )
     .unwrap();
-    let texel = b.texel(1, 0, 0);
-    assert!(texel.iter().any(|t| t[0] == 0.0), "some lobe is empty: {texel:?}");
-    let s = shade_brdf(&b, &texel, DVec3::Z, DVec3::Z, Brdf::BlinnPhong { s: 64.0 });
-    assert!(s.diffuse.is_finite() && s.specular.is_finite());
+    for t in &mut b.textures[2].levels[1] {
+        *t = [1e-3, 0.6e-3, -0.5e-3, 0.6e-3];
+    }
+    let q = quantize(&b, Format::Unorm8).unwrap();
+    let t = q.texel(1, 0, 0);
+    assert_eq!(t[2][0], 0.0, "α quantized to 0");
+    assert!(t[2][1..].iter().any(|&v| v != 0.0), "α·r is not: {:?}", t[2]);
+    let naive = {
+        let r = Vec3::new(t[2][1], t[2][2], t[2][3]) / t[2][0];
+        r.length()
+    };
+    assert!(!naive.is_finite(), "the naive version fails: |r| = {naive}");
+    for brdf in [Brdf::BlinnPhong { s: 64.0 }, Brdf::TorranceSparrow { sigma: 0.1 }] {
+        let s = shade_brdf(&q, &t, DVec3::Z, DVec3::Z, brdf);
+        assert!(s.diffuse.is_finite() && s.specular.is_finite() && s.specular >= 0.0);
+    }
 }
 
 #[test]

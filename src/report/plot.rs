@@ -111,6 +111,10 @@ fn scatter<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc(x_desc)
         .y_desc(y_desc)
+        .y_labels(12)
+        .x_labels(12)
+        .y_label_formatter(&|y| format!("{y:.3}"))
+        .x_label_formatter(&|x| format!("{x}"))
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|e| e.to_string())?;
@@ -130,19 +134,13 @@ fn scatter<DB: DrawingBackend>(
         }
         let on_front = front.contains(&i);
         let colour = if on_front { RED } else { BLUE };
+        let style = ("sans-serif", 12).into_font().color(&BLACK);
         chart
-            .draw_series(std::iter::once(Circle::new(
-                (p.x, p.y),
-                4,
-                colour.filled(),
-            )))
-            .map_err(|e| e.to_string())?;
-        chart
-            .draw_series(std::iter::once(Text::new(
-                p.label.clone(),
-                (p.x, p.y),
-                ("sans-serif", 11).into_font().color(&BLACK),
-            )))
+            .draw_series(std::iter::once(
+                EmptyElement::at((p.x, p.y))
+                    + Circle::new((0, 0), 4, colour.filled())
+                    + Text::new(p.label.clone(), (6, -6), style),
+            ))
             .map_err(|e| e.to_string())?;
     }
     chart
@@ -178,6 +176,8 @@ fn levels_chart<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("MIP level (texel space) / centre λ (image space)")
         .y_desc("relative RMS error")
+        .y_labels(12)
+        .y_label_formatter(&|y| format!("{y:.3}"))
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|e| e.to_string())?;
