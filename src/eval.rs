@@ -154,15 +154,7 @@ pub fn evaluate_from(
             }
         }
     }
-    let rel = |num: f64, den: f64| {
-        if den > 0.0 {
-            (num / den).sqrt()
-        } else if num > 0.0 {
-            f64::INFINITY
-        } else {
-            0.0
-        }
-    };
+    let rel = relative_rms;
     let mut out = Vec::new();
     for (b, bake) in bakes.iter().enumerate() {
         for (si, &brdf) in brdfs.iter().enumerate() {
@@ -200,6 +192,18 @@ pub fn evaluate_from(
         }
     }
     out
+}
+
+/// `sqrt(num/den)` for sums `num = Σ(F − G)²`, `den = ΣG²`: infinite when the reference is
+/// zero but the estimate is not, 0 when both are.
+pub fn relative_rms(num: f64, den: f64) -> f64 {
+    if den > 0.0 {
+        (num / den).sqrt()
+    } else if num > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    }
 }
 
 /// Formats errors as plain-text tables, one per exponent: a row per level, a diffuse and a

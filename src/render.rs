@@ -228,6 +228,14 @@ pub struct Material {
     pub brdf: Brdf,
 }
 
+impl Material {
+    /// `scale · (K_d · diffuse + K_s · specular)`: a light's contribution (the shader's
+    /// `ndf_light_color * falloff * (ndf_kd * d + ndf_ks * s)`).
+    pub fn radiance(&self, scale: f64, diffuse: f64, specular: f64) -> f64 {
+        scale * (self.kd * diffuse + self.ks * specular)
+    }
+}
+
 /// One view: camera, surface, lights and material.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Scene {
@@ -320,8 +328,7 @@ pub fn lod_image(scene: &Scene, size: (u32, u32)) -> Vec<f64> {
     let (w, h) = (scene.camera.width, scene.camera.height);
     (0..w * h)
         .map(|i| {
-            pixel_geometry(scene, i % w, i / w)
-                .map_or(f64::NAN, |g| lod(g.duv_dx, g.duv_dy, size))
+            pixel_geometry(scene, i % w, i / w).map_or(f64::NAN, |g| lod(g.duv_dx, g.duv_dy, size))
         })
         .collect()
 }
@@ -350,9 +357,40 @@ fn row_seed(seed: u64, row: u32) -> u64 {
 /// pixel is their mean (misses count as 0, and as uncovered). Deterministic for `seed`, whatever
 /// the thread count.
 pub fn render_ground_truth(scene: &Scene, map: &NormalMap, spp: u32, seed: u64) -> Image {
-    let (w, h) = (scene.camera.width, scene.camera.height);
     let n = (spp.max(1) as f64).sqrt().ceil() as u32;
     let count = (n * n) as f64;
+    render_rows(scene, seed, |x, y, rng| {
+        let (mut sum, mut hits) = (0.0f64, 0u32);
+        for sy in 0..n {
+            for sx in 0..n {
+                let fx = x as f64 + (sx as f64 + rng.range(0.0, 1.0)) / n as f64;
+                let fy = y as f64 + (sy as f64 + rng.range(0.0, 1.0)) / n as f64;
+                let (o, d) = scene.camera.ray(fx, fy);
+                let Some(hit) = scene.surface.intersect(o, d) else {
+                    continue;
+                };
+                hits += 1;
+                let normal = nearest_normal(map, hit.uv);
+                for light in &scene.lights {
+                    let (l, hv, scale) = tangent_space(&hit, scene.camera.eye, light);
+                    let s = reference_brdf(normal, l, hv, scene.material.brdf);
+                    sum += scene.material.radiance(scale, s.diffuse, s.specular);
+                }
+            }
+        }
+        Some((sum / count, hits as f32 / count as f32))
+    })
+}
+
+/// Renders every pixel with `pixel(x, y, rng)` → `(radiance, coverage)` (`None`: missed), rows
+/// in parallel, each row with its own generator seeded from `seed` and the row: the image is
+/// the same for any thread count.
+fn render_rows(
+    scene: &Scene,
+    seed: u64,
+    pixel: impl Fn(u32, u32, &mut Rng) -> Option<(f64, f32)> + Sync,
+) -> Image {
+    let (w, h) = (scene.camera.width, scene.camera.height);
     let mut pixels = vec![0.0f64; (w * h) as usize];
     let mut coverage = vec![0.0f32; (w * h) as usize];
     pixels
@@ -362,27 +400,10 @@ pub fn render_ground_truth(scene: &Scene, map: &NormalMap, spp: u32, seed: u64) 
         .for_each(|(y, (row, cov))| {
             let mut rng = Rng(row_seed(seed, y as u32));
             for (x, (px, c)) in row.iter_mut().zip(cov.iter_mut()).enumerate() {
-                let (mut sum, mut hits) = (0.0f64, 0u32);
-                for sy in 0..n {
-                    for sx in 0..n {
-                        let fx = x as f64 + (sx as f64 + rng.range(0.0, 1.0)) / n as f64;
-                        let fy = y as f64 + (sy as f64 + rng.range(0.0, 1.0)) / n as f64;
-                        let (o, d) = scene.camera.ray(fx, fy);
-                        let Some(hit) = scene.surface.intersect(o, d) else {
-                            continue;
-                        };
-                        hits += 1;
-                        let normal = nearest_normal(map, hit.uv);
-                        for light in &scene.lights {
-                            let (l, hv, scale) = tangent_space(&hit, scene.camera.eye, light);
-                            let s = reference_brdf(normal, l, hv, scene.material.brdf);
-                            sum += scale
-                                * (scene.material.kd * s.diffuse + scene.material.ks * s.specular);
-                        }
-                    }
+                if let Some((p, k)) = pixel(x as u32, y as u32, &mut rng) {
+                    *px = p;
+                    *c = k;
                 }
-                *px = sum / count;
-                *c = hits as f32 / count as f32;
             }
         });
     Image {
@@ -404,118 +425,81 @@ pub fn render_filtered(scene: &Scene, bake: &Bake) -> Image {
 /// [`render_filtered`] with the sampling mode given: `manual` shades the texels of the
 /// trilinear footprint and blends, otherwise the textures are sampled trilinearly.
 pub fn render_filtered_with(scene: &Scene, bake: &Bake, manual: bool) -> Image {
-    let (w, h) = (scene.camera.width, scene.camera.height);
     let size = bake.sizes[0];
     let f = Filtering {
         brdf: scene.material.brdf,
         manual,
         color: false,
     };
-    let mut pixels = vec![0.0f64; (w * h) as usize];
-    let mut coverage = vec![0.0f32; (w * h) as usize];
-    pixels
-        .par_chunks_mut(w as usize)
-        .zip(coverage.par_chunks_mut(w as usize))
-        .enumerate()
-        .for_each(|(y, (row, cov))| {
-            for (x, (px, c)) in row.iter_mut().zip(cov.iter_mut()).enumerate() {
-                let Some(g) = pixel_geometry(scene, x as u32, y as u32) else {
-                    continue;
-                };
-                let lambda = lod(g.duv_dx, g.duv_dy, size);
-                let mut sum = 0.0;
-                for light in &scene.lights {
-                    let (l, hv, scale) = tangent_space(&g.hit, scene.camera.eye, light);
-                    let s = shade_at(bake, g.hit.uv, lambda, l, hv, f);
-                    sum += scale
-                        * (scene.material.kd * s.diffuse.x + scene.material.ks * s.specular.x);
-                }
-                *px = sum;
-                *c = 1.0;
-            }
-        });
-    Image {
-        width: w,
-        height: h,
-        pixels,
-        coverage,
-    }
+    render_rows(scene, 0, |x, y, _| {
+        let g = pixel_geometry(scene, x, y)?;
+        let lambda = lod(g.duv_dx, g.duv_dy, size);
+        let mut sum = 0.0;
+        for light in &scene.lights {
+            let (l, hv, scale) = tangent_space(&g.hit, scene.camera.eye, light);
+            let s = shade_at(bake, g.hit.uv, lambda, l, hv, f);
+            sum += scene.material.radiance(scale, s.diffuse.x, s.specular.x);
+        }
+        Some((sum, 1.0))
+    })
 }
 
 /// The *ideal* NDF method under GL's sampling (the floor every filtered render shares): at
 /// each pixel centre, the same LOD, levels, bilinear taps and weights as hardware trilinear
-/// filtering, but each tap texel's value is the exact average of the unfiltered shading over
-/// the finest normals its square covers, estimated with `n × n` stratified samples per texel
-/// (`samples_per_texel` rounded up to a square; nearest finest normal, as the ground truth).
+/// filtering, but each tap texel's value is the average of the unfiltered shading over the
+/// finest normals its square covers: exact where the level-k texel covers at most
+/// `samples_per_texel` finest texels (`2^k × 2^k` strata, one per finest texel), otherwise
+/// estimated with `n × n` stratified samples (`samples_per_texel` rounded up to a square;
+/// nearest finest normal, as the ground truth). The estimate's noise adds to the measured floor
+/// at the far levels.
 /// Its difference from the ground truth is the error of GL's footprint (bilinear taps over two
 /// levels, a square texel grid) against the box pixel, which no per-texel NDF can remove. For
 /// sizes that are not powers of two the texel squares approximate [`crate::pyramid`]'s exact
 /// footprints.
 pub fn render_oracle(scene: &Scene, map: &NormalMap, samples_per_texel: u32, seed: u64) -> Image {
-    let (w, h) = (scene.camera.width, scene.camera.height);
     let sizes = crate::pyramid::level_sizes(map.width(), map.height());
     let n = (samples_per_texel.max(1) as f64).sqrt().ceil() as u32;
-    let mut pixels = vec![0.0f64; (w * h) as usize];
-    let mut coverage = vec![0.0f32; (w * h) as usize];
-    pixels
-        .par_chunks_mut(w as usize)
-        .zip(coverage.par_chunks_mut(w as usize))
-        .enumerate()
-        .for_each(|(y, (row, cov))| {
-            let mut rng = Rng(row_seed(seed ^ 0x6F72_6163_6C65, y as u32));
-            for (x, (px, c)) in row.iter_mut().zip(cov.iter_mut()).enumerate() {
-                let Some(g) = pixel_geometry(scene, x as u32, y as u32) else {
-                    continue;
-                };
-                let lambda = lod(g.duv_dx, g.duv_dy, sizes[0]);
-                let frames: Vec<(DVec3, DVec3, f64)> = scene
-                    .lights
-                    .iter()
-                    .map(|light| tangent_space(&g.hit, scene.camera.eye, light))
-                    .collect();
-                let mut sum = 0.0;
-                for (level, lw) in crate::sample::level_weights(lambda, sizes.len()) {
-                    let (lw_, lh_) = sizes[level];
-                    let xs = crate::pyramid::bilinear_taps(g.hit.uv.x, lw_, map.addressing());
-                    let ys = crate::pyramid::bilinear_taps(g.hit.uv.y, lh_, map.addressing());
-                    for &(ty, wy) in &ys {
-                        for &(tx, wx) in &xs {
-                            let weight = lw * wx * wy;
-                            if weight == 0.0 {
-                                continue;
+    render_rows(scene, seed ^ 0x6F72_6163_6C65, |x, y, rng| {
+        let g = pixel_geometry(scene, x, y)?;
+        let lambda = lod(g.duv_dx, g.duv_dy, sizes[0]);
+        let frames: Vec<(DVec3, DVec3, f64)> = scene
+            .lights
+            .iter()
+            .map(|light| tangent_space(&g.hit, scene.camera.eye, light))
+            .collect();
+        let mut sum = 0.0;
+        for (level, lw) in crate::sample::level_weights(lambda, sizes.len()) {
+            let (tw, th) = sizes[level];
+            // Strata per axis: one per finest texel while that is within the budget.
+            let n = n.min(1u32 << level.min(31));
+            let xs = crate::pyramid::bilinear_taps(g.hit.uv.x, tw, map.addressing());
+            let ys = crate::pyramid::bilinear_taps(g.hit.uv.y, th, map.addressing());
+            for &(ty, wy) in &ys {
+                for &(tx, wx) in &xs {
+                    let weight = lw * wx * wy;
+                    if weight == 0.0 {
+                        continue;
+                    }
+                    let mut texel = 0.0;
+                    for sy in 0..n {
+                        for sx in 0..n {
+                            let u = (tx as f64 + (sx as f64 + rng.range(0.0, 1.0)) / n as f64)
+                                / tw as f64;
+                            let v = (ty as f64 + (sy as f64 + rng.range(0.0, 1.0)) / n as f64)
+                                / th as f64;
+                            let normal = nearest_normal(map, DVec2::new(u, v));
+                            for &(l, hv, scale) in &frames {
+                                let s = reference_brdf(normal, l, hv, scene.material.brdf);
+                                texel += scene.material.radiance(scale, s.diffuse, s.specular);
                             }
-                            let mut texel = 0.0;
-                            for sy in 0..n {
-                                for sx in 0..n {
-                                    let u = (tx as f64
-                                        + (sx as f64 + rng.range(0.0, 1.0)) / n as f64)
-                                        / lw_ as f64;
-                                    let v = (ty as f64
-                                        + (sy as f64 + rng.range(0.0, 1.0)) / n as f64)
-                                        / lh_ as f64;
-                                    let normal = nearest_normal(map, DVec2::new(u, v));
-                                    for &(l, hv, scale) in &frames {
-                                        let s = reference_brdf(normal, l, hv, scene.material.brdf);
-                                        texel += scale
-                                            * (scene.material.kd * s.diffuse
-                                                + scene.material.ks * s.specular);
-                                    }
-                                }
-                            }
-                            sum += weight * texel / (n * n) as f64;
                         }
                     }
+                    sum += weight * texel / (n * n) as f64;
                 }
-                *px = sum;
-                *c = 1.0;
             }
-        });
-    Image {
-        width: w,
-        height: h,
-        pixels,
-        coverage,
-    }
+        }
+        Some((sum, 1.0))
+    })
 }
 
 /// Pixels where both images are fully covered (edge pixels of the ground truth are partly
@@ -538,13 +522,7 @@ pub fn relative_rmse(reference: &Image, test: &Image, mask: &[bool]) -> f64 {
             den += r * r;
         }
     }
-    if den > 0.0 {
-        (num / den).sqrt()
-    } else if num > 0.0 {
-        f64::INFINITY
-    } else {
-        0.0
-    }
+    crate::eval::relative_rms(num, den)
 }
 
 /// The exposure that maps `reference`'s 99th percentile of covered radiance to 0.95 under
@@ -628,6 +606,17 @@ mod tests {
             ks: 0.6,
             brdf: Brdf::BlinnPhong { s: 32.0 },
         }
+    }
+
+    fn flat_map() -> NormalMap {
+        NormalMap::from_vectors(
+            16,
+            16,
+            vec![Vec3::Z; 256],
+            Addressing::Wrap,
+            BadNormals::Repair,
+        )
+        .unwrap()
     }
 
     fn head_on(lambda: f64, size: u32) -> Scene {
@@ -728,8 +717,16 @@ mod tests {
             let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
             let fd_x = (uv_at(cx + 0.05, cy) - uv_at(cx - 0.05, cy)) * 10.0;
             let fd_y = (uv_at(cx, cy + 0.05) - uv_at(cx, cy - 0.05)) * 10.0;
-            assert!((fd_x - g.duv_dx).length() < 2e-3 * fd_x.length(), "{fd_x} {}", g.duv_dx);
-            assert!((fd_y - g.duv_dy).length() < 2e-3 * fd_y.length(), "{fd_y} {}", g.duv_dy);
+            assert!(
+                (fd_x - g.duv_dx).length() < 2e-3 * fd_x.length(),
+                "{fd_x} {}",
+                g.duv_dx
+            );
+            assert!(
+                (fd_y - g.duv_dy).length() < 2e-3 * fd_y.length(),
+                "{fd_y} {}",
+                g.duv_dy
+            );
         }
     }
 
@@ -738,14 +735,7 @@ mod tests {
         // A flat map has no filtering error: the supersampled reference (at full coverage) and
         // each method's filtered render agree up to shading's variation across the pixel
         // (smooth lighting: small) — and exactly at the pixel centre with 1 spp.
-        let map = NormalMap::from_vectors(
-            16,
-            16,
-            vec![Vec3::Z; 256],
-            Addressing::Wrap,
-            BadNormals::Repair,
-        )
-        .unwrap();
+        let map = flat_map();
         let scene = head_on(1.5, 16);
         let gt = render_ground_truth(&scene, &map, 64, 7);
         for method in Method::ALL {
@@ -761,14 +751,7 @@ mod tests {
 
     #[test]
     fn oracle_of_a_flat_map_is_the_filtered_render_and_tends_to_the_footprint_average() {
-        let flat = NormalMap::from_vectors(
-            16,
-            16,
-            vec![Vec3::Z; 256],
-            Addressing::Wrap,
-            BadNormals::Repair,
-        )
-        .unwrap();
+        let flat = flat_map();
         let scene = head_on(1.5, 16);
         let oracle = render_oracle(&scene, &flat, 4, 3);
         let plain = render_filtered(&scene, &bake(&flat, Method::Plain));
@@ -847,6 +830,10 @@ mod tests {
             },
         };
         let gt = render_ground_truth(&scene, &map, 4096, 1);
-        assert!((gt.pixels[0] - mean).abs() < 0.01 * mean, "{} {mean}", gt.pixels[0]);
+        assert!(
+            (gt.pixels[0] - mean).abs() < 0.01 * mean,
+            "{} {mean}",
+            gt.pixels[0]
+        );
     }
 }

@@ -598,7 +598,10 @@ mod tests {
         );
         for method in [Method::Vmf, Method::Tan2005] {
             let b = crate::bake::bake_with(&map, method, &opts).unwrap();
-            for brdf in [Brdf::BlinnPhong { s: 50.0 }, Brdf::TorranceSparrow { sigma: 0.2 }] {
+            for brdf in [
+                Brdf::BlinnPhong { s: 50.0 },
+                Brdf::TorranceSparrow { sigma: 0.2 },
+            ] {
                 for level in [0, 2] {
                     let t = b.texel(level, 1, 1);
                     let c = shade_rgb(&b, &t, l, h, brdf, true);

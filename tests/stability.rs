@@ -21,9 +21,18 @@ fn every_method_and_format_is_finite_non_negative_and_bounded_on_stiff_cases() {
     eprintln!("{}", ndfmap::report::stability::markdown(&s));
     let configs = 7;
     assert_eq!(s.cases.len(), 10);
-    assert_eq!(s.outcomes.len(), s.cases.len() * configs * Format::ALL.len());
+    assert_eq!(
+        s.outcomes.len(),
+        s.cases.len() * configs * Format::ALL.len()
+    );
     for o in &s.outcomes {
-        assert!(o.bake_error.is_none(), "{} {}: {:?}", o.case, o.config, o.bake_error);
+        assert!(
+            o.bake_error.is_none(),
+            "{} {}: {:?}",
+            o.case,
+            o.config,
+            o.bake_error
+        );
         if let Some(why) = &o.skipped {
             // Only LEAN's and Tan's unbounded moments are refused, and only by unorm formats.
             assert!(
@@ -37,8 +46,16 @@ fn every_method_and_format_is_finite_non_negative_and_bounded_on_stiff_cases() {
             continue;
         }
         assert!(o.checked > 0);
-        assert_eq!(o.nonfinite, 0, "{} {} {}: NaN/inf", o.case, o.config, o.format);
-        assert_eq!(o.negative, 0, "{} {} {}: negative", o.case, o.config, o.format);
+        assert_eq!(
+            o.nonfinite, 0,
+            "{} {} {}: NaN/inf",
+            o.case, o.config, o.format
+        );
+        assert_eq!(
+            o.negative, 0,
+            "{} {} {}: negative",
+            o.case, o.config, o.format
+        );
         assert!(
             o.over_peak == 0 && o.max_peak_ratio <= PEAK_BOUND,
             "{} {} {}: {} above the peak, max ratio {}",
@@ -48,16 +65,16 @@ fn every_method_and_format_is_finite_non_negative_and_bounded_on_stiff_cases() {
             o.over_peak,
             o.max_peak_ratio
         );
-        if !ENERGY_EXEMPT.contains(&o.family.as_str()) {
-            if let Some(e) = o.max_energy_ratio {
-                assert!(
-                    e <= 1.0 + ENERGY_BOUND,
-                    "{} {} {}: energy {e}",
-                    o.case,
-                    o.config,
-                    o.format
-                );
-            }
+        if !ENERGY_EXEMPT.contains(&o.family.as_str())
+            && let Some(e) = o.max_energy_ratio
+        {
+            assert!(
+                e <= 1.0 + ENERGY_BOUND,
+                "{} {} {}: energy {e}",
+                o.case,
+                o.config,
+                o.format
+            );
         }
         assert!(o.ok());
     }
@@ -110,13 +127,20 @@ fn algorithm_2_divides_by_alpha_only_behind_the_guard() {
     let q = quantize(&b, Format::Unorm8).unwrap();
     let t = q.texel(1, 0, 0);
     assert_eq!(t[2][0], 0.0, "α quantized to 0");
-    assert!(t[2][1..].iter().any(|&v| v != 0.0), "α·r is not: {:?}", t[2]);
+    assert!(
+        t[2][1..].iter().any(|&v| v != 0.0),
+        "α·r is not: {:?}",
+        t[2]
+    );
     let naive = {
         let r = Vec3::new(t[2][1], t[2][2], t[2][3]) / t[2][0];
         r.length()
     };
     assert!(!naive.is_finite(), "the naive version fails: |r| = {naive}");
-    for brdf in [Brdf::BlinnPhong { s: 64.0 }, Brdf::TorranceSparrow { sigma: 0.1 }] {
+    for brdf in [
+        Brdf::BlinnPhong { s: 64.0 },
+        Brdf::TorranceSparrow { sigma: 0.1 },
+    ] {
         let s = shade_brdf(&q, &t, DVec3::Z, DVec3::Z, brdf);
         assert!(s.diffuse.is_finite() && s.specular.is_finite() && s.specular >= 0.0);
     }
@@ -150,7 +174,10 @@ fn kappa_from_an_f16_mean_length_is_clamped_to_what_f16_can_hold() {
             let t = q.texel(level, 0, 0);
             for s in [1.0, 512.0, 1e6] {
                 let out = shade_brdf(&q, &t, DVec3::Z, DVec3::Z, Brdf::BlinnPhong { s });
-                assert!(out.specular.is_finite() && out.specular >= 0.0, "{format} s={s}");
+                assert!(
+                    out.specular.is_finite() && out.specular >= 0.0,
+                    "{format} s={s}"
+                );
                 assert!(out.specular <= PEAK_BOUND * (s + 1.0) / (2.0 * PI));
                 // The κ cap keeps the lobe sharp but finite: s' = κs/(κ+s) ≤ κ_max(format).
                 let kmax = kappa_banerjee(r_max(format));
@@ -194,7 +221,10 @@ fn toksvig_from_a_two_channel_mean_loses_the_roughness_the_three_channel_mean_ke
     let exact = blinn_phong(c60 as f64, s) * c60 as f64;
     let naive = blinn_phong(1.0, naive_s);
     let guarded = shade_brdf(&b, &t, DVec3::Z, DVec3::Z, Brdf::BlinnPhong { s }).specular;
-    assert!(naive > 10.0, "naive 2-channel Toksvig keeps the full highlight: {naive}");
+    assert!(
+        naive > 10.0,
+        "naive 2-channel Toksvig keeps the full highlight: {naive}"
+    );
     assert!(
         guarded < 0.2 * naive && (guarded - exact).abs() < 0.1 * naive,
         "the 3-channel mean widens it: {guarded} (exact {exact})"
@@ -216,7 +246,10 @@ fn toksvig_from_a_two_channel_mean_loses_the_roughness_the_three_channel_mean_ke
     )
     .unwrap();
     let n = m.normal(0, 0);
-    assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-5 && n.z >= 0.0, "{n}");
+    assert!(
+        n.is_finite() && (n.length() - 1.0).abs() < 1e-5 && n.z >= 0.0,
+        "{n}"
+    );
 }
 
 /// The shaders' vMF lobe in f32 (glsl/ndf_vmf.glsl + ndf_common.glsl): decode, κ with the
@@ -224,7 +257,8 @@ fn toksvig_from_a_two_channel_mean_loses_the_roughness_the_three_channel_mean_ke
 fn vmf_lobe_f32(theta: [f32; 4], l: Vec3, h: Vec3, s: f32, r_max: f32) -> (f32, f32) {
     let alpha = theta[0];
     let (mut mu, mut kappa) = (Vec3::Z, 0.0f32);
-    if !(alpha > 0.0) {
+    // GLSL's `!(alpha > 0.0)`: NaN and non-positive α are empty lobes.
+    if alpha.is_nan() || alpha <= 0.0 {
         return (0.0, 0.0);
     }
     let r = Vec3::new(theta[1], theta[2], theta[3]) / alpha;
@@ -263,7 +297,16 @@ fn f32_shader_math_agrees_with_the_f64_cpu_path_on_extreme_lobes() {
         (DVec3::X, -DVec3::X),
     ];
     let mut worst = 0.0f64;
-    for &r_len in &[0.0, 1e-7, 0.3, 0.9, 0.999, 1.0 - 2f64.powi(-11), R_MAX, 1.0 + 1e-3] {
+    for &r_len in &[
+        0.0,
+        1e-7,
+        0.3,
+        0.9,
+        0.999,
+        1.0 - 2f64.powi(-11),
+        R_MAX,
+        1.0 + 1e-3,
+    ] {
         for &alpha in &[1e-6f64, 0.25, 1.0] {
             let dir = DVec3::new(0.2, -0.1, 0.97).normalize();
             let r = dir * r_len;
@@ -289,7 +332,9 @@ fn f32_shader_math_agrees_with_the_f64_cpu_path_on_extreme_lobes() {
                         // practical exponents; at s = 10⁶ only finiteness and the peak bound.
                         let peak = alpha * (s + 1.0) / (2.0 * PI);
                         let err = (d64.specular - s32 as f64).abs() / peak;
-                        assert!((d64.diffuse - d32 as f64).abs() <= 1e-5 * alpha.max(1e-30) + 1e-12);
+                        assert!(
+                            (d64.diffuse - d32 as f64).abs() <= 1e-5 * alpha.max(1e-30) + 1e-12
+                        );
                         assert!(s32 as f64 <= PEAK_BOUND * peak);
                         if s <= 1e4 {
                             worst = worst.max(err);
@@ -316,9 +361,12 @@ fn degenerate_sizes_bake_every_method_with_gl_chains() {
             let b = bake(&case.map, method);
             assert_eq!(b.sizes, want, "{} {method}", case.name);
             assert!(
-                b.textures
+                b.textures.iter().all(|t| t
+                    .levels
                     .iter()
-                    .all(|t| t.levels.iter().flatten().flatten().all(|v| v.is_finite())),
+                    .flatten()
+                    .flatten()
+                    .all(|v| v.is_finite())),
                 "{} {method}",
                 case.name
             );

@@ -209,10 +209,14 @@ fn parse_line(line: &str) -> Option<Instruction> {
     } else {
         (None, &toks[..])
     };
-    let pos = rest
-        .iter()
-        .position(|t| t.chars().all(|c| c.is_ascii_alphanumeric()) && t.starts_with(|c: char| c.is_ascii_uppercase()))?;
-    let op = rest[pos].strip_prefix("Op").unwrap_or(rest[pos]).to_string();
+    let pos = rest.iter().position(|t| {
+        t.chars().all(|c| c.is_ascii_alphanumeric())
+            && t.starts_with(|c: char| c.is_ascii_uppercase())
+    })?;
+    let op = rest[pos]
+        .strip_prefix("Op")
+        .unwrap_or(rest[pos])
+        .to_string();
     Some(Instruction {
         result,
         op,
@@ -253,10 +257,10 @@ pub fn count_spirv(text: &str) -> SpirvCounts {
                 );
             }
             "Constant" => {
-                if let (Some(r), Some(v)) = (&ins.result, operands.last()) {
-                    if let Ok(v) = v.parse::<i64>() {
-                        constants.insert(r.clone(), v);
-                    }
+                if let (Some(r), Some(v)) = (&ins.result, operands.last())
+                    && let Ok(v) = v.parse::<i64>()
+                {
+                    constants.insert(r.clone(), v);
                 }
             }
             "Function" => {
@@ -285,10 +289,10 @@ pub fn count_spirv(text: &str) -> SpirvCounts {
                     items.push(Item::Fetch);
                 } else if ALU_OPS.contains(&op) {
                     items.push(Item::Alu);
-                    if matches!(op, "SLessThan" | "ULessThan") {
-                        if let Some(b) = operands.last() {
-                            items.push(Item::Compare(id_of(b)));
-                        }
+                    if matches!(op, "SLessThan" | "ULessThan")
+                        && let Some(b) = operands.last()
+                    {
+                        items.push(Item::Compare(id_of(b)));
                     }
                 }
             }
@@ -341,10 +345,10 @@ fn cost_of(
             }
             Item::LoopStart(merge) => stack.push((merge.clone(), None, SpirvCounts::default())),
             Item::Compare(b) => {
-                if let Some(s) = stack.last_mut() {
-                    if s.1.is_none() {
-                        s.1 = constants.get(b).copied();
-                    }
+                if let Some(s) = stack.last_mut()
+                    && s.1.is_none()
+                {
+                    s.1 = constants.get(b).copied();
                 }
             }
             Item::Label(l) => {
@@ -370,6 +374,36 @@ fn cost_of(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spirv_fetch_counts_match_the_sampling_formula() {
+        // Needs glslangValidator (Debian glslang-tools); skipped without it.
+        if Command::new("glslangValidator")
+            .arg("--version")
+            .output()
+            .is_err()
+        {
+            eprintln!("skipped: glslangValidator not found");
+            return;
+        }
+        let map = crate::procedural::generate(8, 1).map;
+        for (method, lobes, align) in [
+            (crate::bake::Method::Vmf, 2, None),
+            (crate::bake::Method::Vmf, 3, Some(0.1)),
+            (crate::bake::Method::Tan2005, 2, None),
+            (crate::bake::Method::Olano, 0, None),
+        ] {
+            let opts = crate::bake::BakeOptions {
+                lobes: lobes.max(1),
+                align,
+                ..Default::default()
+            };
+            let b = crate::bake::bake_with(&map, method, &opts).unwrap();
+            let c = shader_cost(&b);
+            assert_eq!(c.spirv_fetches, Some(c.fetches), "{method} {lobes}: {c:?}");
+            assert!(c.alu.is_some_and(|a| a > 10), "{c:?}");
+        }
+    }
 
     #[test]
     fn loops_multiply_and_calls_inline() {

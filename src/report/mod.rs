@@ -99,7 +99,7 @@ impl Default for ReportOptions {
             tan_lobes: vec![4],
             formats: vec![Format::F32, Format::F16, Format::Unorm8],
             image_formats: vec![Format::F32, Format::F16],
-            oracle_samples: 16,
+            oracle_samples: 64,
             zoom_lods: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
             directions_step: 3,
             images: ImageSet::Some,
@@ -199,6 +199,15 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
     };
     let fov = 30.0;
     let tile = 1.0;
+    // Every view: square, 30° field of view, +z up.
+    let camera = |eye: DVec3, target: DVec3| Camera {
+        eye,
+        target,
+        up: DVec3::Z,
+        fov_y_deg: fov,
+        width: px,
+        height: px,
+    };
     let mut out = Vec::new();
     for &lambda in &options.zoom_lods {
         let tilt = 30f64.to_radians();
@@ -206,14 +215,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
         let eye = DVec3::new(0.0, -d * tilt.sin(), d * tilt.cos());
         out.push(Scene {
             name: format!("zoom{lambda}"),
-            camera: Camera {
-                eye,
-                target: DVec3::ZERO,
-                up: DVec3::Z,
-                fov_y_deg: fov,
-                width: px,
-                height: px,
-            },
+            camera: camera(eye, DVec3::ZERO),
             surface: Surface::Plane { tile },
             lights: vec![
                 Light::Point {
@@ -234,14 +236,10 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
     let h = d * elev.sin();
     out.push(Scene {
         name: "grazing".into(),
-        camera: Camera {
-            eye: DVec3::new(0.0, 0.0, h),
-            target: DVec3::new(0.0, d * elev.cos(), 0.0),
-            up: DVec3::Z,
-            fov_y_deg: fov,
-            width: px,
-            height: px,
-        },
+        camera: camera(
+            DVec3::new(0.0, 0.0, h),
+            DVec3::new(0.0, d * elev.cos(), 0.0),
+        ),
         surface: Surface::Plane { tile },
         lights: vec![
             Light::Directional {
@@ -257,14 +255,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
     });
     out.push(Scene {
         name: "sphere".into(),
-        camera: Camera {
-            eye: DVec3::new(0.0, -4.5, 1.0),
-            target: DVec3::ZERO,
-            up: DVec3::Z,
-            fov_y_deg: fov,
-            width: px,
-            height: px,
-        },
+        camera: camera(DVec3::new(0.0, -4.5, 1.0), DVec3::ZERO),
         surface: Surface::Sphere {
             center: DVec3::ZERO,
             radius: 1.0,
@@ -433,20 +424,22 @@ pub enum Progress<'a> {
     Done,
 }
 
-/// Peak resident set size of this process (Linux `VmHWM`), bytes.
-pub fn peak_rss() -> Option<u64> {
+/// A `/proc/self/status` field in kB (Linux), as bytes.
+fn proc_status_bytes(key: &str) -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let line = status.lines().find(|l| l.starts_with(key))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
 }
 
+/// Peak resident set size of this process (Linux `VmHWM`), bytes.
+pub fn peak_rss() -> Option<u64> {
+    proc_status_bytes("VmHWM:")
+}
+
 /// Current resident set size (Linux `VmRSS`), bytes.
 fn rss() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    proc_status_bytes("VmRSS:")
 }
 
 /// Resets the kernel's peak-RSS counter (Linux), so [`peak_rss`] measures what follows.
@@ -471,7 +464,13 @@ pub fn save_rgb(path: &Path, width: u32, height: u32, rgb: Vec<u8>) -> Result<()
 
 /// FLIP (LDR, 67 pixels per degree) of tone-mapped `test` against tone-mapped `reference`:
 /// the mean over `mask` and the error map coloured with magma.
-pub fn flip(reference: &[u8], test: &[u8], width: u32, height: u32, mask: &[bool]) -> (f64, Vec<u8>) {
+pub fn flip(
+    reference: &[u8],
+    test: &[u8],
+    width: u32,
+    height: u32,
+    mask: &[bool],
+) -> (f64, Vec<u8>) {
     let r = nv_flip::FlipImageRgb8::with_data(width, height, reference);
     let t = nv_flip::FlipImageRgb8::with_data(width, height, test);
     let map = nv_flip::flip(r, t, nv_flip::DEFAULT_PIXELS_PER_DEGREE);
@@ -822,7 +821,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
         s,
         "**How it is measured.** Material: `{} · Lambert + {} · normalized Blinn-Phong`, s = {}. \
          *Texel space*: relative RMS error of the specular term against the exact footprint \
-         average, levels ≥ 1, {} light/view pairs (every {}-th of `eval`'s 27). *Image space*: \
+         average, levels ≥ 1, {} light/view pairs (one in {} of `eval`'s 27). *Image space*: \
          {}×{} views (a zoom sequence on a plane tilted 30° with the centre at λ = {}, a grazing \
          view, a sphere), each lit by a point and a directional light; ground truth by {} \
          jittered stratified samples per pixel of the unfiltered map (nearest finest normal, \
@@ -930,15 +929,22 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
                 r.texture_bytes as f64 / 1048576.0,
                 r.cost.fetches,
                 r.cost.alu.map_or("?".into(), |a| a.to_string()),
-                r.frame_ms
-                    .map_or("n/a".into(), |f| format!("{f:.2}")),
+                r.frame_ms.map_or("n/a".into(), |f| format!("{f:.2}")),
             );
         }
         let _ = writeln!(s);
         // Formats.
-        let formats: Vec<Format> = o.formats.iter().copied().filter(|f| *f != Format::F32).collect();
+        let formats: Vec<Format> = o
+            .formats
+            .iter()
+            .copied()
+            .filter(|f| *f != Format::F32)
+            .collect();
         if !formats.is_empty() {
-            let _ = write!(s, "Storage formats (texel err %, and image err % where rendered; Δ = minus f32):\n\n| config |");
+            let _ = write!(
+                s,
+                "Storage formats (texel err %, and image err % where rendered; Δ = minus f32):\n\n| config |"
+            );
             for f in &formats {
                 let _ = write!(s, " {f} texel | Δ texel |");
                 if o.image_formats.contains(f) {
@@ -999,12 +1005,76 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
     if let Some(st) = &report.stability {
         s += &stability::markdown(st);
     }
+    s += &gallery(report);
     if !plots.is_empty() {
         let _ = writeln!(s, "## Plots\n");
         for p in plots.iter().filter(|p| p.ends_with(".png")) {
             let _ = writeln!(s, "![{p}]({p})\n");
         }
     }
+    s
+}
+
+/// The views and configurations the gallery of [`markdown`] shows (first map).
+pub const GALLERY_VIEWS: [&str; 3] = ["zoom5", "grazing", "sphere"];
+
+/// Image files of the gallery, relative to the report folder: per view of
+/// [`GALLERY_VIEWS`], the ground truth, the ideal-NDF render, and renders and FLIP maps of
+/// toksvig, lean and vmf6a.
+pub fn gallery_files(report: &Report) -> Vec<(String, Vec<(String, String)>)> {
+    let Some(m) = report.maps.first() else {
+        return Vec::new();
+    };
+    if report.options.images == ImageSet::None {
+        return Vec::new();
+    }
+    GALLERY_VIEWS
+        .iter()
+        .filter(|v| m.views.iter().any(|w| &w.scene.name == *v))
+        .map(|v| {
+            let f = |stem: &str| format!("images/{}/{v}_{stem}.png", m.name);
+            let files = vec![
+                ("ground truth".to_string(), f("ground_truth")),
+                ("ideal NDF (floor)".to_string(), f("ideal")),
+                ("vmf6a".to_string(), f("vmf6a")),
+                ("toksvig".to_string(), f("toksvig")),
+                ("lean".to_string(), f("lean")),
+                ("vmf6a FLIP".to_string(), f("vmf6a_flip")),
+                ("toksvig FLIP".to_string(), f("toksvig_flip")),
+            ];
+            (v.to_string(), files)
+        })
+        .collect()
+}
+
+fn gallery(report: &Report) -> String {
+    use std::fmt::Write;
+    let rows = gallery_files(report);
+    if rows.is_empty() {
+        return String::new();
+    }
+    let mut s = format!(
+        "## Images ({})\n\nTone-mapped `1 − e^(−k·x)` with one exposure per view (the ground \
+         truth's 99th percentile at 0.95); FLIP maps in magma (black = no visible \
+         difference).\n\n",
+        report.maps[0].name
+    );
+    let _ = writeln!(
+        s,
+        "| view | {} |",
+        rows[0]
+            .1
+            .iter()
+            .map(|c| c.0.as_str())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let _ = writeln!(s, "|---|{}", "---|".repeat(rows[0].1.len()));
+    for (view, row) in &rows {
+        let cells: Vec<String> = row.iter().map(|(l, f)| format!("![{l}]({f})")).collect();
+        let _ = writeln!(s, "| {view} | {} |", cells.join(" | "));
+    }
+    s.push('\n');
     s
 }
 
@@ -1026,7 +1096,8 @@ fn targets(report: &Report) -> String {
             get("toksvig", Format::F32),
             get("lean", Format::F32),
         );
-        let ratio = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| a / b);
+        let ratio =
+            |a: Option<f64>, b: Option<f64>| a.zip(b).and_then(|(a, b)| (b > 0.0).then(|| a / b));
         let (rt, rl) = (ratio(v, t), ratio(v, l));
         let f16 = find(report, &m.name, "vmf6a", Format::F16)
             .and_then(|r| r.image_rmse())
@@ -1062,7 +1133,10 @@ fn targets(report: &Report) -> String {
             ));
         }
         if f16.is_some_and(|d| d.abs() >= 0.005) {
-            shortfalls.push(format!("{}: f16 changes vmf6a's image error by ≥ 0.5 %", m.name));
+            shortfalls.push(format!(
+                "{}: f16 changes vmf6a's image error by ≥ 0.5 %",
+                m.name
+            ));
         }
     }
     let _ = writeln!(

@@ -190,7 +190,9 @@ fn levels_chart<DB: DrawingBackend>(
             ))
             .map_err(|e| e.to_string())?
             .label(label.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
+            });
     }
     // The best configuration at each level (the lower envelope: the per-level Pareto choice).
     let mut best: Vec<(f64, f64)> = Vec::new();
@@ -232,8 +234,12 @@ const H: u32 = 700;
 fn both(
     out: &Path,
     stem: &str,
-    draw_png: impl Fn(DrawingArea<BitMapBackend, plotters::coord::Shift>) -> std::result::Result<(), String>,
-    draw_svg: impl Fn(DrawingArea<SVGBackend, plotters::coord::Shift>) -> std::result::Result<(), String>,
+    draw_png: impl Fn(
+        DrawingArea<BitMapBackend, plotters::coord::Shift>,
+    ) -> std::result::Result<(), String>,
+    draw_svg: impl Fn(
+        DrawingArea<SVGBackend, plotters::coord::Shift>,
+    ) -> std::result::Result<(), String>,
 ) -> Result<Vec<String>> {
     let png = out.join(format!("{stem}.png"));
     let svg = out.join(format!("{stem}.svg"));
@@ -251,10 +257,22 @@ fn both(
 }
 
 /// Mean of `f` over the maps for each configuration and format (rows of every map present).
-fn aggregate(report: &Report, format: Format, f: impl Fn(&Row) -> Option<f64>) -> Vec<(String, f64, &Row)> {
+fn aggregate(
+    report: &Report,
+    format: Format,
+    f: impl Fn(&Row) -> Option<f64>,
+) -> Vec<(String, f64, &Row)> {
     let mut out: Vec<(String, f64, &Row)> = Vec::new();
-    let first_map = report.maps.first().map(|m| m.name.clone()).unwrap_or_default();
-    for r in report.rows.iter().filter(|r| r.format == format && r.map == first_map) {
+    let first_map = report
+        .maps
+        .first()
+        .map(|m| m.name.clone())
+        .unwrap_or_default();
+    for r in report
+        .rows
+        .iter()
+        .filter(|r| r.format == format && r.map == first_map)
+    {
         let vals: Vec<f64> = report
             .rows
             .iter()
@@ -262,7 +280,11 @@ fn aggregate(report: &Report, format: Format, f: impl Fn(&Row) -> Option<f64>) -
             .filter_map(&f)
             .collect();
         if !vals.is_empty() {
-            out.push((r.config.clone(), vals.iter().sum::<f64>() / vals.len() as f64, r));
+            out.push((
+                r.config.clone(),
+                vals.iter().sum::<f64>() / vals.len() as f64,
+                r,
+            ));
         }
     }
     out
@@ -317,25 +339,30 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
             "ALU instructions per pixel (SPIR-V, loops weighted)",
             with(&|r| r.cost.alu.map(|a| a as f64)),
         ),
-        ("error_vs_texture_memory", "Error against texture memory", "texture MiB (all levels)", {
-            // f32 and every rendered narrower format: formats trade memory for error.
-            let mut pts = Vec::new();
-            for &format in &report.options.image_formats {
-                let errs = aggregate(report, format, row_error);
-                for (label, e, r) in errs {
-                    pts.push(Point {
-                        label: if format == Format::F32 {
-                            label
-                        } else {
-                            format!("{label} {format}")
-                        },
-                        x: r.texture_bytes as f64 / 1048576.0,
-                        y: e,
-                    });
+        (
+            "error_vs_texture_memory",
+            "Error against texture memory",
+            "texture MiB (all levels)",
+            {
+                // f32 and every rendered narrower format: formats trade memory for error.
+                let mut pts = Vec::new();
+                for &format in &report.options.image_formats {
+                    let errs = aggregate(report, format, row_error);
+                    for (label, e, r) in errs {
+                        pts.push(Point {
+                            label: if format == Format::F32 {
+                                label
+                            } else {
+                                format!("{label} {format}")
+                            },
+                            x: r.texture_bytes as f64 / 1048576.0,
+                            y: e,
+                        });
+                    }
                 }
-            }
-            pts
-        }),
+                pts
+            },
+        ),
     ];
     for (stem, title, x_desc, points) in &charts {
         files.extend(both(
@@ -346,7 +373,16 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
         )?);
     }
     // Error against MIP level: texel space per level, image space per zoom view's centre λ.
-    let show = ["plain", "toksvig", "lean", "olano", "tan2005-4", "vmf6", "vmf6a", "vmf8"];
+    let show = [
+        "plain",
+        "toksvig",
+        "lean",
+        "olano",
+        "tan2005-4",
+        "vmf6",
+        "vmf6a",
+        "vmf8",
+    ];
     let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     for (label, _, r) in aggregate(report, Format::F32, |r| Some(r.texel_specular)) {
         if !show.contains(&label.as_str()) {
@@ -361,7 +397,10 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
                     .filter(|o| o.config == r.config && o.format == Format::F32)
                     .filter_map(|o| o.texel_levels.get(k).copied())
                     .collect();
-                (k as f64, vals.iter().sum::<f64>() / vals.len().max(1) as f64)
+                (
+                    k as f64,
+                    vals.iter().sum::<f64>() / vals.len().max(1) as f64,
+                )
             })
             .collect();
         series.push((format!("{label} (texel)"), pts));
@@ -369,8 +408,20 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
     files.extend(both(
         out,
         "error_vs_mip_level",
-        |root| levels_chart(root, "Texel-space specular error against MIP level", &series),
-        |root| levels_chart(root, "Texel-space specular error against MIP level", &series),
+        |root| {
+            levels_chart(
+                root,
+                "Texel-space specular error against MIP level",
+                &series,
+            )
+        },
+        |root| {
+            levels_chart(
+                root,
+                "Texel-space specular error against MIP level",
+                &series,
+            )
+        },
     )?);
     let mut image_series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     if let Some(first) = report.maps.first() {
@@ -403,8 +454,20 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
         files.extend(both(
             out,
             "image_error_vs_lod",
-            |root| levels_chart(root, "Image-space error along the zoom sequence", &image_series),
-            |root| levels_chart(root, "Image-space error along the zoom sequence", &image_series),
+            |root| {
+                levels_chart(
+                    root,
+                    "Image-space error along the zoom sequence",
+                    &image_series,
+                )
+            },
+            |root| {
+                levels_chart(
+                    root,
+                    "Image-space error along the zoom sequence",
+                    &image_series,
+                )
+            },
         )?);
     }
     Ok(files)
@@ -416,7 +479,14 @@ mod tests {
 
     #[test]
     fn pareto_front_keeps_only_undominated_points() {
-        let pts = [(1.0, 5.0), (2.0, 3.0), (3.0, 4.0), (4.0, 1.0), (0.5, 9.0), (5.0, 1.0)];
+        let pts = [
+            (1.0, 5.0),
+            (2.0, 3.0),
+            (3.0, 4.0),
+            (4.0, 1.0),
+            (0.5, 9.0),
+            (5.0, 1.0),
+        ];
         // (3,4) is dominated by (2,3); (5,1) by (4,1).
         assert_eq!(pareto_front(&pts), vec![4, 0, 1, 3]);
         assert!(pareto_front(&[(f64::NAN, 1.0)]).is_empty());

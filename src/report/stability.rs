@@ -50,8 +50,7 @@ fn map(w: u32, h: u32, f: impl Fn(u32, u32) -> Vec3) -> NormalMap {
     let v = (0..w as u64 * h as u64)
         .map(|i| f((i % w as u64) as u32, (i / w as u64) as u32))
         .collect();
-    NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair)
-        .expect("valid test map")
+    NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).expect("valid test map")
 }
 
 /// A bumpy but ordinary normal for texel (x, y): the shape content of the odd-sized maps.
@@ -197,7 +196,10 @@ pub fn directions() -> Vec<(DVec3, DVec3)> {
     d.push((DVec3::X, DVec3::Z));
     d.push((DVec3::X, -DVec3::X));
     d.push((DVec3::new(0.0, 0.6, -0.8), DVec3::new(0.0, -0.6, 0.8)));
-    d.push((DVec3::new(1.0, 0.0, 1e-12).normalize(), DVec3::new(-1.0, 0.0, 1e-12).normalize()));
+    d.push((
+        DVec3::new(1.0, 0.0, 1e-12).normalize(),
+        DVec3::new(-1.0, 0.0, 1e-12).normalize(),
+    ));
     d
 }
 
@@ -267,11 +269,13 @@ impl Outcome {
     pub fn ok(&self) -> bool {
         self.bake_error.is_none()
             && (self.skipped.is_some()
-            || (self.nonfinite == 0
-                && self.negative == 0
-                && self.over_peak == 0
-                && (ENERGY_EXEMPT.contains(&self.family.as_str())
-                    || self.max_energy_ratio.is_none_or(|e| e <= 1.0 + ENERGY_BOUND))))
+                || (self.nonfinite == 0
+                    && self.negative == 0
+                    && self.over_peak == 0
+                    && (ENERGY_EXEMPT.contains(&self.family.as_str())
+                        || self
+                            .max_energy_ratio
+                            .is_none_or(|e| e <= 1.0 + ENERGY_BOUND))))
     }
 }
 
@@ -502,7 +506,7 @@ pub fn demos() -> Vec<Demo> {
         guard_holds: s_guard < 2.0,
     });
     // 4. z reconstruction of a quantized 2-channel texel with x² + y² > 1 (unorm8 rounding).
-    let (x, y) = (255.0f32 / 255.0 * 2.0 - 1.0, 140.0f32 / 255.0 * 2.0 - 1.0);
+    let (x, y) = (1.0f32, 140.0f32 / 255.0 * 2.0 - 1.0); // the codes 255 and 140 decoded
     let naive_z = (1.0 - x * x - y * y).sqrt();
     let guarded_map = NormalMap::from_samples(
         "demo",
@@ -520,7 +524,10 @@ pub fn demos() -> Vec<Demo> {
         name: "z = sqrt(1 − x² − y²) of an unorm8 2-channel texel (255, 140)".into(),
         naive: format!("z = {naive_z}"),
         guarded: match &guarded_n {
-            Ok(n) => format!("ingest clamps and renormalizes: n = ({:.4}, {:.4}, {:.4})", n.x, n.y, n.z),
+            Ok(n) => format!(
+                "ingest clamps and renormalizes: n = ({:.4}, {:.4}, {:.4})",
+                n.x, n.y, n.z
+            ),
             Err(e) => format!("ingest error: {e}"),
         },
         naive_fails: !naive_z.is_finite(),
@@ -631,7 +638,10 @@ pub fn markdown(s: &Summary) -> String {
          typed error.\n"
     );
     let _ = writeln!(m, "Naive formulas against the guards:\n");
-    let _ = writeln!(m, "| computation | naive | guarded | naive fails | guard holds |");
+    let _ = writeln!(
+        m,
+        "| computation | naive | guarded | naive fails | guard holds |"
+    );
     let _ = writeln!(m, "|---|---|---|---|---|");
     for d in &s.demos {
         let _ = writeln!(
