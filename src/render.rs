@@ -28,11 +28,11 @@ use crate::sample::{Filtering, lod, shade_at};
 use crate::shade::{Brdf, half_vector, reference_brdf};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// A pinhole camera; pixel rows run top to bottom.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
     /// Eye position.
     pub eye: DVec3,
@@ -95,7 +95,7 @@ impl Hit {
 }
 
 /// The normal-mapped surface of a view.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum Surface {
     /// The infinite plane z = 0 seen from above, `u = x/tile`, `v = −y/tile` (so +u is +x and
@@ -177,7 +177,7 @@ impl Surface {
 }
 
 /// A light: direction and radiance scale at a point.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum Light {
     /// Parallel light arriving from `direction` (towards the light), radiance scale `radiance`.
@@ -218,7 +218,7 @@ impl Light {
 }
 
 /// `K_d · diffuse + K_s · specular` with the specular term's BRDF.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Material {
     /// Lambert weight.
     pub kd: f64,
@@ -237,7 +237,7 @@ impl Material {
 }
 
 /// One view: camera, surface, lights and material.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Scene {
     /// Short name (file names, tables).
     pub name: String,

@@ -771,12 +771,29 @@ struct ReportArgs {
     /// Skip the stability sweep.
     #[arg(long)]
     no_stability: bool,
+    /// Measure nothing: rewrite report.md and the plots from a report.json of an earlier run.
+    #[arg(long)]
+    from_json: Option<PathBuf>,
 }
 
 /// `ndfmap report`: measure, then write the report with a progress bar.
 #[cfg(feature = "report")]
 fn report(a: ReportArgs) -> Result<()> {
     use ndfmap::report::{ImageSet, MapInput, Progress, ReportOptions};
+    if let Some(path) = &a.from_json {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
+            path: path.clone(),
+            source,
+        })?;
+        let rep: ndfmap::report::Report =
+            serde_json::from_str(&text).map_err(|e| Error::Decode {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        ndfmap::report::write(&rep, &a.output)?;
+        println!("report: {}", a.output.join("report.md").display());
+        return Ok(());
+    }
     let formats =
         |v: &[String]| -> Result<Vec<Format>> { v.iter().map(|f| f.trim().parse()).collect() };
     let mut lobes_ok = a.lobes.clone();

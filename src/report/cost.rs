@@ -13,12 +13,12 @@
 
 use crate::bake::Bake;
 use crate::glsl::{ShaderOptions, ShaderSpec, Stage, manual_sampling, sampled_textures, source};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::process::Command;
 
 /// Per-pixel shading cost of one specialized shader.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ShaderCost {
     /// Texture sampling instructions per pixel (`textureLod` or `texelFetch`).
     pub fetches: u32,

@@ -18,7 +18,7 @@ use crate::eval::default_directions;
 use crate::ingest::{Addressing, BadNormals, NormalMap};
 use crate::shade::{Brdf, half_vector, reference_brdf, shade_brdf};
 use glam::{DVec3, Vec3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Peak bound: filtered Lambert ≤ 1 × this, specular ≤ the BRDF's peak × this.
@@ -217,7 +217,7 @@ pub fn hemisphere(n: usize) -> Vec<DVec3> {
 }
 
 /// One case × configuration × format.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Outcome {
     /// The case.
     pub case: String,
@@ -280,7 +280,7 @@ impl Outcome {
 }
 
 /// A naive formula that breaks on a stiff case, next to the library's guarded one.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Demo {
     /// What is computed.
     pub name: String,
@@ -295,7 +295,7 @@ pub struct Demo {
 }
 
 /// The sweep's results.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     /// Case names, in order.
     pub cases: Vec<String>,
@@ -550,8 +550,8 @@ pub fn markdown(s: &Summary) -> String {
          level): {} shading evaluations in {:.1} s; {} outcome(s) out of bounds. Bounds: \
          Lambert ≤ {PEAK_BOUND}, specular ≤ {PEAK_BOUND} × the unfiltered peak; energy at the \
          coarsest level ≤ {} × exact on maps of at most {ENERGY_MAX_TEXELS} texels (plain, \
-         LEAN and Tan 2005 exempt: their diffuse term shades the mean direction, which over- \
-         lights steep symmetric inputs — the modelling error NDF filtering removes, marked \
+         LEAN and Tan 2005 exempt: their diffuse term shades the mean direction, which \
+         over-lights steep symmetric inputs — the modelling error NDF filtering removes, marked \
          *(model)*).\n",
         s.cases.len(),
         configs(0).len(),
