@@ -127,6 +127,11 @@ enum Command {
         #[arg(long)]
         probe: bool,
     },
+    /// Measure error against run time for every method and storage format: texel-space and
+    /// image-space error (supersampled ground truth, relative RMSE and FLIP), bake time, peak
+    /// memory, texture bytes and shading cost; write report.md, report.json, plots and images.
+    #[cfg(feature = "report")]
+    Report(ReportArgs),
     /// Measure each method's texel-space error against the exact footprint average.
     Eval {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
@@ -553,6 +558,8 @@ fn run(cli: Cli) -> Result<()> {
             print!("{}", ndfmap::glsl::source_for(&spec, stage, &options)?);
         }
         Command::Demo { output, size } => demo(&output, size)?,
+        #[cfg(feature = "report")]
+        Command::Report(args) => report(args)?,
         Command::Bench {
             sizes,
             lobes,
@@ -714,6 +721,172 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
             serde_json::to_string_pretty(&rows).expect("rows serialize")
         );
     }
+    Ok(())
+}
+
+/// Options of `ndfmap report`.
+#[cfg(feature = "report")]
+#[derive(Args)]
+struct ReportArgs {
+    /// Normal maps (default: rock, bark, metal and facade .jpg from $NDFMAP_DATA or
+    /// ../shared/data/normalmaps/ when present, else the built-in sample).
+    maps: Vec<PathBuf>,
+    /// Output folder: report.md, report.json, plots (PNG, SVG), images/.
+    #[arg(short, long, default_value = "out/report")]
+    output: PathBuf,
+    /// Side of each rendered view, pixels.
+    #[arg(long, default_value_t = 256)]
+    size: u32,
+    /// Ground-truth samples per pixel.
+    #[arg(long, default_value_t = 256)]
+    spp: u32,
+    /// Samples per pixel of the second ground truth that estimates the first's Monte Carlo
+    /// error on one view (0 skips it).
+    #[arg(long, default_value_t = 1024)]
+    convergence_spp: u32,
+    /// vMF lobe counts, comma-separated (the full sweep, 1 to 8, takes about 1.6× as long).
+    #[arg(long, default_value = "1,2,4,6,8", value_delimiter = ',')]
+    lobes: Vec<usize>,
+    /// vMF alignments, comma-separated: `none` or a strength C.
+    #[arg(long, default_value = "none,0.1", value_delimiter = ',')]
+    align: Vec<String>,
+    /// Tan 2005 lobe counts, comma-separated (empty: none).
+    #[arg(long, default_value = "4", value_delimiter = ',')]
+    tan_lobes: Vec<usize>,
+    /// Storage formats measured in texel space, comma-separated.
+    #[arg(long, default_value = "f32,f16,unorm8", value_delimiter = ',')]
+    formats: Vec<String>,
+    /// Storage formats also rendered in image space, comma-separated.
+    #[arg(long, default_value = "f32,f16", value_delimiter = ',')]
+    image_formats: Vec<String>,
+    /// Blinn-Phong exponent of the material.
+    #[arg(short, long = "exponent", default_value_t = 128.0)]
+    s: f64,
+    /// Images to write: none, some (ground truth and a few methods), all.
+    #[arg(long, default_value = "some")]
+    images: String,
+    /// Side of the built-in sample when no map is found.
+    #[arg(long, default_value_t = 512)]
+    sample_size: u32,
+    /// Skip the stability sweep.
+    #[arg(long)]
+    no_stability: bool,
+    /// Measure nothing: rewrite report.md and the plots from a report.json of an earlier run.
+    #[arg(long)]
+    from_json: Option<PathBuf>,
+}
+
+/// `ndfmap report`: measure, then write the report with a progress bar.
+#[cfg(feature = "report")]
+fn report(a: ReportArgs) -> Result<()> {
+    use ndfmap::report::{ImageSet, MapInput, Progress, ReportOptions};
+    if let Some(path) = &a.from_json {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
+            path: path.clone(),
+            source,
+        })?;
+        let rep: ndfmap::report::Report =
+            serde_json::from_str(&text).map_err(|e| Error::Decode {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        ndfmap::report::write(&rep, &a.output)?;
+        println!("report: {}", a.output.join("report.md").display());
+        return Ok(());
+    }
+    let formats =
+        |v: &[String]| -> Result<Vec<Format>> { v.iter().map(|f| f.trim().parse()).collect() };
+    let mut lobes_ok = a.lobes.clone();
+    lobes_ok.extend(&a.tan_lobes);
+    if let Some(j) = lobes_ok
+        .iter()
+        .find(|j| !(1..=ndfmap::em::MAX_LOBES).contains(j))
+    {
+        return Err(Error::InvalidOption(format!(
+            "lobe count {j} (expected 1 to {})",
+            ndfmap::em::MAX_LOBES
+        )));
+    }
+    if !(8..=4096).contains(&a.size) || a.spp == 0 {
+        return Err(Error::InvalidOption(format!(
+            "--size {} / --spp {} (expected size 8 to 4096, spp > 0)",
+            a.size, a.spp
+        )));
+    }
+    check_exponents(&[a.s])?;
+    let options = ReportOptions {
+        image_size: a.size,
+        spp: a.spp,
+        convergence_spp: a.convergence_spp,
+        exponent: a.s,
+        lobes: a.lobes.clone(),
+        align: parse_align(&a.align)?,
+        tan_lobes: a.tan_lobes.clone(),
+        formats: formats(&a.formats)?,
+        image_formats: formats(&a.image_formats)?,
+        images: choice::<ImageSet>("images", &a.images, "none, some, all")?,
+        ..ReportOptions::default()
+    };
+    let mut maps = a.maps.clone();
+    if maps.is_empty() {
+        // $NDFMAP_DATA, else ../shared/data/normalmaps beside the current folder or beside
+        // the source tree this binary was built from.
+        let dir = std::env::var_os("NDFMAP_DATA")
+            .map(PathBuf::from)
+            .or_else(|| {
+                [
+                    PathBuf::from("../shared/data/normalmaps"),
+                    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/normalmaps"),
+                ]
+                .into_iter()
+                .find(|d| d.is_dir())
+            })
+            .unwrap_or_default();
+        maps = ["rock.jpg", "bark.jpg", "metal.jpg", "facade.jpg"]
+            .iter()
+            .map(|n| dir.join(n))
+            .filter(|p| p.exists())
+            .collect();
+    }
+    let inputs = if maps.is_empty() {
+        eprintln!(
+            "no maps given or found: using the built-in sample ({0}x{0})",
+            a.sample_size
+        );
+        vec![MapInput {
+            name: "sample".into(),
+            map: ndfmap::procedural::generate(a.sample_size.clamp(8, 4096), 2007).map,
+        }]
+    } else {
+        ndfmap::report::load_maps(&maps)?
+    };
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} eta {eta} {msg}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    let progress = |p: Progress| match p {
+        Progress::Total(n) => bar.set_length(n),
+        Progress::Step(s) => bar.set_message(s.to_string()),
+        Progress::Done => bar.inc(1),
+    };
+    let mut rep = ndfmap::report::run(&inputs, &options, &a.output, &progress)?;
+    if !a.no_stability {
+        progress(Progress::Step("stability sweep"));
+        rep.stability = Some(ndfmap::report::stability::sweep(true));
+        progress(Progress::Done);
+    }
+    bar.finish_and_clear();
+    ndfmap::report::write(&rep, &a.output)?;
+    println!(
+        "report: {} ({} rows, {:.0} s)",
+        a.output.join("report.md").display(),
+        rep.rows.len(),
+        rep.seconds
+    );
     Ok(())
 }
 
