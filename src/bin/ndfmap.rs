@@ -776,6 +776,19 @@ struct ReportArgs {
     from_json: Option<PathBuf>,
 }
 
+/// NVIDIA's FLIP (LDR, 67 pixels per degree) through `nv-flip`: per-pixel errors and the
+/// magma-coloured error map ([`ndfmap::report::FlipMetric`]).
+#[cfg(feature = "report")]
+fn flip_metric(reference: &[u8], test: &[u8], width: u32, height: u32) -> (Vec<f32>, Vec<u8>) {
+    let r = nv_flip::FlipImageRgb8::with_data(width, height, reference);
+    let t = nv_flip::FlipImageRgb8::with_data(width, height, test);
+    let map = nv_flip::flip(r, t, nv_flip::DEFAULT_PIXELS_PER_DEGREE);
+    (
+        map.to_vec(),
+        map.apply_color_lut(&nv_flip::magma_lut()).to_vec(),
+    )
+}
+
 /// `ndfmap report`: measure, then write the report with a progress bar.
 #[cfg(feature = "report")]
 fn report(a: ReportArgs) -> Result<()> {
@@ -873,7 +886,7 @@ fn report(a: ReportArgs) -> Result<()> {
         Progress::Step(s) => bar.set_message(s.to_string()),
         Progress::Done => bar.inc(1),
     };
-    let mut rep = ndfmap::report::run(&inputs, &options, &a.output, &progress)?;
+    let mut rep = ndfmap::report::run(&inputs, &options, &a.output, &progress, flip_metric)?;
     if !a.no_stability {
         progress(Progress::Step("stability sweep"));
         rep.stability = Some(ndfmap::report::stability::sweep(true));

@@ -489,19 +489,24 @@ pub fn save_rgb(path: &Path, width: u32, height: u32, rgb: Vec<u8>) -> Result<()
         .map_err(|e| write_err(path, e))
 }
 
-/// FLIP (LDR, 67 pixels per degree) of tone-mapped `test` against tone-mapped `reference`:
-/// the mean over `mask` and the error map coloured with magma.
-pub fn flip(
+/// A perceptual image metric: per-pixel error values of tone-mapped 8-bit RGB `test` against
+/// `reference` (both `width × height`, rows top first), and the error map as RGB for a person
+/// to look at. `ndfmap report` passes NVIDIA's FLIP (LDR, 67 pixels per degree, crate `nv-flip`,
+/// in the binary so that the library, and the C libraries built from it, carry no C++).
+pub type FlipMetric =
+    fn(reference: &[u8], test: &[u8], width: u32, height: u32) -> (Vec<f32>, Vec<u8>);
+
+/// `metric` of tone-mapped `test` against tone-mapped `reference`: the mean over `mask` and the
+/// error map.
+fn flip(
+    metric: FlipMetric,
     reference: &[u8],
     test: &[u8],
     width: u32,
     height: u32,
     mask: &[bool],
 ) -> (f64, Vec<u8>) {
-    let r = nv_flip::FlipImageRgb8::with_data(width, height, reference);
-    let t = nv_flip::FlipImageRgb8::with_data(width, height, test);
-    let map = nv_flip::flip(r, t, nv_flip::DEFAULT_PIXELS_PER_DEGREE);
-    let values = map.to_vec();
+    let (values, map) = metric(reference, test, width, height);
     let m = mean(
         values
             .iter()
@@ -510,7 +515,7 @@ pub fn flip(
             .map(|(&v, _)| v as f64),
     )
     .unwrap_or(0.0);
-    (m, map.apply_color_lut(&nv_flip::magma_lut()).to_vec())
+    (m, map)
 }
 
 /// Tone-mapped RGB of `image` with pixels outside `mask` taken from `fill` (so FLIP and the
@@ -531,7 +536,13 @@ fn file_label(label: &str) -> String {
 
 /// Compares a render with the ground truth of its view: the errors, the tone-mapped render
 /// (uncovered pixels from the ground truth) and the FLIP map.
-fn compare(scene: &Scene, gt: &Image, img: &Image, exposure: f64) -> (ViewError, Vec<u8>, Vec<u8>) {
+fn compare(
+    metric: FlipMetric,
+    scene: &Scene,
+    gt: &Image,
+    img: &Image,
+    exposure: f64,
+) -> (ViewError, Vec<u8>, Vec<u8>) {
     let mask = common_mask(gt, img);
     let nonfinite = img.pixels.iter().filter(|p| !p.is_finite()).count();
     let rel_rmse = relative_rmse(gt, img, &mask);
@@ -545,7 +556,7 @@ fn compare(scene: &Scene, gt: &Image, img: &Image, exposure: f64) -> (ViewError,
     };
     let gt_rgb = tonemap(gt, exposure);
     let test_rgb = masked_tonemap(img, gt, &mask, exposure);
-    let (flip_mean, flip_map) = flip(&gt_rgb, &test_rgb, gt.width, gt.height, &mask);
+    let (flip_mean, flip_map) = flip(metric, &gt_rgb, &test_rgb, gt.width, gt.height, &mask);
     (
         ViewError {
             view: scene.name.clone(),
@@ -566,6 +577,7 @@ pub fn run(
     options: &ReportOptions,
     out: &Path,
     progress: &(dyn Fn(Progress) + Sync),
+    metric: FlipMetric,
 ) -> Result<Report> {
     let start = Instant::now();
     let load_start = load_average();
@@ -615,7 +627,7 @@ pub fn run(
                     options.oracle_samples,
                     options.seed + 2000 + i as u64,
                 );
-                let (e, rgb, _) = compare(scene, &gt, &oracle, exp);
+                let (e, rgb, _) = compare(metric, scene, &gt, &oracle, exp);
                 if options.images != ImageSet::None {
                     let path = image_dir.join(format!("{}_ideal.png", scene.name));
                     save_rgb(&path, gt.width, gt.height, rgb)?;
@@ -713,7 +725,8 @@ pub fn run(
                 if rendered {
                     for (scene, (gt, exp)) in scenes.iter().zip(&truths) {
                         let img = render_filtered(scene, b);
-                        let (view_error, test_rgb, flip_map) = compare(scene, gt, &img, *exp);
+                        let (view_error, test_rgb, flip_map) =
+                            compare(metric, scene, gt, &img, *exp);
                         let write = match options.images {
                             ImageSet::None => false,
                             ImageSet::All => true,
