@@ -236,6 +236,12 @@ typedef struct ndf_baseline_options {
 } ndf_baseline_options;
 
 /**
+ * Which M-step maximizes the vMF coherence prior (Han et al. 2007, Sec 7.3 and appendix):
+ * one of `NDF_ALIGN_FORM_*`.
+ */
+typedef uint32_t ndf_align_form;
+
+/**
  * How vMF EM derives κ from the mean resultant length: one of `NDF_KAPPA_ESTIMATOR_*`.
  */
 typedef uint32_t ndf_kappa_estimator;
@@ -254,14 +260,19 @@ typedef struct ndf_vmf_options {
    */
   uint32_t lobes;
   /**
-   * Nonzero: coherent lobes (eq 23), so that hardware trilinear filtering of the lobe
+   * Nonzero: coherent lobes (Sec 7.3), so that hardware trilinear filtering of the lobe
    * textures is valid; 0 (default): each texel fitted on its own.
    */
   uint32_t aligned;
   /**
-   * Alignment strength C when `aligned`, finite and ≥ 0. Default 0.1.
+   * Alignment strength C when `aligned`, finite and ≥ 0. Default 1 (for eq 29; use about
+   * 0.1 with `NDF_ALIGN_FORM_MAIN_TEXT`).
    */
   double align_strength;
+  /**
+   * The alignment's M-step, `NDF_ALIGN_FORM_*`. Default `NDF_ALIGN_FORM_APPENDIX`.
+   */
+  ndf_align_form align_form;
   /**
    * Nonzero: approximate mode, levels 2 and coarser fitted to the lobes of the level below
    * (about 3.5× faster on a 1024² map, less accurate at coarse levels). Default 0.
@@ -545,6 +556,18 @@ typedef uint32_t ndf_shader_stage;
  * Unbounded: float formats only.
  */
 #define NDF_VALUE_RANGE_ANY 2
+
+/**
+ * Eq 29, the appendix: `mu_j = normalize(kappa_j alpha_j r_j + C sum_k alpha_jk mu_jk)`; sharp,
+ * heavy lobes stay on their normals. The default; C about 1.
+ */
+#define NDF_ALIGN_FORM_APPENDIX 0
+
+/**
+ * Eq 23, the main text: `mu_j = normalize(r_j + C sum_k alpha_jk mu_jk)`, the same pull for
+ * every lobe; C about 0.1.
+ */
+#define NDF_ALIGN_FORM_MAIN_TEXT 1
 
 /**
  * Banerjee's approximation `(3r − r³)/(1 − r²)` (the paper's; the shader inverts it). Default.

@@ -267,10 +267,14 @@ pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRa
 pub struct BakeOptions {
     /// Lobes per texel, J, 1 to [`crate::em::MAX_LOBES`] (default 6, the paper's choice).
     pub lobes: usize,
-    /// Coherent lobes for hardware interpolation (eq 23): `Some(C)` fits from the coarsest
+    /// Coherent lobes for hardware interpolation (Sec 7.3): `Some(C)` fits from the coarsest
     /// level down, pulling each lobe towards the same lobe of already-fitted neighbours with
-    /// strength C; `None` fits each texel on its own from the finest level up (unaligned).
+    /// strength C (vMF: see [`BakeOptions::align_form`]; Tan 2005: its prior's c); `None` fits
+    /// each texel on its own from the finest level up (unaligned).
     pub align: Option<f64>,
+    /// vMF: which M-step maximizes the coherence prior, eq 29 (the default, C ≈ 1) or eq 23
+    /// (C ≈ 0.1). Ignored without `align` and by Tan 2005.
+    pub align_form: crate::em::AlignmentForm,
     /// Approximate (fast) mode: levels 2 and coarser are fitted to the lobes of the level below
     /// (their mean vectors `A(κ)μ` weighted by α, hierarchical EM) instead of to every finest
     /// normal they cover. vMF only; Tan 2005 always fits the normals.
@@ -284,6 +288,7 @@ impl Default for BakeOptions {
         BakeOptions {
             lobes: 6,
             align: None,
+            align_form: crate::em::AlignmentForm::default(),
             approximate: false,
             em: crate::em::EmOptions::default(),
         }

@@ -1,7 +1,7 @@
 //! Spherical EM for the normals of ONE texel (Han et al. 2007, Sec 7.1 Algorithm 1, after
 //! Banerjee et al. 2005), with the extensions of Sec 7.3 and the Appendix: per-lobe colour or
-//! material features (eq 22, from eq 27) and coherent lobes for hardware interpolation (eq 23,
-//! the main-text form of eq 29).
+//! material features (eq 22, from eq 27) and coherent lobes for hardware interpolation (eq 29,
+//! and the main text's eq 23).
 //!
 //! The baker calls [`fit`] for every texel of every MIP level, so nothing is allocated once an
 //! [`EmScratch`] has warmed up, and results are deterministic: the same input and options give
@@ -22,9 +22,16 @@
 //!   through [`vmf::kappa_from_r`], the one clamp) or, optionally, the exact `A⁻¹`
 //!   ([`KappaEstimator`]). A lobe that wins no weight (`Σ_i w_i z_ij = 0`) gets `α_j = 0` and
 //!   keeps its previous μ and κ; it stays empty from then on (its `ln α_j = −∞`).
-//! - **Alignment** (eq 23): with an [`Alignment`], line 13 becomes
-//!   `μ_j ← normalize(r_j + C Σ_k α_jk μ_jk)`, while κ_j still comes from `|r_j|` (line 12, the
-//!   paper's choice).
+//! - **Alignment** (Sec 7.3 and the appendix): with an [`Alignment`], line 13 becomes the
+//!   maximization of the data term plus the coherence prior of eq 28. In the appendix's form
+//!   (eq 29, [`AlignmentForm::Appendix`], the default) that is
+//!   `μ_j ← normalize(κ_j α_j r_j + C Σ_k α_jk μ_jk)`, the data term being the texel's *mean*
+//!   log-likelihood (weights summing to 1, so `Σ_i w_i z_ij n_i = α_j r_j`); in the main text's
+//!   form (eq 23, [`AlignmentForm::MainText`]) `μ_j ← normalize(r_j + C Σ_k α_jk μ_jk)`, which is
+//!   eq 29 with `C' = C κ_j α_j` (the paper's "redefining C = C'/κ_j"). κ_j still comes from
+//!   `|r_j|` (line 12). The difference matters: under eq 23 a sharp lobe is pulled as hard as a
+//!   broad one, so it leaves the normals it explains; under eq 29 the pull on a lobe shrinks as
+//!   `1/(κ_j α_j)`.
 //! - **Initialization** (Sec 7.1): [`init_single`] for the finest level, [`farthest_first`]
 //!   (Hochbaum–Shmoys furthest-point clustering) to pick J lobes among the 4J lobes of the four
 //!   finer texels.
@@ -157,18 +164,80 @@ impl<'a> EmInput<'a> {
     }
 }
 
-/// The coherence term of eq 23 / eq 28: lobes of K neighbouring (already fitted) texels, and
-/// the strength C.
+/// Which maximization of the coherence prior (eq 28) replaces Algorithm 1's line 13.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AlignmentForm {
+    /// Eq 29, the appendix's M-step: `μ_j ← normalize(κ_j α_j r_j + C Σ_k α_jk μ_jk)` (the data
+    /// term as the texel's mean log-likelihood). The pull on a lobe shrinks as `1/(κ_j α_j)`, so
+    /// sharp, heavy lobes stay on their normals while broad or light ones line up. The default:
+    /// on the real maps it aligns lobes about as well as eq 23 and loses no texel-space
+    /// accuracy (see `docs/baker.md`). Recommended C ≈ 1.
+    #[default]
+    Appendix,
+    /// Eq 23, the main text's simplification: `μ_j ← normalize(r_j + C Σ_k α_jk μ_jk)`, the same
+    /// pull for every lobe. Recommended C ≈ 0.1.
+    MainText,
+}
+
+impl std::str::FromStr for AlignmentForm {
+    type Err = crate::error::Error;
+
+    /// `appendix` (or `eq29`), `main-text` (or `eq23`).
+    fn from_str(s: &str) -> crate::error::Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "appendix" | "eq29" => Ok(AlignmentForm::Appendix),
+            "main-text" | "main_text" | "eq23" => Ok(AlignmentForm::MainText),
+            other => Err(crate::error::Error::InvalidOption(format!(
+                "alignment form '{other}' (expected appendix (eq29) or main-text (eq23))"
+            ))),
+        }
+    }
+}
+
+impl AlignmentForm {
+    /// The form's name as [`std::str::FromStr`] reads it: `appendix` or `main-text`.
+    pub fn name(self) -> &'static str {
+        match self {
+            AlignmentForm::Appendix => "appendix",
+            AlignmentForm::MainText => "main-text",
+        }
+    }
+
+    /// The strength C a caller gets when it asks for alignment without giving one.
+    pub fn default_strength(self) -> f64 {
+        match self {
+            AlignmentForm::Appendix => 1.0,
+            AlignmentForm::MainText => 0.1,
+        }
+    }
+
+    /// The factor that multiplies `C Σ_k α_jk μ_jk` relative to `r_j` for a lobe of weight
+    /// `alpha` and concentration `kappa`: 1 for eq 23, `1/(κ α)` for eq 29 (∞ is avoided:
+    /// `κ α` is floored at the smallest normal f64, so a lobe with no data follows its
+    /// neighbours).
+    pub fn pull_scale(self, alpha: f64, kappa: f64) -> f64 {
+        match self {
+            AlignmentForm::MainText => 1.0,
+            AlignmentForm::Appendix => 1.0 / (kappa * alpha).max(f64::MIN_POSITIVE),
+        }
+    }
+}
+
+/// The coherence term of eq 28: lobes of K neighbouring (already fitted) texels, the strength
+/// C, and the form of the M-step that maximizes it ([`AlignmentForm`]).
 ///
 /// `neighbours[k]` is the lobe list of neighbour texel k; lobe `j` of this texel is pulled
-/// towards lobe `j` of every neighbour that has one: `μ_j ← normalize(r_j + C Σ_k α_jk μ_jk)`.
+/// towards lobe `j` of every neighbour that has one, by `C Σ_k α_jk μ_jk` ([`Alignment::pull`]).
 /// Empty (`α = 0`) or non-finite neighbour lobes contribute nothing.
 #[derive(Debug, Clone, Copy)]
 pub struct Alignment<'a> {
-    /// C in eq 23, ≥ 0. `r_j` has length ≤ 1, so C ≈ 0.1–1 is a moderate pull.
+    /// C in eq 23 / C' in eq 29, ≥ 0 (see [`AlignmentForm::default_strength`]).
     pub strength: f64,
     /// Lobes of the K neighbouring texels, matched to this texel's lobes by index.
     pub neighbours: &'a [&'a [Lobe]],
+    /// Eq 29 or eq 23.
+    pub form: AlignmentForm,
 }
 
 impl Alignment<'_> {
@@ -652,13 +721,14 @@ fn e_step_kernel<S: Simd>(blocks: &[Block], active: &Active) -> Sums {
     sums
 }
 
-/// The M-step (Algorithm 1 lines 9–14, with eq 23 for line 13 when `pull` is non-zero).
+/// The M-step (Algorithm 1 lines 9–14, with eq 29 or eq 23 for line 13 when `pull` is
+/// non-zero).
 fn m_step(
     lobes: &mut [Lobe],
     active: &Active,
     sums: &Sums,
     total: f64,
-    pull: &[DVec3; MAX_LOBES],
+    (pull, form): (&[DVec3; MAX_LOBES], AlignmentForm),
     estimator: KappaEstimator,
 ) {
     for l in lobes.iter_mut() {
@@ -674,8 +744,9 @@ fn m_step(
         l.alpha = wj / total; // line 10
         let r = DVec3::new(sums.moment[0][s], sums.moment[1][s], sums.moment[2][s]) / wj; // line 11
         l.kappa = estimator.kappa(r.length()); // line 12
-        if let Some(mu) = normalize_robust(r + pull[j]) {
-            l.mu = mu; // line 13 / eq 23
+        let scale = form.pull_scale(l.alpha, l.kappa);
+        if let Some(mu) = normalize_robust(r + pull[j] * scale) {
+            l.mu = mu; // line 13 / eq 23 / eq 29 (divided by κ_j α_j)
         }
     }
 }
@@ -687,7 +758,7 @@ fn m_step(
 /// `init` is sanitized first: negative/NaN α become 0 and the α are renormalized to sum 1
 /// (equal α if they are all 0), μ is normalized (+Z if zero), κ is clamped to
 /// `[0, KAPPA_MAX]`. Lobes starting with `α = 0` stay empty. With `alignment`, line 13 uses
-/// eq 23. The weighted log-likelihood of every E-step is left in
+/// eq 29 or eq 23 ([`AlignmentForm`]). The weighted log-likelihood of every E-step is left in
 /// [`EmScratch::log_likelihoods`].
 ///
 /// If no sample has positive weight, the sanitized `init` is returned with `iterations = 0`,
@@ -727,6 +798,7 @@ pub fn fit(
         }
     }
     let mut pull = [DVec3::ZERO; MAX_LOBES];
+    let form = alignment.map_or(AlignmentForm::MainText, |a| a.form);
     if let Some(a) = alignment {
         for (j, p) in pull.iter_mut().enumerate().take(j_count) {
             *p = a.pull(j);
@@ -760,7 +832,7 @@ pub fn fit(
             &active,
             &sums,
             total,
-            &pull,
+            (&pull, form),
             options.kappa_estimator,
         );
         iterations += 1;
@@ -1420,6 +1492,7 @@ mod tests {
             let align = Alignment {
                 strength: c,
                 neighbours: &neighbours,
+                form: AlignmentForm::MainText,
             };
             assert!((align.pull(0) - c * 2.4 * nb[0].mu).length() < 1e-12);
             assert_eq!(align.pull(1), DVec3::ZERO);
@@ -1438,19 +1511,97 @@ mod tests {
             // Lobe 1 has no neighbour lobe to follow and stays where the data put it.
             assert!(angle_deg(f.lobes()[1].mu, free.lobes()[1].mu) < 2.0);
         }
-        // C = 0 is the plain fit.
-        let align = Alignment {
-            strength: 0.0,
-            neighbours: &neighbours,
+        // C = 0 is the plain fit, in either form.
+        for form in [AlignmentForm::MainText, AlignmentForm::Appendix] {
+            let align = Alignment {
+                strength: 0.0,
+                neighbours: &neighbours,
+                form,
+            };
+            let f = fit(
+                &EmInput::new(&normals),
+                &init,
+                &opts,
+                Some(&align),
+                &mut scratch,
+            );
+            assert_eq!(f, free);
+        }
+    }
+
+    /// Eq 29 against its closed form: with one lobe every responsibility is 1, so r and κ do not
+    /// depend on μ and one M-step gives `μ = normalize(κ r + C P)` (α = 1), whatever μ started
+    /// as. Eq 23 gives `normalize(r + C P)`. A sharp lobe hardly moves under eq 29.
+    #[test]
+    fn appendix_alignment_matches_eq29() {
+        let mut rng = Rng(29);
+        let nb = [Lobe::new(0.7, dir(40.0, 30.0), 200.0)];
+        let neighbours: [&[Lobe]; 2] = [&nb, &nb];
+        let pull = 1.4 * nb[0].mu; // Σ_k α_k μ_k
+        let opts = EmOptions {
+            max_iterations: 1,
+            ..EmOptions::default()
         };
-        let f = fit(
-            &EmInput::new(&normals),
-            &init,
-            &opts,
-            Some(&align),
-            &mut scratch,
+        let mut scratch = EmScratch::new();
+        for kappa in [5.0, 50.0, 5000.0] {
+            let normals = sample_mixture(&mut rng, &[Lobe::new(1.0, DVec3::Z, kappa)], 2000);
+            let r = normals
+                .iter()
+                .map(|n| n.as_dvec3().normalize())
+                .sum::<DVec3>()
+                / normals.len() as f64;
+            let k = vmf::kappa_from_r(r.length());
+            for (form, c) in [
+                (AlignmentForm::Appendix, 2.0),
+                (AlignmentForm::MainText, 0.2),
+            ] {
+                let align = Alignment {
+                    strength: c,
+                    neighbours: &neighbours,
+                    form,
+                };
+                let init = [Lobe::new(1.0, dir(10.0, 200.0), 30.0)];
+                let f = fit(
+                    &EmInput::new(&normals),
+                    &init,
+                    &opts,
+                    Some(&align),
+                    &mut scratch,
+                );
+                let expected = match form {
+                    AlignmentForm::Appendix => (k * r + c * pull).normalize(),
+                    AlignmentForm::MainText => (r + c * pull).normalize(),
+                };
+                let l = f.lobes()[0];
+                assert!(angle_deg(l.mu, expected) < 1e-6, "{form:?} κ = {kappa}");
+                assert!((l.kappa - k).abs() <= 1e-7 * k, "{} vs {k}", l.kappa);
+                let moved = angle_deg(l.mu, r);
+                eprintln!("{form:?} C = {c}, κ = {kappa}: μ moved {moved:.4}° from r");
+                if form == AlignmentForm::Appendix && kappa >= 5000.0 {
+                    assert!(moved < 0.05, "a sharp lobe stays put under eq 29: {moved}°");
+                }
+            }
+        }
+        assert_eq!(
+            "eq29".parse::<AlignmentForm>().unwrap(),
+            AlignmentForm::Appendix
         );
-        assert_eq!(f, free);
+        assert_eq!(
+            "main-text".parse::<AlignmentForm>().unwrap(),
+            AlignmentForm::MainText
+        );
+        assert!("eq30".parse::<AlignmentForm>().is_err());
+        let (a, m) = (AlignmentForm::Appendix, AlignmentForm::MainText);
+        assert_eq!(m.pull_scale(0.5, 100.0), 1.0);
+        assert_eq!(a.pull_scale(0.5, 100.0), 0.02);
+        assert!(a.pull_scale(0.0, 0.0).is_finite());
+    }
+
+    #[test]
+    fn appendix_alignment_is_the_default() {
+        assert_eq!(AlignmentForm::default(), AlignmentForm::Appendix);
+        assert_eq!(AlignmentForm::Appendix.default_strength(), 1.0);
+        assert_eq!(AlignmentForm::MainText.default_strength(), 0.1);
     }
 
     #[test]

@@ -91,7 +91,7 @@ pub struct ShaderSpec {
     pub ranges: Vec<[ValueRange; 4]>,
     /// The storage format the textures are uploaded in.
     pub format: Format,
-    /// Whether the mixture's lobes were aligned (eq 23): decides [`Sampling::Auto`].
+    /// Whether the mixture's lobes were aligned (Sec 7.3): decides [`Sampling::Auto`].
     pub aligned: bool,
     /// The bake's addressing (wrap or clamp).
     pub addressing: Addressing,

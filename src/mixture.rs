@@ -8,7 +8,8 @@
 //! [`crate::em::farthest_first`]). A texel with no more normals than components gets the
 //! closed-form answer (one component per normal) without EM.
 //!
-//! **Aligned** (Sec 7.3, eq 23, the appendix's eq 29): after the unaligned pass, levels are
+//! **Aligned** (Sec 7.3, the appendix's eq 29 or the main text's eq 23): after the unaligned
+//! pass, levels are
 //! refitted from the coarsest down. Each texel starts from its own unaligned fit with its
 //! components moved to the slots of the parent's components they are closest to (so slot j keeps
 //! its meaning down the chain), and EM runs pulled, with strength C, towards slot j of the
@@ -16,13 +17,16 @@
 //! the parent. Scan-line order is kept exactly, yet texels run in parallel along wavefronts
 //! `x + 2y = const`, whose texels depend only on earlier wavefronts; the result is the same for
 //! any thread count. At the finest level the single normal goes, unpulled, to the parent's slot
-//! that explains it best (so level 0 stays exact).
+//! that explains it best (so level 0 stays exact). Under eq 29 a texel with no more normals than
+//! lobes (level 1) takes the closed form in the parent's slots: its lobes are as sharp as
+//! storable, so eq 29's pull, `C/(κα)`, would tilt them by under 10 µrad (texels
+//! where it could tilt more run EM).
 //!
 //! Colour (eq 22): with a feature image, each component also gets `y_j = Σ z_ij y_i / Σ z_ij`,
 //! stored as `α_j y_j`.
 
 use crate::bake::{Bake, BakeOptions, Format, Method, Progress, Texture, ValueRange};
-use crate::em::{self, Alignment, EmInput, EmOptions, EmScratch, MAX_LOBES};
+use crate::em::{self, Alignment, AlignmentForm, EmInput, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::ingest::NormalMap;
 use crate::pyramid::{AxisFootprints, LevelFootprints, level_sizes};
@@ -60,14 +64,20 @@ pub(crate) trait Model: Sync {
     fn log_score(c: &Self::C, n: Vec3) -> f64;
     /// Furthest-first initialization from candidate components (Sec 7.1).
     fn farthest_first(candidates: &[Self::C], j: usize) -> Vec<Self::C>;
-    /// One texel's EM from `init`, optionally pulled towards `neighbours` with `strength`.
+    /// One texel's EM from `init` (`options.em`), optionally pulled towards `neighbours` with
+    /// the strength (and, for vMF, the form) of `options`' alignment.
     fn fit(
         input: &EmInput,
         init: &[Self::C],
-        options: &EmOptions,
-        align: Option<(f64, &[&[Self::C]])>,
+        options: &BakeOptions,
+        neighbours: Option<&[&[Self::C]]>,
         scratch: &mut Self::Scratch,
     ) -> TexelFit<Self::C>;
+    /// Whether, in the aligned pass, a texel with no more samples than components, the
+    /// lightest of weight fraction `min_alpha`, may take the closed-form fit (one component
+    /// per sample) in its parent's slots instead of running the pulled EM: true when the pull
+    /// on such (maximally sharp) components is negligible.
+    fn closed_form_when_aligned(options: &BakeOptions, min_alpha: f64) -> bool;
     /// The component's texel.
     fn texel(c: &Self::C) -> [f64; 4];
     /// The component as a sample of the approximate mode: its mean vector, or `None` when the
@@ -118,21 +128,31 @@ impl Model for VmfModel {
     fn fit(
         input: &EmInput,
         init: &[Lobe],
-        options: &EmOptions,
-        align: Option<(f64, &[&[Lobe]])>,
+        options: &BakeOptions,
+        neighbours: Option<&[&[Lobe]]>,
         scratch: &mut EmScratch,
     ) -> TexelFit<Lobe> {
-        let alignment = align.map(|(strength, neighbours)| Alignment {
-            strength,
+        let alignment = neighbours.map(|neighbours| Alignment {
+            strength: options.align.unwrap_or(0.0),
             neighbours,
+            form: options.align_form,
         });
-        let f = em::fit(input, init, options, alignment.as_ref(), scratch);
+        let f = em::fit(input, init, &options.em, alignment.as_ref(), scratch);
         let lobes = f.lobes().to_vec();
         let texels = (0..lobes.len()).map(|j| f.texel(j)).collect();
         (lobes, f.features().to_vec(), texels)
     }
     fn texel(c: &Lobe) -> [f64; 4] {
         c.texel()
+    }
+    fn closed_form_when_aligned(options: &BakeOptions, min_alpha: f64) -> bool {
+        // Eq 29 tilts a lobe by at most atan(C |Σ_k α_jk μ_jk| / (κ α_j)) ≤ C K / (κ α_j), with
+        // K ≤ ALIGN_NEIGHBOURS lobes of α ≤ 1 pulling. The closed form's lobes have κ =
+        // KAPPA_MAX ≈ 4.2e6: with C = 1 and four normals per texel (α = 1/4) that is under
+        // 5 µrad. Eq 23 pulls every lobe alike, so it runs EM.
+        let c = options.align.unwrap_or(0.0);
+        options.align_form == AlignmentForm::Appendix
+            && c * ALIGN_NEIGHBOURS as f64 <= CLOSED_FORM_TILT * KAPPA_MAX * min_alpha
     }
     fn mean_vector(c: &Lobe) -> Option<Vec3> {
         let t = c.texel();
@@ -191,21 +211,24 @@ impl Model for TanModel {
     fn fit(
         input: &EmInput,
         init: &[Gaussian],
-        options: &EmOptions,
-        align: Option<(f64, &[&[Gaussian]])>,
+        options: &BakeOptions,
+        neighbours: Option<&[&[Gaussian]]>,
         scratch: &mut TanScratch,
     ) -> TexelFit<Gaussian> {
-        let alignment = align.map(|(strength, neighbours)| GaussianAlignment {
-            strength,
+        let alignment = neighbours.map(|neighbours| GaussianAlignment {
+            strength: options.align.unwrap_or(0.0),
             neighbours,
         });
-        let f = tan2005::fit(input, init, options, alignment.as_ref(), scratch);
+        let f = tan2005::fit(input, init, &options.em, alignment.as_ref(), scratch);
         let comps = f.gaussians().to_vec();
         let texels = (0..comps.len()).map(|i| f.texel(i)).collect();
         (comps, f.features().to_vec(), texels)
     }
     fn texel(c: &Gaussian) -> [f64; 4] {
         c.texel()
+    }
+    fn closed_form_when_aligned(_: &BakeOptions, _: f64) -> bool {
+        false // Tan's prior weighs the neighbours like samples: it moves even sharp Gaussians.
     }
     fn mean_vector(_: &Gaussian) -> Option<Vec3> {
         None
@@ -221,16 +244,20 @@ pub(crate) fn bake_tan2005(
     bake_mixture::<TanModel>(map, options, progress)
 }
 
-/// Components and colours of every texel of one level, `components[t * J + j]`.
+/// Components and colours of every texel of one level: `components[t * J + j]`, and per
+/// slot j the texture planes `texels[j][t]` and `colors[j][t]` laid out as the bake stores
+/// them (so [`assemble`] moves them without copying).
 struct LevelFit<C> {
     /// Empty for the finest level, whose components are the normals themselves (level 1 reads
     /// the normals directly).
     components: Vec<C>,
     keep_components: bool,
-    /// `α_j y_j` per component (eq 22), when a feature image is present, as stored (f32).
-    colors: Option<Vec<[f32; 4]>>,
-    /// The texel of each component, as its EM encodes it, as stored (f32).
-    texels: Vec<[f32; 4]>,
+    /// Per slot: `α_j y_j` of each texel (eq 22), when a feature image is present, as stored
+    /// (f32).
+    colors: Option<Vec<Vec<[f32; 4]>>>,
+    /// Per slot: the texel of each texel's component, as its EM encodes it, as stored (f32).
+    /// Empty when the pass's textures are not wanted (the unaligned pass of an aligned bake).
+    texels: Vec<Vec<[f32; 4]>>,
 }
 
 /// One texel's fit: its components, their eq 22 colours `y_j`, and their texels.
@@ -315,7 +342,7 @@ impl<M: Model> Gather<M> {
                     self.weights.push(a * wx * wy);
                     if let Some(colors) = &children.colors {
                         self.features
-                            .push(colors[p * j + s].map(|v| (v as f64 / a) as f32));
+                            .push(colors[s][p].map(|v| (v as f64 / a) as f32));
                     }
                 }
             }
@@ -340,12 +367,18 @@ impl<M: Model> Gather<M> {
         (comps, colors, texels)
     }
 
+    /// The smallest weight fraction `w_i / Σ w` among the collected samples (1 when none).
+    fn min_alpha(&self) -> f64 {
+        let total: f64 = self.weights.iter().sum();
+        self.weights.iter().fold(1.0_f64, |m, &w| m.min(w / total))
+    }
+
     /// Runs the model's EM on the collected samples.
     fn fit(
         &mut self,
         init: &[M::C],
         options: &BakeOptions,
-        align: Option<(f64, &[&[M::C]])>,
+        neighbours: Option<&[&[M::C]]>,
     ) -> TexelFit<M::C> {
         let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
         if !self.features.is_empty() {
@@ -354,7 +387,7 @@ impl<M: Model> Gather<M> {
         if self.mean_vectors {
             input = input.as_mean_vectors();
         }
-        M::fit(&input, init, &options.em, align, &mut self.scratch)
+        M::fit(&input, init, options, neighbours, &mut self.scratch)
     }
 }
 
@@ -382,13 +415,32 @@ fn check(options: &BakeOptions) -> Result<()> {
     Ok(())
 }
 
+/// `count` planes of `len` texels each, empty (reserved) or zeroed.
+fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]>> {
+    (0..count)
+        .map(|_| {
+            if zeroed {
+                vec![[0.0; 4]; len]
+            } else {
+                Vec::with_capacity(len)
+            }
+        })
+        .collect()
+}
+
 impl<C: Copy> LevelFit<C> {
-    fn with_capacity(n: usize, colors: bool) -> Self {
+    /// An empty level of `texels` texels of `j` components, to be filled by [`LevelFit::push`]:
+    /// with texture planes when `textures`, with colour planes when `colors`.
+    fn with_capacity(texels: usize, j: usize, textures: bool, colors: bool) -> Self {
         LevelFit {
-            components: Vec::with_capacity(n),
+            components: Vec::with_capacity(texels * j),
             keep_components: true,
-            colors: colors.then(|| Vec::with_capacity(n)),
-            texels: Vec::with_capacity(n),
+            colors: colors.then(|| planes(j, texels, false)),
+            texels: if textures {
+                planes(j, texels, false)
+            } else {
+                Vec::new()
+            },
         }
     }
 
@@ -396,15 +448,32 @@ impl<C: Copy> LevelFit<C> {
     fn push<M: Model<C = C>>(&mut self, fit: TexelFit<C>) {
         let (comps, colors, texels) = fit;
         if let Some(dst) = self.colors.as_mut() {
-            for (c, y) in comps.iter().zip(&colors) {
-                dst.push(y.map(|v| (M::alpha(c) * v) as f32));
+            for ((plane, c), y) in dst.iter_mut().zip(&comps).zip(&colors) {
+                plane.push(y.map(|v| (M::alpha(c) * v) as f32));
             }
         }
         if self.keep_components {
             self.components.extend_from_slice(&comps);
         }
-        self.texels
-            .extend(texels.iter().map(|t| t.map(|v| v as f32)));
+        for (plane, t) in self.texels.iter_mut().zip(&texels) {
+            plane.push(t.map(|v| v as f32));
+        }
+    }
+
+    /// Stores texel `t`'s result (colours become `α_j y_j`) into a level made with zeroed
+    /// planes.
+    fn set<M: Model<C = C>>(&mut self, t: usize, fit: TexelFit<C>) {
+        let (comps, colors, texels) = fit;
+        let j = comps.len();
+        self.components[t * j..(t + 1) * j].copy_from_slice(&comps);
+        for (plane, v) in self.texels.iter_mut().zip(&texels) {
+            plane[t] = v.map(|v| v as f32);
+        }
+        if let Some(dst) = self.colors.as_mut() {
+            for ((plane, c), y) in dst.iter_mut().zip(&comps).zip(&colors) {
+                plane[t] = y.map(|v| (M::alpha(c) * v) as f32);
+            }
+        }
     }
 }
 
@@ -414,24 +483,47 @@ fn finest_level<M: Model>(
     j: usize,
     slot_of: impl Fn(usize) -> usize + Sync,
 ) -> LevelFit<M::C> {
-    let n = map.normals().len();
-    let mut texels = vec![[0.0f32; 4]; n * j];
-    texels.par_chunks_mut(j).enumerate().for_each(|(t, out)| {
-        out[slot_of(t)] = M::texel(&M::single(map.normals()[t])).map(|v| v as f32);
-    });
-    // α = 1 in the slot: the colour texel is the feature itself; other slots are empty.
-    let colors = map.feature().map(|f| {
-        let mut c = vec![[0.0f32; 4]; n * j];
-        c.par_chunks_mut(j)
-            .enumerate()
-            .for_each(|(t, out)| out[slot_of(t)] = f[t]);
-        c
-    });
+    let slots: Vec<u8> = (0..map.normals().len())
+        .into_par_iter()
+        .map(|t| slot_of(t) as u8)
+        .collect();
+    // Plane s holds the texels whose slot is s; the others are empty (zero).
+    let fill = |value: &(dyn Fn(usize) -> [f32; 4] + Sync)| -> Vec<Vec<[f32; 4]>> {
+        (0..j)
+            .map(|s| {
+                slots
+                    .par_iter()
+                    .enumerate()
+                    .map(|(t, &slot)| {
+                        if slot as usize == s {
+                            value(t)
+                        } else {
+                            [0.0; 4]
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    };
+    let texels = fill(&|t| M::texel(&M::single(map.normals()[t])).map(|v| v as f32));
+    // α = 1 in the slot: the colour texel is the feature itself.
+    let colors = map.feature().map(|f| fill(&|t| f[t]));
     LevelFit {
         components: Vec::new(),
         keep_components: false,
         colors,
         texels,
+    }
+}
+
+/// The finest level of the unaligned pass of an aligned bake: nothing, since level 1 reads the
+/// normals directly and the aligned pass makes its own finest level.
+fn placeholder_level<C>() -> LevelFit<C> {
+    LevelFit {
+        components: Vec::new(),
+        keep_components: false,
+        colors: None,
+        texels: Vec::new(),
     }
 }
 
@@ -443,6 +535,15 @@ pub(crate) fn bake_vmf(
 ) -> Result<Bake> {
     bake_mixture::<VmfModel>(map, options, progress)
 }
+
+/// Most lobes that pull a texel's lobe in the aligned pass: its left, upper-left, upper and
+/// upper-right neighbours and its parent.
+const ALIGN_NEIGHBOURS: usize = 5;
+
+/// Largest tilt, in radians, that eq 29's pull may give a lobe of a texel that the aligned
+/// pass fits in closed form instead of by EM (well below what an f32 texel resolves at the
+/// storable κ: the lobe's angular radius `sqrt(2/KAPPA_MAX)` is 690 µrad).
+const CLOSED_FORM_TILT: f64 = 1e-5;
 
 /// Texels fitted in parallel between two progress reports of the unaligned pass.
 const PROGRESS_CHUNK: u32 = 1 << 14;
@@ -463,7 +564,7 @@ pub(crate) fn bake_mixture<M: Model>(
     let unaligned = bottom_up::<M>(map, options, &sizes, progress, (0.0, first_pass))?;
     let fits = match options.align {
         None => unaligned,
-        Some(c) => top_down::<M>(map, options, &sizes, c, &unaligned, progress, (0.5, 0.5))?,
+        Some(_) => top_down::<M>(map, options, &sizes, &unaligned, progress, (0.5, 0.5))?,
     };
     Ok(assemble::<M>(map, options, sizes, fits))
 }
@@ -478,7 +579,15 @@ fn bottom_up<M: Model>(
 ) -> Result<Vec<LevelFit<M::C>>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
-    let mut fits = vec![finest_level::<M>(map, j, |_| 0)];
+    // An aligned bake keeps only this pass's components (and, in approximate mode, its
+    // colours, which are the next level's features), not its textures.
+    let textures = options.align.is_none();
+    let colors = map.feature().is_some() && (textures || options.approximate);
+    let mut fits = vec![if textures {
+        finest_level::<M>(map, j, |_| 0)
+    } else {
+        placeholder_level()
+    }];
     let steps = sizes.len().saturating_sub(1).max(1) as f64;
     for k in 1..sizes.len() {
         let (w, h) = sizes[k];
@@ -513,7 +622,7 @@ fn bottom_up<M: Model>(
             let init = M::farthest_first(&g.candidates, j);
             g.fit(&init, options, None)
         };
-        let mut out = LevelFit::with_capacity((w * h) as usize * j, map.feature().is_some());
+        let mut out = LevelFit::with_capacity((w * h) as usize, j, textures, colors);
         for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK).min(w * h);
             let results: Vec<TexelFit<M::C>> = (lo..hi)
@@ -537,9 +646,18 @@ fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
     (((2 * x + 1) as u64 * pn as u64) / (2 * n as u64)) as u32
 }
 
-/// Puts `own` components into the slots of `reference` ones: greedily pairs the closest
-/// (non-empty) components first, then fills the remaining slots in order. Deterministic.
+/// Puts `own` components into the slots of `reference` ones ([`slot_order`]).
 fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> Vec<M::C> {
+    slot_order::<M>(own, reference)
+        .into_iter()
+        .map(|i| i.map_or(M::EMPTY, |i| own[i]))
+        .collect()
+}
+
+/// Which of `own`'s components goes into each slot of `reference` (`None`: an empty slot):
+/// greedily pairs the closest (non-empty) components first, then fills the remaining slots
+/// in order. Deterministic.
+fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> Vec<Option<usize>> {
     let j = own.len();
     let live = |c: &M::C| M::alpha(c) > 0.0;
     let mut pairs: Vec<(f64, usize, usize)> = Vec::with_capacity(j * j);
@@ -549,32 +667,46 @@ fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> Vec<M::C> {
         }
     }
     pairs.sort_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
-    let mut out: Vec<Option<M::C>> = vec![None; j];
+    let mut out: Vec<Option<usize>> = vec![None; j];
     let mut used = vec![false; j];
     for (_, i, s) in pairs {
         if !used[i] && out[s].is_none() {
-            out[s] = Some(own[i]);
+            out[s] = Some(i);
             used[i] = true;
         }
     }
-    let mut rest = own
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| !used[*i])
-        .map(|(_, c)| *c);
-    out.into_iter()
-        .map(|c| c.or_else(|| rest.next()).unwrap_or(M::EMPTY))
-        .collect()
+    let mut rest = (0..j).filter(|&i| !used[i]);
+    out.into_iter().map(|i| i.or_else(|| rest.next())).collect()
+}
+
+/// `fit` with its components (and their colours and texels) moved into the slots of
+/// `reference` ([`slot_order`]).
+fn into_slots<M: Model>(fit: TexelFit<M::C>, reference: &[M::C]) -> TexelFit<M::C> {
+    let (comps, colors, texels) = fit;
+    let order = slot_order::<M>(&comps, reference);
+    let pick = |i: &Option<usize>| {
+        i.map_or((M::EMPTY, [0.0; 4], [0.0; 4]), |i| {
+            (comps[i], colors[i], texels[i])
+        })
+    };
+    let mut out: TexelFit<M::C> = (Vec::new(), Vec::new(), Vec::new());
+    for (c, y, t) in order.iter().map(pick) {
+        out.0.push(c);
+        out.1.push(y);
+        out.2.push(t);
+    }
+    out
 }
 
 /// Aligned: coarsest level down. Each texel starts from its own unaligned fit with its
 /// components matched to the parent's slots, then EM runs pulled towards the visited
-/// neighbours and the parent (eq 23 for vMF; Tan's prior for Gaussians).
+/// neighbours and the parent (eq 29 or eq 23 for vMF; Tan's prior for Gaussians). A texel
+/// with no more normals than components takes the closed form in the parent's slots when the
+/// model says the pull vanishes there ([`Model::closed_form_when_aligned`]).
 fn top_down<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     sizes: &[(u32, u32)],
-    strength: f64,
     unaligned: &[LevelFit<M::C>],
     progress: &mut Progress,
     (start, span): Pass,
@@ -621,12 +753,12 @@ fn top_down<M: Model>(
             AxisFootprints::new(finer.0, w),
             AxisFootprints::new(finer.1, h),
         );
-        let texels = (w * h) as usize * j;
+        let texels = (w * h) as usize;
         let mut out = LevelFit {
-            components: vec![M::EMPTY; texels],
+            components: vec![M::EMPTY; texels * j],
             keep_components: true,
-            colors: map.feature().map(|_| vec![[0.0; 4]; texels]),
-            texels: vec![[0.0; 4]; texels],
+            colors: map.feature().map(|_| planes(j, texels, true)),
+            texels: planes(j, texels, true),
         };
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
         let wavefronts = w + 2 * (h - 1);
@@ -663,33 +795,35 @@ fn top_down<M: Model>(
                     .collect();
                     let t = (y * w + x) as usize;
                     let own = &unaligned[k].components[t * j..(t + 1) * j];
-                    let init = match parent_of_texel(x, y) {
+                    let parent = parent_of_texel(x, y);
+                    let fast = options.approximate
+                        && k >= 2
+                        && g.collect_children(&unaligned[k - 1], sizes[k - 1].0, &cx, &cy, x, y, j);
+                    if !fast {
+                        g.collect(map, &level, x, y);
+                        if g.normals.len() <= j
+                            && M::closed_form_when_aligned(options, g.min_alpha())
+                        {
+                            let fit = g.one_per_normal(j);
+                            return (
+                                x,
+                                y,
+                                parent.map_or(fit.clone(), |p| into_slots::<M>(fit, p)),
+                            );
+                        }
+                    }
+                    let init = match parent {
                         Some(p) => {
                             neighbours.push(p);
                             match_slots::<M>(own, p)
                         }
                         None => own.to_vec(),
                     };
-                    let fast = options.approximate
-                        && k >= 2
-                        && g.collect_children(&unaligned[k - 1], sizes[k - 1].0, &cx, &cy, x, y, j);
-                    if !fast {
-                        g.collect(map, &level, x, y);
-                    }
-                    (x, y, g.fit(&init, options, Some((strength, &neighbours))))
+                    (x, y, g.fit(&init, options, Some(&neighbours)))
                 })
                 .collect();
-            for (x, y, (comps, colors, texels)) in results {
-                let i = (y * w + x) as usize * j;
-                out.components[i..i + j].copy_from_slice(&comps);
-                for (dst, t) in out.texels[i..i + j].iter_mut().zip(&texels) {
-                    *dst = t.map(|v| v as f32);
-                }
-                if let Some(c) = out.colors.as_mut() {
-                    for s in 0..j {
-                        c[i + s] = colors[s].map(|v| (M::alpha(&comps[s]) * v) as f32);
-                    }
-                }
+            for (x, y, fit) in results {
+                out.set::<M>((y * w + x) as usize, fit);
             }
         }
         fits[k] = Some(out);
@@ -730,24 +864,22 @@ fn assemble<M: Model>(
             levels: Vec::new(),
         }));
     }
-    // De-interleave `values[t * J + s]` into chain s, one level at a time, freeing each level's
-    // fit as soon as it is laid out (peak memory: the textures plus one level).
+    // Move plane s of every level into chain s (and colour chain J + s).
     for fit in fits {
-        let mut sources = vec![fit.texels];
+        let mut planes = fit.texels;
         if color {
-            sources.push(fit.colors.expect("features give colours"));
+            planes.extend(fit.colors.expect("features give colours"));
         }
-        for (group, values) in sources.into_iter().enumerate() {
-            for s in 0..j {
-                let level = values.iter().skip(s).step_by(j).copied().collect();
-                textures[group * j + s].levels.push(level);
-            }
+        for (texture, plane) in textures.iter_mut().zip(planes) {
+            texture.levels.push(plane);
         }
     }
     let mut parameters = serde_json::json!({
         "lobes": j,
         "aligned": options.align.is_some(),
         "align_strength": options.align,
+        "align_form": (M::METHOD == Method::Vmf && options.align.is_some())
+            .then(|| options.align_form.name()),
         "color": map.feature().is_some(),
         "approximate": options.approximate && M::METHOD == Method::Vmf,
         "em_max_iterations": options.em.max_iterations,

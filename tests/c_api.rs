@@ -13,6 +13,7 @@
 
 use ndfmap::bake::ValueRange;
 use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use ndfmap::em::AlignmentForm;
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, Stage, source_for};
 use ndfmap::ingest::Samples;
 use ndfmap::{IngestOptions, NormalMap};
@@ -189,7 +190,7 @@ fn bakes() -> Vec<Bake> {
         .map(|m| {
             let options = BakeOptions {
                 lobes: 2,
-                align: (m == Method::Vmf).then_some(0.1),
+                align: (m == Method::Vmf).then_some(AlignmentForm::Appendix.default_strength()),
                 ..BakeOptions::default()
             };
             bake_with(&map, m, &options).unwrap()

@@ -3,6 +3,7 @@
 
 use clap::{Args, Parser, Subcommand};
 use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use ndfmap::em::AlignmentForm;
 use ndfmap::eval::{default_directions, evaluate, format_table};
 use ndfmap::glsl::{Sampling, ShaderBrdf, Stage};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
@@ -41,7 +42,7 @@ enum Command {
         #[arg(long, default_value = "6", value_delimiter = ',')]
         lobes: Vec<usize>,
         /// Alignments, comma-separated: `none` or a strength C.
-        #[arg(long, default_value = "none,0.1", value_delimiter = ',')]
+        #[arg(long, default_value = "none,1", value_delimiter = ',')]
         align: Vec<String>,
         /// Print JSON instead of a table.
         #[arg(long)]
@@ -77,10 +78,15 @@ enum Command {
         #[arg(long, default_value_t = 6)]
         lobes: usize,
         /// vmf, tan2005: coherent lobes for hardware trilinear filtering, with alignment
-        /// strength C (vMF eq 23: 0.1 is a good start; Tan's prior: c = 1). Without it
-        /// lobes are fitted per texel (unaligned).
+        /// strength C (vMF eq 29: 1 is a good start, eq 23: 0.1; Tan's prior: c = 1). Without
+        /// it lobes are fitted per texel (unaligned).
         #[arg(long)]
         align: Option<f64>,
+        /// vmf: the alignment's M-step, `appendix` (eq 29: the pull on a lobe shrinks as
+        /// 1/(κα), so sharp lobes stay on their normals) or `main-text` (eq 23: the same pull
+        /// for every lobe).
+        #[arg(long, default_value = "appendix")]
+        align_form: String,
         /// vmf: approximate (fast) mode — levels 2 and coarser are fitted to the lobes of the
         /// level below instead of to every normal they cover.
         #[arg(long)]
@@ -149,6 +155,9 @@ enum Command {
         /// vMF alignments to compare, comma-separated: `none` (unaligned) or a strength C.
         #[arg(long, default_value = "none", value_delimiter = ',')]
         align: Vec<String>,
+        /// vMF alignment M-step: `appendix` (eq 29) or `main-text` (eq 23).
+        #[arg(long, default_value = "appendix")]
+        align_form: String,
         /// vMF fitting modes to compare, comma-separated: `exact` (every covered normal) and/or
         /// `fast` (levels ≥ 2 fitted to the lobes of the level below).
         #[arg(long, default_value = "exact", value_delimiter = ',')]
@@ -308,12 +317,13 @@ fn parse_align(values: &[String]) -> Result<Vec<Option<f64>>> {
 struct MixtureGrid {
     lobes: Vec<usize>,
     align: Vec<Option<f64>>,
+    align_form: AlignmentForm,
     /// `false` = exact, `true` = approximate (vMF only).
     approximate: Vec<bool>,
 }
 
 impl MixtureGrid {
-    fn parse(lobes: &[usize], align: &[String], modes: &[String]) -> Result<Self> {
+    fn parse(lobes: &[usize], align: &[String], form: &str, modes: &[String]) -> Result<Self> {
         let approximate = modes
             .iter()
             .map(|m| match m.trim() {
@@ -327,6 +337,7 @@ impl MixtureGrid {
         Ok(MixtureGrid {
             lobes: lobes.to_vec(),
             align: parse_align(align)?,
+            align_form: form.parse()?,
             approximate,
         })
     }
@@ -342,6 +353,7 @@ impl MixtureGrid {
                     out.push(BakeOptions {
                         lobes,
                         align,
+                        align_form: self.align_form,
                         approximate,
                         ..BakeOptions::default()
                     });
@@ -398,6 +410,7 @@ fn run(cli: Cli) -> Result<()> {
             output,
             lobes,
             align,
+            align_form,
             fast,
             format,
             ingest,
@@ -412,6 +425,7 @@ fn run(cli: Cli) -> Result<()> {
             let options = BakeOptions {
                 lobes,
                 align,
+                align_form: align_form.parse()?,
                 approximate: fast,
                 ..BakeOptions::default()
             };
@@ -431,6 +445,7 @@ fn run(cli: Cli) -> Result<()> {
             methods,
             lobes,
             align,
+            align_form,
             modes,
             s,
             sigma,
@@ -438,7 +453,7 @@ fn run(cli: Cli) -> Result<()> {
             json,
             ingest,
         } => {
-            let mixtures = MixtureGrid::parse(&lobes, &align, &modes)?;
+            let mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
             check_exponents(&s)?;
             let methods = parse_methods(&methods)?;
             let formats = formats
@@ -610,6 +625,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
     let grid = MixtureGrid {
         lobes: vec![6],
         align: vec![None],
+        align_form: AlignmentForm::default(),
         approximate: vec![false],
     };
     let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
@@ -748,7 +764,7 @@ struct ReportArgs {
     #[arg(long, default_value = "1,2,4,6,8", value_delimiter = ',')]
     lobes: Vec<usize>,
     /// vMF alignments, comma-separated: `none` or a strength C.
-    #[arg(long, default_value = "none,0.1", value_delimiter = ',')]
+    #[arg(long, default_value = "none,1", value_delimiter = ',')]
     align: Vec<String>,
     /// Tan 2005 lobe counts, comma-separated (empty: none).
     #[arg(long, default_value = "4", value_delimiter = ',')]

@@ -9,7 +9,7 @@ use super::{
     read_options,
 };
 use crate::bake::{Bake, BakeOptions, Format, Method, ValueRange, bake_with_progress};
-use crate::em::{EmOptions, KappaEstimator};
+use crate::em::{AlignmentForm, EmOptions, KappaEstimator};
 use crate::output::InputInfo;
 use std::ffi::{CString, c_char, c_int, c_void};
 
@@ -66,6 +66,16 @@ pub const NDF_VALUE_RANGE_SIGNED: ndf_value_range = 1;
 /// Unbounded: float formats only.
 pub const NDF_VALUE_RANGE_ANY: ndf_value_range = 2;
 
+/// Which M-step maximizes the vMF coherence prior (Han et al. 2007, Sec 7.3 and appendix):
+/// one of `NDF_ALIGN_FORM_*`.
+pub type ndf_align_form = u32;
+/// Eq 29, the appendix: `mu_j = normalize(kappa_j alpha_j r_j + C sum_k alpha_jk mu_jk)`; sharp,
+/// heavy lobes stay on their normals. The default; C about 1.
+pub const NDF_ALIGN_FORM_APPENDIX: ndf_align_form = 0;
+/// Eq 23, the main text: `mu_j = normalize(r_j + C sum_k alpha_jk mu_jk)`, the same pull for
+/// every lobe; C about 0.1.
+pub const NDF_ALIGN_FORM_MAIN_TEXT: ndf_align_form = 1;
+
 /// How vMF EM derives κ from the mean resultant length: one of `NDF_KAPPA_ESTIMATOR_*`.
 pub type ndf_kappa_estimator = u32;
 /// Banerjee's approximation `(3r − r³)/(1 − r²)` (the paper's; the shader inverts it). Default.
@@ -103,11 +113,14 @@ pub struct ndf_vmf_options {
     pub struct_size: usize,
     /// Lobes per texel J, 1 to 8. Default 6 (the paper's choice). One texture per lobe.
     pub lobes: u32,
-    /// Nonzero: coherent lobes (eq 23), so that hardware trilinear filtering of the lobe
+    /// Nonzero: coherent lobes (Sec 7.3), so that hardware trilinear filtering of the lobe
     /// textures is valid; 0 (default): each texel fitted on its own.
     pub aligned: u32,
-    /// Alignment strength C when `aligned`, finite and ≥ 0. Default 0.1.
+    /// Alignment strength C when `aligned`, finite and ≥ 0. Default 1 (for eq 29; use about
+    /// 0.1 with `NDF_ALIGN_FORM_MAIN_TEXT`).
     pub align_strength: f64,
+    /// The alignment's M-step, `NDF_ALIGN_FORM_*`. Default `NDF_ALIGN_FORM_APPENDIX`.
+    pub align_form: ndf_align_form,
     /// Nonzero: approximate mode, levels 2 and coarser fitted to the lobes of the level below
     /// (about 3.5× faster on a 1024² map, less accurate at coarse levels). Default 0.
     pub approximate: u32,
@@ -166,7 +179,8 @@ pub extern "C" fn ndf_vmf_options_default() -> ndf_vmf_options {
         struct_size: size_of::<ndf_vmf_options>(),
         lobes: d.lobes as u32,
         aligned: 0,
-        align_strength: 0.1,
+        align_strength: d.align_form.default_strength(),
+        align_form: NDF_ALIGN_FORM_APPENDIX,
         approximate: 0,
         em_max_iterations: d.em.max_iterations,
         em_tolerance: d.em.tolerance,
@@ -302,9 +316,11 @@ pub unsafe extern "C" fn ndf_bake_vmf(
         let o = unsafe { read_options(options, "options", "ndf_vmf_options_default") }?;
         let out = Out::new(bake_out, "bake_out")?;
         let kappa = [KappaEstimator::Banerjee, KappaEstimator::Exact];
+        let forms = [AlignmentForm::Appendix, AlignmentForm::MainText];
         let bake_options = BakeOptions {
             lobes: o.lobes as usize,
             align: (o.aligned != 0).then_some(o.align_strength),
+            align_form: choose("align_form", o.align_form, &forms)?,
             approximate: o.approximate != 0,
             em: EmOptions {
                 max_iterations: o.em_max_iterations,
@@ -346,6 +362,7 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
         let bake_options = BakeOptions {
             lobes: o.lobes as usize,
             align: (o.aligned != 0).then_some(o.align_strength),
+            align_form: AlignmentForm::default(),
             approximate: false,
             em: EmOptions {
                 max_iterations: o.em_max_iterations,

@@ -489,7 +489,29 @@ fn bakes_equal_the_rust_bakes_and_report_progress() {
             Method::Vmf,
             &crate::bake::BakeOptions {
                 lobes: 3,
+                align: Some(crate::em::AlignmentForm::Appendix.default_strength()),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!((*bake).bake, want);
+        ndf_bake_free(bake);
+        // The main text's form (eq 23) is reachable too.
+        let o = ndf_vmf_options {
+            lobes: 2,
+            aligned: 1,
+            align_strength: 0.1,
+            align_form: NDF_ALIGN_FORM_MAIN_TEXT,
+            ..ndf_vmf_options_default()
+        };
+        check!(ndf_bake_vmf(map, &o, &mut bake) => Ok, "");
+        let want = bake_with(
+            &rust,
+            Method::Vmf,
+            &crate::bake::BakeOptions {
+                lobes: 2,
                 align: Some(0.1),
+                align_form: crate::em::AlignmentForm::MainText,
                 ..Default::default()
             },
         )
@@ -581,6 +603,14 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
                     ..vmf
                 },
                 "unknown kappa_estimator value 2",
+            ),
+            (
+                ndf_vmf_options {
+                    aligned: 1,
+                    align_form: 2,
+                    ..vmf
+                },
+                "unknown align_form value 2",
             ),
             (
                 ndf_vmf_options {

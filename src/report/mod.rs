@@ -64,7 +64,7 @@ pub struct ReportOptions {
     pub ks: f64,
     /// vMF lobe counts.
     pub lobes: Vec<usize>,
-    /// vMF alignments (`None` unaligned, `Some(C)` eq 23).
+    /// vMF alignments (`None` unaligned, `Some(C)` aligned with the default eq 29 form).
     pub align: Vec<Option<f64>>,
     /// Tan 2005 lobe counts (unaligned).
     pub tan_lobes: Vec<usize>,
@@ -95,7 +95,7 @@ impl Default for ReportOptions {
             kd: 0.3,
             ks: 0.7,
             lobes: vec![1, 2, 4, 6, 8],
-            align: vec![None, Some(0.1)],
+            align: vec![None, Some(1.0)],
             tan_lobes: vec![4],
             formats: vec![Format::F32, Format::F16, Format::Unorm8],
             image_formats: vec![Format::F32, Format::F16],

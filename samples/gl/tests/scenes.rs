@@ -66,7 +66,7 @@ fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
         bake(&map, Method::Toksvig),
         bake(&map, Method::Lean),
         bake_with(&map, Method::Vmf, &lobes(None)).unwrap(),
-        bake_with(&map, Method::Vmf, &lobes(Some(0.1))).unwrap(),
+        bake_with(&map, Method::Vmf, &lobes(Some(1.0))).unwrap(),
     ];
     bakes
         .iter()

@@ -181,7 +181,7 @@ fn cases() -> Vec<Case> {
             let color = lobes % 3 == 1; // colour at J = 1, 4, 7
             let options = BakeOptions {
                 lobes,
-                align: (lobes % 2 == 0).then_some(0.1),
+                align: (lobes % 2 == 0).then_some(1.0),
                 ..Default::default()
             };
             let map = if color { &colored } else { &sample.map };

@@ -55,8 +55,8 @@ struct Cli {
     /// The method shown first (added to the list if absent).
     #[arg(long)]
     method: Option<MethodSpec>,
-    /// Alignment strength C of the aligned mixtures (eq 23).
-    #[arg(long, default_value_t = 0.1)]
+    /// Alignment strength C of the aligned mixtures (vMF: eq 29, the library's default form).
+    #[arg(long, default_value_t = 1.0)]
     align: f64,
     /// The view shown first.
     #[arg(long, value_enum, default_value = "far")]

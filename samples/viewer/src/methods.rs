@@ -17,7 +17,7 @@ pub struct MethodSpec {
     pub method: Method,
     /// Lobes (mixtures), 0 for the baselines.
     pub lobes: usize,
-    /// Aligned lobes (eq 23, hardware filtering); mixtures only.
+    /// Aligned lobes (Sec 7.3, hardware filtering); mixtures only.
     pub aligned: bool,
 }
 
@@ -142,7 +142,7 @@ pub struct Bakes {
 }
 
 impl Bakes {
-    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 23).
+    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 29).
     pub fn new(map: NormalMap, align: f64) -> Bakes {
         let (sender, receiver) = channel();
         Bakes {
