@@ -103,6 +103,12 @@ pub struct EmOptions {
     pub tolerance: f64,
     /// How κ is derived from `|r|` (Algorithm 1 line 12). Default [`KappaEstimator::Banerjee`].
     pub kappa_estimator: KappaEstimator,
+    /// Adaptive over-relaxation (Salakhutdinov & Roweis 2003): each iteration steps η ≥ 1
+    /// times as far as EM's own step, η growing while the objective (log-likelihood, plus
+    /// eq 29's prior when aligned) rises and falling back to the plain EM step when it does
+    /// not, so the objective still never falls by more than EM's own. Default on. Not used
+    /// with eq 23 alignment, which has no objective.
+    pub overrelax: bool,
 }
 
 impl Default for EmOptions {
@@ -111,6 +117,7 @@ impl Default for EmOptions {
             max_iterations: 20,
             tolerance: 1e-6,
             kappa_estimator: KappaEstimator::Banerjee,
+            overrelax: true,
         }
     }
 }
@@ -820,15 +827,35 @@ pub fn fit(
     }
 
     let samples = &scratch.blocks;
+    // The objective EM climbs: the mean log-likelihood, plus eq 28's log prior Σ_j μ_j·P_j
+    // under eq 29 (eq 23 has no objective of its own, so it is never over-relaxed).
+    let appendix = form == AlignmentForm::Appendix;
+    let prior = |lobes: &[Lobe]| -> f64 {
+        if !appendix {
+            return 0.0;
+        }
+        lobes
+            .iter()
+            .zip(&pull)
+            .filter(|(l, _)| is_positive(l.alpha))
+            .map(|(l, p)| l.mu.dot(*p))
+            .sum()
+    };
+    let accelerate = options.overrelax && (appendix || pull.iter().all(|p| *p == DVec3::ZERO));
     let mut active = Active::new(&lobes[..j_count]);
     let mut sums = e_step_chunked(samples, &active);
     let mut ll = sums.log_likelihood / total;
+    let mut objective = ll + prior(&lobes[..j_count]);
     scratch.log_likelihoods.push(ll);
     let mut iterations = 0;
     let mut converged = false;
+    // Adaptive over-relaxation (Salakhutdinov & Roweis 2003): step η times as far as EM
+    // does, growing η while the objective rises, back to the plain EM step (η = 1) when not.
+    let mut eta = 1.0;
     while iterations < options.max_iterations {
+        let mut plain = lobes;
         m_step(
-            &mut lobes[..j_count],
+            &mut plain[..j_count],
             &active,
             &sums,
             total,
@@ -836,12 +863,32 @@ pub fn fit(
             options.kappa_estimator,
         );
         iterations += 1;
-        active = Active::new(&lobes[..j_count]);
-        sums = e_step_chunked(samples, &active);
-        let next = sums.log_likelihood / total;
-        scratch.log_likelihoods.push(next);
-        let done = (next - ll).abs() <= options.tolerance * next.abs().max(1.0);
-        ll = next;
+        let mut trial = if eta > 1.0 {
+            overrelax(&lobes[..j_count], &plain, eta, options.kappa_estimator)
+        } else {
+            plain
+        };
+        let mut trial_active = Active::new(&trial[..j_count]);
+        let mut trial_sums = e_step_chunked(samples, &trial_active);
+        let mut trial_ll = trial_sums.log_likelihood / total;
+        let mut trial_objective = trial_ll + prior(&trial[..j_count]);
+        let rose = trial_objective >= objective; // false for NaN
+        if eta > 1.0 && !rose {
+            // Rejected: take the plain EM step instead (one more E-step).
+            eta = 1.0;
+            trial = plain;
+            trial_active = Active::new(&trial[..j_count]);
+            trial_sums = e_step_chunked(samples, &trial_active);
+            trial_ll = trial_sums.log_likelihood / total;
+            trial_objective = trial_ll + prior(&trial[..j_count]);
+        } else if accelerate {
+            eta = (eta * OVERRELAX_GROWTH).min(OVERRELAX_MAX);
+        }
+        scratch.log_likelihoods.push(trial_ll);
+        let done = (trial_objective - objective).abs()
+            <= options.tolerance * trial_objective.abs().max(1.0);
+        (lobes, active, sums, ll, objective) =
+            (trial, trial_active, trial_sums, trial_ll, trial_objective);
         if done {
             converged = true;
             break;
@@ -856,6 +903,47 @@ pub fn fit(
         result.features = lobe_features(samples, &scratch.index, features, &active);
     }
     result
+}
+
+/// Factor by which the over-relaxation step η grows after an accepted step.
+const OVERRELAX_GROWTH: f64 = 1.5;
+/// Largest over-relaxation step η.
+const OVERRELAX_MAX: f64 = 8.0;
+
+/// The over-relaxed lobes `θ + η (T(θ) − θ)` for EM's step `prev → plain`, in the texel's own
+/// parameters: α_j, and the mean vector `v_j = |r_j| μ_j` (`|r|` from κ by the estimator's
+/// inverse), so κ and μ follow from `v` as the M-step derives them. α is clamped at 0 and
+/// renormalized, `|v|` is clamped by the estimator; lobes that EM emptied stay empty, and a
+/// lobe whose `v` vanishes keeps EM's step.
+fn overrelax(
+    prev: &[Lobe],
+    plain: &[Lobe; MAX_LOBES],
+    eta: f64,
+    estimator: KappaEstimator,
+) -> [Lobe; MAX_LOBES] {
+    let mut out = *plain;
+    let mut alpha_sum = 0.0;
+    for (o, (p, q)) in out.iter_mut().zip(prev.iter().zip(plain)) {
+        if !is_positive(q.alpha) {
+            continue;
+        }
+        let v_prev = p.mu * estimator.r_from_kappa(p.kappa);
+        let v_plain = q.mu * estimator.r_from_kappa(q.kappa);
+        let v = v_prev + eta * (v_plain - v_prev);
+        if let Some(mu) = normalize_robust(v) {
+            o.mu = mu;
+            o.kappa = estimator.kappa(v.length());
+        }
+        o.alpha = (p.alpha + eta * (q.alpha - p.alpha)).max(0.0);
+        alpha_sum += o.alpha;
+    }
+    if !(is_positive(alpha_sum) && alpha_sum.is_finite()) {
+        return *plain;
+    }
+    for o in &mut out[..prev.len()] {
+        o.alpha /= alpha_sum;
+    }
+    out
 }
 
 /// Eq 22 as a post-process: `y_j = Σ_i w_i z_ij y_i / Σ_i w_i z_ij` with the responsibilities
@@ -1183,7 +1271,7 @@ mod tests {
     }
 
     /// The worst relative decrease of the log-likelihood over J = 1..=8 random mixtures.
-    fn worst_decrease(estimator: KappaEstimator) -> f64 {
+    fn worst_decrease(estimator: KappaEstimator, overrelax: bool) -> f64 {
         let mut worst = 0.0_f64;
         let mut scratch = EmScratch::new();
         for j in 1..=MAX_LOBES {
@@ -1199,6 +1287,7 @@ mod tests {
                     max_iterations: 100,
                     tolerance: 0.0,
                     kappa_estimator: estimator,
+                    overrelax,
                 };
                 let input = EmInput::new(&normals).with_weights(&weights);
                 let fit = fit(&input, &init, &options, None, &mut scratch);
@@ -1214,9 +1303,51 @@ mod tests {
 
     #[test]
     fn log_likelihood_never_decreases_with_exact_kappa() {
-        let worst = worst_decrease(KappaEstimator::Exact);
-        eprintln!("exact κ: worst relative log-likelihood decrease {worst:e}");
-        assert!(worst <= 1e-9, "{worst}");
+        for overrelax in [false, true] {
+            let worst = worst_decrease(KappaEstimator::Exact, overrelax);
+            eprintln!("exact κ, overrelax {overrelax}: worst relative decrease {worst:e}");
+            assert!(worst <= 1e-9, "{worst}");
+        }
+    }
+
+    /// Over-relaxation reaches EM's fixed point in fewer iterations: on overlapping lobes (the
+    /// slow case for EM), with the exact κ (a true EM), it needs at most 60 % of plain EM's
+    /// M-steps (measured: 400 against 1271) and ends at a likelihood at least as high. (With
+    /// Banerjee's κ, EM's own step can lower the likelihood slightly, which makes relaxed
+    /// steps near the fixed point fail more often; the baker's tolerance stops it first.)
+    #[test]
+    fn overrelaxation_converges_faster() {
+        let mut scratch = EmScratch::new();
+        let (mut plain_steps, mut relaxed_steps) = (0, 0);
+        for seed in 0..8 {
+            let mut rng = Rng(500 + seed);
+            let truth: Vec<Lobe> = (0..4)
+                .map(|j| Lobe::new(0.25, dir(12.0 * j as f64, 90.0 * j as f64), 80.0))
+                .collect();
+            let normals = sample_mixture(&mut rng, &truth, 1000);
+            let init = perturbed_init(&truth, 8.0);
+            let run = |overrelax: bool, scratch: &mut EmScratch| {
+                let options = EmOptions {
+                    max_iterations: 1000,
+                    tolerance: 1e-9,
+                    overrelax,
+                    kappa_estimator: KappaEstimator::Exact,
+                };
+                fit(&EmInput::new(&normals), &init, &options, None, scratch)
+            };
+            let (plain, relaxed) = (run(false, &mut scratch), run(true, &mut scratch));
+            assert_finite(&relaxed);
+            assert!(plain.converged && relaxed.converged);
+            let gap = (plain.log_likelihood - relaxed.log_likelihood) / plain.log_likelihood.abs();
+            assert!(gap <= 1e-9, "seed {seed}: {gap}");
+            plain_steps += plain.iterations;
+            relaxed_steps += relaxed.iterations;
+        }
+        eprintln!("M-steps to convergence: plain EM {plain_steps}, over-relaxed {relaxed_steps}");
+        assert!(
+            relaxed_steps * 10 <= plain_steps * 6,
+            "{relaxed_steps} vs {plain_steps}"
+        );
     }
 
     /// Banerjee's κ over-estimates the maximizer of the M-step (by up to 4.94 %), so the paper's
@@ -1224,9 +1355,11 @@ mod tests {
     /// worst relative decrease 1.5e-5 on these mixtures (it is 1e-13 with the exact κ).
     #[test]
     fn log_likelihood_with_banerjee_kappa() {
-        let worst = worst_decrease(KappaEstimator::Banerjee);
-        eprintln!("Banerjee κ: worst relative log-likelihood decrease {worst:e}");
-        assert!(worst <= 1e-4, "{worst}");
+        for overrelax in [false, true] {
+            let worst = worst_decrease(KappaEstimator::Banerjee, overrelax);
+            eprintln!("Banerjee κ, overrelax {overrelax}: worst relative decrease {worst:e}");
+            assert!(worst <= 1e-4, "{worst}");
+        }
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! Checks on the real CC0 normal maps in `../shared/data/normalmaps/` (read in place, never
 //! copied). Skipped with a message when that folder is absent (a clone without `shared/`).
 
-use ndfmap::bake::{Bake, Method, bake};
+use ndfmap::bake::{Bake, BakeOptions, Method, bake, bake_with};
+use ndfmap::em::AlignmentForm;
 use ndfmap::eval::{default_directions, evaluate};
 use ndfmap::shade::Brdf;
 use ndfmap::{IngestOptions, NormalMap};
@@ -71,22 +72,35 @@ fn vmf_beats_toksvig_and_lean_on_rock_at_far_levels() {
     };
     let map = NormalMap::load(&path, &IngestOptions::default()).unwrap();
     let vmf = bake(&map, Method::Vmf); // J = 6, unaligned
+    let aligned = BakeOptions {
+        align: Some(AlignmentForm::default().default_strength()),
+        ..BakeOptions::default()
+    };
+    let vmfa = bake_with(&map, Method::Vmf, &aligned).unwrap(); // eq 29, C = 1
     let toksvig = bake(&map, Method::Toksvig);
     let lean = bake(&map, Method::Lean);
     let errors = evaluate(
         &map,
-        &[&vmf, &toksvig, &lean],
+        &[&vmf, &vmfa, &toksvig, &lean],
         &Brdf::blinn_phong(&[32.0, 256.0]),
         &default_directions(),
     );
     for s in [32.0, 256.0] {
-        let get = |m: Method| {
+        let brdf = Brdf::BlinnPhong { s };
+        let get = |label: &str| {
             errors
                 .iter()
-                .find(|e| e.method == m && e.brdf == Brdf::BlinnPhong { s })
+                .find(|e| e.label == label && e.brdf == brdf)
                 .unwrap()
         };
-        let (v, t, l) = (get(Method::Vmf), get(Method::Toksvig), get(Method::Lean));
+        let (v, t, l) = (get("vmf6"), get("toksvig"), get("lean"));
+        // Coherent lobes (eq 29) cost no texel-space accuracy: within 1.3x of the unaligned
+        // fit on the mean of levels 2-6 (measured: 1.03x at s = 32, 0.89x at s = 256).
+        let mean = |e: &ndfmap::eval::MethodError| {
+            (2..=6).map(|k| e.levels[k].specular).sum::<f64>() / 5.0
+        };
+        let (va, vu) = (mean(get("vmf6a")), mean(v));
+        assert!(va <= 1.3 * vu, "s={s}: aligned {va} vs unaligned {vu}");
         for k in 2..=6 {
             let (ve, te, le) = (
                 v.levels[k].specular,

@@ -326,6 +326,7 @@ pub unsafe extern "C" fn ndf_bake_vmf(
                 max_iterations: o.em_max_iterations,
                 tolerance: o.em_tolerance,
                 kappa_estimator: choose("kappa_estimator", o.kappa_estimator, &kappa)?,
+                ..EmOptions::default()
             },
         };
         unsafe {
