@@ -1301,12 +1301,22 @@ mod tests {
         worst
     }
 
+    /// With the exact κ every step is a true EM step (or an over-relaxed step kept only if the
+    /// likelihood rose), so the likelihood never decreases: measured worst relative decrease
+    /// 1.9e-13 (rounding). Banerjee's κ over-estimates the M-step's maximizer (by up to
+    /// 4.94 %), so the paper's EM is not an exact EM and the likelihood can dip slightly near
+    /// convergence: measured 1.5e-5 (plain) and 4.3e-5 (over-relaxed) on these mixtures.
     #[test]
-    fn log_likelihood_never_decreases_with_exact_kappa() {
-        for overrelax in [false, true] {
-            let worst = worst_decrease(KappaEstimator::Exact, overrelax);
-            eprintln!("exact κ, overrelax {overrelax}: worst relative decrease {worst:e}");
-            assert!(worst <= 1e-9, "{worst}");
+    fn log_likelihood_never_decreases_beyond_the_estimators_bias() {
+        for (estimator, bound) in [
+            (KappaEstimator::Exact, 1e-9),
+            (KappaEstimator::Banerjee, 1e-4),
+        ] {
+            for overrelax in [false, true] {
+                let worst = worst_decrease(estimator, overrelax);
+                eprintln!("{estimator:?}, overrelax {overrelax}: worst decrease {worst:e}");
+                assert!(worst <= bound, "{estimator:?} {overrelax}: {worst}");
+            }
         }
     }
 
@@ -1348,18 +1358,6 @@ mod tests {
             relaxed_steps * 10 <= plain_steps * 6,
             "{relaxed_steps} vs {plain_steps}"
         );
-    }
-
-    /// Banerjee's κ over-estimates the maximizer of the M-step (by up to 4.94 %), so the paper's
-    /// EM is not an exact EM and the likelihood can dip slightly near convergence: measured
-    /// worst relative decrease 1.5e-5 on these mixtures (it is 1e-13 with the exact κ).
-    #[test]
-    fn log_likelihood_with_banerjee_kappa() {
-        for overrelax in [false, true] {
-            let worst = worst_decrease(KappaEstimator::Banerjee, overrelax);
-            eprintln!("Banerjee κ, overrelax {overrelax}: worst relative decrease {worst:e}");
-            assert!(worst <= 1e-4, "{worst}");
-        }
     }
 
     #[test]
@@ -1621,21 +1619,20 @@ mod tests {
         let opts = EmOptions::default();
         let free = fit(&EmInput::new(&normals), &init, &opts, None, &mut scratch);
         let mut previous = angle_deg(free.lobes()[0].mu, nb[0].mu);
-        for c in [0.05, 0.2, 1.0] {
+        // The pulls on lobes 0 and 1, and the fit, with strength C in a form.
+        let pulled = |strength, form, scratch: &mut EmScratch| {
             let align = Alignment {
-                strength: c,
+                strength,
                 neighbours: &neighbours,
-                form: AlignmentForm::MainText,
+                form,
             };
-            assert!((align.pull(0) - c * 2.4 * nb[0].mu).length() < 1e-12);
-            assert_eq!(align.pull(1), DVec3::ZERO);
-            let f = fit(
-                &EmInput::new(&normals),
-                &init,
-                &opts,
-                Some(&align),
-                &mut scratch,
-            );
+            let f = fit(&EmInput::new(&normals), &init, &opts, Some(&align), scratch);
+            (align.pull(0), align.pull(1), f)
+        };
+        for c in [0.05, 0.2, 1.0] {
+            let (pull0, pull1, f) = pulled(c, AlignmentForm::MainText, &mut scratch);
+            assert!((pull0 - c * 2.4 * nb[0].mu).length() < 1e-12);
+            assert_eq!(pull1, DVec3::ZERO);
             assert_finite(&f);
             let a = angle_deg(f.lobes()[0].mu, nb[0].mu);
             eprintln!("C = {c}: lobe 0 is {a:.2}° from the neighbours (free fit {previous:.2}°)");
@@ -1646,19 +1643,7 @@ mod tests {
         }
         // C = 0 is the plain fit, in either form.
         for form in [AlignmentForm::MainText, AlignmentForm::Appendix] {
-            let align = Alignment {
-                strength: 0.0,
-                neighbours: &neighbours,
-                form,
-            };
-            let f = fit(
-                &EmInput::new(&normals),
-                &init,
-                &opts,
-                Some(&align),
-                &mut scratch,
-            );
-            assert_eq!(f, free);
+            assert_eq!(pulled(0.0, form, &mut scratch).2, free);
         }
     }
 
