@@ -2,13 +2,14 @@
 //! storage format is baked (timed, peak memory), measured in texel space ([`crate::eval`]) and
 //! in image space ([`crate::render`]: supersampled ground truth vs the CPU twin of the shaders,
 //! relative RMSE and FLIP), and costed (texture bytes, fetches and ALU operations per pixel from
-//! the specialized shader, [`cost`]). [`write`] turns the rows into `report.md`, `report.json`
-//! and plots ([`plot`]).
+//! the specialized shader, [`cost`]; frame times from the sample viewer's benchmark, [`frame`]).
+//! [`write`] turns the rows into `report.md`, `report.json` and plots ([`plot`]).
 //!
 //! Memory stays bounded: each configuration is baked, measured in every format and dropped
 //! before the next; only the ground-truth images of the current map are kept.
 
 pub mod cost;
+pub mod frame;
 pub mod plot;
 pub mod stability;
 
@@ -325,8 +326,13 @@ pub struct Row {
     pub texture_bytes: u64,
     /// Shading cost per pixel.
     pub cost: ShaderCost,
-    /// Frame time on a GL device, ms (`None`: GL runtime not wired).
+    /// Frame time on a GL device, ms: the viewer benchmark's median, mean over its views
+    /// ([`frame::FrameTimes::lookup`]; `None` when not measured for this label and format).
     pub frame_ms: Option<f64>,
+    /// `frame_ms` over the plain shader's in the same format (what is comparable across
+    /// machines, and all that a software rasterizer says).
+    #[serde(default)]
+    pub frame_ratio: Option<f64>,
     /// Texel-space relative RMS error of the specular term over levels ≥ 1 ([`crate::eval`]).
     pub texel_specular: f64,
     /// The same for the Lambert term.
@@ -409,7 +415,8 @@ pub struct Report {
     pub threads: usize,
     /// Wall seconds of [`run`].
     pub seconds: f64,
-    /// CPU seconds (user + system, all threads) of the process at the end of [`run`] (Linux).
+    /// CPU seconds (user + system, all threads) of the process and its waited-for children at
+    /// the end of [`run`] (Linux).
     #[serde(default)]
     pub cpu_seconds: Option<f64>,
     /// `/proc/loadavg`'s 1-minute load at the start and the end of [`run`] (Linux): other
@@ -418,6 +425,131 @@ pub struct Report {
     pub load_average: Option<(f64, f64)>,
     /// Stability sweep (cases × methods), when run.
     pub stability: Option<stability::Summary>,
+    /// Where the wall time went, by phase (absent in reports written before it was recorded).
+    #[serde(default)]
+    pub phases: Option<PhaseSeconds>,
+    /// The viewer benchmark's frame times the rows' `frame_ms` come from, when there were any.
+    #[serde(default)]
+    pub frame_times: Option<frame::FrameTimes>,
+    /// Why there are no frame times, or where they came from.
+    #[serde(default)]
+    pub frame_times_note: Option<String>,
+}
+
+impl Report {
+    /// Fills every row's `frame_ms` and `frame_ratio` from `times` (by configuration label and
+    /// format; rows the benchmark did not draw get `None`) and keeps `times` in the report.
+    pub fn set_frame_times(&mut self, times: frame::FrameTimes) {
+        for r in &mut self.rows {
+            let found = times.lookup(&r.config, r.format);
+            r.frame_ms = found.map(|f| f.0);
+            r.frame_ratio = found.and_then(|f| f.1);
+        }
+        self.frame_times = Some(times);
+    }
+}
+
+/// Wall and CPU seconds of one phase of a report.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseTime {
+    /// Wall seconds.
+    pub wall: f64,
+    /// CPU seconds of the process in it (user + system, all threads; Linux, else 0): less
+    /// sensitive than `wall` to other work on the machine.
+    pub cpu: f64,
+}
+
+/// Where a report's run time goes, by phase, summed over the maps.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseSeconds {
+    /// Supersampled ground truth of every view ([`render_ground_truth`]), with its LOD image.
+    pub ground_truth: PhaseTime,
+    /// The ideal-NDF render of every view ([`crate::render::render_oracle`]).
+    pub oracle: PhaseTime,
+    /// The second, denser ground truth that estimates the first's Monte Carlo error.
+    pub convergence: PhaseTime,
+    /// Bakes (the f32 bake of every configuration).
+    pub bake: PhaseTime,
+    /// Quantizing the bakes to the narrower formats.
+    pub quantize: PhaseTime,
+    /// Texel-space error ([`evaluate_from`]).
+    pub texel_eval: PhaseTime,
+    /// Shader cost (`glslangValidator` and the SPIR-V count), once per label and format.
+    pub shader_cost: PhaseTime,
+    /// Filtered renders through the CPU twin of the shaders.
+    pub filtered_render: PhaseTime,
+    /// Error metrics, tone mapping and FLIP of every render (the oracle's included).
+    pub compare: PhaseTime,
+    /// Writing PNG images.
+    pub images: PhaseTime,
+    /// Frame times: running the viewer's benchmark, or reading its JSON.
+    pub frame_times: PhaseTime,
+    /// The stability sweep.
+    pub stability: PhaseTime,
+}
+
+impl PhaseSeconds {
+    /// The phases as (name, time), in the order they run.
+    pub fn list(&self) -> [(&'static str, PhaseTime); 12] {
+        [
+            ("ground truth", self.ground_truth),
+            ("ideal-NDF floor", self.oracle),
+            ("convergence", self.convergence),
+            ("bake", self.bake),
+            ("quantize", self.quantize),
+            ("texel eval", self.texel_eval),
+            ("shader cost", self.shader_cost),
+            ("filtered render", self.filtered_render),
+            ("compare + FLIP", self.compare),
+            ("images", self.images),
+            ("frame times", self.frame_times),
+            ("stability", self.stability),
+        ]
+    }
+
+    /// One line, `name wall s (cpu CPU-s), …`, of every phase that took 0.05 s or more.
+    pub fn summary(&self) -> String {
+        self.list()
+            .iter()
+            .filter(|(_, t)| t.wall >= 0.05)
+            .map(|(n, t)| format!("{n} {:.1} s ({:.0} CPU-s)", t.wall, t.cpu))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// Measures a stretch of work into a [`PhaseTime`].
+pub struct Stopwatch {
+    wall: Instant,
+    cpu: Option<f64>,
+}
+
+impl Stopwatch {
+    /// Starts now.
+    pub fn start() -> Stopwatch {
+        Stopwatch {
+            wall: Instant::now(),
+            cpu: cpu_seconds(),
+        }
+    }
+
+    /// Adds the time since [`Stopwatch::start`] to `into`; returns the wall seconds.
+    pub fn stop(self, into: &mut PhaseTime) -> f64 {
+        let wall = self.wall.elapsed().as_secs_f64();
+        into.wall += wall;
+        if let (Some(a), Some(b)) = (self.cpu, cpu_seconds()) {
+            into.cpu += (b - a).max(0.0);
+        }
+        wall
+    }
+}
+
+/// Runs `f`, adding its wall and CPU seconds to `acc`.
+fn timed<T>(acc: &mut PhaseTime, f: impl FnOnce() -> T) -> T {
+    let w = Stopwatch::start();
+    let out = f();
+    w.stop(acc);
+    out
 }
 
 /// Progress of [`run`], for a progress bar.
@@ -449,14 +581,18 @@ fn rss() -> Option<u64> {
     proc_status_bytes("VmRSS:")
 }
 
-/// CPU seconds (user + system) this process has used (Linux `/proc/self/stat`, 100 ticks/s).
+/// CPU seconds (user + system) this process and its waited-for children (`glslangValidator`,
+/// the viewer's benchmark) have used (Linux `/proc/self/stat`, 100 ticks/s).
 fn cpu_seconds() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
     // Fields after the command name (which is in parentheses and may hold spaces).
     let rest = stat.rsplit_once(')')?.1;
     let f: Vec<&str> = rest.split_whitespace().collect();
-    let (utime, stime): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
-    Some((utime + stime) / 100.0)
+    let mut ticks = 0.0;
+    for i in 11..15 {
+        ticks += f.get(i)?.parse::<f64>().ok()?;
+    }
+    Some(ticks / 100.0)
 }
 
 /// The 1-minute load average (Linux).
@@ -593,6 +729,7 @@ pub fn run(
         s: options.exponent,
     };
     let mut costs: std::collections::HashMap<String, ShaderCost> = Default::default();
+    let mut ph = PhaseSeconds::default();
     let mut summaries = Vec::new();
     let mut rows = Vec::new();
     for input in maps {
@@ -608,29 +745,38 @@ pub fn run(
         let mut views_info = Vec::new();
         let mut truths = Vec::new();
         for (i, scene) in scenes.iter().enumerate() {
-            let gt = render_ground_truth(scene, map, options.spp, options.seed + i as u64);
-            let mut lods: Vec<f64> = lod_image(scene, (map.width(), map.height()))
-                .into_iter()
-                .filter(|l| l.is_finite())
-                .collect();
+            let (gt, mut lods) = timed(&mut ph.ground_truth, || {
+                let gt = render_ground_truth(scene, map, options.spp, options.seed + i as u64);
+                let lods: Vec<f64> = lod_image(scene, (map.width(), map.height()))
+                    .into_iter()
+                    .filter(|l| l.is_finite())
+                    .collect();
+                (gt, lods)
+            });
             lods.sort_by(f64::total_cmp);
             let median_lod = lods.get(lods.len() / 2).copied().unwrap_or(f64::NAN);
             let exp = exposure(&gt);
             if options.images != ImageSet::None {
                 let path = image_dir.join(format!("{}_ground_truth.png", scene.name));
-                save_rgb(&path, gt.width, gt.height, tonemap(&gt, exp))?;
+                timed(&mut ph.images, || {
+                    save_rgb(&path, gt.width, gt.height, tonemap(&gt, exp))
+                })?;
             }
             let floor = if options.oracle_samples > 0 {
-                let oracle = crate::render::render_oracle(
-                    scene,
-                    map,
-                    options.oracle_samples,
-                    options.seed + 2000 + i as u64,
-                );
-                let (e, rgb, _) = compare(metric, scene, &gt, &oracle, exp);
+                let oracle = timed(&mut ph.oracle, || {
+                    crate::render::render_oracle(
+                        scene,
+                        map,
+                        options.oracle_samples,
+                        options.seed + 2000 + i as u64,
+                    )
+                });
+                let (e, rgb, _) = timed(&mut ph.compare, || {
+                    compare(metric, scene, &gt, &oracle, exp)
+                });
                 if options.images != ImageSet::None {
                     let path = image_dir.join(format!("{}_ideal.png", scene.name));
-                    save_rgb(&path, gt.width, gt.height, rgb)?;
+                    timed(&mut ph.images, || save_rgb(&path, gt.width, gt.height, rgb))?;
                 }
                 Some(e)
             } else {
@@ -651,6 +797,7 @@ pub fn run(
             "{}: ground-truth convergence",
             input.name
         )));
+        let w = Stopwatch::start();
         let ground_truth_error = if options.convergence_spp > 0 && summaries.is_empty() {
             let i = views_info
                 .iter()
@@ -671,6 +818,7 @@ pub fn run(
         } else {
             None
         };
+        w.stop(&mut ph.convergence);
         progress(Progress::Done);
         let mut skipped = Vec::new();
         for config in &configs {
@@ -678,14 +826,15 @@ pub fn run(
             progress(Progress::Step(&format!("{}: {label}", input.name)));
             reset_peak_rss();
             let before = rss();
-            let t = Instant::now();
+            let w = Stopwatch::start();
             let baked = bake_with(map, config.method, &config.options)?;
-            let bake_seconds = t.elapsed().as_secs_f64();
+            let bake_seconds = w.stop(&mut ph.bake);
             let bake_peak_bytes = match (peak_rss(), before) {
                 (Some(p), Some(b)) => Some(p.saturating_sub(b)),
                 _ => None,
             };
             let mut variants: Vec<Bake> = Vec::new();
+            let w = Stopwatch::start();
             for &format in &options.formats {
                 if format == Format::F32 {
                     variants.push(baked.clone());
@@ -697,18 +846,21 @@ pub fn run(
                 }
             }
             drop(baked);
+            w.stop(&mut ph.quantize);
             let refs: Vec<&Bake> = variants.iter().collect();
             let first = if map.width().max(map.height()) > 1 {
                 1
             } else {
                 0
             };
-            let errors = evaluate_from(map, &refs, &[brdf], &directions, first);
+            let errors = timed(&mut ph.texel_eval, || {
+                evaluate_from(map, &refs, &[brdf], &directions, first)
+            });
             for (b, err) in variants.iter().zip(&errors) {
                 let cost_key = format!("{label}/{}", b.format);
                 let cost = costs
                     .entry(cost_key)
-                    .or_insert_with(|| cost::shader_cost(b))
+                    .or_insert_with(|| timed(&mut ph.shader_cost, || cost::shader_cost(b)))
                     .clone();
                 let textures = crate::glsl::sampled_textures(
                     &crate::glsl::ShaderSpec::of(b),
@@ -724,9 +876,9 @@ pub fn run(
                     && (b.format == Format::F32 || REPRESENTATIVE.contains(&label.as_str()));
                 if rendered {
                     for (scene, (gt, exp)) in scenes.iter().zip(&truths) {
-                        let img = render_filtered(scene, b);
+                        let img = timed(&mut ph.filtered_render, || render_filtered(scene, b));
                         let (view_error, test_rgb, flip_map) =
-                            compare(metric, scene, gt, &img, *exp);
+                            timed(&mut ph.compare, || compare(metric, scene, gt, &img, *exp));
                         let write = match options.images {
                             ImageSet::None => false,
                             ImageSet::All => true,
@@ -735,6 +887,7 @@ pub fn run(
                             }
                         };
                         if write {
+                            let w = Stopwatch::start();
                             let stem = format!("{}_{}", scene.name, file_label(&b.label()));
                             save_rgb(
                                 &image_dir.join(format!("{stem}.png")),
@@ -748,6 +901,7 @@ pub fn run(
                                 img.height,
                                 flip_map,
                             )?;
+                            w.stop(&mut ph.images);
                         }
                         view_errors.push(view_error);
                     }
@@ -765,6 +919,7 @@ pub fn run(
                     texture_bytes,
                     cost,
                     frame_ms: None,
+                    frame_ratio: None,
                     texel_specular: err.overall_specular,
                     texel_diffuse: err.overall_diffuse,
                     texel_levels: err.levels.iter().map(|l| l.specular).collect(),
@@ -791,6 +946,9 @@ pub fn run(
         cpu_seconds: cpu_seconds(),
         load_average: load_start.zip(load_average()),
         stability: None,
+        phases: Some(ph),
+        frame_times: None,
+        frame_times_note: None,
     })
 }
 
@@ -868,6 +1026,9 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    if let Some(p) = &report.phases {
+        let _ = writeln!(s, "Wall time by phase: {}.\n", p.summary());
+    }
     let _ = writeln!(
         s,
         "**How it is measured.** Material: `{} · Lambert + {} · normalized Blinn-Phong`, s = {}. \
@@ -884,8 +1045,8 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
          bake; texture bytes of what the shader samples (all levels); fetch instructions per \
          pixel (hardware: one `textureLod` per texture; manual: 8 `texelFetch` per texture) \
          and ALU = arithmetic SPIR-V instructions of the specialized shader (`glslangValidator \
-         -G`; loops weighted by trip count, every branch counted). Frame time: n/a (GL runtime \
-         not wired). SH: not implemented yet (rows join the tables when it lands).\n",
+         -G`; loops weighted by trip count, every branch counted). Frame time: {} SH: not \
+         implemented yet (rows join the tables when it lands).\n",
         o.kd,
         o.ks,
         o.exponent,
@@ -899,6 +1060,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
             .collect::<Vec<_>>()
             .join(", "),
         o.spp,
+        frame_sentence(report),
     );
     for m in &report.maps {
         let _ = writeln!(s, "## {}\n", m.name);
@@ -942,9 +1104,9 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
         let _ = writeln!(
             s,
             "| config | texel err % | image err % | far image err % | FLIP | bake s | peak MiB | \
-             texture MiB | fetches/px | ALU/px | frame ms |"
+             texture MiB | fetches/px | ALU/px | frame ms (× plain) |"
         );
-        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         if m.views.iter().any(|v| v.floor.is_some()) {
             let floors: Vec<&ViewError> = m.views.iter().filter_map(|v| v.floor.as_ref()).collect();
             let far: Vec<f64> = m
@@ -980,7 +1142,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
                 r.texture_bytes as f64 / 1048576.0,
                 r.cost.fetches,
                 r.cost.alu.map_or("?".into(), |a| a.to_string()),
-                r.frame_ms.map_or("n/a".into(), |f| format!("{f:.2}")),
+                frame_cell(r),
             );
         }
         let _ = writeln!(s);
@@ -1064,6 +1226,44 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
         }
     }
     s
+}
+
+/// A row's frame time as the table shows it: `12.3 (3.41×)`, or `n/a`.
+fn frame_cell(r: &Row) -> String {
+    match (r.frame_ms, r.frame_ratio) {
+        (Some(ms), Some(x)) => format!("{ms:.2} ({x:.2}×)"),
+        (Some(ms), None) => format!("{ms:.2}"),
+        _ => "n/a".into(),
+    }
+}
+
+/// The sentence of the report's "How it is measured" on frame times: their source, or why
+/// there are none.
+fn frame_sentence(report: &Report) -> String {
+    let note = report
+        .frame_times_note
+        .as_ref()
+        .map_or(String::new(), |n| format!(" ({n})"));
+    match &report.frame_times {
+        Some(t) => {
+            let soft = t.renderer.to_ascii_lowercase();
+            let soft = ["llvmpipe", "softpipe", "swrast", "lavapipe"]
+                .iter()
+                .any(|s| soft.contains(s));
+            format!(
+                "{}{note}; the same for every map (the shader's cost does not depend on the \
+                 map's content), and *n/a* for a label or format it did not draw.{}",
+                t.describe(),
+                if soft {
+                    " This renderer is a software rasterizer on the CPU: read the ratio to \
+                     plain, not the milliseconds."
+                } else {
+                    ""
+                }
+            )
+        }
+        None => format!("n/a{note}."),
+    }
 }
 
 /// The views and configurations the gallery of [`markdown`] shows (first map).
