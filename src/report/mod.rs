@@ -15,11 +15,12 @@ pub mod stability;
 
 use crate::bake::{Bake, BakeOptions, Format, Method, bake_with};
 use crate::error::{Error, Result};
-use crate::eval::{default_directions, evaluate_from};
+use crate::eval::{Reference, default_directions, evaluate_from};
 use crate::ingest::NormalMap;
 use crate::render::{
-    Camera, Image, Light, Material, Scene, Surface, common_mask, distance_for_lod, exposure,
-    lod_image, mean_radiance, relative_rmse, render_filtered, render_ground_truth, tonemap,
+    Camera, Image, Light, Material, Scene, Surface, ViewGeometry, common_mask, distance_for_lod,
+    exposure, lod_image, mean_radiance, relative_rmse, render_filtered_prepared,
+    render_ground_truth, tonemap,
 };
 use crate::shade::Brdf;
 use glam::DVec3;
@@ -44,6 +45,10 @@ pub enum ImageSet {
 
 /// The configurations whose images [`ImageSet::Some`] writes (labels, f32).
 pub const REPRESENTATIVE: [&str; 5] = ["plain", "toksvig", "lean", "vmf6", "vmf6a"];
+
+/// Bytes of texel-space exact answers [`run`] keeps per map ([`Reference`]); a larger map's
+/// are recomputed for every configuration.
+const REFERENCE_BUDGET: u64 = 512 << 20;
 
 /// What to measure and how.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -820,6 +825,23 @@ pub fn run(
         };
         w.stop(&mut ph.convergence);
         progress(Progress::Done);
+        // What every configuration of this map shares: the views' pixel geometry, and the
+        // texel-space exact answers (kept when they fit in REFERENCE_BUDGET).
+        let geometry: Vec<ViewGeometry> = timed(&mut ph.filtered_render, || {
+            scenes.iter().map(ViewGeometry::new).collect()
+        });
+        let first = if map.width().max(map.height()) > 1 {
+            1
+        } else {
+            0
+        };
+        let fits = Reference::bytes(map.width(), map.height(), 1, directions.len(), first)
+            <= REFERENCE_BUDGET;
+        let reference = fits.then(|| {
+            timed(&mut ph.texel_eval, || {
+                Reference::new(map, &[brdf], &directions, first)
+            })
+        });
         let mut skipped = Vec::new();
         for config in &configs {
             let label = config.label();
@@ -833,35 +855,46 @@ pub fn run(
                 (Some(p), Some(b)) => Some(p.saturating_sub(b)),
                 _ => None,
             };
-            let mut variants: Vec<Bake> = Vec::new();
+            // The formats in the order asked, the f32 bake itself (not a copy) among them.
+            let mut variants: Vec<Option<Bake>> = Vec::new();
             let w = Stopwatch::start();
             for &format in &options.formats {
                 if format == Format::F32 {
-                    variants.push(baked.clone());
+                    variants.push(None);
                     continue;
                 }
                 match crate::pack::quantize(&baked, format) {
-                    Ok(q) => variants.push(q),
+                    Ok(q) => variants.push(Some(q)),
                     Err(e) => skipped.push(format!("{label} in {format}: {e}")),
                 }
             }
+            let mut baked = Some(baked);
+            let variants: Vec<Bake> = variants
+                .into_iter()
+                .filter_map(|v| v.or_else(|| baked.take()))
+                .collect();
             drop(baked);
             w.stop(&mut ph.quantize);
             let refs: Vec<&Bake> = variants.iter().collect();
-            let first = if map.width().max(map.height()) > 1 {
-                1
-            } else {
-                0
-            };
-            let errors = timed(&mut ph.texel_eval, || {
-                evaluate_from(map, &refs, &[brdf], &directions, first)
+            let errors = timed(&mut ph.texel_eval, || match &reference {
+                Some(r) => r.evaluate(&refs),
+                None => evaluate_from(map, &refs, &[brdf], &directions, first),
+            });
+            // Shader costs not known yet (the first map's), one `glslangValidator` per core.
+            timed(&mut ph.shader_cost, || {
+                use rayon::prelude::*;
+                let missing: Vec<&Bake> = variants
+                    .iter()
+                    .filter(|b| !costs.contains_key(&format!("{label}/{}", b.format)))
+                    .collect();
+                let found: Vec<ShaderCost> =
+                    missing.par_iter().map(|b| cost::shader_cost(b)).collect();
+                for (b, c) in missing.iter().zip(found) {
+                    costs.insert(format!("{label}/{}", b.format), c);
+                }
             });
             for (b, err) in variants.iter().zip(&errors) {
-                let cost_key = format!("{label}/{}", b.format);
-                let cost = costs
-                    .entry(cost_key)
-                    .or_insert_with(|| timed(&mut ph.shader_cost, || cost::shader_cost(b)))
-                    .clone();
+                let cost = costs[&format!("{label}/{}", b.format)].clone();
                 let textures = crate::glsl::sampled_textures(
                     &crate::glsl::ShaderSpec::of(b),
                     &Default::default(),
@@ -875,10 +908,30 @@ pub fn run(
                 let rendered = options.image_formats.contains(&b.format)
                     && (b.format == Format::F32 || REPRESENTATIVE.contains(&label.as_str()));
                 if rendered {
-                    for (scene, (gt, exp)) in scenes.iter().zip(&truths) {
-                        let img = timed(&mut ph.filtered_render, || render_filtered(scene, b));
-                        let (view_error, test_rgb, flip_map) =
-                            timed(&mut ph.compare, || compare(metric, scene, gt, &img, *exp));
+                    // Renders one view at a time (rows in parallel), then the comparisons
+                    // (FLIP is serial) of every view in parallel.
+                    let images: Vec<Image> = timed(&mut ph.filtered_render, || {
+                        scenes
+                            .iter()
+                            .zip(&geometry)
+                            .map(|(scene, g)| render_filtered_prepared(scene, g, b))
+                            .collect()
+                    });
+                    let compared: Vec<(ViewError, Vec<u8>, Vec<u8>)> =
+                        timed(&mut ph.compare, || {
+                            use rayon::prelude::*;
+                            scenes
+                                .par_iter()
+                                .zip(&truths)
+                                .zip(&images)
+                                .map(|((scene, (gt, exp)), img)| {
+                                    compare(metric, scene, gt, img, *exp)
+                                })
+                                .collect()
+                        });
+                    for ((scene, img), (view_error, test_rgb, flip_map)) in
+                        scenes.iter().zip(&images).zip(compared)
+                    {
                         let write = match options.images {
                             ImageSet::None => false,
                             ImageSet::All => true,
