@@ -495,6 +495,9 @@ pub fn render_filtered_with(scene: &Scene, bake: &Bake, manual: bool) -> Image {
     render_prepared_with(scene, &ViewGeometry::new(scene), bake, manual)
 }
 
+/// A light's `(l, h, scale)` at a pixel: tangent-space light and half vectors, radiance scale.
+type LightFrame = (DVec3, DVec3, f64);
+
 /// One covered pixel of a [`ViewGeometry`].
 #[derive(Debug, Clone, Copy)]
 struct PixelSetup {
@@ -513,8 +516,8 @@ pub struct ViewGeometry {
     height: u32,
     lights: usize,
     pixels: Vec<Option<PixelSetup>>,
-    /// `(l, h, scale)` per pixel and light (`lights` per pixel; zeros where missed).
-    frames: Vec<(DVec3, DVec3, f64)>,
+    /// Per pixel and light (`lights` per pixel; zeros where missed).
+    frames: Vec<LightFrame>,
 }
 
 impl ViewGeometry {
@@ -523,7 +526,7 @@ impl ViewGeometry {
         let (w, h) = (scene.camera.width, scene.camera.height);
         let nl = scene.lights.len();
         let rays = Rays::new(&scene.camera);
-        let rows: Vec<(Vec<Option<PixelSetup>>, Vec<(DVec3, DVec3, f64)>)> = (0..h)
+        let rows: Vec<(Vec<Option<PixelSetup>>, Vec<LightFrame>)> = (0..h)
             .into_par_iter()
             .map(|y| {
                 let mut pixels = Vec::with_capacity(w as usize);

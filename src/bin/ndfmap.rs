@@ -752,7 +752,7 @@ struct ReportArgs {
     align: Vec<String>,
     /// Tan 2005 lobe counts, comma-separated (empty: none).
     #[arg(long, default_value = "4", value_delimiter = ',')]
-    tan_lobes: Vec<usize>,
+    tan_lobes: Vec<String>,
     /// Storage formats measured in texel space, comma-separated.
     #[arg(long, default_value = "f32,f16,unorm8", value_delimiter = ',')]
     formats: Vec<String>,
@@ -914,8 +914,19 @@ fn report(a: ReportArgs) -> Result<()> {
     }
     let formats =
         |v: &[String]| -> Result<Vec<Format>> { v.iter().map(|f| f.trim().parse()).collect() };
+    let tan_lobes: Vec<usize> = a
+        .tan_lobes
+        .iter()
+        .map(|s| s.trim())
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse().map_err(|_| {
+                Error::InvalidOption(format!("--tan-lobes {s} (expected lobe counts)"))
+            })
+        })
+        .collect::<Result<_>>()?;
     let mut lobes_ok = a.lobes.clone();
-    lobes_ok.extend(&a.tan_lobes);
+    lobes_ok.extend(&tan_lobes);
     if let Some(j) = lobes_ok
         .iter()
         .find(|j| !(1..=ndfmap::em::MAX_LOBES).contains(j))
@@ -940,7 +951,7 @@ fn report(a: ReportArgs) -> Result<()> {
         exponent: a.s,
         lobes: a.lobes.clone(),
         align: parse_align(&a.align)?,
-        tan_lobes: a.tan_lobes.clone(),
+        tan_lobes,
         formats: formats(&a.formats)?,
         image_formats: formats(&a.image_formats)?,
         images: choice::<ImageSet>("images", &a.images, "none, some, all")?,

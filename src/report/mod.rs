@@ -1304,9 +1304,12 @@ fn frame_sentence(report: &Report) -> String {
                 .iter()
                 .any(|s| soft.contains(s));
             format!(
-                "{}{note}; the same for every map (the shader's cost does not depend on the \
-                 map's content), and *n/a* for a label or format it did not draw.{}",
+                "{}{note}{}; measured once, on that sample, and shown for every map; *n/a* for \
+                 a label or format it did not draw.{}",
                 t.describe(),
+                t.load_average.map_or(String::new(), |(a, b)| format!(
+                    "; load average {a:.1} at its start, {b:.1} at its end"
+                )),
                 if soft {
                     " This renderer is a software rasterizer on the CPU: read the ratio to \
                      plain, not the milliseconds."
