@@ -10,7 +10,7 @@
 
 use crate::bake::{Bake, Format, Method};
 use crate::ingest::NormalMap;
-use crate::pyramid::{pyramid, reduce};
+use crate::pyramid::{LevelFootprints, pyramid, reduce};
 use crate::shade::{Brdf, half_vector, reference_brdf, shade_brdf};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -79,9 +79,73 @@ pub struct MethodError {
     pub overall_specular: f64,
 }
 
-/// Sums Σ(F − G)² and ΣG² per (bake, exponent, level, term).
-#[derive(Clone)]
-struct Sums(Vec<[f64; 4]>);
+/// The exact answers of every level from `first_level` on, for one light/view pair: per level,
+/// the footprint averages of the unfiltered shading, interleaved `1 + brdfs.len()` values per
+/// texel (Lambert, then the specular term of each BRDF); empty below `first_level`.
+fn exact_levels(
+    map: &NormalMap,
+    levels: &[LevelFootprints],
+    brdfs: &[Brdf],
+    (l, v): LightView,
+    first_level: usize,
+) -> Vec<Vec<f64>> {
+    let h = half_vector(l, v);
+    let ch = 1 + brdfs.len();
+    // Per-normal reference: diffuse, then specular for each exponent.
+    let mut finest = vec![0.0f64; map.normals().len() * ch];
+    finest
+        .chunks_exact_mut(ch)
+        .zip(map.normals())
+        .for_each(|(o, n)| {
+            let n = n.as_dvec3();
+            o[0] = n.dot(l).max(0.0);
+            for (si, &brdf) in brdfs.iter().enumerate() {
+                o[1 + si] = reference_brdf(n, l, h, brdf).specular;
+            }
+        });
+    levels
+        .iter()
+        .enumerate()
+        .map(|(k, lf)| {
+            if k < first_level {
+                Vec::new()
+            } else {
+                reduce(&finest, ch, map.width(), lf)
+            }
+        })
+        .collect()
+}
+
+/// Σ(F − G)² and ΣG² (Lambert, then specular) over the texels of level `k`, against that
+/// level's exact answers `exact`, per bake and BRDF (index `b · brdfs.len() + si`), summed in
+/// texel order.
+fn level_sums(
+    bakes: &[&Bake],
+    brdfs: &[Brdf],
+    exact: &[f64],
+    k: usize,
+    (l, v): LightView,
+) -> Vec<[f64; 4]> {
+    let h = half_vector(l, v);
+    let ns = brdfs.len();
+    let ch = 1 + ns;
+    let mut sums = vec![[0.0f64; 4]; bakes.len() * ns];
+    for (b, bake) in bakes.iter().enumerate() {
+        let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
+        for (i, g) in exact.chunks_exact(ch).enumerate() {
+            bake.texel_into(k, i, &mut texel);
+            for (si, &brdf) in brdfs.iter().enumerate() {
+                let f = shade_brdf(bake, &texel, l, h, brdf);
+                let e = &mut sums[b * ns + si];
+                e[0] += (f.diffuse - g[0]).powi(2);
+                e[1] += g[0] * g[0];
+                e[2] += (f.specular - g[1 + si]).powi(2);
+                e[3] += g[1 + si] * g[1 + si];
+            }
+        }
+    }
+    sums
+}
 
 /// Measures the texel-space error of each bake (baked from `map`) for every BRDF in `brdfs`
 /// and every light/view pair in `directions`.
@@ -97,6 +161,9 @@ pub fn evaluate(
 /// [`evaluate`] that shades only levels `first_level` and coarser (the finer levels' errors
 /// are reported as 0): level 0 is three quarters of the work and every method's error there is
 /// the storage rounding only, so reports that aggregate levels ≥ 1 skip it.
+///
+/// The exact answers are computed per light/view pair and dropped; [`Reference`] keeps them, to
+/// measure many bakes of one map, with the same results.
 pub fn evaluate_from(
     map: &NormalMap,
     bakes: &[&Bake],
@@ -105,52 +172,41 @@ pub fn evaluate_from(
     first_level: usize,
 ) -> Vec<MethodError> {
     let levels = pyramid(map.width(), map.height());
-    let nl = levels.len();
-    let ns = brdfs.len();
-    let slot = |b: usize, si: usize, k: usize| (b * ns + si) * nl + k;
-    let per_direction: Vec<Sums> = directions
+    // Per direction, per level: the sums of level_sums.
+    let per_direction: Vec<Vec<Vec<[f64; 4]>>> = directions
         .par_iter()
-        .map(|&(l, v)| {
-            let h = half_vector(l, v);
-            let ch = 1 + ns;
-            // Per-normal reference: diffuse, then specular for each exponent.
-            let mut finest = vec![0.0f64; map.normals().len() * ch];
-            finest
-                .chunks_exact_mut(ch)
-                .zip(map.normals())
-                .for_each(|(o, n)| {
-                    let n = n.as_dvec3();
-                    o[0] = n.dot(l).max(0.0);
-                    for (si, &brdf) in brdfs.iter().enumerate() {
-                        o[1 + si] = reference_brdf(n, l, h, brdf).specular;
+        .map(|&lv| {
+            let exact = exact_levels(map, &levels, brdfs, lv, first_level);
+            (0..levels.len())
+                .map(|k| {
+                    if k < first_level {
+                        vec![[0.0; 4]; bakes.len() * brdfs.len()]
+                    } else {
+                        level_sums(bakes, brdfs, &exact[k], k, lv)
                     }
-                });
-            let mut sums = Sums(vec![[0.0; 4]; bakes.len() * ns * nl]);
-            for (k, lf) in levels.iter().enumerate().skip(first_level) {
-                let exact = reduce(&finest, ch, map.width(), lf);
-                for (b, bake) in bakes.iter().enumerate() {
-                    let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
-                    for (i, g) in exact.chunks_exact(ch).enumerate() {
-                        bake.texel_into(k, i, &mut texel);
-                        for (si, &brdf) in brdfs.iter().enumerate() {
-                            let f = shade_brdf(bake, &texel, l, h, brdf);
-                            let e = &mut sums.0[slot(b, si, k)];
-                            e[0] += (f.diffuse - g[0]).powi(2);
-                            e[1] += g[0] * g[0];
-                            e[2] += (f.specular - g[1 + si]).powi(2);
-                            e[3] += g[1 + si] * g[1 + si];
-                        }
-                    }
-                }
-            }
-            sums
+                })
+                .collect()
         })
         .collect();
-    let mut total = vec![[0.0f64; 4]; bakes.len() * ns * nl];
-    for d in &per_direction {
-        for (t, s) in total.iter_mut().zip(&d.0) {
-            for c in 0..4 {
-                t[c] += s[c];
+    errors(&levels, bakes, brdfs, &per_direction)
+}
+
+/// The errors from the sums of every direction and level (`per_direction[d][k][b · ns + si]`),
+/// added over the directions in order.
+fn errors(
+    levels: &[LevelFootprints],
+    bakes: &[&Bake],
+    brdfs: &[Brdf],
+    per_direction: &[Vec<Vec<[f64; 4]>>],
+) -> Vec<MethodError> {
+    let ns = brdfs.len();
+    let mut total = vec![vec![[0.0f64; 4]; bakes.len() * ns]; levels.len()];
+    for d in per_direction {
+        for (t, s) in total.iter_mut().zip(d) {
+            for (t, s) in t.iter_mut().zip(s) {
+                for c in 0..4 {
+                    t[c] += s[c];
+                }
             }
         }
     }
@@ -162,7 +218,7 @@ pub fn evaluate_from(
                 .iter()
                 .enumerate()
                 .map(|(k, lf)| {
-                    let e = total[slot(b, si, k)];
+                    let e = total[k][b * ns + si];
                     LevelError {
                         level: k,
                         width: lf.size.0,
@@ -192,6 +248,78 @@ pub fn evaluate_from(
         }
     }
     out
+}
+
+/// The exact side of [`evaluate_from`] for one map, kept: every level's footprint averages for
+/// every light/view pair and BRDF, so that many bakes of the map ([`Reference::evaluate`], a
+/// report's configurations) share them. Its errors are [`evaluate_from`]'s, bit for bit.
+/// Memory: [`Reference::bytes`].
+pub struct Reference {
+    levels: Vec<LevelFootprints>,
+    brdfs: Vec<Brdf>,
+    directions: Vec<LightView>,
+    first_level: usize,
+    /// `exact[d][k]`: [`exact_levels`] of direction d.
+    exact: Vec<Vec<Vec<f64>>>,
+}
+
+impl Reference {
+    /// The exact answers of `map` for `brdfs` and `directions`, levels `first_level` and coarser.
+    pub fn new(
+        map: &NormalMap,
+        brdfs: &[Brdf],
+        directions: &[LightView],
+        first_level: usize,
+    ) -> Reference {
+        let levels = pyramid(map.width(), map.height());
+        let exact = directions
+            .par_iter()
+            .map(|&lv| exact_levels(map, &levels, brdfs, lv, first_level))
+            .collect();
+        Reference {
+            levels,
+            brdfs: brdfs.to_vec(),
+            directions: directions.to_vec(),
+            first_level,
+            exact,
+        }
+    }
+
+    /// Bytes a [`Reference`] of a `width × height` map holds for `brdfs` BRDFs and `directions`
+    /// light/view pairs, levels `first_level` and coarser.
+    pub fn bytes(
+        width: u32,
+        height: u32,
+        brdfs: usize,
+        directions: usize,
+        first_level: usize,
+    ) -> u64 {
+        let texels: u64 = crate::pyramid::level_sizes(width, height)
+            .iter()
+            .skip(first_level)
+            .map(|&(w, h)| w as u64 * h as u64)
+            .sum();
+        texels * (1 + brdfs as u64) * 8 * directions as u64
+    }
+
+    /// [`evaluate_from`] of `bakes` (baked from this reference's map) with this reference's
+    /// BRDFs, directions and first level. Every (direction, level) pair is a task of its own.
+    pub fn evaluate(&self, bakes: &[&Bake]) -> Vec<MethodError> {
+        let nl = self.levels.len();
+        let tasks: Vec<(usize, usize)> = (0..self.directions.len())
+            .flat_map(|d| (self.first_level..nl).map(move |k| (d, k)))
+            .collect();
+        let sums: Vec<Vec<[f64; 4]>> = tasks
+            .par_iter()
+            .map(|&(d, k)| level_sums(bakes, &self.brdfs, &self.exact[d][k], k, self.directions[d]))
+            .collect();
+        let empty = vec![[0.0; 4]; bakes.len() * self.brdfs.len()];
+        let mut per_direction = vec![vec![empty; nl]; self.directions.len()];
+        for (&(d, k), s) in tasks.iter().zip(sums) {
+            per_direction[d][k] = s;
+        }
+        errors(&self.levels, bakes, &self.brdfs, &per_direction)
+    }
 }
 
 /// `sqrt(num/den)` for sums `num = Σ(F − G)²`, `den = ΣG²`: infinite when the reference is
@@ -277,6 +405,37 @@ mod tests {
         } else {
             0.0
         }
+    }
+
+    #[test]
+    fn a_kept_reference_gives_evaluate_from_bit_for_bit() {
+        let m = map(13, 10, |x, y| {
+            Vec3::new(
+                (x as f32 * 0.9).sin() * 0.6,
+                (y as f32 * 1.3).cos() * 0.5,
+                1.0,
+            )
+        });
+        let bakes: Vec<Bake> = [Method::Toksvig, Method::Vmf]
+            .iter()
+            .map(|&me| bake(&m, me))
+            .collect();
+        let refs: Vec<&Bake> = bakes.iter().collect();
+        let brdfs = [
+            Brdf::BlinnPhong { s: 32.0 },
+            Brdf::TorranceSparrow { sigma: 0.2 },
+        ];
+        let dirs: Vec<LightView> = default_directions().into_iter().step_by(4).collect();
+        for first in [0, 1, 2] {
+            let r = Reference::new(&m, &brdfs, &dirs, first);
+            assert_eq!(
+                r.evaluate(&refs),
+                evaluate_from(&m, &refs, &brdfs, &dirs, first),
+                "first level {first}"
+            );
+        }
+        // 13×10: levels 6×5, 3×2 and 1×1 from level 1 on; 1 + 2 channels per texel, 7 pairs.
+        assert_eq!(Reference::bytes(13, 10, 2, 7, 1), (30 + 6 + 1) * 3 * 8 * 7);
     }
 
     #[test]

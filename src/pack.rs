@@ -116,15 +116,22 @@ pub fn round_trip(v: f32, range: ValueRange, format: Format) -> f32 {
 /// The bake as a GPU sampling `format` textures sees it: every value rounded through the
 /// format, and [`Bake::format`] set so shading applies the format's clamps.
 pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
-    let mut out = bake.clone();
-    for (i, t) in out.textures.iter_mut().enumerate() {
+    use rayon::prelude::*;
+    for i in 0..bake.textures.len() {
         check(bake, i, format)?;
+    }
+    let mut out = bake.clone();
+    for t in &mut out.textures {
+        let ranges = t.ranges;
         for level in &mut t.levels {
-            for texel in level.iter_mut() {
-                for (c, v) in texel.iter_mut().enumerate() {
-                    *v = round_trip(*v, t.ranges[c], format);
+            // Each value on its own: the same result for any split and thread count.
+            level.par_chunks_mut(4096).for_each(|chunk| {
+                for texel in chunk {
+                    for (c, v) in texel.iter_mut().enumerate() {
+                        *v = round_trip(*v, ranges[c], format);
+                    }
                 }
-            }
+            });
         }
     }
     out.format = format;

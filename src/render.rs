@@ -24,8 +24,8 @@ use crate::bake::Bake;
 use crate::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
 use crate::ingest::{Addressing, NormalMap};
 use crate::rng::Rng;
-use crate::sample::{Filtering, lod, shade_at};
-use crate::shade::{Brdf, half_vector, reference_brdf};
+use crate::sample::{Filtering, lod, shade_at_lights};
+use crate::shade::{Brdf, ShadingRgb, half_vector, reference_brdf};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -52,14 +52,45 @@ impl Camera {
     /// The ray through the image point `(px, py)` in pixels (`(0.5, 0.5)` is the centre of the
     /// top-left pixel): origin and unit direction.
     pub fn ray(&self, px: f64, py: f64) -> (DVec3, DVec3) {
-        let f = (self.target - self.eye).normalize();
-        let r = f.cross(self.up).normalize();
+        Rays::new(self).ray(px, py)
+    }
+}
+
+/// What [`Camera::ray`] derives from the camera before the pixel position enters, computed
+/// once per image: the renderers' inner loops call [`Rays::ray`], which gives bit for bit what
+/// `Camera::ray` gives.
+#[derive(Debug, Clone, Copy)]
+struct Rays {
+    eye: DVec3,
+    f: DVec3,
+    r: DVec3,
+    u: DVec3,
+    t: f64,
+    w: f64,
+    h: f64,
+}
+
+impl Rays {
+    fn new(c: &Camera) -> Rays {
+        let f = (c.target - c.eye).normalize();
+        let r = f.cross(c.up).normalize();
         let u = r.cross(f);
-        let t = (0.5 * self.fov_y_deg.to_radians()).tan();
-        let (w, h) = (self.width as f64, self.height as f64);
+        Rays {
+            eye: c.eye,
+            f,
+            r,
+            u,
+            t: (0.5 * c.fov_y_deg.to_radians()).tan(),
+            w: c.width as f64,
+            h: c.height as f64,
+        }
+    }
+
+    fn ray(&self, px: f64, py: f64) -> (DVec3, DVec3) {
+        let (t, w, h) = (self.t, self.w, self.h);
         let x = (2.0 * px / w - 1.0) * t * w / h;
         let y = (1.0 - 2.0 * py / h) * t;
-        (self.eye, (f + x * r + y * u).normalize())
+        (self.eye, (self.f + x * self.r + y * self.u).normalize())
     }
 }
 
@@ -299,11 +330,16 @@ fn uv_step(hit: &Hit, o: DVec3, d: DVec3) -> DVec2 {
 
 /// The geometry at the centre of pixel `(x, y)`, or `None` where the surface is missed.
 pub fn pixel_geometry(scene: &Scene, x: u32, y: u32) -> Option<PixelGeometry> {
+    pixel_geometry_with(&Rays::new(&scene.camera), &scene.surface, x, y)
+}
+
+/// [`pixel_geometry`] with the camera's rays prepared.
+fn pixel_geometry_with(rays: &Rays, surface: &Surface, x: u32, y: u32) -> Option<PixelGeometry> {
     let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
-    let (o, d) = scene.camera.ray(cx, cy);
-    let hit = scene.surface.intersect(o, d)?;
-    let (ox, dx) = scene.camera.ray(cx + 1.0, cy);
-    let (oy, dy) = scene.camera.ray(cx, cy + 1.0);
+    let (o, d) = rays.ray(cx, cy);
+    let hit = surface.intersect(o, d)?;
+    let (ox, dx) = rays.ray(cx + 1.0, cy);
+    let (oy, dy) = rays.ray(cx, cy + 1.0);
     Some(PixelGeometry {
         hit,
         duv_dx: uv_step(&hit, ox, dx),
@@ -311,24 +347,53 @@ pub fn pixel_geometry(scene: &Scene, x: u32, y: u32) -> Option<PixelGeometry> {
     })
 }
 
-/// The light, view and half vectors of `light` in the tangent frame of `hit`, with the light's
-/// radiance scale — what the fragment shader computes before shading.
-fn tangent_space(hit: &Hit, eye: DVec3, light: &Light) -> (DVec3, DVec3, f64) {
-    let (t, b, n) = hit.frame();
-    let to_ts = |w: DVec3| DVec3::new(w.dot(t), w.dot(b), w.dot(n));
-    let (lw, scale) = light.at(hit.p);
-    let l = to_ts(lw);
-    let v = to_ts((eye - hit.p).normalize());
-    (l, half_vector(l, v), scale)
+/// The tangent frame of a hit and the direction to the eye in it: what every light's
+/// [`TangentSpace::light`] shares.
+struct TangentSpace {
+    t: DVec3,
+    b: DVec3,
+    n: DVec3,
+    p: DVec3,
+    v: DVec3,
+}
+
+impl TangentSpace {
+    fn new(hit: &Hit, eye: DVec3) -> TangentSpace {
+        let (t, b, n) = hit.frame();
+        let mut ts = TangentSpace {
+            t,
+            b,
+            n,
+            p: hit.p,
+            v: DVec3::ZERO,
+        };
+        ts.v = ts.to_ts((eye - hit.p).normalize());
+        ts
+    }
+
+    fn to_ts(&self, w: DVec3) -> DVec3 {
+        DVec3::new(w.dot(self.t), w.dot(self.b), w.dot(self.n))
+    }
+
+    /// The light, view and half vectors of `light` in the tangent frame, with the light's
+    /// radiance scale — what the fragment shader computes before shading.
+    fn light(&self, light: &Light) -> (DVec3, DVec3, f64) {
+        let (lw, scale) = light.at(self.p);
+        let l = self.to_ts(lw);
+        (l, half_vector(l, self.v), scale)
+    }
 }
 
 /// The level of detail at every pixel centre on a texture of `size` (NaN where the surface is
 /// missed): what `ndf_lod` gives the shader.
 pub fn lod_image(scene: &Scene, size: (u32, u32)) -> Vec<f64> {
     let (w, h) = (scene.camera.width, scene.camera.height);
+    let rays = Rays::new(&scene.camera);
     (0..w * h)
+        .into_par_iter()
         .map(|i| {
-            pixel_geometry(scene, i % w, i / w).map_or(f64::NAN, |g| lod(g.duv_dx, g.duv_dy, size))
+            pixel_geometry_with(&rays, &scene.surface, i % w, i / w)
+                .map_or(f64::NAN, |g| lod(g.duv_dx, g.duv_dy, size))
         })
         .collect()
 }
@@ -359,20 +424,22 @@ fn row_seed(seed: u64, row: u32) -> u64 {
 pub fn render_ground_truth(scene: &Scene, map: &NormalMap, spp: u32, seed: u64) -> Image {
     let n = (spp.max(1) as f64).sqrt().ceil() as u32;
     let count = (n * n) as f64;
+    let rays = Rays::new(&scene.camera);
     render_rows(scene, seed, |x, y, rng| {
         let (mut sum, mut hits) = (0.0f64, 0u32);
         for sy in 0..n {
             for sx in 0..n {
                 let fx = x as f64 + (sx as f64 + rng.range(0.0, 1.0)) / n as f64;
                 let fy = y as f64 + (sy as f64 + rng.range(0.0, 1.0)) / n as f64;
-                let (o, d) = scene.camera.ray(fx, fy);
+                let (o, d) = rays.ray(fx, fy);
                 let Some(hit) = scene.surface.intersect(o, d) else {
                     continue;
                 };
                 hits += 1;
                 let normal = nearest_normal(map, hit.uv);
+                let ts = TangentSpace::new(&hit, scene.camera.eye);
                 for light in &scene.lights {
-                    let (l, hv, scale) = tangent_space(&hit, scene.camera.eye, light);
+                    let (l, hv, scale) = ts.light(light);
                     let s = reference_brdf(normal, l, hv, scene.material.brdf);
                     sum += scene.material.radiance(scale, s.diffuse, s.specular);
                 }
@@ -425,19 +492,107 @@ pub fn render_filtered(scene: &Scene, bake: &Bake) -> Image {
 /// [`render_filtered`] with the sampling mode given: `manual` shades the texels of the
 /// trilinear footprint and blends, otherwise the textures are sampled trilinearly.
 pub fn render_filtered_with(scene: &Scene, bake: &Bake, manual: bool) -> Image {
+    render_prepared_with(scene, &ViewGeometry::new(scene), bake, manual)
+}
+
+/// A light's `(l, h, scale)` at a pixel: tangent-space light and half vectors, radiance scale.
+type LightFrame = (DVec3, DVec3, f64);
+
+/// One covered pixel of a [`ViewGeometry`].
+#[derive(Debug, Clone, Copy)]
+struct PixelSetup {
+    uv: DVec2,
+    duv_dx: DVec2,
+    duv_dy: DVec2,
+}
+
+/// What every filtered render of a view shares, computed once: per pixel centre the hit's uv,
+/// uv's screen derivatives and each light's tangent-space light and half vectors and radiance
+/// scale. [`render_filtered_prepared`] renders from it what [`render_filtered`] renders, bit for
+/// bit.
+#[derive(Debug, Clone)]
+pub struct ViewGeometry {
+    width: u32,
+    height: u32,
+    lights: usize,
+    pixels: Vec<Option<PixelSetup>>,
+    /// Per pixel and light (`lights` per pixel; zeros where missed).
+    frames: Vec<LightFrame>,
+}
+
+impl ViewGeometry {
+    /// The geometry of every pixel centre of `scene` (rows in parallel).
+    pub fn new(scene: &Scene) -> ViewGeometry {
+        let (w, h) = (scene.camera.width, scene.camera.height);
+        let nl = scene.lights.len();
+        let rays = Rays::new(&scene.camera);
+        let rows: Vec<(Vec<Option<PixelSetup>>, Vec<LightFrame>)> = (0..h)
+            .into_par_iter()
+            .map(|y| {
+                let mut pixels = Vec::with_capacity(w as usize);
+                let mut frames = vec![(DVec3::ZERO, DVec3::ZERO, 0.0); w as usize * nl];
+                for x in 0..w {
+                    let g = pixel_geometry_with(&rays, &scene.surface, x, y);
+                    if let Some(g) = &g {
+                        let ts = TangentSpace::new(&g.hit, scene.camera.eye);
+                        for (i, light) in scene.lights.iter().enumerate() {
+                            frames[x as usize * nl + i] = ts.light(light);
+                        }
+                    }
+                    pixels.push(g.map(|g| PixelSetup {
+                        uv: g.hit.uv,
+                        duv_dx: g.duv_dx,
+                        duv_dy: g.duv_dy,
+                    }));
+                }
+                (pixels, frames)
+            })
+            .collect();
+        let mut out = ViewGeometry {
+            width: w,
+            height: h,
+            lights: nl,
+            pixels: Vec::with_capacity((w * h) as usize),
+            frames: Vec::with_capacity((w * h) as usize * nl),
+        };
+        for (p, f) in rows {
+            out.pixels.extend(p);
+            out.frames.extend(f);
+        }
+        out
+    }
+}
+
+/// [`render_filtered`] from the view's prepared geometry (`geometry` must be `scene`'s).
+pub fn render_filtered_prepared(scene: &Scene, geometry: &ViewGeometry, bake: &Bake) -> Image {
+    let manual = manual_sampling(&ShaderSpec::of(bake), &ShaderOptions::default());
+    render_prepared_with(scene, geometry, bake, manual)
+}
+
+fn render_prepared_with(scene: &Scene, g: &ViewGeometry, bake: &Bake, manual: bool) -> Image {
+    assert!(
+        g.width == scene.camera.width
+            && g.height == scene.camera.height
+            && g.lights == scene.lights.len(),
+        "the geometry is of another view"
+    );
     let size = bake.sizes[0];
     let f = Filtering {
         brdf: scene.material.brdf,
         manual,
         color: false,
     };
+    let nl = g.lights;
     render_rows(scene, 0, |x, y, _| {
-        let g = pixel_geometry(scene, x, y)?;
-        let lambda = lod(g.duv_dx, g.duv_dy, size);
+        let i = (y * g.width + x) as usize;
+        let p = g.pixels[i]?;
+        let lambda = lod(p.duv_dx, p.duv_dy, size);
+        let frames = &g.frames[i * nl..(i + 1) * nl];
+        let lights: Vec<(DVec3, DVec3)> = frames.iter().map(|&(l, h, _)| (l, h)).collect();
+        let mut shaded = vec![ShadingRgb::default(); nl];
+        shade_at_lights(bake, p.uv, lambda, &lights, f, &mut shaded);
         let mut sum = 0.0;
-        for light in &scene.lights {
-            let (l, hv, scale) = tangent_space(&g.hit, scene.camera.eye, light);
-            let s = shade_at(bake, g.hit.uv, lambda, l, hv, f);
+        for (s, &(_, _, scale)) in shaded.iter().zip(frames) {
             sum += scene.material.radiance(scale, s.diffuse.x, s.specular.x);
         }
         Some((sum, 1.0))
@@ -459,14 +614,13 @@ pub fn render_filtered_with(scene: &Scene, bake: &Bake, manual: bool) -> Image {
 pub fn render_oracle(scene: &Scene, map: &NormalMap, samples_per_texel: u32, seed: u64) -> Image {
     let sizes = crate::pyramid::level_sizes(map.width(), map.height());
     let n = (samples_per_texel.max(1) as f64).sqrt().ceil() as u32;
+    let rays = Rays::new(&scene.camera);
     render_rows(scene, seed ^ 0x6F72_6163_6C65, |x, y, rng| {
-        let g = pixel_geometry(scene, x, y)?;
+        let g = pixel_geometry_with(&rays, &scene.surface, x, y)?;
         let lambda = lod(g.duv_dx, g.duv_dy, sizes[0]);
-        let frames: Vec<(DVec3, DVec3, f64)> = scene
-            .lights
-            .iter()
-            .map(|light| tangent_space(&g.hit, scene.camera.eye, light))
-            .collect();
+        let ts = TangentSpace::new(&g.hit, scene.camera.eye);
+        let frames: Vec<(DVec3, DVec3, f64)> =
+            scene.lights.iter().map(|light| ts.light(light)).collect();
         let mut sum = 0.0;
         for (level, lw) in crate::sample::level_weights(lambda, sizes.len()) {
             let (tw, th) = sizes[level];

@@ -1,15 +1,58 @@
 //! `ndfmap report` end to end on a tiny built-in sample: the files it promises, and numbers that
 //! hold whatever the map (level-0-free texel errors are finite, every image error is finite,
-//! the ground truth's Monte Carlo estimate is present, shading costs are counted).
+//! the ground truth's Monte Carlo estimate is present, shading costs are counted), and frame
+//! times read from a viewer-benchmark JSON written here by hand (so the test never runs the
+//! viewer): each row gets the mean over the views of its label's cell in its format, and its
+//! ratio to plain's; labels and formats the file lacks stay n/a.
 #![cfg(feature = "report")]
 
+use serde_json::json;
 use std::path::Path;
 use std::process::Command;
+
+/// A benchmark file as `ndfmap-viewer --bench --bench-json` writes it: plain, Toksvig and vMF
+/// J = 1 aligned in f32 (plain also in f16), two views.
+fn frame_times_json() -> serde_json::Value {
+    let cell = |view: &str, format: &str, ms: f64, plain: f64| json!({"view": view, "format": format, "median_ms": ms, "ratio_to_plain": ms / plain});
+    let shader = |label: &str, far: f64, grazing: f64, formats: &[&str]| {
+        let cells: Vec<_> = formats
+            .iter()
+            .flat_map(|f| {
+                [
+                    cell("plane-far", f, far, 2.0),
+                    cell("plane-grazing", f, grazing, 10.0),
+                ]
+            })
+            .collect();
+        json!({"label": label, "sampling": "hardware", "cells": cells})
+    };
+    json!({
+        "renderer": "llvmpipe (test)",
+        "gl_version": "OpenGL 4.5",
+        "route": "egl",
+        "width": 64,
+        "height": 36,
+        "frames": 3,
+        "warm_up": 2,
+        "sample_size": 16,
+        "views": [
+            {"name": "plane-far", "covered_pixels": 300},
+            {"name": "plane-grazing", "covered_pixels": 1200}
+        ],
+        "shaders": [
+            shader("plain", 2.0, 10.0, &["f32", "f16"]),
+            shader("toksvig", 2.5, 9.5, &["f32"]),
+            shader("vmf1a", 5.0, 25.0, &["f32"]),
+        ]
+    })
+}
 
 #[test]
 fn report_writes_markdown_json_plots_and_images() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rep");
+    let frame_times = dir.path().join("frame-times.json");
+    std::fs::write(&frame_times, frame_times_json().to_string()).unwrap();
     let status = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
         .args([
             "report",
@@ -28,8 +71,10 @@ fn report_writes_markdown_json_plots_and_images() {
             "--tan-lobes",
             "1",
             "--no-stability",
-            "-o",
+            "--frame-times",
         ])
+        .arg(&frame_times)
+        .arg("-o")
         .arg(&out)
         .env("NDFMAP_DATA", dir.path().join("no-maps-here"))
         .status()
@@ -56,6 +101,43 @@ fn report_writes_markdown_json_plots_and_images() {
         assert!(r["cost"]["fetches"].as_u64().unwrap() >= 1);
     }
     assert!(json["maps"][0]["ground_truth_error"][1].as_f64().unwrap() > 0.0);
+    // Frame times: (far + grazing) / 2, and over plain's (2 + 10) / 2 = 6 ms.
+    let frame = |config: &str, format: &str| {
+        let r = rows
+            .iter()
+            .find(|r| r["config"] == config && r["format"] == format)
+            .unwrap_or_else(|| panic!("no row {config} {format}"));
+        (r["frame_ms"].as_f64(), r["frame_ratio"].as_f64())
+    };
+    assert_eq!(frame("plain", "f32"), (Some(6.0), Some(1.0)));
+    assert_eq!(frame("plain", "f16"), (Some(6.0), Some(1.0)));
+    assert_eq!(frame("toksvig", "f32"), (Some(6.0), Some(1.0)));
+    assert_eq!(frame("vmf1a", "f32"), (Some(15.0), Some(2.5)));
+    assert_eq!(frame("vmf1a", "f16"), (None, None));
+    assert_eq!(frame("vmf1", "f32"), (None, None));
+    assert_eq!(frame("tan2005-1", "f32"), (None, None));
+    assert_eq!(json["frame_times"]["renderer"], "llvmpipe (test)");
+    assert!(
+        md.contains("| vmf1a | ") && md.contains("| 15.00 (2.50×) |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| 6.00 (1.00×) |") && md.contains("| n/a |"),
+        "{md}"
+    );
+    assert!(md.contains("read the ratio to plain"), "{md}");
+    for phase in [
+        "ground_truth",
+        "bake",
+        "texel_eval",
+        "compare",
+        "frame_times",
+    ] {
+        assert!(
+            json["phases"][phase]["wall"].as_f64().unwrap() >= 0.0,
+            "{phase}"
+        );
+    }
     let images = out.join("images/sample");
     assert!(images.join("zoom5_ground_truth.png").exists());
     assert!(images.join("sphere_ideal.png").exists());
@@ -66,6 +148,7 @@ fn report_writes_markdown_json_plots_and_images() {
             "error_vs_shading_cost",
             "error_vs_texture_memory",
             "error_vs_mip_level",
+            "error_vs_frame_time",
         ] {
             assert!(out.join(format!("{stem}.png")).exists(), "{stem}");
             assert!(out.join(format!("{stem}.svg")).exists(), "{stem}");

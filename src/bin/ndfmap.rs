@@ -768,7 +768,7 @@ struct ReportArgs {
     align: Vec<String>,
     /// Tan 2005 lobe counts, comma-separated (empty: none).
     #[arg(long, default_value = "4", value_delimiter = ',')]
-    tan_lobes: Vec<usize>,
+    tan_lobes: Vec<String>,
     /// Storage formats measured in texel space, comma-separated.
     #[arg(long, default_value = "f32,f16,unorm8", value_delimiter = ',')]
     formats: Vec<String>,
@@ -787,9 +787,92 @@ struct ReportArgs {
     /// Skip the stability sweep.
     #[arg(long)]
     no_stability: bool,
-    /// Measure nothing: rewrite report.md and the plots from a report.json of an earlier run.
+    /// Measure nothing: rewrite report.md and the plots from a report.json of an earlier run
+    /// (with --frame-times, also replace its frame times).
     #[arg(long)]
     from_json: Option<PathBuf>,
+    /// Frame times from `ndfmap-viewer --bench --bench-json FILE`. Without it, an
+    /// `ndfmap-viewer` beside this executable is run (--bench-size, --bench-frames, a 256²
+    /// sample; about half a minute on llvmpipe).
+    #[arg(long, conflicts_with = "no_frame_times")]
+    frame_times: Option<PathBuf>,
+    /// No frame times (the table shows n/a).
+    #[arg(long)]
+    no_frame_times: bool,
+    /// Framebuffer of the viewer benchmark the report runs, WxH.
+    #[arg(long, default_value = "640x360", value_parser = parse_wxh)]
+    bench_size: (u32, u32),
+    /// Timed frames of the viewer benchmark the report runs.
+    #[arg(long, default_value_t = 8)]
+    bench_frames: u32,
+}
+
+/// `WxH`, each 1 to 8192.
+#[cfg(feature = "report")]
+fn parse_wxh(s: &str) -> std::result::Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}': expected WxH"))?;
+    let parse = |v: &str| {
+        v.parse::<u32>()
+            .ok()
+            .filter(|v| (1..=8192).contains(v))
+            .ok_or_else(|| format!("'{s}': sizes are 1 to 8192"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
+/// Frame times for `rep` as `a` asks: read from --frame-times (`given`, loaded before the
+/// measurements so a bad file fails early), none with --no-frame-times, else measured by an
+/// `ndfmap-viewer` beside this executable. Notes the source, or why there are none.
+#[cfg(feature = "report")]
+fn attach_frame_times(
+    a: &ReportArgs,
+    given: Option<ndfmap::report::frame::FrameTimes>,
+    rep: &mut ndfmap::report::Report,
+) {
+    use ndfmap::report::frame::{BenchSettings, run_viewer_bench, viewer_beside};
+    if let Some(times) = given {
+        let path = a.frame_times.as_deref().unwrap_or(Path::new("?"));
+        rep.set_frame_times(times);
+        rep.frame_times_note = Some(format!("read from {}", path.display()));
+        return;
+    }
+    if a.no_frame_times {
+        rep.frame_times_note = Some("not measured: --no-frame-times".into());
+        return;
+    }
+    let exe = std::env::current_exe().ok();
+    let Some(viewer) = exe.as_deref().and_then(viewer_beside) else {
+        rep.frame_times_note = Some(format!(
+            "no `ndfmap-viewer` beside {}: build it (`cargo build --release -p \
+             ndfmap-viewer`) or pass `--frame-times FILE`",
+            exe.as_deref()
+                .unwrap_or(Path::new("this executable"))
+                .display()
+        ));
+        return;
+    };
+    let mut labels: Vec<String> = Vec::new();
+    for r in &rep.rows {
+        if !labels.contains(&r.config) {
+            labels.push(r.config.clone());
+        }
+    }
+    let settings = BenchSettings {
+        size: a.bench_size,
+        frames: a.bench_frames.max(1),
+        labels,
+        formats: rep.options.formats.clone(),
+        ..BenchSettings::default()
+    };
+    match run_viewer_bench(&viewer, &settings) {
+        Ok(times) => {
+            rep.set_frame_times(times);
+            rep.frame_times_note = Some(format!("run by this report: {}", viewer.display()));
+        }
+        Err(e) => rep.frame_times_note = Some(format!("not measured: {e}")),
+    }
 }
 
 /// NVIDIA's FLIP (LDR, 67 pixels per degree) through `nv-flip`: per-pixel errors and the
@@ -805,6 +888,24 @@ fn flip_metric(reference: &[u8], test: &[u8], width: u32, height: u32) -> (Vec<f
     )
 }
 
+/// The frame times of --frame-times, if given.
+#[cfg(feature = "report")]
+fn load_frame_times(a: &ReportArgs) -> Result<Option<ndfmap::report::frame::FrameTimes>> {
+    a.frame_times
+        .as_ref()
+        .map(|path| {
+            let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
+                path: path.clone(),
+                source,
+            })?;
+            ndfmap::report::frame::FrameTimes::from_json(&text).map_err(|message| Error::Decode {
+                path: path.clone(),
+                message,
+            })
+        })
+        .transpose()
+}
+
 /// `ndfmap report`: measure, then write the report with a progress bar.
 #[cfg(feature = "report")]
 fn report(a: ReportArgs) -> Result<()> {
@@ -814,19 +915,34 @@ fn report(a: ReportArgs) -> Result<()> {
             path: path.clone(),
             source,
         })?;
-        let rep: ndfmap::report::Report =
+        let mut rep: ndfmap::report::Report =
             serde_json::from_str(&text).map_err(|e| Error::Decode {
                 path: path.clone(),
                 message: e.to_string(),
             })?;
+        if a.frame_times.is_some() {
+            let given = load_frame_times(&a)?;
+            attach_frame_times(&a, given, &mut rep);
+        }
         ndfmap::report::write(&rep, &a.output)?;
         println!("report: {}", a.output.join("report.md").display());
         return Ok(());
     }
     let formats =
         |v: &[String]| -> Result<Vec<Format>> { v.iter().map(|f| f.trim().parse()).collect() };
+    let tan_lobes: Vec<usize> = a
+        .tan_lobes
+        .iter()
+        .map(|s| s.trim())
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse().map_err(|_| {
+                Error::InvalidOption(format!("--tan-lobes {s} (expected lobe counts)"))
+            })
+        })
+        .collect::<Result<_>>()?;
     let mut lobes_ok = a.lobes.clone();
-    lobes_ok.extend(&a.tan_lobes);
+    lobes_ok.extend(&tan_lobes);
     if let Some(j) = lobes_ok
         .iter()
         .find(|j| !(1..=ndfmap::em::MAX_LOBES).contains(j))
@@ -843,6 +959,7 @@ fn report(a: ReportArgs) -> Result<()> {
         )));
     }
     check_exponents(&[a.s])?;
+    let given_frame_times = load_frame_times(&a)?;
     let options = ReportOptions {
         image_size: a.size,
         spp: a.spp,
@@ -850,7 +967,7 @@ fn report(a: ReportArgs) -> Result<()> {
         exponent: a.s,
         lobes: a.lobes.clone(),
         align: parse_align(&a.align)?,
-        tan_lobes: a.tan_lobes.clone(),
+        tan_lobes,
         formats: formats(&a.formats)?,
         image_formats: formats(&a.image_formats)?,
         images: choice::<ImageSet>("images", &a.images, "none, some, all")?,
@@ -905,17 +1022,34 @@ fn report(a: ReportArgs) -> Result<()> {
     let mut rep = ndfmap::report::run(&inputs, &options, &a.output, &progress, flip_metric)?;
     if !a.no_stability {
         progress(Progress::Step("stability sweep"));
+        let w = ndfmap::report::Stopwatch::start();
         rep.stability = Some(ndfmap::report::stability::sweep(true));
+        if let Some(p) = &mut rep.phases {
+            w.stop(&mut p.stability);
+        }
         progress(Progress::Done);
     }
+    bar.inc_length(1);
+    progress(Progress::Step("frame times"));
+    let w = ndfmap::report::Stopwatch::start();
+    attach_frame_times(&a, given_frame_times, &mut rep);
+    if let Some(p) = &mut rep.phases {
+        w.stop(&mut p.frame_times);
+    }
+    progress(Progress::Done);
     bar.finish_and_clear();
+    let t = std::time::Instant::now();
     ndfmap::report::write(&rep, &a.output)?;
     println!(
-        "report: {} ({} rows, {:.0} s)",
+        "report: {} ({} rows, {:.0} s; writing it and the plots {:.1} s)",
         a.output.join("report.md").display(),
         rep.rows.len(),
-        rep.seconds
+        rep.seconds,
+        t.elapsed().as_secs_f64()
     );
+    if let Some(p) = &rep.phases {
+        println!("phases: {}", p.summary());
+    }
     Ok(())
 }
 

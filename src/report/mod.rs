@@ -2,23 +2,25 @@
 //! storage format is baked (timed, peak memory), measured in texel space ([`crate::eval`]) and
 //! in image space ([`crate::render`]: supersampled ground truth vs the CPU twin of the shaders,
 //! relative RMSE and FLIP), and costed (texture bytes, fetches and ALU operations per pixel from
-//! the specialized shader, [`cost`]). [`write`] turns the rows into `report.md`, `report.json`
-//! and plots ([`plot`]).
+//! the specialized shader, [`cost`]; frame times from the sample viewer's benchmark, [`frame`]).
+//! [`write`] turns the rows into `report.md`, `report.json` and plots ([`plot`]).
 //!
 //! Memory stays bounded: each configuration is baked, measured in every format and dropped
 //! before the next; only the ground-truth images of the current map are kept.
 
 pub mod cost;
+pub mod frame;
 pub mod plot;
 pub mod stability;
 
 use crate::bake::{Bake, BakeOptions, Format, Method, bake_with};
 use crate::error::{Error, Result};
-use crate::eval::{default_directions, evaluate_from};
+use crate::eval::{Reference, default_directions, evaluate_from};
 use crate::ingest::NormalMap;
 use crate::render::{
-    Camera, Image, Light, Material, Scene, Surface, common_mask, distance_for_lod, exposure,
-    lod_image, mean_radiance, relative_rmse, render_filtered, render_ground_truth, tonemap,
+    Camera, Image, Light, Material, Scene, Surface, ViewGeometry, common_mask, distance_for_lod,
+    exposure, lod_image, mean_radiance, relative_rmse, render_filtered_prepared,
+    render_ground_truth, tonemap,
 };
 use crate::shade::Brdf;
 use glam::DVec3;
@@ -43,6 +45,10 @@ pub enum ImageSet {
 
 /// The configurations whose images [`ImageSet::Some`] writes (labels, f32).
 pub const REPRESENTATIVE: [&str; 5] = ["plain", "toksvig", "lean", "vmf6", "vmf6a"];
+
+/// Bytes of texel-space exact answers [`run`] keeps per map ([`Reference`]); a larger map's
+/// are recomputed for every configuration.
+const REFERENCE_BUDGET: u64 = 512 << 20;
 
 /// What to measure and how.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -325,8 +331,13 @@ pub struct Row {
     pub texture_bytes: u64,
     /// Shading cost per pixel.
     pub cost: ShaderCost,
-    /// Frame time on a GL device, ms (`None`: GL runtime not wired).
+    /// Frame time on a GL device, ms: the viewer benchmark's median, mean over its views
+    /// ([`frame::FrameTimes::lookup`]; `None` when not measured for this label and format).
     pub frame_ms: Option<f64>,
+    /// `frame_ms` over the plain shader's in the same format (what is comparable across
+    /// machines, and all that a software rasterizer says).
+    #[serde(default)]
+    pub frame_ratio: Option<f64>,
     /// Texel-space relative RMS error of the specular term over levels ≥ 1 ([`crate::eval`]).
     pub texel_specular: f64,
     /// The same for the Lambert term.
@@ -409,7 +420,8 @@ pub struct Report {
     pub threads: usize,
     /// Wall seconds of [`run`].
     pub seconds: f64,
-    /// CPU seconds (user + system, all threads) of the process at the end of [`run`] (Linux).
+    /// CPU seconds (user + system, all threads) of the process and its waited-for children at
+    /// the end of [`run`] (Linux).
     #[serde(default)]
     pub cpu_seconds: Option<f64>,
     /// `/proc/loadavg`'s 1-minute load at the start and the end of [`run`] (Linux): other
@@ -418,6 +430,131 @@ pub struct Report {
     pub load_average: Option<(f64, f64)>,
     /// Stability sweep (cases × methods), when run.
     pub stability: Option<stability::Summary>,
+    /// Where the wall time went, by phase (absent in reports written before it was recorded).
+    #[serde(default)]
+    pub phases: Option<PhaseSeconds>,
+    /// The viewer benchmark's frame times the rows' `frame_ms` come from, when there were any.
+    #[serde(default)]
+    pub frame_times: Option<frame::FrameTimes>,
+    /// Why there are no frame times, or where they came from.
+    #[serde(default)]
+    pub frame_times_note: Option<String>,
+}
+
+impl Report {
+    /// Fills every row's `frame_ms` and `frame_ratio` from `times` (by configuration label and
+    /// format; rows the benchmark did not draw get `None`) and keeps `times` in the report.
+    pub fn set_frame_times(&mut self, times: frame::FrameTimes) {
+        for r in &mut self.rows {
+            let found = times.lookup(&r.config, r.format);
+            r.frame_ms = found.map(|f| f.0);
+            r.frame_ratio = found.and_then(|f| f.1);
+        }
+        self.frame_times = Some(times);
+    }
+}
+
+/// Wall and CPU seconds of one phase of a report.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseTime {
+    /// Wall seconds.
+    pub wall: f64,
+    /// CPU seconds of the process in it (user + system, all threads; Linux, else 0): less
+    /// sensitive than `wall` to other work on the machine.
+    pub cpu: f64,
+}
+
+/// Where a report's run time goes, by phase, summed over the maps.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseSeconds {
+    /// Supersampled ground truth of every view ([`render_ground_truth`]), with its LOD image.
+    pub ground_truth: PhaseTime,
+    /// The ideal-NDF render of every view ([`crate::render::render_oracle`]).
+    pub oracle: PhaseTime,
+    /// The second, denser ground truth that estimates the first's Monte Carlo error.
+    pub convergence: PhaseTime,
+    /// Bakes (the f32 bake of every configuration).
+    pub bake: PhaseTime,
+    /// Quantizing the bakes to the narrower formats.
+    pub quantize: PhaseTime,
+    /// Texel-space error ([`evaluate_from`]).
+    pub texel_eval: PhaseTime,
+    /// Shader cost (`glslangValidator` and the SPIR-V count), once per label and format.
+    pub shader_cost: PhaseTime,
+    /// Filtered renders through the CPU twin of the shaders.
+    pub filtered_render: PhaseTime,
+    /// Error metrics, tone mapping and FLIP of every render (the oracle's included).
+    pub compare: PhaseTime,
+    /// Writing PNG images.
+    pub images: PhaseTime,
+    /// Frame times: running the viewer's benchmark, or reading its JSON.
+    pub frame_times: PhaseTime,
+    /// The stability sweep.
+    pub stability: PhaseTime,
+}
+
+impl PhaseSeconds {
+    /// The phases as (name, time), in the order they run.
+    pub fn list(&self) -> [(&'static str, PhaseTime); 12] {
+        [
+            ("ground truth", self.ground_truth),
+            ("ideal-NDF floor", self.oracle),
+            ("convergence", self.convergence),
+            ("bake", self.bake),
+            ("quantize", self.quantize),
+            ("texel eval", self.texel_eval),
+            ("shader cost", self.shader_cost),
+            ("filtered render", self.filtered_render),
+            ("compare + FLIP", self.compare),
+            ("images", self.images),
+            ("frame times", self.frame_times),
+            ("stability", self.stability),
+        ]
+    }
+
+    /// One line, `name wall s (cpu CPU-s), …`, of every phase that took 0.05 s or more.
+    pub fn summary(&self) -> String {
+        self.list()
+            .iter()
+            .filter(|(_, t)| t.wall >= 0.05)
+            .map(|(n, t)| format!("{n} {:.1} s ({:.0} CPU-s)", t.wall, t.cpu))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// Measures a stretch of work into a [`PhaseTime`].
+pub struct Stopwatch {
+    wall: Instant,
+    cpu: Option<f64>,
+}
+
+impl Stopwatch {
+    /// Starts now.
+    pub fn start() -> Stopwatch {
+        Stopwatch {
+            wall: Instant::now(),
+            cpu: cpu_seconds(),
+        }
+    }
+
+    /// Adds the time since [`Stopwatch::start`] to `into`; returns the wall seconds.
+    pub fn stop(self, into: &mut PhaseTime) -> f64 {
+        let wall = self.wall.elapsed().as_secs_f64();
+        into.wall += wall;
+        if let (Some(a), Some(b)) = (self.cpu, cpu_seconds()) {
+            into.cpu += (b - a).max(0.0);
+        }
+        wall
+    }
+}
+
+/// Runs `f`, adding its wall and CPU seconds to `acc`.
+fn timed<T>(acc: &mut PhaseTime, f: impl FnOnce() -> T) -> T {
+    let w = Stopwatch::start();
+    let out = f();
+    w.stop(acc);
+    out
 }
 
 /// Progress of [`run`], for a progress bar.
@@ -449,14 +586,18 @@ fn rss() -> Option<u64> {
     proc_status_bytes("VmRSS:")
 }
 
-/// CPU seconds (user + system) this process has used (Linux `/proc/self/stat`, 100 ticks/s).
+/// CPU seconds (user + system) this process and its waited-for children (`glslangValidator`,
+/// the viewer's benchmark) have used (Linux `/proc/self/stat`, 100 ticks/s).
 fn cpu_seconds() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
     // Fields after the command name (which is in parentheses and may hold spaces).
     let rest = stat.rsplit_once(')')?.1;
     let f: Vec<&str> = rest.split_whitespace().collect();
-    let (utime, stime): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
-    Some((utime + stime) / 100.0)
+    let mut ticks = 0.0;
+    for i in 11..15 {
+        ticks += f.get(i)?.parse::<f64>().ok()?;
+    }
+    Some(ticks / 100.0)
 }
 
 /// The 1-minute load average (Linux).
@@ -593,6 +734,7 @@ pub fn run(
         s: options.exponent,
     };
     let mut costs: std::collections::HashMap<String, ShaderCost> = Default::default();
+    let mut ph = PhaseSeconds::default();
     let mut summaries = Vec::new();
     let mut rows = Vec::new();
     for input in maps {
@@ -608,29 +750,38 @@ pub fn run(
         let mut views_info = Vec::new();
         let mut truths = Vec::new();
         for (i, scene) in scenes.iter().enumerate() {
-            let gt = render_ground_truth(scene, map, options.spp, options.seed + i as u64);
-            let mut lods: Vec<f64> = lod_image(scene, (map.width(), map.height()))
-                .into_iter()
-                .filter(|l| l.is_finite())
-                .collect();
+            let (gt, mut lods) = timed(&mut ph.ground_truth, || {
+                let gt = render_ground_truth(scene, map, options.spp, options.seed + i as u64);
+                let lods: Vec<f64> = lod_image(scene, (map.width(), map.height()))
+                    .into_iter()
+                    .filter(|l| l.is_finite())
+                    .collect();
+                (gt, lods)
+            });
             lods.sort_by(f64::total_cmp);
             let median_lod = lods.get(lods.len() / 2).copied().unwrap_or(f64::NAN);
             let exp = exposure(&gt);
             if options.images != ImageSet::None {
                 let path = image_dir.join(format!("{}_ground_truth.png", scene.name));
-                save_rgb(&path, gt.width, gt.height, tonemap(&gt, exp))?;
+                timed(&mut ph.images, || {
+                    save_rgb(&path, gt.width, gt.height, tonemap(&gt, exp))
+                })?;
             }
             let floor = if options.oracle_samples > 0 {
-                let oracle = crate::render::render_oracle(
-                    scene,
-                    map,
-                    options.oracle_samples,
-                    options.seed + 2000 + i as u64,
-                );
-                let (e, rgb, _) = compare(metric, scene, &gt, &oracle, exp);
+                let oracle = timed(&mut ph.oracle, || {
+                    crate::render::render_oracle(
+                        scene,
+                        map,
+                        options.oracle_samples,
+                        options.seed + 2000 + i as u64,
+                    )
+                });
+                let (e, rgb, _) = timed(&mut ph.compare, || {
+                    compare(metric, scene, &gt, &oracle, exp)
+                });
                 if options.images != ImageSet::None {
                     let path = image_dir.join(format!("{}_ideal.png", scene.name));
-                    save_rgb(&path, gt.width, gt.height, rgb)?;
+                    timed(&mut ph.images, || save_rgb(&path, gt.width, gt.height, rgb))?;
                 }
                 Some(e)
             } else {
@@ -651,6 +802,7 @@ pub fn run(
             "{}: ground-truth convergence",
             input.name
         )));
+        let w = Stopwatch::start();
         let ground_truth_error = if options.convergence_spp > 0 && summaries.is_empty() {
             let i = views_info
                 .iter()
@@ -671,45 +823,78 @@ pub fn run(
         } else {
             None
         };
+        w.stop(&mut ph.convergence);
         progress(Progress::Done);
+        // What every configuration of this map shares: the views' pixel geometry, and the
+        // texel-space exact answers (kept when they fit in REFERENCE_BUDGET).
+        let geometry: Vec<ViewGeometry> = timed(&mut ph.filtered_render, || {
+            scenes.iter().map(ViewGeometry::new).collect()
+        });
+        let first = if map.width().max(map.height()) > 1 {
+            1
+        } else {
+            0
+        };
+        let fits = Reference::bytes(map.width(), map.height(), 1, directions.len(), first)
+            <= REFERENCE_BUDGET;
+        let reference = fits.then(|| {
+            timed(&mut ph.texel_eval, || {
+                Reference::new(map, &[brdf], &directions, first)
+            })
+        });
         let mut skipped = Vec::new();
         for config in &configs {
             let label = config.label();
             progress(Progress::Step(&format!("{}: {label}", input.name)));
             reset_peak_rss();
             let before = rss();
-            let t = Instant::now();
+            let w = Stopwatch::start();
             let baked = bake_with(map, config.method, &config.options)?;
-            let bake_seconds = t.elapsed().as_secs_f64();
+            let bake_seconds = w.stop(&mut ph.bake);
             let bake_peak_bytes = match (peak_rss(), before) {
                 (Some(p), Some(b)) => Some(p.saturating_sub(b)),
                 _ => None,
             };
-            let mut variants: Vec<Bake> = Vec::new();
+            // The formats in the order asked, the f32 bake itself (not a copy) among them.
+            let mut variants: Vec<Option<Bake>> = Vec::new();
+            let w = Stopwatch::start();
             for &format in &options.formats {
                 if format == Format::F32 {
-                    variants.push(baked.clone());
+                    variants.push(None);
                     continue;
                 }
                 match crate::pack::quantize(&baked, format) {
-                    Ok(q) => variants.push(q),
+                    Ok(q) => variants.push(Some(q)),
                     Err(e) => skipped.push(format!("{label} in {format}: {e}")),
                 }
             }
+            let mut baked = Some(baked);
+            let variants: Vec<Bake> = variants
+                .into_iter()
+                .filter_map(|v| v.or_else(|| baked.take()))
+                .collect();
             drop(baked);
+            w.stop(&mut ph.quantize);
             let refs: Vec<&Bake> = variants.iter().collect();
-            let first = if map.width().max(map.height()) > 1 {
-                1
-            } else {
-                0
-            };
-            let errors = evaluate_from(map, &refs, &[brdf], &directions, first);
+            let errors = timed(&mut ph.texel_eval, || match &reference {
+                Some(r) => r.evaluate(&refs),
+                None => evaluate_from(map, &refs, &[brdf], &directions, first),
+            });
+            // Shader costs not known yet (the first map's), one `glslangValidator` per core.
+            timed(&mut ph.shader_cost, || {
+                use rayon::prelude::*;
+                let missing: Vec<&Bake> = variants
+                    .iter()
+                    .filter(|b| !costs.contains_key(&format!("{label}/{}", b.format)))
+                    .collect();
+                let found: Vec<ShaderCost> =
+                    missing.par_iter().map(|b| cost::shader_cost(b)).collect();
+                for (b, c) in missing.iter().zip(found) {
+                    costs.insert(format!("{label}/{}", b.format), c);
+                }
+            });
             for (b, err) in variants.iter().zip(&errors) {
-                let cost_key = format!("{label}/{}", b.format);
-                let cost = costs
-                    .entry(cost_key)
-                    .or_insert_with(|| cost::shader_cost(b))
-                    .clone();
+                let cost = costs[&format!("{label}/{}", b.format)].clone();
                 let textures = crate::glsl::sampled_textures(
                     &crate::glsl::ShaderSpec::of(b),
                     &Default::default(),
@@ -723,10 +908,30 @@ pub fn run(
                 let rendered = options.image_formats.contains(&b.format)
                     && (b.format == Format::F32 || REPRESENTATIVE.contains(&label.as_str()));
                 if rendered {
-                    for (scene, (gt, exp)) in scenes.iter().zip(&truths) {
-                        let img = render_filtered(scene, b);
-                        let (view_error, test_rgb, flip_map) =
-                            compare(metric, scene, gt, &img, *exp);
+                    // Renders one view at a time (rows in parallel), then the comparisons
+                    // (FLIP is serial) of every view in parallel.
+                    let images: Vec<Image> = timed(&mut ph.filtered_render, || {
+                        scenes
+                            .iter()
+                            .zip(&geometry)
+                            .map(|(scene, g)| render_filtered_prepared(scene, g, b))
+                            .collect()
+                    });
+                    let compared: Vec<(ViewError, Vec<u8>, Vec<u8>)> =
+                        timed(&mut ph.compare, || {
+                            use rayon::prelude::*;
+                            scenes
+                                .par_iter()
+                                .zip(&truths)
+                                .zip(&images)
+                                .map(|((scene, (gt, exp)), img)| {
+                                    compare(metric, scene, gt, img, *exp)
+                                })
+                                .collect()
+                        });
+                    for ((scene, img), (view_error, test_rgb, flip_map)) in
+                        scenes.iter().zip(&images).zip(compared)
+                    {
                         let write = match options.images {
                             ImageSet::None => false,
                             ImageSet::All => true,
@@ -735,6 +940,7 @@ pub fn run(
                             }
                         };
                         if write {
+                            let w = Stopwatch::start();
                             let stem = format!("{}_{}", scene.name, file_label(&b.label()));
                             save_rgb(
                                 &image_dir.join(format!("{stem}.png")),
@@ -748,6 +954,7 @@ pub fn run(
                                 img.height,
                                 flip_map,
                             )?;
+                            w.stop(&mut ph.images);
                         }
                         view_errors.push(view_error);
                     }
@@ -765,6 +972,7 @@ pub fn run(
                     texture_bytes,
                     cost,
                     frame_ms: None,
+                    frame_ratio: None,
                     texel_specular: err.overall_specular,
                     texel_diffuse: err.overall_diffuse,
                     texel_levels: err.levels.iter().map(|l| l.specular).collect(),
@@ -791,6 +999,9 @@ pub fn run(
         cpu_seconds: cpu_seconds(),
         load_average: load_start.zip(load_average()),
         stability: None,
+        phases: Some(ph),
+        frame_times: None,
+        frame_times_note: None,
     })
 }
 
@@ -868,6 +1079,9 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    if let Some(p) = &report.phases {
+        let _ = writeln!(s, "Wall time by phase: {}.\n", p.summary());
+    }
     let _ = writeln!(
         s,
         "**How it is measured.** Material: `{} · Lambert + {} · normalized Blinn-Phong`, s = {}. \
@@ -884,8 +1098,8 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
          bake; texture bytes of what the shader samples (all levels); fetch instructions per \
          pixel (hardware: one `textureLod` per texture; manual: 8 `texelFetch` per texture) \
          and ALU = arithmetic SPIR-V instructions of the specialized shader (`glslangValidator \
-         -G`; loops weighted by trip count, every branch counted). Frame time: n/a (GL runtime \
-         not wired). SH: not implemented yet (rows join the tables when it lands).\n",
+         -G`; loops weighted by trip count, every branch counted). Frame time: {} SH: not \
+         implemented yet (rows join the tables when it lands).\n",
         o.kd,
         o.ks,
         o.exponent,
@@ -899,6 +1113,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
             .collect::<Vec<_>>()
             .join(", "),
         o.spp,
+        frame_sentence(report),
     );
     for m in &report.maps {
         let _ = writeln!(s, "## {}\n", m.name);
@@ -942,9 +1157,9 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
         let _ = writeln!(
             s,
             "| config | texel err % | image err % | far image err % | FLIP | bake s | peak MiB | \
-             texture MiB | fetches/px | ALU/px | frame ms |"
+             texture MiB | fetches/px | ALU/px | frame ms (× plain) |"
         );
-        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         if m.views.iter().any(|v| v.floor.is_some()) {
             let floors: Vec<&ViewError> = m.views.iter().filter_map(|v| v.floor.as_ref()).collect();
             let far: Vec<f64> = m
@@ -980,7 +1195,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
                 r.texture_bytes as f64 / 1048576.0,
                 r.cost.fetches,
                 r.cost.alu.map_or("?".into(), |a| a.to_string()),
-                r.frame_ms.map_or("n/a".into(), |f| format!("{f:.2}")),
+                frame_cell(r),
             );
         }
         let _ = writeln!(s);
@@ -1064,6 +1279,47 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
         }
     }
     s
+}
+
+/// A row's frame time as the table shows it: `12.3 (3.41×)`, or `n/a`.
+fn frame_cell(r: &Row) -> String {
+    match (r.frame_ms, r.frame_ratio) {
+        (Some(ms), Some(x)) => format!("{ms:.2} ({x:.2}×)"),
+        (Some(ms), None) => format!("{ms:.2}"),
+        _ => "n/a".into(),
+    }
+}
+
+/// The sentence of the report's "How it is measured" on frame times: their source, or why
+/// there are none.
+fn frame_sentence(report: &Report) -> String {
+    let note = report
+        .frame_times_note
+        .as_ref()
+        .map_or(String::new(), |n| format!(" ({n})"));
+    match &report.frame_times {
+        Some(t) => {
+            let soft = t.renderer.to_ascii_lowercase();
+            let soft = ["llvmpipe", "softpipe", "swrast", "lavapipe"]
+                .iter()
+                .any(|s| soft.contains(s));
+            format!(
+                "{}{note}{}; measured once, on that sample, and shown for every map; *n/a* for \
+                 a label or format it did not draw.{}",
+                t.describe(),
+                t.load_average.map_or(String::new(), |(a, b)| format!(
+                    "; load average {a:.1} at its start, {b:.1} at its end"
+                )),
+                if soft {
+                    " This renderer is a software rasterizer on the CPU: read the ratio to \
+                     plain, not the milliseconds."
+                } else {
+                    ""
+                }
+            )
+        }
+        None => format!("n/a{note}."),
+    }
 }
 
 /// The views and configurations the gallery of [`markdown`] shows (first map).

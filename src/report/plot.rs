@@ -1,5 +1,5 @@
-//! The report's plots (plotters; PNG and SVG): error against bake time, shading cost and
-//! texture memory (one point per configuration, the Pareto front — no other point is both
+//! The report's plots (plotters; PNG and SVG): error against bake time, shading cost, texture
+//! memory and, when measured, frame time (one point per configuration, the Pareto front — no other point is both
 //! cheaper and more accurate — drawn as a line), and error against MIP level (the best
 //! configuration of each level marked).
 //!
@@ -370,6 +370,20 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
             stem,
             |root| scatter(root, title, x_desc, measure, points),
             |root| scatter(root, title, x_desc, measure, points),
+        )?);
+    }
+    // Frame time, as the ratio to plain's: on a software rasterizer only the ratio means much.
+    let frame_points = with(&|r| r.frame_ratio);
+    if !frame_points.is_empty() {
+        let (title, x_desc) = (
+            "Error against frame time",
+            "frame time / plain's (viewer benchmark, mean over its views)",
+        );
+        files.extend(both(
+            out,
+            "error_vs_frame_time",
+            |root| scatter(root, title, x_desc, measure, &frame_points),
+            |root| scatter(root, title, x_desc, measure, &frame_points),
         )?);
     }
     // Error against MIP level: texel space per level, image space per zoom view's centre λ.

@@ -415,34 +415,41 @@ fn check(case: &str, config: &str, exact: Option<&Exact>, bake: &Bake) -> Outcom
 
 /// Runs every case × configuration × format (`large` adds the 4097×3 and 16384×16 maps).
 pub fn sweep(large: bool) -> Summary {
+    use rayon::prelude::*;
     let start = std::time::Instant::now();
     let cases = cases(large);
-    let mut outcomes = Vec::new();
-    for case in &cases {
-        let texels = case.map.width() as u64 * case.map.height() as u64;
-        let exact = exact_energy(&case.map);
-        for (label, method, options) in configs(texels) {
-            let baked = match bake_with(&case.map, method, &options) {
-                Ok(b) => b,
-                Err(e) => {
-                    let mut o = Outcome::empty(&case.name, &label, Format::F32);
-                    o.bake_error = Some(e.to_string());
-                    outcomes.push(o);
-                    continue;
-                }
-            };
-            for format in Format::ALL {
-                match crate::pack::quantize(&baked, format) {
-                    Ok(q) => outcomes.push(check(&case.name, &label, exact.as_ref(), &q)),
+    // Cases in parallel, each in order; collected in case order (the same for any thread count).
+    let per_case: Vec<Vec<Outcome>> = cases
+        .par_iter()
+        .map(|case| {
+            let mut outcomes = Vec::new();
+            let texels = case.map.width() as u64 * case.map.height() as u64;
+            let exact = exact_energy(&case.map);
+            for (label, method, options) in configs(texels) {
+                let baked = match bake_with(&case.map, method, &options) {
+                    Ok(b) => b,
                     Err(e) => {
-                        let mut o = Outcome::empty(&case.name, &label, format);
-                        o.skipped = Some(e.to_string());
+                        let mut o = Outcome::empty(&case.name, &label, Format::F32);
+                        o.bake_error = Some(e.to_string());
                         outcomes.push(o);
+                        continue;
+                    }
+                };
+                for format in Format::ALL {
+                    match crate::pack::quantize(&baked, format) {
+                        Ok(q) => outcomes.push(check(&case.name, &label, exact.as_ref(), &q)),
+                        Err(e) => {
+                            let mut o = Outcome::empty(&case.name, &label, format);
+                            o.skipped = Some(e.to_string());
+                            outcomes.push(o);
+                        }
                     }
                 }
             }
-        }
-    }
+            outcomes
+        })
+        .collect();
+    let outcomes: Vec<Outcome> = per_case.into_iter().flatten().collect();
     Summary {
         cases: cases.iter().map(|c| c.name.clone()).collect(),
         outcomes,

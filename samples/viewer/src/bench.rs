@@ -1,6 +1,7 @@
-//! `--bench`: the frame time of every method's shader at 1280 × 720 on the standard far and
-//! grazing views (`Scene::standard`), as a Markdown table of median milliseconds and the ratio
-//! to the plain normal-mapping shader of the same view and format.
+//! `--bench`: the frame time of every method's shader (by default at 1280 × 720) on the standard
+//! far and grazing views (`Scene::standard`), as a Markdown table of median milliseconds and the
+//! ratio to the plain normal-mapping shader of the same view and format; with `--bench-json`
+//! also as JSON (`ndfmap::report::frame::FrameTimes`, what `ndfmap report` reads).
 //!
 //! Every shader is drawn `frames` times per view after two warm-up draws (the first compiles the
 //! shader on llvmpipe); each draw is timed between two `glFinish` calls. The draws go round
@@ -10,17 +11,36 @@ use crate::headless::context;
 use crate::methods::MethodSpec;
 use ndfmap::bake::{BakeOptions, Format, Method, bake_with};
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
+use ndfmap::report::frame::{BenchView, FrameCell, FrameTimes, ShaderTimes};
 use ndfmap_gl::glam::Mat4;
 use ndfmap_gl::{BakeRenderer, Camera, RenderTarget, Scene, read_rgba_f32};
+use std::path::PathBuf;
 use std::time::Instant;
 
-const WIDTH: u32 = 1280;
-const HEIGHT: u32 = 720;
 const WARM_UP: usize = 2;
 
-/// The shaders timed: the baselines, Tan 2005 J = 4 (unaligned and aligned), vMF J = 1 … 8
-/// aligned (hardware sampling) and unaligned (manual).
-fn specs() -> Vec<MethodSpec> {
+/// What `--bench` measures and where it writes.
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    /// Timed frames per shader, view and format.
+    pub frames: u32,
+    /// Alignment strength C of the aligned mixtures.
+    pub align: f64,
+    /// Side of the procedural sample the shaders are baked from.
+    pub sample_size: u32,
+    /// Framebuffer width and height.
+    pub size: (u32, u32),
+    /// The shaders (empty: [`all_specs`]); plain is put first when absent, as the ratios' base.
+    pub specs: Vec<MethodSpec>,
+    /// Texture formats (a method that refuses one, as LEAN refuses unorm8, has no cell there).
+    pub formats: Vec<Format>,
+    /// Also write the times as JSON here.
+    pub json: Option<PathBuf>,
+}
+
+/// The shaders timed by default: the baselines, Tan 2005 J = 4 (unaligned and aligned), vMF
+/// J = 1 … 8 aligned (hardware sampling) and unaligned (manual).
+pub fn all_specs() -> Vec<MethodSpec> {
     let mut out: Vec<MethodSpec> = Method::BASELINES
         .into_iter()
         .map(MethodSpec::baseline)
@@ -45,40 +65,80 @@ fn median(v: &mut [f64]) -> f64 {
     }
 }
 
-/// Runs the benchmark and prints the Markdown report.
-pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
+/// The 1-minute load average (Linux).
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// The shaders of `options`, plain first.
+fn specs(options: &BenchOptions) -> Vec<MethodSpec> {
+    let mut specs = if options.specs.is_empty() {
+        all_specs()
+    } else {
+        options.specs.clone()
+    };
+    let plain = MethodSpec::baseline(Method::Plain);
+    specs.retain(|s| *s != plain);
+    specs.insert(0, plain);
+    let mut seen = std::collections::HashSet::new();
+    specs.retain(|s| seen.insert(*s));
+    specs
+}
+
+/// Runs the benchmark and prints the Markdown report (and writes the JSON when asked).
+pub fn run(options: &BenchOptions) -> Result<(), String> {
+    let (width, height) = options.size;
+    let frames = options.frames.max(1);
+    let load_start = load_average();
     let gl = context()?;
-    let map = ndfmap::procedural::generate(sample_size, 1).map;
-    let formats = [Format::F32, Format::F16];
+    let map = ndfmap::procedural::generate(options.sample_size, 1).map;
+    let formats = options.formats.clone();
+    if formats.is_empty() {
+        return Err("--bench-formats: give at least one format".into());
+    }
     let views: Vec<(Scene, Camera)> = Scene::standard()
         .into_iter()
         .filter(|s| s.name == "plane-far" || s.name == "plane-grazing")
         .map(|s| {
             let camera = Camera {
-                aspect: WIDTH as f32 / HEIGHT as f32,
+                aspect: width as f32 / height as f32,
                 ..s.camera
             };
             (s, camera)
         })
         .collect();
 
-    // rows[i] = (spec, sampling, renderer per format)
+    // rows[i] = (spec, sampling, renderer per format: None where the format is refused)
     let mut rows = Vec::new();
     let bake_start = Instant::now();
-    for spec in specs() {
-        let options = BakeOptions {
+    for spec in specs(options) {
+        let bake_options = BakeOptions {
             lobes: spec.lobes.max(1),
-            align: spec.aligned.then_some(align),
+            align: spec.aligned.then_some(options.align),
             ..BakeOptions::default()
         };
-        let b = bake_with(&map, spec.method, &options).map_err(|e| e.to_string())?;
+        let b = bake_with(&map, spec.method, &bake_options).map_err(|e| e.to_string())?;
         let manual = manual_sampling(&ShaderSpec::of(&b), &ShaderOptions::default());
         let mut renderers = Vec::new();
-        for format in formats {
-            let q = ndfmap::pack::quantize(&b, format).map_err(|e| e.to_string())?;
+        for &format in &formats {
+            let Ok(q) = ndfmap::pack::quantize(&b, format) else {
+                renderers.push(None);
+                continue;
+            };
             let r = BakeRenderer::new(&gl, &q, &ShaderOptions::default())
                 .map_err(|e| format!("{spec} {format}: {e}"))?;
-            renderers.push(r);
+            renderers.push(Some(r));
+        }
+        if renderers[0].is_none() && rows.is_empty() {
+            return Err(format!(
+                "plain refuses {}: no base for the ratios",
+                formats[0]
+            ));
         }
         eprintln!(
             "baked {spec} ({:.0} s so far)",
@@ -87,7 +147,7 @@ pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
         rows.push((spec, manual, renderers));
     }
 
-    let target = RenderTarget::new(&gl, WIDTH, HEIGHT).map_err(|e| e.to_string())?;
+    let target = RenderTarget::new(&gl, width, height).map_err(|e| e.to_string())?;
     let meshes: Vec<_> = views
         .iter()
         .map(|(s, _)| s.shape.mesh(&gl))
@@ -97,7 +157,13 @@ pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
     let mut covered = Vec::new();
     for ((scene, camera), mesh) in views.iter().zip(&meshes) {
         target.clear([0.0; 4]);
-        rows[0].2[0]
+        let plain = rows[0]
+            .2
+            .iter()
+            .flatten()
+            .next()
+            .ok_or("plain drew nothing")?;
+        plain
             .draw(mesh, &Mat4::IDENTITY, camera, &scene.lighting, &target)
             .map_err(|e| e.to_string())?;
         let px = read_rgba_f32(&target).map_err(|e| e.to_string())?;
@@ -111,6 +177,7 @@ pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
         for (v, ((scene, camera), mesh)) in views.iter().zip(&meshes).enumerate() {
             for (i, (_, _, renderers)) in rows.iter().enumerate() {
                 for (f, r) in renderers.iter().enumerate() {
+                    let Some(r) = r else { continue };
                     target.clear([0.0, 0.0, 0.0, 1.0]);
                     gl.finish();
                     let start = Instant::now();
@@ -126,15 +193,22 @@ pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
         eprintln!("frame {}/{total}", frame + 1);
     }
 
-    let medians: Vec<Vec<Vec<f64>>> = times
+    // medians[row][view][format]: None where the format was refused.
+    let medians: Vec<Vec<Vec<Option<f64>>>> = times
         .iter_mut()
         .map(|per_view| {
             per_view
                 .iter_mut()
-                .map(|per_format| per_format.iter_mut().map(|t| median(t)).collect())
+                .map(|per_format| {
+                    per_format
+                        .iter_mut()
+                        .map(|t| (!t.is_empty()).then(|| median(t)))
+                        .collect()
+                })
                 .collect()
         })
         .collect();
+    let load_end = load_average();
     println!(
         "Renderer: `{}` (OpenGL {:?}, {} route).",
         gl.renderer(),
@@ -142,23 +216,24 @@ pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
         gl.route()
     );
     println!(
-        "{WIDTH}x{HEIGHT}, procedural sample {sample_size}², Blinn-Phong s = 256, median of \
+        "{width}x{height}, procedural sample {}², Blinn-Phong s = 256, median of \
          {frames} frames after {WARM_UP} warm-up draws, each draw timed between two glFinish \
-         calls; shaders measured round robin in one run."
+         calls; shaders measured round robin in one run.",
+        options.sample_size
     );
     for ((scene, _), px) in views.iter().zip(&covered) {
         println!(
             "- `{}` covers {px} of {} pixels ({:.0} %).",
             scene.name,
-            WIDTH * HEIGHT,
-            100.0 * *px as f64 / (WIDTH * HEIGHT) as f64
+            width * height,
+            100.0 * *px as f64 / (width * height) as f64
         );
     }
     println!();
     let mut header = String::from("| shader | sampling |");
     let mut rule = String::from("|---|---|");
     for (scene, _) in &views {
-        for f in formats {
+        for f in &formats {
             header += &format!(" {} {f} |", scene.name);
             rule += "---:|";
         }
@@ -171,10 +246,70 @@ pub fn run(frames: u32, align: f64, sample_size: u32) -> Result<(), String> {
         );
         for (per_format, plain) in row.iter().zip(&medians[0]) {
             for (ms, plain) in per_format.iter().zip(plain) {
-                line += &format!(" {:.2} ({ms:.1} ms) |", ms / plain);
+                line += &match (ms, plain) {
+                    (Some(ms), Some(plain)) => format!(" {:.2} ({ms:.1} ms) |", ms / plain),
+                    (Some(ms), None) => format!(" – ({ms:.1} ms) |"),
+                    _ => " refused |".to_string(),
+                };
             }
         }
         println!("{line}");
     }
+    if let Some(path) = &options.json {
+        let out = FrameTimes {
+            renderer: gl.renderer().to_string(),
+            gl_version: format!("OpenGL {}.{}", gl.version().0, gl.version().1),
+            route: gl.route().to_string(),
+            width,
+            height,
+            frames,
+            warm_up: WARM_UP as u32,
+            sample_size: options.sample_size,
+            views: views
+                .iter()
+                .zip(&covered)
+                .map(|((scene, _), px)| BenchView {
+                    name: scene.name.to_string(),
+                    covered_pixels: *px as u64,
+                })
+                .collect(),
+            shaders: rows
+                .iter()
+                .zip(&medians)
+                .map(|((spec, manual, _), row)| ShaderTimes {
+                    label: spec.to_string(),
+                    sampling: if *manual { "manual" } else { "hardware" }.into(),
+                    cells: cells(&views, &formats, row, &medians[0]),
+                })
+                .collect(),
+            load_average: load_start.zip(load_end),
+        };
+        std::fs::write(path, out.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
     Ok(())
+}
+
+/// The JSON cells of one shader: per view and format drawn, the median and its ratio to
+/// plain's (`plain[view][format]`).
+fn cells(
+    views: &[(Scene, Camera)],
+    formats: &[Format],
+    row: &[Vec<Option<f64>>],
+    plain: &[Vec<Option<f64>>],
+) -> Vec<FrameCell> {
+    let mut out = Vec::new();
+    for ((scene, _), (per_format, plain)) in views.iter().zip(row.iter().zip(plain)) {
+        for ((&format, ms), plain) in formats.iter().zip(per_format).zip(plain) {
+            let (Some(ms), Some(plain)) = (ms, plain) else {
+                continue;
+            };
+            out.push(FrameCell {
+                view: scene.name.to_string(),
+                format,
+                median_ms: *ms,
+                ratio_to_plain: ms / plain,
+            });
+        }
+    }
+    out
 }

@@ -106,9 +106,21 @@ struct Cli {
     /// Write the methods side by side, then the reference, into --screenshot (headless).
     #[arg(long, requires = "screenshot")]
     compare: bool,
-    /// Print the frame time of every method's shader at 1280x720 (headless).
+    /// Print the frame time of every method's shader (headless; --size, default 1280x720;
+    /// --methods other than the default list restricts the shaders, plain always included).
     #[arg(long)]
     bench: bool,
+    /// Bench: also write the times as JSON (what `ndfmap report --frame-times` reads).
+    #[arg(long, requires = "bench")]
+    bench_json: Option<PathBuf>,
+    /// Bench: texture formats, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "f32,f16",
+        requires = "bench"
+    )]
+    bench_formats: Vec<Format>,
     /// Window: quit after this many frames. Bench: timed frames per shader and view.
     #[arg(long)]
     frames: Option<u32>,
@@ -186,7 +198,19 @@ fn run(cli: Cli) -> Result<(), String> {
         return Err("--methods: give at least one method".into());
     }
     if cli.bench {
-        return bench::run(cli.frames.unwrap_or(20), cli.align, cli.sample_size);
+        return bench::run(&bench::BenchOptions {
+            frames: cli.frames.unwrap_or(20),
+            align: cli.align,
+            sample_size: cli.sample_size,
+            size: cli.size.unwrap_or((1280, 720)),
+            specs: if cli.methods == MethodSpec::defaults() {
+                Vec::new()
+            } else {
+                cli.methods.clone()
+            },
+            formats: cli.bench_formats.clone(),
+            json: cli.bench_json.clone(),
+        });
     }
     let map = load_map(&cli)?;
     let bakes = Bakes::new(map, cli.align);
