@@ -303,20 +303,30 @@ impl Reference {
     }
 
     /// [`evaluate_from`] of `bakes` (baked from this reference's map) with this reference's
-    /// BRDFs, directions and first level. Every (direction, level) pair is a task of its own.
+    /// BRDFs, directions and first level. Every (direction, level, bake) is a task of its own:
+    /// each sum still runs over its level's texels in order, so the results are the same.
     pub fn evaluate(&self, bakes: &[&Bake]) -> Vec<MethodError> {
-        let nl = self.levels.len();
-        let tasks: Vec<(usize, usize)> = (0..self.directions.len())
+        let (nl, ns) = (self.levels.len(), self.brdfs.len());
+        let tasks: Vec<(usize, usize, usize)> = (0..self.directions.len())
             .flat_map(|d| (self.first_level..nl).map(move |k| (d, k)))
+            .flat_map(|(d, k)| (0..bakes.len()).map(move |b| (d, k, b)))
             .collect();
         let sums: Vec<Vec<[f64; 4]>> = tasks
             .par_iter()
-            .map(|&(d, k)| level_sums(bakes, &self.brdfs, &self.exact[d][k], k, self.directions[d]))
+            .map(|&(d, k, b)| {
+                level_sums(
+                    &bakes[b..b + 1],
+                    &self.brdfs,
+                    &self.exact[d][k],
+                    k,
+                    self.directions[d],
+                )
+            })
             .collect();
-        let empty = vec![[0.0; 4]; bakes.len() * self.brdfs.len()];
+        let empty = vec![[0.0; 4]; bakes.len() * ns];
         let mut per_direction = vec![vec![empty; nl]; self.directions.len()];
-        for (&(d, k), s) in tasks.iter().zip(sums) {
-            per_direction[d][k] = s;
+        for (&(d, k, b), s) in tasks.iter().zip(sums) {
+            per_direction[d][k][b * ns..(b + 1) * ns].copy_from_slice(&s);
         }
         errors(&self.levels, bakes, &self.brdfs, &per_direction)
     }

@@ -793,7 +793,7 @@ struct ReportArgs {
     from_json: Option<PathBuf>,
     /// Frame times from `ndfmap-viewer --bench --bench-json FILE`. Without it, an
     /// `ndfmap-viewer` beside this executable is run (--bench-size, --bench-frames, a 256²
-    /// sample; about half a minute on llvmpipe).
+    /// sample, the report's formats; about 8 s on llvmpipe on 2 idle cores).
     #[arg(long, conflicts_with = "no_frame_times")]
     frame_times: Option<PathBuf>,
     /// No frame times (the table shows n/a).
