@@ -122,7 +122,7 @@ pub struct ndf_vmf_options {
     /// The alignment's M-step, `NDF_ALIGN_FORM_*`. Default `NDF_ALIGN_FORM_APPENDIX`.
     pub align_form: ndf_align_form,
     /// Nonzero: approximate mode, levels 2 and coarser fitted to the lobes of the level below
-    /// (about 3.5× faster on a 1024² map, less accurate at coarse levels). Default 0.
+    /// (about 4× faster on a 1024² map, about twice the error at levels 3 and coarser). Default 0.
     pub approximate: u32,
     /// Most EM iterations per texel, at least 1. Default 20.
     pub em_max_iterations: u32,
