@@ -97,25 +97,9 @@ pub struct Filtering {
 /// results blended with the trilinear weights (unaligned lobes); otherwise the textures are
 /// sampled trilinearly and shaded once (aligned lobes, baselines).
 pub fn shade_at(bake: &Bake, uv: DVec2, lod: f64, l: DVec3, h: DVec3, f: Filtering) -> ShadingRgb {
-    let Filtering {
-        brdf,
-        manual,
-        color,
-    } = f;
-    if !manual {
-        return shade_rgb(bake, &trilinear(bake, uv, lod), l, h, brdf, color);
-    }
-    let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
-    let mut sum = ShadingRgb::default();
-    for (level, lw) in level_weights(lod, bake.level_count()) {
-        for (index, bw) in bilinear(bake, level, uv) {
-            bake.texel_into(level, index, &mut texel);
-            let s = shade_rgb(bake, &texel, l, h, brdf, color);
-            sum.diffuse += lw * bw * s.diffuse;
-            sum.specular += lw * bw * s.specular;
-        }
-    }
-    sum
+    let mut out = [ShadingRgb::default()];
+    shade_at_lights(bake, uv, lod, &[(l, h)], f, &mut out);
+    out[0]
 }
 
 /// [`shade_at`] for several lights at one point: `lights` holds each light's `(l, h)`, and

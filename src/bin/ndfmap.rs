@@ -800,26 +800,11 @@ struct ReportArgs {
     #[arg(long)]
     no_frame_times: bool,
     /// Framebuffer of the viewer benchmark the report runs, WxH.
-    #[arg(long, default_value = "640x360", value_parser = parse_wxh)]
+    #[arg(long, default_value = "640x360", value_parser = ndfmap::report::frame::parse_size)]
     bench_size: (u32, u32),
     /// Timed frames of the viewer benchmark the report runs.
     #[arg(long, default_value_t = 8)]
     bench_frames: u32,
-}
-
-/// `WxH`, each 1 to 8192.
-#[cfg(feature = "report")]
-fn parse_wxh(s: &str) -> std::result::Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("'{s}': expected WxH"))?;
-    let parse = |v: &str| {
-        v.parse::<u32>()
-            .ok()
-            .filter(|v| (1..=8192).contains(v))
-            .ok_or_else(|| format!("'{s}': sizes are 1 to 8192"))
-    };
-    Ok((parse(w)?, parse(h)?))
 }
 
 /// Frame times for `rep` as `a` asks: read from --frame-times (`given`, loaded before the

@@ -221,9 +221,33 @@ pub fn run_viewer_bench(viewer: &Path, settings: &BenchSettings) -> Result<Frame
     result
 }
 
+/// Parses an image size `WxH` (each side 1 to 8192), as the benchmark's `--size` and the
+/// report's `--bench-size` take it.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}': expected WxH"))?;
+    let parse = |v: &str| {
+        v.parse::<u32>()
+            .ok()
+            .filter(|v| (1..=8192).contains(v))
+            .ok_or_else(|| format!("'{s}': sizes are 1 to 8192"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_parse_as_wxh() {
+        assert_eq!(parse_size("640x360"), Ok((640, 360)));
+        assert_eq!(parse_size("8X8192"), Ok((8, 8192)));
+        for bad in ["640", "0x360", "640x8193", "ax3", ""] {
+            assert!(parse_size(bad).is_err(), "{bad}");
+        }
+    }
 
     fn cell(view: &str, format: Format, ms: f64, plain: f64) -> FrameCell {
         FrameCell {

@@ -600,8 +600,9 @@ fn cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
-/// The 1-minute load average (Linux).
-fn load_average() -> Option<f64> {
+/// The 1-minute load average (Linux), recorded beside timings so a reader can tell a busy
+/// machine from a slow method.
+pub fn load_average() -> Option<f64> {
     std::fs::read_to_string("/proc/loadavg")
         .ok()?
         .split_whitespace()

@@ -65,16 +65,6 @@ fn median(v: &mut [f64]) -> f64 {
     }
 }
 
-/// The 1-minute load average (Linux).
-fn load_average() -> Option<f64> {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
-
 /// The shaders of `options`, plain first.
 fn specs(options: &BenchOptions) -> Vec<MethodSpec> {
     let mut specs = if options.specs.is_empty() {
@@ -94,7 +84,7 @@ fn specs(options: &BenchOptions) -> Vec<MethodSpec> {
 pub fn run(options: &BenchOptions) -> Result<(), String> {
     let (width, height) = options.size;
     let frames = options.frames.max(1);
-    let load_start = load_average();
+    let load_start = ndfmap::report::load_average();
     let gl = context()?;
     let map = ndfmap::procedural::generate(options.sample_size, 1).map;
     let formats = options.formats.clone();
@@ -208,7 +198,7 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
                 .collect()
         })
         .collect();
-    let load_end = load_average();
+    let load_end = ndfmap::report::load_average();
     println!(
         "Renderer: `{}` (OpenGL {:?}, {} route).",
         gl.renderer(),

@@ -65,7 +65,7 @@ struct Cli {
     #[arg(long)]
     distance: Option<f32>,
     /// Image size, WxH (window, screenshot; for --compare the size of each panel).
-    #[arg(long, value_parser = parse_size)]
+    #[arg(long, value_parser = ndfmap::report::frame::parse_size)]
     size: Option<(u32, u32)>,
     /// Start in split screen: method left, supersampled reference right.
     #[arg(long)]
@@ -124,19 +124,6 @@ struct Cli {
     /// Window: quit after this many frames. Bench: timed frames per shader and view.
     #[arg(long)]
     frames: Option<u32>,
-}
-
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("'{s}': expected WxH"))?;
-    let parse = |v: &str| {
-        v.parse::<u32>()
-            .ok()
-            .filter(|v| (1..=8192).contains(v))
-            .ok_or_else(|| format!("'{s}': sizes are 1 to 8192"))
-    };
-    Ok((parse(w)?, parse(h)?))
 }
 
 /// The map to show: `--map` (with `--albedo`), or the built-in sample with its albedo.
