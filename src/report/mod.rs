@@ -1099,8 +1099,10 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
          bake; texture bytes of what the shader samples (all levels); fetch instructions per \
          pixel (hardware: one `textureLod` per texture; manual: 8 `texelFetch` per texture) \
          and ALU = arithmetic SPIR-V instructions of the specialized shader (`glslangValidator \
-         -G`; loops weighted by trip count, every branch counted). Frame time: {} SH: not \
-         implemented yet (rows join the tables when it lands).\n",
+         -G`; loops weighted by trip count, every branch counted). Labels: `vmfJ` = J vMF \
+         lobes fitted per texel (manual sampling), `vmfJa` = aligned lobes (hardware \
+         sampling; eq 29, C = {}). Frame time: {} SH: not implemented yet (rows join the \
+         tables when it lands).\n",
         o.kd,
         o.ks,
         o.exponent,
@@ -1114,6 +1116,12 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
             .collect::<Vec<_>>()
             .join(", "),
         o.spp,
+        o.align
+            .iter()
+            .flatten()
+            .map(|c| c.to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
         frame_sentence(report),
     );
     for m in &report.maps {
