@@ -104,6 +104,7 @@ fn vmf_bake_with_alignment_colour_and_narrow_formats() {
         let manifest = bake_manifest(&args, &o);
         assert_eq!(manifest["parameters"]["lobes"], 3);
         assert_eq!(manifest["parameters"]["aligned"], true);
+        assert_eq!(manifest["parameters"]["align_form"], "appendix");
         assert_eq!(manifest["texel_format"], format);
         let textures = manifest["textures"].as_array().unwrap();
         assert_eq!(textures.len(), 6, "3 lobe and 3 colour chains");
@@ -219,6 +220,10 @@ fn bad_inputs_fail_with_one_line_and_leave_no_manifest() {
         (
             bake(&good, "plain", o, &["--green", "sideways"]),
             vec!["sideways"],
+        ),
+        (
+            bake(&good, "vmf", o, &["--align", "1", "--align-form", "eq30"]),
+            vec!["eq30", "appendix", "main-text"],
         ),
         (
             vec![
