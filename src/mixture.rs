@@ -805,11 +805,11 @@ fn top_down<M: Model>(
                             && M::closed_form_when_aligned(options, g.min_alpha())
                         {
                             let fit = g.one_per_normal(j);
-                            return (
-                                x,
-                                y,
-                                parent.map_or(fit.clone(), |p| into_slots::<M>(fit, p)),
-                            );
+                            let fit = match parent {
+                                Some(p) => into_slots::<M>(fit, p),
+                                None => fit,
+                            };
+                            return (x, y, fit);
                         }
                     }
                     let init = match parent {
