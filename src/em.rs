@@ -173,7 +173,7 @@ impl<'a> EmInput<'a> {
 
 /// Which maximization of the coherence prior (eq 28) replaces Algorithm 1's line 13.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[serde(rename_all = "kebab-case")]
 pub enum AlignmentForm {
     /// Eq 29, the appendix's M-step: `μ_j ← normalize(κ_j α_j r_j + C Σ_k α_jk μ_jk)` (the data
     /// term as the texel's mean log-likelihood). The pull on a lobe shrinks as `1/(κ_j α_j)`, so
@@ -219,14 +219,13 @@ impl AlignmentForm {
         }
     }
 
-    /// The factor that multiplies `C Σ_k α_jk μ_jk` relative to `r_j` for a lobe of weight
-    /// `alpha` and concentration `kappa`: 1 for eq 23, `1/(κ α)` for eq 29 (∞ is avoided:
-    /// `κ α` is floored at the smallest normal f64, so a lobe with no data follows its
-    /// neighbours).
-    pub fn pull_scale(self, alpha: f64, kappa: f64) -> f64 {
+    /// The weight of the data term `r_j` against the pull `C Σ_k α_jk μ_jk` in the new μ_j of
+    /// a lobe of weight `alpha` and concentration `kappa`: `κ α` for eq 29, 1 for eq 23. (No
+    /// division: a lobe with `κ α = 0` simply follows its neighbours.)
+    pub fn data_weight(self, alpha: f64, kappa: f64) -> f64 {
         match self {
+            AlignmentForm::Appendix => kappa * alpha,
             AlignmentForm::MainText => 1.0,
-            AlignmentForm::Appendix => 1.0 / (kappa * alpha).max(f64::MIN_POSITIVE),
         }
     }
 }
@@ -751,9 +750,14 @@ fn m_step(
         l.alpha = wj / total; // line 10
         let r = DVec3::new(sums.moment[0][s], sums.moment[1][s], sums.moment[2][s]) / wj; // line 11
         l.kappa = estimator.kappa(r.length()); // line 12
-        let scale = form.pull_scale(l.alpha, l.kappa);
-        if let Some(mu) = normalize_robust(r + pull[j] * scale) {
-            l.mu = mu; // line 13 / eq 23 / eq 29 (divided by κ_j α_j)
+        // Line 13; with a pull, eq 29 (κ_j α_j r_j + P_j) or eq 23 (r_j + P_j).
+        let v = if pull[j] == DVec3::ZERO {
+            r
+        } else {
+            r * form.data_weight(l.alpha, l.kappa) + pull[j]
+        };
+        if let Some(mu) = normalize_robust(v) {
+            l.mu = mu;
         }
     }
 }
@@ -1710,9 +1714,9 @@ mod tests {
         );
         assert!("eq30".parse::<AlignmentForm>().is_err());
         let (a, m) = (AlignmentForm::Appendix, AlignmentForm::MainText);
-        assert_eq!(m.pull_scale(0.5, 100.0), 1.0);
-        assert_eq!(a.pull_scale(0.5, 100.0), 0.02);
-        assert!(a.pull_scale(0.0, 0.0).is_finite());
+        assert_eq!(m.data_weight(0.5, 100.0), 1.0);
+        assert_eq!(a.data_weight(0.5, 100.0), 50.0);
+        assert_eq!(a.data_weight(0.0, 0.0), 0.0);
     }
 
     #[test]
