@@ -251,7 +251,6 @@ struct LevelFit<C> {
     /// Empty for the finest level, whose components are the normals themselves (level 1 reads
     /// the normals directly).
     components: Vec<C>,
-    keep_components: bool,
     /// Per slot: `α_j y_j` of each texel (eq 22), when a feature image is present, as stored
     /// (f32).
     colors: Option<Vec<Vec<[f32; 4]>>>,
@@ -434,7 +433,6 @@ impl<C: Copy> LevelFit<C> {
     fn with_capacity(texels: usize, j: usize, textures: bool, colors: bool) -> Self {
         LevelFit {
             components: Vec::with_capacity(texels * j),
-            keep_components: true,
             colors: colors.then(|| planes(j, texels, false)),
             texels: if textures {
                 planes(j, texels, false)
@@ -452,9 +450,7 @@ impl<C: Copy> LevelFit<C> {
                 plane.push(y.map(|v| (M::alpha(c) * v) as f32));
             }
         }
-        if self.keep_components {
-            self.components.extend_from_slice(&comps);
-        }
+        self.components.extend_from_slice(&comps);
         for (plane, t) in self.texels.iter_mut().zip(&texels) {
             plane.push(t.map(|v| v as f32));
         }
@@ -510,7 +506,6 @@ fn finest_level<M: Model>(
     let colors = map.feature().map(|f| fill(&|t| f[t]));
     LevelFit {
         components: Vec::new(),
-        keep_components: false,
         colors,
         texels,
     }
@@ -521,7 +516,6 @@ fn finest_level<M: Model>(
 fn placeholder_level<C>() -> LevelFit<C> {
     LevelFit {
         components: Vec::new(),
-        keep_components: false,
         colors: None,
         texels: Vec::new(),
     }
@@ -756,7 +750,6 @@ fn top_down<M: Model>(
         let texels = (w * h) as usize;
         let mut out = LevelFit {
             components: vec![M::EMPTY; texels * j],
-            keep_components: true,
             colors: map.feature().map(|_| planes(j, texels, true)),
             texels: planes(j, texels, true),
         };
