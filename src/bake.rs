@@ -1,12 +1,15 @@
-//! A bake: the per-level, per-texel parameters of one filtering method, as RGBA MIP chains.
+//! A bake: the per-level, per-texel parameters of one filtering method, as RGBA MIP chains,
+//! and the options and progress reporting every method's baker shares.
 //!
 //! Every method's output has the same shape: a list of [`Texture`]s, each an RGBA f32 MIP chain
 //! whose channels have documented meanings (DESIGN.md "Texture layouts"). That is what the
-//! shaders sample, what packing converts, what the CPU twin shades ([`crate::shade`]) and what
-//! [`crate::output`] writes.
+//! shaders sample, what packing converts, what the CPU twin shades (module `shade`) and what
+//! module `output` writes. The methods produce it (modules `baseline`, `mixture`); module
+//! `methods` dispatches to them. This module sits below all of them.
 
 use crate::error::{Error, Result};
-use crate::ingest::{Addressing, NormalMap};
+use crate::format::{Format, ValueRange};
+use crate::ingest::Addressing;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -86,77 +89,6 @@ impl FromStr for Method {
     }
 }
 
-/// The range a channel's values lie in, which decides how unsigned-normalized formats store it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ValueRange {
-    /// In [0, 1]: stored as is.
-    Unit,
-    /// In [−1, 1]: unsigned-normalized formats store `0.5 + 0.5·v` (DESIGN.md "Texture layouts").
-    Signed,
-    /// Unbounded (LEAN slope moments): float formats only.
-    Any,
-}
-
-/// Storage format of texel values: what the GPU texture holds (see [`crate::pack`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Format {
-    /// 32-bit float RGBA (`GL_RGBA32F`).
-    #[default]
-    F32,
-    /// 16-bit float RGBA (`GL_RGBA16F`).
-    F16,
-    /// 16-bit unsigned-normalized RGBA (`GL_RGBA16`); signed channels biased.
-    Unorm16,
-    /// 8-bit unsigned-normalized RGBA (`GL_RGBA8`); signed channels biased.
-    Unorm8,
-}
-
-impl Format {
-    /// Every format, widest first.
-    pub const ALL: [Format; 4] = [Format::F32, Format::F16, Format::Unorm16, Format::Unorm8];
-
-    /// The lower-case name used on the command line and in manifests.
-    pub fn name(self) -> &'static str {
-        match self {
-            Format::F32 => "f32",
-            Format::F16 => "f16",
-            Format::Unorm16 => "unorm16",
-            Format::Unorm8 => "unorm8",
-        }
-    }
-
-    /// Bytes per channel.
-    pub fn channel_bytes(self) -> usize {
-        match self {
-            Format::F32 => 4,
-            Format::F16 | Format::Unorm16 => 2,
-            Format::Unorm8 => 1,
-        }
-    }
-}
-
-impl fmt::Display for Format {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Format {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        Format::ALL
-            .into_iter()
-            .find(|m| m.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| {
-                Error::InvalidOption(format!(
-                    "unknown format '{s}' (expected one of: f32, f16, unorm16, unorm8)"
-                ))
-            })
-    }
-}
-
 /// One RGBA f32 MIP chain of a bake.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Texture {
@@ -186,7 +118,7 @@ pub struct Bake {
     /// Method parameters as recorded in the manifest (lobe count, alignment, EM settings).
     pub parameters: serde_json::Value,
     /// The storage format the values have been rounded to ([`Format::F32`] as baked;
-    /// [`crate::pack::quantize`] gives the values a GPU reads from a narrower format).
+    /// `pack::quantize` gives the values a GPU reads from a narrower format).
     pub format: Format,
 }
 
@@ -240,28 +172,6 @@ impl Bake {
     }
 }
 
-/// The value ranges of each texture a bake of `method` has, in texture order — what a shader
-/// needs to decode unsigned-normalized storage without a bake at hand: the baseline's textures,
-/// or `lobes` lobe textures followed, with `color`, by `lobes` colour textures (`α·y`, unit).
-pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRange; 4]> {
-    use crate::mixture::{Model, TanModel, VmfModel};
-    let lobe = match method {
-        Method::Vmf => VmfModel::RANGES,
-        Method::Tan2005 => TanModel::RANGES,
-        _ => {
-            return crate::baseline::layout(method)
-                .into_iter()
-                .map(|(_, _, ranges)| ranges)
-                .collect();
-        }
-    };
-    let mut ranges = vec![lobe; lobes];
-    if color {
-        ranges.extend(std::iter::repeat_n([ValueRange::Unit; 4], lobes));
-    }
-    ranges
-}
-
 /// Options of the mixture methods (ignored by the baselines).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeOptions {
@@ -295,40 +205,6 @@ impl Default for BakeOptions {
     }
 }
 
-/// Bakes `method` for `map` with default options: the full MIP chain down to 1×1.
-pub fn bake(map: &NormalMap, method: Method) -> Bake {
-    bake_with(map, method, &BakeOptions::default()).expect("default options are valid")
-}
-
-/// Bakes `method` for `map` with `options`; fails only on invalid options.
-pub fn bake_with(map: &NormalMap, method: Method, options: &BakeOptions) -> Result<Bake> {
-    bake_with_progress(map, method, options, &mut |_| true)
-}
-
-/// Bakes like [`bake_with`], reporting progress to `progress` and letting it cancel.
-///
-/// `progress` is called on the calling thread (between parallel chunks of work, never from a
-/// worker) with the fraction done: first 0.0, then non-decreasing values at least every 0.1 %
-/// of the work's progress (per MIP level for the baselines, per chunk of texels or wavefront
-/// for the mixtures), last 1.0. Returning `false` stops the bake with [`Error::Cancelled`];
-/// the result does not depend on the callback otherwise (same bits as [`bake_with`]).
-pub fn bake_with_progress(
-    map: &NormalMap,
-    method: Method,
-    options: &BakeOptions,
-    progress: &mut dyn FnMut(f32) -> bool,
-) -> Result<Bake> {
-    let mut progress = Progress::new(progress);
-    progress.report(0.0)?;
-    let bake = match method {
-        Method::Vmf => crate::mixture::bake_vmf(map, options, &mut progress),
-        Method::Tan2005 => crate::mixture::bake_tan2005(map, options, &mut progress),
-        _ => crate::baseline::bake(map, method, &mut progress),
-    }?;
-    progress.report(1.0)?;
-    Ok(bake)
-}
-
 /// A bake's progress reporting: forwards the fraction done to the caller's callback (at most
 /// once per 0.1 % of progress, plus the first and the last call) and turns "stop" into
 /// [`Error::Cancelled`].
@@ -360,71 +236,6 @@ impl<'a> Progress<'a> {
             Ok(())
         } else {
             Err(Error::Cancelled)
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The built-in sample of side `size` (at least 8).
-    fn bumpy(size: u32) -> NormalMap {
-        crate::procedural::generate(size, 3).map
-    }
-
-    fn cases() -> Vec<(Method, BakeOptions)> {
-        let lobes = |n, align| BakeOptions {
-            lobes: n,
-            align,
-            ..BakeOptions::default()
-        };
-        vec![
-            (Method::Plain, BakeOptions::default()),
-            (Method::Olano, BakeOptions::default()),
-            (Method::Vmf, lobes(2, None)),
-            (Method::Vmf, lobes(2, Some(0.1))),
-            (Method::Tan2005, lobes(2, Some(1.0))),
-        ]
-    }
-
-    #[test]
-    fn progress_rises_from_zero_to_one_and_leaves_the_bake_unchanged() {
-        // 512²: level 1 has four chunks of PROGRESS_CHUNK texels.
-        for (map, (method, options)) in [(bumpy(512), (Method::Vmf, cases()[2].1))]
-            .into_iter()
-            .chain(cases().into_iter().map(|c| (bumpy(9), c)))
-        {
-            let mut seen = Vec::new();
-            let with = bake_with_progress(&map, method, &options, &mut |f| {
-                seen.push(f);
-                true
-            })
-            .unwrap();
-            assert_eq!(with, bake_with(&map, method, &options).unwrap(), "{method}");
-            assert_eq!(seen.first(), Some(&0.0), "{method}: {seen:?}");
-            assert_eq!(seen.last(), Some(&1.0), "{method}: {seen:?}");
-            assert!(seen.len() >= 3, "{method}: {seen:?}");
-            assert!(seen.windows(2).all(|p| p[0] < p[1]), "{method}: {seen:?}");
-        }
-    }
-
-    #[test]
-    fn a_callback_that_says_stop_cancels_the_bake() {
-        let map = bumpy(9);
-        for (method, options) in cases() {
-            for stop_at in [0, 1, 2] {
-                let mut calls = 0;
-                let r = bake_with_progress(&map, method, &options, &mut |_| {
-                    calls += 1;
-                    calls <= stop_at
-                });
-                assert!(
-                    matches!(r, Err(Error::Cancelled)),
-                    "{method} stop at {stop_at}"
-                );
-                assert_eq!(calls, stop_at + 1, "{method}: no call after the stop");
-            }
         }
     }
 }

@@ -9,10 +9,11 @@
 //! - **Olano–North 1997** (`papers/olano1997-normal-distribution-mapping.md` Sec 5): the nine
 //!   linear moments of a 3D Gaussian, `E[n]` (3) and `E[n nᵀ]` (6).
 //!
-//! Moments are accumulated in f64 and stored as f32. Shading from them is in [`crate::shade`].
+//! Moments are accumulated in f64 and stored as f32. Shading from them is in module `shade`.
 
-use crate::bake::{Bake, Format, Method, Progress, Texture, ValueRange};
+use crate::bake::{Bake, Method, Progress, Texture};
 use crate::error::Result;
+use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
 use crate::pyramid::{pyramid, reduce};
 use glam::Vec3;
@@ -28,7 +29,7 @@ fn moment_count(method: Method) -> usize {
         Method::Plain | Method::Toksvig => 3,
         Method::Lean => 5,
         Method::Olano => 9,
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by crate::mixture"),
+        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
     }
 }
 
@@ -43,7 +44,7 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
             out.copy_from_slice(&[bx, by, bx * bx, by * by, bx * by]);
         }
         Method::Olano => out.copy_from_slice(&[x, y, z, x * x, y * y, z * z, x * y, x * z, y * z]),
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by crate::mixture"),
+        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
     }
 }
 
@@ -51,7 +52,7 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
 pub(crate) fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
     use ValueRange::{Any, Signed as S, Unit as U};
     match method {
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by crate::mixture"),
+        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
         Method::Plain => vec![("normal", ["n_x", "n_y", "n_z", "unused"], [S, S, S, U])],
         Method::Toksvig => vec![(
             "mean",
@@ -110,7 +111,7 @@ fn finalize(method: Method, m: &[f64], out: &mut [[f32; 4]]) {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), f(m[3])];
             out[1] = [f(m[4]), 0.0, 0.0, 0.0];
         }
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by crate::mixture"),
+        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
         Method::Olano => {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), 0.0];
             out[1] = [f(m[3]), f(m[4]), f(m[5]), 0.0];
@@ -211,7 +212,7 @@ mod tests {
     fn every_baseline_matches_a_direct_moment_computation() {
         let map = test_map(13, 6);
         for method in Method::BASELINES {
-            let b = crate::bake::bake(&map, method);
+            let b = crate::methods::bake(&map, method);
             assert_eq!(b.sizes, crate::pyramid::level_sizes(13, 6));
             for level in 0..b.level_count() {
                 let (lw, lh) = b.sizes[level];
@@ -273,7 +274,7 @@ mod tests {
     #[test]
     fn coarsest_level_is_the_mean_of_the_whole_map() {
         let map = test_map(8, 8);
-        let b = crate::bake::bake(&map, Method::Toksvig);
+        let b = crate::methods::bake(&map, Method::Toksvig);
         let mean: DVec3 = map.normals().iter().map(|n| n.as_dvec3()).sum::<DVec3>() / 64.0;
         let t = b.texel(b.level_count() - 1, 0, 0)[0];
         for c in 0..3 {

@@ -8,10 +8,12 @@
 //! pair, box-filtered over the exact footprints ([`crate::pyramid::reduce`]), so they are exact
 //! for any map size. Sums are f64 in a fixed order: results do not depend on the thread count.
 
-use crate::bake::{Bake, Format, Method};
+use crate::bake::{Bake, Method};
+use crate::brdf::{Brdf, half_vector, reference_brdf};
+use crate::format::Format;
 use crate::ingest::NormalMap;
 use crate::pyramid::{LevelFootprints, pyramid, reduce};
-use crate::shade::{Brdf, half_vector, reference_brdf, shade_brdf};
+use crate::shade::shade_brdf;
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -398,8 +400,8 @@ pub fn format_table(errors: &[MethodError]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::bake;
     use crate::ingest::{Addressing, BadNormals};
+    use crate::methods::bake;
     use glam::Vec3;
 
     fn map(w: u32, h: u32, f: impl Fn(u32, u32) -> Vec3) -> NormalMap {

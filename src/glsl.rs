@@ -18,8 +18,9 @@
 //! probe mode ([`ShaderOptions::probe`]): `ndf_probe_size`, `ndf_probe_lod`, `ndf_probe_l`,
 //! `ndf_probe_h`, `ndf_probe_channel`. Output: `layout(location = 0) out vec4 ndf_out`.
 
-use crate::bake::{Bake, Format, Method, ValueRange};
+use crate::bake::{Bake, Method};
 use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
 use crate::ingest::Addressing;
 use std::fmt::Write;
 
@@ -275,8 +276,9 @@ fn bindings(spec: &ShaderSpec, textures: usize, manual: bool) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::{BakeOptions, bake, bake_with};
+    use crate::bake::BakeOptions;
     use crate::ingest::NormalMap;
+    use crate::methods::{bake, bake_with};
 
     fn map() -> NormalMap {
         crate::procedural::generate(8, 1).map
@@ -301,7 +303,7 @@ mod tests {
                 };
                 let m = if color { &colored } else { &sample.map };
                 let b = bake_with(m, method, &opts).unwrap();
-                let want = crate::bake::texture_ranges(method, b.lobes, color);
+                let want = crate::methods::texture_ranges(method, b.lobes, color);
                 assert_eq!(ShaderSpec::of(&b).ranges, want, "{method} color={color}");
             }
         }

@@ -1,20 +1,29 @@
 //! ndfmap: filtered normal-distribution textures from normal maps.
 //!
 //! Implements "Frequency Domain Normal Map Filtering" (Han, Sun, Ramamoorthi, Grinspun 2007)
-//! and the baselines it compares with. Data flows forward through one module per stage:
-//! [`ingest`] → [`pyramid`] → methods ([`baseline`]; [`vmf`] and [`em`] for the paper's
-//! Sec 7) → [`bake`] → [`shade`] / [`eval`] / [`pack`] / [`output`]; [`render`] draws views
-//! (supersampled ground truth and the shaders' CPU twin) and `report` (feature `report`)
-//! measures error against run time; [`ffi`] is the C ABI (`include/ndfmap.h`).
+//! and the baselines it compares with. Data flows forward through one module per stage, and no
+//! module imports one above it:
+//!
+//! - data: [`format`] (storage formats, value ranges) → [`bake`] (the textures every method
+//!   produces, options, progress); [`brdf`] (the BRDFs and the exact unfiltered shading);
+//! - input: [`ingest`] → [`pyramid`] (exact footprints);
+//! - methods: [`baseline`]; [`vmf`], [`em`] and [`tan2005`] driven per level by [`mixture`];
+//!   [`methods`] is the one dispatch over them;
+//! - consumers: [`shade`] (the shaders' CPU twin) → [`sample`] / [`eval`] / [`render`];
+//!   [`pack`] / [`output`] (storage, files), [`glsl`] (the shaders), `report` (feature
+//!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`).
 
 pub mod bake;
 pub mod baseline;
+pub mod brdf;
 pub mod em;
 pub mod error;
 pub mod eval;
 pub mod ffi;
+pub mod format;
 pub mod glsl;
 pub mod ingest;
+pub mod methods;
 pub mod mixture;
 pub mod output;
 pub mod pack;

@@ -25,9 +25,10 @@
 //! Colour (eq 22): with a feature image, each component also gets `y_j = Σ z_ij y_i / Σ z_ij`,
 //! stored as `α_j y_j`.
 
-use crate::bake::{Bake, BakeOptions, Format, Method, Progress, Texture, ValueRange};
+use crate::bake::{Bake, BakeOptions, Method, Progress, Texture};
 use crate::em::{self, Alignment, AlignmentForm, EmInput, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
 use crate::pyramid::{AxisFootprints, LevelFootprints, level_sizes};
 use crate::tan2005::{self, Gaussian, GaussianAlignment, TanScratch};
@@ -935,10 +936,10 @@ pub fn lobe_coherence(bake: &Bake) -> Vec<Option<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::bake_with;
+    use crate::brdf::Brdf;
     use crate::eval::{default_directions, evaluate};
     use crate::ingest::{Addressing, BadNormals};
-    use crate::shade::Brdf;
+    use crate::methods::bake_with;
 
     fn bumpy(w: u32, h: u32) -> NormalMap {
         let v = (0..w * h)
@@ -1027,7 +1028,7 @@ mod tests {
         assert_eq!(t.textures.len(), 4);
         assert_eq!(t.textures[0].name, "gauss0");
         all_finite(&t);
-        let p = crate::bake::bake(&m, Method::Plain);
+        let p = crate::methods::bake(&m, Method::Plain);
         let e = evaluate(
             &m,
             &[&t, &p],
@@ -1046,7 +1047,7 @@ mod tests {
     fn vmf_beats_toksvig_on_a_bumpy_map() {
         let m = bumpy(32, 32);
         let v = bake_with(&m, Method::Vmf, &opts(6, None)).unwrap();
-        let t = crate::bake::bake(&m, Method::Toksvig);
+        let t = crate::methods::bake(&m, Method::Toksvig);
         let e = evaluate(
             &m,
             &[&v, &t],
@@ -1190,7 +1191,7 @@ mod tests {
             }
         }
         assert_eq!(fast.label(), "vmf4f");
-        let toksvig = crate::bake::bake(&m, Method::Toksvig);
+        let toksvig = crate::methods::bake(&m, Method::Toksvig);
         let e = evaluate(
             &m,
             &[&exact, &fast, &toksvig],

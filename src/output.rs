@@ -6,8 +6,9 @@
 //! and the new manifest renamed in last. A folder with a `manifest.json` therefore always holds
 //! a complete bake, and a failure leaves no partial output behind.
 
-use crate::bake::{Bake, Format, Method, ValueRange};
+use crate::bake::{Bake, Method};
 use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
 use crate::ingest::{IngestOptions, IngestStats};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -268,8 +269,8 @@ pub fn read_level(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::bake;
     use crate::ingest::{Addressing, BadNormals, NormalMap};
+    use crate::methods::bake;
     use glam::Vec3;
 
     fn input(map: &NormalMap) -> InputInfo {

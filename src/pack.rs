@@ -8,8 +8,9 @@
 //! format, and f16 refuses values beyond its range rather than storing infinity.
 //! Packed bytes are in the host's byte order, rows top to bottom: what `glTexImage2D` takes.
 
-use crate::bake::{Bake, Format, ValueRange};
+use crate::bake::Bake;
 use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
 use half::f16;
 
 /// Largest finite f16.
@@ -141,8 +142,9 @@ pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::{Method, bake};
+    use crate::bake::Method;
     use crate::ingest::{Addressing, BadNormals, NormalMap};
+    use crate::methods::bake;
     use glam::Vec3;
 
     fn sample() -> NormalMap {

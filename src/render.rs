@@ -2,7 +2,7 @@
 //! of a normal-mapped plane and sphere, rendered
 //! - as **ground truth**, by jittered stratified supersampling of the *unfiltered* normal map:
 //!   every sub-sample looks up the nearest finest-level normal (GL `NEAREST` on level 0, the
-//!   map's addressing) and shades it exactly ([`crate::shade::reference_brdf`]); the pixel is the
+//!   map's addressing) and shades it exactly ([`crate::brdf::reference_brdf`]); the pixel is the
 //!   mean over a box pixel filter;
 //! - **filtered**, with a bake's textures through the CPU twin of the shaders: one sample at the
 //!   pixel centre, level of detail from the screen derivatives of uv ([`crate::sample::lod`], GL's
@@ -21,11 +21,12 @@
 //! generator per row, so images are bit-identical for any thread count.
 
 use crate::bake::Bake;
+use crate::brdf::{Brdf, half_vector, reference_brdf};
 use crate::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
 use crate::ingest::{Addressing, NormalMap};
 use crate::rng::Rng;
 use crate::sample::{Filtering, lod, shade_at_lights};
-use crate::shade::{Brdf, ShadingRgb, half_vector, reference_brdf};
+use crate::shade::ShadingRgb;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -118,7 +119,7 @@ impl Hit {
     pub fn frame(&self) -> (DVec3, DVec3, DVec3) {
         let t = (self.dpdu - self.n * self.n.dot(self.dpdu))
             .try_normalize()
-            .unwrap_or_else(|| crate::shade::tangent_frame(self.n).0);
+            .unwrap_or_else(|| crate::brdf::tangent_frame(self.n).0);
         let b = self.n.cross(t);
         let b = if b.dot(self.dpdv) > 0.0 { -b } else { b };
         (t, b, self.n)
@@ -750,8 +751,9 @@ pub fn distance_for_lod(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::{Method, bake};
+    use crate::bake::Method;
     use crate::ingest::BadNormals;
+    use crate::methods::bake;
     use glam::Vec3;
 
     fn material() -> Material {

@@ -9,8 +9,9 @@
 //! weight `frac(λ)`, clamped to the last level. Row 0 of a level is `v` near 0.
 
 use crate::bake::Bake;
+use crate::brdf::Brdf;
 use crate::pyramid::bilinear_taps;
-use crate::shade::{Brdf, ShadingRgb, shade_rgb};
+use crate::shade::{ShadingRgb, shade_rgb};
 use glam::{DVec2, DVec3};
 
 /// GL's level of detail for screen derivatives of uv on a texture of base `size`:
@@ -144,7 +145,8 @@ pub fn shade_at_lights(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::{Method, bake};
+    use crate::bake::Method;
+    use crate::methods::bake;
 
     #[test]
     fn lod_is_log2_of_the_texel_footprint() {
@@ -225,7 +227,7 @@ mod tests {
                 align,
                 ..Default::default()
             };
-            let b = crate::bake::bake_with(&map, method, &options).unwrap();
+            let b = crate::methods::bake_with(&map, method, &options).unwrap();
             for manual in [false, true] {
                 let f = Filtering {
                     brdf: Brdf::BlinnPhong { s: 64.0 },

@@ -52,11 +52,11 @@
 //!   clustering of the 2D means of the finer texels' components) above it.
 //! - **Shading** ([`shade`], [`shade_gaussian`]; the CPU twin of the Tan shader). Tan shades a
 //!   Cook–Torrance lobe per Gaussian; for ndfmap's BRDF (Lambert + normalized Blinn-Phong, both
-//!   times the cosine; [`crate::shade::reference`]) each component is lifted to the unit normal
+//!   times the cosine; [`crate::brdf::reference`]) each component is lifted to the unit normal
 //!   `μ3 = lift(μ)` and gives diffuse `α max(μ3·l, 0)` and specular
 //!   `α B(μ3·h; s') max(μ3·l, 0)`, where the Blinn-Phong lobe is widened by the component's
 //!   variance added isotropically in μ3's tangent frame: `(I/s + σ² I)⁻¹ = s' I`,
-//!   `s' = s / (1 + s σ²)` (this is [`crate::shade::widened_lobe`] with `Σ = σ² I`, reduced in
+//!   `s' = s / (1 + s σ²)` (this is [`crate::brdf::widened_lobe`] with `Σ = σ² I`, reduced in
 //!   closed form so that `σ² = 0` gives exactly the unfiltered BRDF; it is also eq 20 of Han 2007
 //!   with `κ = 1/σ²`).
 //!
@@ -76,8 +76,8 @@
 //!
 //! Run time per texel: see [`fit`].
 
+use crate::brdf::{Shading, blinn_phong};
 use crate::em::{EmInput, EmOptions, KAPPA_INIT_MAX, MAX_LOBES};
-use crate::shade::{Shading, blinn_phong};
 use crate::vmf::{KAPPA_MAX, is_positive, normalize_robust};
 use glam::{DVec2, DVec3, Vec3};
 use std::f64::consts::PI;
@@ -802,9 +802,9 @@ fn component_features(
 /// Shading of one component (module docs): `μ3 = lift(μ)`,
 /// `s' = s / (1 + s σ²)`, diffuse `α max(μ3·l, 0)`, specular
 /// `α (s'+1)/(2π) max(μ3·h, 0)^{s'} max(μ3·l, 0)`. The specular lobe equals
-/// [`crate::shade::widened_lobe`] with `Σ = [σ², σ², 0]` and the offset of `h` in μ3's
-/// [`crate::shade::tangent_frame`] (to rounding); with `α = 1` and `σ² = 0` it is
-/// bit-identical to [`crate::shade::reference`]`(μ3, l, h, s)`. An empty component (`α ≤ 0` or
+/// [`crate::brdf::widened_lobe`] with `Σ = [σ², σ², 0]` and the offset of `h` in μ3's
+/// [`crate::brdf::tangent_frame`] (to rounding); with `α = 1` and `σ² = 0` it is
+/// bit-identical to [`crate::brdf::reference`]`(μ3, l, h, s)`. An empty component (`α ≤ 0` or
 /// non-finite) contributes nothing; a negative or NaN σ² counts as 0. `s` must be positive and
 /// finite.
 pub fn shade_gaussian(g: &Gaussian, l: DVec3, h: DVec3, s: f64) -> Shading {
@@ -839,7 +839,7 @@ pub fn shade(texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Shading {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::shade::{reference, tangent_frame, widened_lobe};
+    use crate::brdf::{reference, tangent_frame, widened_lobe};
 
     use crate::rng::Rng;
 
@@ -895,7 +895,7 @@ mod tests {
     fn light_and_half(rng: &mut Rng) -> (DVec3, DVec3) {
         let l = rng.upper();
         let v = rng.upper();
-        (l, crate::shade::half_vector(l, v))
+        (l, crate::brdf::half_vector(l, v))
     }
 
     #[test]

@@ -17,10 +17,10 @@
 //! shader recovers κ with Banerjee's formula, not with the exact `A⁻¹`. [`Lobe::texel`] therefore
 //! encodes `|r|` as the inverse of *Banerjee's* map ([`r_from_kappa`]), so that
 //! `Lobe::from_moments(texel)` returns the same lobe and, for lobes produced by the EM
-//! ([`crate::em`]), the texel holds exactly the M-step's mean `α·r`. The exact relation of eq 16,
+//! (module `em`), the texel holds exactly the M-step's mean `α·r`. The exact relation of eq 16,
 //! `|r| = A(κ)`, differs from it by Banerjee's approximation error (see
 //! [`banerjee_max_relative_error`]); [`Lobe::texel_exact`] encodes with it, for lobes whose κ
-//! is the exact `A⁻¹(|r|)` (and `crate::em::EmFit::texel` picks the right one).
+//! is the exact `A⁻¹(|r|)` (and `em::EmFit::texel` picks the right one).
 //!
 //! # The κ clamp
 //! κ never exceeds [`KAPPA_MAX`] ≈ 4.2·10⁶ (|r| ≤ [`R_MAX`] = 1 − 2⁻²², what an f32 texel can
@@ -32,7 +32,7 @@
 //! cannot exceed 1 − 2⁻¹¹, so κ ≤ 2048.5 from an f16 texture). Densities and logs are exact
 //! for any κ.
 
-use crate::bake::Format;
+use crate::format::Format;
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -46,7 +46,7 @@ pub const R_MAX: f64 = 1.0 - 1.0 / 4_194_304.0;
 pub const KAPPA_MAX: f64 = kappa_banerjee(R_MAX);
 
 /// The largest `|r|` a texel read from `format` is trusted with, the clamp applied (in the
-/// shader and in [`crate::shade`]) before κ is computed from it (Algorithm 2 line 9):
+/// shader and in module `shade`) before κ is computed from it (Algorithm 2 line 9):
 /// f32 `1 − 2⁻²²` ([`R_MAX`]); f16 `1 − 2⁻¹¹`, the largest f16 below 1 (κ ≤ 2048.5); unorm16
 /// `1 − 2⁻¹⁴` (two steps of the biased `α·r` and one of α; κ ≤ 16384); unorm8 `1 − 2⁻⁶`
 /// (κ ≤ 64.5). Quantization can push a decoded `|α·r|/α` past 1; the clamp keeps κ finite.
@@ -175,7 +175,7 @@ fn a_kappa_derivative(kappa: f64) -> f64 {
 /// bisection on the bracket `[3r, 1/(1 − r)]`, to full double precision. Not clamped: `r ≥ 1`
 /// gives +∞, `r ≤ 0` (or NaN) gives 0. Used to measure Banerjee's approximation
 /// ([`banerjee_max_relative_error`]) and by the EM's exact estimator
-/// ([`crate::em::KappaEstimator::Exact`]), which clamps with [`clamp_kappa`].
+/// (`em::KappaEstimator::Exact`), which clamps with [`clamp_kappa`].
 pub fn kappa_from_r_exact(r: f64) -> f64 {
     if !is_positive(r) {
         return 0.0;
@@ -373,7 +373,7 @@ impl Lobe {
 
     /// Encodes the lobe with eq 16 taken literally: `[α, α·A(κ)μ]` (with `A(κ)` capped at
     /// [`R_MAX`]). This is the right encoding for a lobe whose κ is the exact estimate
-    /// `A⁻¹(|r|)` (e.g. from [`crate::em::KappaEstimator::Exact`]): the texel then holds the
+    /// `A⁻¹(|r|)` (e.g. from `em::KappaEstimator::Exact`): the texel then holds the
     /// data's mean `α·r`. Decoding it with Banerjee's formula ([`Lobe::from_moments`], the
     /// shader) returns a κ larger by up to 4.94 % (see [`kappa_from_r`]).
     pub fn texel_exact(&self) -> [f64; 4] {

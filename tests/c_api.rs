@@ -11,11 +11,13 @@
 //! A missing gcc, g++ or valgrind skips the part that needs it, except under CI (`CI` set),
 //! where `scripts/test` installs them and their absence is a failure.
 
-use ndfmap::bake::ValueRange;
-use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::em::AlignmentForm;
+use ndfmap::format::Format;
+use ndfmap::format::ValueRange;
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, Stage, source_for};
 use ndfmap::ingest::Samples;
+use ndfmap::methods::bake_with;
 use ndfmap::{IngestOptions, NormalMap};
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -4,9 +4,11 @@
 //! reference compiler (`glslangValidator`, Debian `glslang-tools`, installed by scripts/test).
 //! The GL tests in `samples/gl` then run them on Mesa and compare with the CPU twin.
 
-use ndfmap::bake::{Format, Method, texture_ranges};
+use ndfmap::bake::Method;
+use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage, source_for};
 use ndfmap::ingest::Addressing;
+use ndfmap::methods::texture_ranges;
 use std::process::Command;
 
 fn validator() -> Option<&'static str> {

@@ -1,10 +1,11 @@
 //! Checks on the real CC0 normal maps in `../shared/data/normalmaps/` (read in place, never
 //! copied). Skipped with a message when that folder is absent (a clone without `shared/`).
 
-use ndfmap::bake::{Bake, BakeOptions, Method, bake, bake_with};
+use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::brdf::Brdf;
 use ndfmap::em::AlignmentForm;
 use ndfmap::eval::{default_directions, evaluate};
-use ndfmap::shade::Brdf;
+use ndfmap::methods::{bake, bake_with};
 use ndfmap::{IngestOptions, NormalMap};
 use std::path::PathBuf;
 

@@ -7,11 +7,14 @@
 
 use glam::{DVec3, Vec3};
 use half::f16;
-use ndfmap::bake::{BakeOptions, Format, Method, bake, bake_with};
+use ndfmap::bake::{BakeOptions, Method};
+use ndfmap::brdf::{Brdf, blinn_phong, half_vector};
+use ndfmap::format::Format;
 use ndfmap::ingest::{Addressing, BadNormals, Channels, NormalMap, Samples};
+use ndfmap::methods::{bake, bake_with};
 use ndfmap::pack::quantize;
 use ndfmap::report::stability::{ENERGY_BOUND, ENERGY_EXEMPT, PEAK_BOUND, cases, sweep};
-use ndfmap::shade::{Brdf, blinn_phong, half_vector, shade_brdf, vmf_lobe};
+use ndfmap::shade::{shade_brdf, vmf_lobe};
 use ndfmap::vmf::{R_MAX, kappa_banerjee, r_max};
 use std::f64::consts::PI;
 

@@ -32,7 +32,7 @@ fuzz_target!(init: ndfmap_fuzz::contain_dependency_panics(), |data: &[u8]| {
         if let Ok(map) = map.with_feature_memory(name, bytes, &opts)
             && small
         {
-            let _ = ndfmap::bake::bake(&map, ndfmap::bake::Method::Toksvig);
+            let _ = ndfmap::methods::bake(&map, ndfmap::bake::Method::Toksvig);
         }
     }
 });

@@ -2,13 +2,15 @@
 //! each filtering method matches the exact shading.
 
 use clap::{Args, Parser, Subcommand};
-use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::brdf::Brdf;
 use ndfmap::em::AlignmentForm;
 use ndfmap::eval::{default_directions, evaluate, format_table};
+use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, Stage};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
+use ndfmap::methods::bake_with;
 use ndfmap::output::{InputInfo, write_bake};
-use ndfmap::shade::Brdf;
 use ndfmap::{Error, IngestOptions, NormalMap, Result};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -554,7 +556,7 @@ fn run(cli: Cli) -> Result<()> {
             let spec = ndfmap::glsl::ShaderSpec {
                 method,
                 lobes,
-                ranges: ndfmap::bake::texture_ranges(method, lobes, color && mixture),
+                ranges: ndfmap::methods::texture_ranges(method, lobes, color && mixture),
                 format: format.parse()?,
                 aligned,
                 addressing: [Addressing::Wrap, Addressing::Clamp]

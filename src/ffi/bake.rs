@@ -8,8 +8,10 @@ use super::{
     Out, Outcome, arg, c_str, choose, fail, guard, guard_value, index, ndf_status, path,
     read_options,
 };
-use crate::bake::{Bake, BakeOptions, Format, Method, ValueRange, bake_with_progress};
+use crate::bake::{Bake, BakeOptions, Method};
 use crate::em::{AlignmentForm, EmOptions, KappaEstimator};
+use crate::format::{Format, ValueRange};
+use crate::methods::bake_with_progress;
 use crate::output::InputInfo;
 use std::ffi::{CString, c_char, c_int, c_void};
 

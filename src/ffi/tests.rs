@@ -18,8 +18,10 @@ use super::bake::*;
 use super::map::*;
 use super::shader::*;
 use super::*;
-use crate::bake::{Format, Method, bake_with};
+use crate::bake::Method;
+use crate::format::Format;
 use crate::ingest::{IngestOptions, NormalMap, Samples};
+use crate::methods::bake_with;
 use std::ffi::{CStr, c_char, c_int, c_void};
 use std::ptr::{null, null_mut};
 

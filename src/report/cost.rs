@@ -401,7 +401,7 @@ mod tests {
                 align,
                 ..Default::default()
             };
-            let b = crate::bake::bake_with(&map, method, &opts).unwrap();
+            let b = crate::methods::bake_with(&map, method, &opts).unwrap();
             let c = shader_cost(&b);
             assert_eq!(c.spirv_fetches, Some(c.fetches), "{method} {lobes}: {c:?}");
             assert!(c.alu.is_some_and(|a| a > 10), "{c:?}");

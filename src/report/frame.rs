@@ -10,7 +10,7 @@
 //! [`crate::bake::Bake::label`] gives in f32), so a row finds its cell by label and format
 //! ([`FrameTimes::lookup`]); labels the benchmark did not draw stay without a frame time.
 
-use crate::bake::Format;
+use crate::format::Format;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::Command;

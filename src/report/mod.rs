@@ -13,16 +13,18 @@ pub mod frame;
 pub mod plot;
 pub mod stability;
 
-use crate::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use crate::bake::{Bake, BakeOptions, Method};
+use crate::brdf::Brdf;
 use crate::error::{Error, Result};
 use crate::eval::{Reference, default_directions, evaluate_from};
+use crate::format::Format;
 use crate::ingest::NormalMap;
+use crate::methods::bake_with;
 use crate::render::{
     Camera, Image, Light, Material, Scene, Surface, ViewGeometry, common_mask, distance_for_lod,
     exposure, lod_image, mean_radiance, relative_rmse, render_filtered_prepared,
     render_ground_truth, tonemap,
 };
-use crate::shade::Brdf;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

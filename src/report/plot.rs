@@ -7,8 +7,8 @@
 //! Without one the plots are skipped and the report says so.
 
 use super::{Report, Row};
-use crate::bake::Format;
 use crate::error::{Error, Result};
+use crate::format::Format;
 use plotters::prelude::*;
 use std::path::Path;
 use std::sync::OnceLock;

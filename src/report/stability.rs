@@ -13,10 +13,13 @@
 //! that quadrature (s ≤ 10, σ ≥ 0.3). Plain MIP-mapping is reported but exempt from the energy
 //! bound: renormalizing a short mean normal is its known failure, not a numerical one.
 
-use crate::bake::{Bake, BakeOptions, Format, Method, bake_with};
+use crate::bake::{Bake, BakeOptions, Method};
+use crate::brdf::{Brdf, half_vector, reference_brdf};
 use crate::eval::default_directions;
+use crate::format::Format;
 use crate::ingest::{Addressing, BadNormals, NormalMap};
-use crate::shade::{Brdf, half_vector, reference_brdf, shade_brdf};
+use crate::methods::bake_with;
+use crate::shade::shade_brdf;
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

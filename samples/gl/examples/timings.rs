@@ -5,7 +5,9 @@
 //!
 //! `cargo run --release -p ndfmap-gl --example timings [egl|osmesa]` (default: both, in turn).
 
-use ndfmap::bake::{Format, Method, bake};
+use ndfmap::bake::Method;
+use ndfmap::format::Format;
+use ndfmap::methods::bake;
 use ndfmap_gl::{BakeTextures, Gl, Program, RenderTarget, Route, draw_fullscreen, read_rgba_f32};
 use std::time::{Duration, Instant};
 

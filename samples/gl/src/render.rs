@@ -6,8 +6,8 @@
 use crate::{BakeTextures, Camera, Error, Gl, Mesh, Program, RenderTarget, Result, draw_mesh};
 use glam::{Mat4, Vec3, Vec4};
 use ndfmap::bake::Bake;
+use ndfmap::brdf::Brdf;
 use ndfmap::glsl::{ShaderBrdf, ShaderOptions, Stage, source};
-use ndfmap::shade::Brdf;
 
 /// One light and the material: the uniforms of `glsl/ndf_fragment.glsl`'s mesh entry point.
 #[derive(Debug, Clone, Copy, PartialEq)]

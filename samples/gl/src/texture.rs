@@ -5,7 +5,8 @@
 use crate::program::Program;
 use crate::{Error, Gl, Result};
 use glow::{HasContext, PixelUnpackData};
-use ndfmap::bake::{Bake, Format};
+use ndfmap::bake::Bake;
+use ndfmap::format::Format;
 use ndfmap::ingest::Addressing;
 
 /// The GL enums of a storage format: `(internal format, pixel type)`; the pixel format is

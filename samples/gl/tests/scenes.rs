@@ -15,8 +15,9 @@
 //! `target/ndfmap-regression/` and the test names them. `NDFMAP_BLESS=1` rewrites the references
 //! from the EGL route (do it only for an intended change, and look at the images).
 
-use ndfmap::bake::{BakeOptions, Method, bake, bake_with};
+use ndfmap::bake::{BakeOptions, Method};
 use ndfmap::glsl::ShaderOptions;
+use ndfmap::methods::{bake, bake_with};
 use ndfmap_gl::{BakeRenderer, Gl, Route, Scene, tone_map};
 use std::path::{Path, PathBuf};
 

@@ -17,11 +17,13 @@
 //! centres of unorm8 (exact reads) and manual sampling of unorm8 are compared.
 
 use glam::DVec2;
-use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake, bake_with};
+use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::brdf::{Brdf, half_vector};
 use ndfmap::eval::default_directions;
+use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, Stage, source};
+use ndfmap::methods::{bake, bake_with};
 use ndfmap::sample::{Filtering, shade_at};
-use ndfmap::shade::{Brdf, half_vector};
 use ndfmap_gl::{BakeTextures, Gl, Program, RenderTarget, Route, draw_fullscreen, read_rgba_f32};
 use std::collections::BTreeMap;
 

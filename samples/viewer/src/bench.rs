@@ -9,8 +9,10 @@
 
 use crate::headless::context;
 use crate::methods::MethodSpec;
-use ndfmap::bake::{BakeOptions, Format, Method, bake_with};
+use ndfmap::bake::{BakeOptions, Method};
+use ndfmap::format::Format;
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
+use ndfmap::methods::bake_with;
 use ndfmap::report::frame::{BenchView, FrameCell, FrameTimes, ShaderTimes};
 use ndfmap_gl::glam::Mat4;
 use ndfmap_gl::{BakeRenderer, Camera, RenderTarget, Scene, read_rgba_f32};

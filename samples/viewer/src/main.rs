@@ -12,7 +12,7 @@ mod window;
 
 use clap::Parser;
 use methods::{Bakes, MethodSpec};
-use ndfmap::bake::Format;
+use ndfmap::format::Format;
 use ndfmap::{IngestOptions, NormalMap};
 use ndfmap_gl::glam::Vec3;
 use std::path::PathBuf;

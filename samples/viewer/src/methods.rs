@@ -3,7 +3,8 @@
 //! `ndfmap::bake::Bake::label`), and [`Bakes`] bakes them once each, on a background thread.
 
 use ndfmap::NormalMap;
-use ndfmap::bake::{Bake, BakeOptions, Method, bake_with};
+use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::methods::bake_with;
 use std::collections::{HashMap, HashSet};
 use std::fmt;
 use std::str::FromStr;

@@ -12,9 +12,10 @@
 //! chain.
 
 use crate::methods::{BakeKey, Bakes, MethodSpec, finest_level_only};
-use ndfmap::bake::{Format, Method};
+use ndfmap::bake::Method;
+use ndfmap::brdf::Brdf;
+use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions};
-use ndfmap::shade::Brdf;
 use ndfmap_gl::glam::{Mat4, Vec2, Vec3, Vec4};
 use ndfmap_gl::present::read_presented_rgb8;
 use ndfmap_gl::{

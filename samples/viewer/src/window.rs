@@ -6,7 +6,7 @@
 
 use crate::methods::Bakes;
 use crate::viewer::{Settings, Show, ViewName, Viewer};
-use ndfmap::bake::Format;
+use ndfmap::format::Format;
 use ndfmap_gl::Destination;
 use ndfmap_gl::window::Window;
 use ndfmap_gl::winit;

@@ -4,7 +4,7 @@
 //! it has none there), and each ratio is its median over plain's. No time is asserted.
 //! `NDFMAP_SKIP_GL=1` skips it, like the other GL tests.
 
-use ndfmap::bake::Format;
+use ndfmap::format::Format;
 use ndfmap::report::frame::FrameTimes;
 use std::process::Command;
 

@@ -5,8 +5,10 @@
 //! (then each test prints "skipped" and passes).
 
 use glam::{Mat4, Vec3, Vec4};
-use ndfmap::bake::{Bake, BakeOptions, Format, Method, bake, bake_with};
+use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::format::Format;
 use ndfmap::ingest::Addressing;
+use ndfmap::methods::{bake, bake_with};
 use ndfmap::pack::{pack_level, packed_len};
 use ndfmap_gl::texture::sampler_name;
 use ndfmap_gl::{
