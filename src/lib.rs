@@ -29,6 +29,7 @@ pub mod output;
 pub mod pack;
 pub mod procedural;
 pub mod pyramid;
+pub mod quality;
 pub mod render;
 #[cfg(feature = "report")]
 pub mod report;

@@ -35,7 +35,9 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Time the vMF bake (and Toksvig's, for scale) on the built-in sample at several sizes and
-    /// lobe counts: wall seconds and peak memory per run.
+    /// lobe counts: wall seconds and peak memory per run. With `--quality`, measure instead how
+    /// well each vMF bake fits its normals (`ndfmap::quality`): per level, the log-likelihood
+    /// gap to a multi-start reference fit and the dead / near-empty lobe shares.
     Bench {
         /// Map sizes (square), comma-separated.
         #[arg(long, default_value = "256,512,1024", value_delimiter = ',')]
@@ -49,6 +51,18 @@ enum Command {
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
+        /// Measure fit quality instead of speed.
+        #[arg(long)]
+        quality: bool,
+        /// Normal maps to measure (instead of the built-in sample at `--sizes`).
+        #[arg(long, value_delimiter = ',')]
+        maps: Vec<PathBuf>,
+        /// `--quality`: texels sampled per level.
+        #[arg(long, default_value_t = 100)]
+        samples: usize,
+        /// `--quality`: the levels measured, FIRST..=LAST.
+        #[arg(long, default_value = "2..=8")]
+        levels: String,
     },
     /// Generate the built-in sample map, bake every method, and print the error table.
     Demo {
@@ -582,7 +596,18 @@ fn run(cli: Cli) -> Result<()> {
             lobes,
             align,
             json,
-        } => bench(&sizes, &lobes, &parse_align(&align)?, json)?,
+            quality,
+            maps,
+            samples,
+            levels,
+        } => {
+            let align = parse_align(&align)?;
+            if quality {
+                bench_quality(&sizes, &maps, &lobes, &align, samples, &levels, json)?
+            } else {
+                bench(&sizes, &lobes, &align, json)?
+            }
+        }
     }
     Ok(())
 }
@@ -731,6 +756,104 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
                 );
             }
             rows.push(row);
+        }
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).expect("rows serialize")
+        );
+    }
+    Ok(())
+}
+
+/// `ndfmap bench --quality`: fit quality of each vMF configuration (exact and fast modes) on
+/// the given maps, or on the built-in sample at each size.
+fn bench_quality(
+    sizes: &[u32],
+    maps: &[PathBuf],
+    lobes: &[usize],
+    align: &[Option<f64>],
+    samples: usize,
+    levels: &str,
+    json: bool,
+) -> Result<()> {
+    let (first, last) = levels
+        .split_once("..=")
+        .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
+        .filter(|(a, b): &(usize, usize)| a <= b)
+        .ok_or_else(|| {
+            Error::InvalidOption(format!("--levels {levels} (expected FIRST..=LAST)"))
+        })?;
+    let quality = ndfmap::quality::QualityOptions {
+        samples_per_level: samples.max(1),
+        first_level: first,
+        last_level: last,
+        ..Default::default()
+    };
+    let mut inputs: Vec<(String, NormalMap)> = Vec::new();
+    for path in maps {
+        let map = NormalMap::load(path, &IngestOptions::default())?;
+        inputs.push((path.display().to_string(), map));
+    }
+    if maps.is_empty() {
+        for &size in sizes {
+            inputs.push((
+                format!("sample {size}"),
+                ndfmap::procedural::generate(size, 2007).map,
+            ));
+        }
+    }
+    let mut rows = Vec::new();
+    for (name, map) in &inputs {
+        for &j in lobes {
+            for &a in align {
+                for approximate in [false, true] {
+                    let options = BakeOptions {
+                        lobes: j,
+                        align: a,
+                        approximate,
+                        ..BakeOptions::default()
+                    };
+                    let t = Instant::now();
+                    let bake = bake_with(map, Method::Vmf, &options)?;
+                    let seconds = t.elapsed().as_secs_f64();
+                    let q = ndfmap::quality::fit_quality(map, &bake, &quality)?;
+                    if !json {
+                        println!("\n{name}: {} (baked in {seconds:.2} s)", bake.label());
+                        println!(
+                            "{:>5} {:>7} {:>10} {:>9} {:>8} {:>7} {:>7} {:>7} {:>8}",
+                            "level",
+                            "sampled",
+                            "mean gap",
+                            "max gap",
+                            ">= ref",
+                            "dead",
+                            "<0.01",
+                            "wasted",
+                            "ref<0.01"
+                        );
+                        for l in &q {
+                            println!(
+                                "{:>5} {:>7} {:>10.5} {:>9.4} {:>7.0}% {:>6.1}% {:>6.1}% {:>7.2} {:>7.1}%",
+                                l.level,
+                                l.sampled,
+                                l.mean_gap,
+                                l.max_gap,
+                                100.0 * l.at_least_as_good,
+                                100.0 * l.dead,
+                                100.0 * l.near_empty,
+                                l.wasted,
+                                100.0 * l.reference_near_empty
+                            );
+                        }
+                    }
+                    rows.push(serde_json::json!({
+                        "map": name, "label": bake.label(), "lobes": j, "align": a,
+                        "approximate": approximate, "seconds": seconds, "levels": q,
+                    }));
+                }
+            }
         }
     }
     if json {
