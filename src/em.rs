@@ -614,6 +614,103 @@ pub fn farthest_first_into(candidates: &[Lobe], out: &mut [Lobe]) {
     }
 }
 
+/// Initial lobes for a coarser texel from the lobes of the finer texels it covers (their α
+/// already multiplied by their footprint weights): weighted k-means++ seeding with the
+/// vMF's own divergence, made deterministic (always the best-scoring candidate, not a draw).
+///
+/// 1. The heaviest candidate first.
+/// 2. Each next pick is the candidate with the largest `w_c · D_c`, where `D_c` is how much
+///    worse the nearest pick explains the candidate's normals than the candidate itself: the
+///    expected log-density `ln C(κ_c) + κ_c(|r_c| − 1)` of its normals under its own lobe,
+///    minus `ln C(κ_p) + κ_p(μ_p·r_c − 1)` under pick p (exact in expectation, since the
+///    log-density is linear in n and `E_c[n] = r_c`), minimized over the picks.
+///
+/// So a far but light outlier lobe scores little (the old furthest-point rule carried such
+/// lobes upward, where they died or sat near-empty on single normals), while a heavy cluster
+/// is seeded whether it lies apart or is a sharp spike inside a broad lobe (8-bit maps have
+/// many exactly flat normals). Picks keep their α (renormalized), μ and κ capped at
+/// [`KAPPA_INIT_MAX`]. Slots beyond the number of distinct candidates are empty (`α = 0`).
+pub fn seed_from_children(candidates: &[Lobe], j: usize) -> Vec<Lobe> {
+    let mut out = vec![Lobe::EMPTY; j];
+    seed_from_children_into(candidates, &mut out);
+    out
+}
+
+/// [`seed_from_children`] into `out` (J = `out.len()`), allocating nothing for up to 64
+/// candidates.
+pub fn seed_from_children_into(candidates: &[Lobe], out: &mut [Lobe]) {
+    const MAX: usize = 64;
+    out.fill(Lobe::EMPTY);
+    if out.is_empty() {
+        return;
+    }
+    // Per live candidate: weight, μ, κ, |r|, expected own log-density, best loss so far.
+    let mut w = [0.0f64; MAX];
+    let mut mu = [DVec3::Z; MAX];
+    let mut kappa = [0.0f64; MAX];
+    let mut r = [0.0f64; MAX];
+    let mut own = [0.0f64; MAX];
+    let mut loss = [f64::INFINITY; MAX];
+    let mut closeness = [f64::NEG_INFINITY; MAX];
+    let mut m = 0;
+    for l in candidates {
+        if m == MAX {
+            break;
+        }
+        if !(is_positive(l.alpha) && l.alpha.is_finite()) {
+            continue;
+        }
+        let Some(d) = normalize_robust(l.mu) else {
+            continue;
+        };
+        let k = clamp_kappa(l.kappa);
+        let a = vmf::r_from_kappa(k);
+        (w[m], mu[m], kappa[m], r[m]) = (l.alpha, d, k, a);
+        own[m] = vmf::log_peak_density(k) + k * (a - 1.0);
+        m += 1;
+    }
+    if m == 0 {
+        return;
+    }
+    let total: f64 = w[..m].iter().sum();
+    let pick = |c: usize| Lobe {
+        alpha: w[c] / total,
+        mu: mu[c],
+        kappa: kappa[c].min(KAPPA_INIT_MAX),
+    };
+    let mut last = (0..m)
+        .max_by(|&a, &b| w[a].total_cmp(&w[b]).then(b.cmp(&a)))
+        .expect("m > 0");
+    out[0] = pick(last);
+    closeness[last] = 1.0;
+    for slot in out.iter_mut().skip(1) {
+        let (pm, pk) = (mu[last], kappa[last]);
+        let log_peak = vmf::log_peak_density(pk);
+        for c in 0..m {
+            closeness[c] = closeness[c].max(mu[c].dot(pm));
+            let under = log_peak + pk * (pm.dot(mu[c]) * r[c] - 1.0);
+            loss[c] = loss[c].min((own[c] - under).max(0.0));
+        }
+        let Some(next) = (0..m)
+            .filter(|&c| closeness[c] < 1.0 - DUPLICATE_COS_EPS)
+            .max_by(|&a, &b| {
+                (w[a] * loss[a])
+                    .total_cmp(&(w[b] * loss[b]))
+                    .then(b.cmp(&a))
+            })
+        else {
+            break; // no distinct candidate left: the remaining slots stay empty
+        };
+        *slot = pick(next);
+        closeness[next] = 1.0;
+        last = next;
+    }
+    let picked: f64 = out.iter().map(|l| l.alpha).sum();
+    for l in out.iter_mut() {
+        l.alpha /= picked;
+    }
+}
+
 mod kernel32;
 mod lanes32;
 mod simd;

@@ -65,6 +65,10 @@ pub(crate) trait Model: Sync {
     fn log_score(c: &Self::C, n: Vec3) -> f64;
     /// Furthest-first initialization from candidate components (Sec 7.1).
     fn farthest_first(candidates: &[Self::C], j: usize) -> Vec<Self::C>;
+    /// The initialization of a coarser texel from its children's components.
+    fn init_from_children(candidates: &[Self::C], j: usize) -> Vec<Self::C> {
+        Self::farthest_first(candidates, j)
+    }
     /// One texel's EM from `init` (`options.em`), optionally pulled towards `neighbours` with
     /// the strength (and, for vMF, the form) of `options`' alignment.
     fn fit(
@@ -125,6 +129,9 @@ impl Model for VmfModel {
     }
     fn farthest_first(candidates: &[Lobe], j: usize) -> Vec<Lobe> {
         em::farthest_first(candidates, j)
+    }
+    fn init_from_children(candidates: &[Lobe], j: usize) -> Vec<Lobe> {
+        em::seed_from_children(candidates, j)
     }
     fn fit(
         input: &EmInput,
@@ -614,7 +621,7 @@ fn bottom_up<M: Model>(
                     }
                 }
             }
-            let init = M::farthest_first(&g.candidates, j);
+            let init = M::init_from_children(&g.candidates, j);
             g.fit(&init, options, None)
         };
         let mut out = LevelFit::with_capacity((w * h) as usize, j, textures, colors);

@@ -191,3 +191,41 @@ pub(super) fn for_each_responsibility(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vmf::Lobe;
+    use glam::DVec3;
+
+    #[test]
+    #[ignore = "timing; run with --ignored --nocapture in release"]
+    fn timing_e_step32() {
+        let lobes: Vec<Lobe> = (0..6)
+            .map(|j| {
+                Lobe::new(
+                    1.0 / 6.0,
+                    DVec3::new(0.1 * j as f64, 0.05, 1.0),
+                    50.0 + 100.0 * j as f64,
+                )
+            })
+            .collect();
+        let active = Active::new(&lobes);
+        let mut blocks = vec![PAD_BLOCK32; 4096 / LANES];
+        for (i, b) in blocks.iter_mut().enumerate() {
+            for l in 0..LANES {
+                let t = (i * LANES + l) as f32 * 0.001;
+                let n = DVec3::new(t.sin() as f64 * 0.3, t.cos() as f64 * 0.3, 1.0).normalize();
+                (b.x[l], b.y[l], b.z[l], b.w[l]) = (n.x as f32, n.y as f32, n.z as f32, 1.0);
+            }
+        }
+        let reps = 2000;
+        let t = std::time::Instant::now();
+        let mut acc = 0.0;
+        for _ in 0..reps {
+            acc += e_step32(&blocks, &active).log_likelihood;
+        }
+        let ns = t.elapsed().as_secs_f64() * 1e9 / (reps * 4096 * 6) as f64;
+        eprintln!("e_step32: {ns:.3} ns per normal·lobe ({acc})");
+    }
+}
