@@ -79,6 +79,15 @@ impl KappaEstimator {
         }
     }
 
+    /// `r_from_kappa(kappa)` for a κ this estimator just made from `r` (`kappa = self.kappa(r)`):
+    /// for Banerjee's formula that is `r` clamped to `[0, R_MAX]`, with no cubic to solve.
+    fn r_of(self, r: f64, kappa: f64) -> f64 {
+        match self {
+            KappaEstimator::Banerjee => vmf::clamp_r(r),
+            KappaEstimator::Exact => self.r_from_kappa(kappa),
+        }
+    }
+
     /// The inverse of [`KappaEstimator::kappa`]: the `|r|` a lobe of concentration κ had when
     /// this estimator produced it ([`vmf::r_from_kappa`] for Banerjee, `A(κ)` capped at
     /// [`vmf::R_MAX`] for Exact). This is what the texture stores (see [`EmFit::texel`]).
@@ -623,7 +632,8 @@ pub fn farthest_first_into(candidates: &[Lobe], out: &mut [Lobe]) {
 ///    worse the nearest pick explains the candidate's normals than the candidate itself: the
 ///    expected log-density `ln C(κ_c) + κ_c(|r_c| − 1)` of its normals under its own lobe,
 ///    minus `ln C(κ_p) + κ_p(μ_p·r_c − 1)` under pick p (exact in expectation, since the
-///    log-density is linear in n and `E_c[n] = r_c`), minimized over the picks.
+///    log-density is linear in n and `E_c[n] = r_c = A(κ_c) μ_c`, eq 16), minimized over the
+///    picks.
 ///
 /// So a far but light outlier lobe scores little (the old furthest-point rule carried such
 /// lobes upward, where they died or sat near-empty on single normals), while a heavy cluster
@@ -664,7 +674,7 @@ pub fn seed_from_children_into(candidates: &[Lobe], out: &mut [Lobe]) {
             continue;
         };
         let k = clamp_kappa(l.kappa);
-        let a = vmf::r_from_kappa(k);
+        let a = vmf::a_kappa(k);
         (w[m], mu[m], kappa[m], r[m]) = (l.alpha, d, k, a);
         own[m] = vmf::log_peak_density(k) + k * (a - 1.0);
         m += 1;
@@ -910,8 +920,13 @@ fn e_step_kernel<S: Simd>(blocks: &[Block], active: &Active) -> Sums {
 
 /// The M-step (Algorithm 1 lines 9–14, with eq 29 or eq 23 for line 13 when `pull` is
 /// non-zero).
+///
+/// Writes into `rlen[j]` the `|r_j|` each updated lobe's κ stands for,
+/// [`KappaEstimator::r_from_kappa`] of it (for Banerjee's estimator the clamped `|r_j|` itself,
+/// without solving the cubic), so over-relaxation need not invert κ again.
 fn m_step(
     lobes: &mut [Lobe],
+    rlen: &mut [f64; MAX_LOBES],
     active: &Active,
     sums: &Sums,
     total: f64,
@@ -935,6 +950,7 @@ fn m_step(
         l.alpha = wj / total; // line 10
         let r = DVec3::new(sums.moment[0][s], sums.moment[1][s], sums.moment[2][s]) / wj; // line 11
         l.kappa = estimator.kappa(r.length()); // line 12
+        rlen[j] = estimator.r_of(r.length(), l.kappa);
         // Line 13; with a pull, eq 29 (κ_j α_j r_j + P_j) or eq 23 (r_j + P_j).
         let v = if pull[j] == DVec3::ZERO {
             r
@@ -1044,10 +1060,19 @@ pub fn fit(
     // Adaptive over-relaxation (Salakhutdinov & Roweis 2003): step η times as far as EM
     // does, growing η while the objective rises, back to the plain EM step (η = 1) when not.
     let mut eta = 1.0;
+    // |r_j| of the current lobes (what over-relaxation extrapolates), kept with them.
+    let mut rlen = [0.0; MAX_LOBES];
+    if accelerate {
+        for (r, l) in rlen.iter_mut().zip(&lobes[..j_count]) {
+            *r = options.kappa_estimator.r_from_kappa(l.kappa);
+        }
+    }
     while iterations < options.max_iterations {
         let mut plain = lobes;
+        let mut plain_r = rlen;
         m_step(
             &mut plain[..j_count],
+            &mut plain_r,
             &active,
             &sums,
             total,
@@ -1055,10 +1080,15 @@ pub fn fit(
             options.kappa_estimator,
         );
         iterations += 1;
-        let mut trial = if eta > 1.0 {
-            overrelax(&lobes[..j_count], &plain, eta, options.kappa_estimator)
+        let (mut trial, mut trial_r) = if eta > 1.0 {
+            overrelax(
+                (&lobes[..j_count], &rlen),
+                (&plain, &plain_r),
+                eta,
+                options.kappa_estimator,
+            )
         } else {
-            plain
+            (plain, plain_r)
         };
         let mut trial_active = Active::new(&trial[..j_count]);
         let mut trial_sums = e_step_chunked(samples, &trial_active);
@@ -1068,7 +1098,7 @@ pub fn fit(
         if eta > 1.0 && !rose {
             // Rejected: take the plain EM step instead (one more E-step).
             eta = 1.0;
-            trial = plain;
+            (trial, trial_r) = (plain, plain_r);
             trial_active = Active::new(&trial[..j_count]);
             trial_sums = e_step_chunked(samples, &trial_active);
             trial_ll = trial_sums.log_likelihood / total;
@@ -1079,8 +1109,14 @@ pub fn fit(
         scratch.log_likelihoods.push(trial_ll);
         let done = (trial_objective - objective).abs()
             <= options.tolerance * trial_objective.abs().max(1.0);
-        (lobes, active, sums, ll, objective) =
-            (trial, trial_active, trial_sums, trial_ll, trial_objective);
+        (lobes, rlen, active, sums, ll, objective) = (
+            trial,
+            trial_r,
+            trial_active,
+            trial_sums,
+            trial_ll,
+            trial_objective,
+        );
         if done {
             converged = true;
             break;
@@ -1108,34 +1144,36 @@ const OVERRELAX_MAX: f64 = 8.0;
 /// renormalized, `|v|` is clamped by the estimator; lobes that EM emptied stay empty, and a
 /// lobe whose `v` vanishes keeps EM's step.
 fn overrelax(
-    prev: &[Lobe],
-    plain: &[Lobe; MAX_LOBES],
+    (prev, prev_r): (&[Lobe], &[f64; MAX_LOBES]),
+    (plain, plain_r): (&[Lobe; MAX_LOBES], &[f64; MAX_LOBES]),
     eta: f64,
     estimator: KappaEstimator,
-) -> [Lobe; MAX_LOBES] {
+) -> ([Lobe; MAX_LOBES], [f64; MAX_LOBES]) {
     let mut out = *plain;
+    let mut out_r = *plain_r;
     let mut alpha_sum = 0.0;
-    for (o, (p, q)) in out.iter_mut().zip(prev.iter().zip(plain)) {
+    for (j, (o, (p, q))) in out.iter_mut().zip(prev.iter().zip(plain)).enumerate() {
         if !is_positive(q.alpha) {
             continue;
         }
-        let v_prev = p.mu * estimator.r_from_kappa(p.kappa);
-        let v_plain = q.mu * estimator.r_from_kappa(q.kappa);
+        let v_prev = p.mu * prev_r[j];
+        let v_plain = q.mu * plain_r[j];
         let v = v_prev + eta * (v_plain - v_prev);
         if let Some(mu) = normalize_robust(v) {
             o.mu = mu;
             o.kappa = estimator.kappa(v.length());
+            out_r[j] = estimator.r_of(v.length(), o.kappa);
         }
         o.alpha = (p.alpha + eta * (q.alpha - p.alpha)).max(0.0);
         alpha_sum += o.alpha;
     }
     if !(is_positive(alpha_sum) && alpha_sum.is_finite()) {
-        return *plain;
+        return (*plain, *plain_r);
     }
     for o in &mut out[..prev.len()] {
         o.alpha /= alpha_sum;
     }
-    out
+    (out, out_r)
 }
 
 /// Eq 22 as a post-process: `y_j = Σ_i w_i z_ij y_i / Σ_i w_i z_ij` with the responsibilities

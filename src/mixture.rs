@@ -63,12 +63,12 @@ pub(crate) trait Model: Sync {
     fn closeness(a: &Self::C, b: &Self::C) -> f64;
     /// `ln(α p(n))`, the E-step's score of normal `n` under `c` (−∞ for an empty one).
     fn log_score(c: &Self::C, n: Vec3) -> f64;
-    /// Furthest-first initialization from candidate components (Sec 7.1).
-    fn farthest_first(candidates: &[Self::C], j: usize) -> Vec<Self::C>;
-    /// The initialization of a coarser texel from its children's components.
-    fn init_from_children(candidates: &[Self::C], j: usize) -> Vec<Self::C> {
-        Self::farthest_first(candidates, j)
-    }
+    /// The initial components of a coarser texel from its children's components (their α
+    /// already scaled by the footprint weights), into `out` (J = `out.len()`).
+    fn init_from_children(candidates: &[Self::C], out: &mut [Self::C]);
+    /// The component a stored texel holds (what a finer or neighbouring texel's fit is read
+    /// back as: levels keep texels, not components).
+    fn from_texel(t: [f32; 4]) -> Self::C;
     /// One texel's EM from `init` (`options.em`), optionally pulled towards `neighbours` with
     /// the strength (and, for vMF, the form) of `options`' alignment.
     fn fit(
@@ -127,11 +127,14 @@ impl Model for VmfModel {
             c.alpha.ln() + crate::vmf::log_density(n.as_dvec3().dot(c.mu), c.kappa)
         }
     }
-    fn farthest_first(candidates: &[Lobe], j: usize) -> Vec<Lobe> {
-        em::farthest_first(candidates, j)
+    fn init_from_children(candidates: &[Lobe], out: &mut [Lobe]) {
+        em::seed_from_children_into(candidates, out)
     }
-    fn init_from_children(candidates: &[Lobe], j: usize) -> Vec<Lobe> {
-        em::seed_from_children(candidates, j)
+    fn from_texel(t: [f32; 4]) -> Lobe {
+        Lobe::from_moments(
+            t[0] as f64,
+            glam::DVec3::new(t[1] as f64, t[2] as f64, t[3] as f64),
+        )
     }
     fn fit(
         input: &EmInput,
@@ -146,9 +149,11 @@ impl Model for VmfModel {
             form: options.align_form,
         });
         let f = em::fit(input, init, &options.em, alignment.as_ref(), scratch);
-        let lobes = f.lobes().to_vec();
-        let texels = (0..lobes.len()).map(|j| f.texel(j)).collect();
-        (lobes, f.features().to_vec(), texels)
+        let mut out = TexelFit::empty(Lobe::EMPTY);
+        for (j, l) in f.lobes().iter().enumerate() {
+            (out.comps[j], out.colors[j], out.texels[j]) = (*l, f.features()[j], f.texel(j));
+        }
+        out
     }
     fn texel(c: &Lobe) -> [f64; 4] {
         c.texel()
@@ -213,8 +218,11 @@ impl Model for TanModel {
             c.alpha.ln() + c.log_density(tan2005::project(n.as_dvec3()))
         }
     }
-    fn farthest_first(candidates: &[Gaussian], j: usize) -> Vec<Gaussian> {
-        tan2005::farthest_first(candidates, j)
+    fn init_from_children(candidates: &[Gaussian], out: &mut [Gaussian]) {
+        tan2005::farthest_first_into(candidates, out)
+    }
+    fn from_texel(t: [f32; 4]) -> Gaussian {
+        Gaussian::from_texel(t)
     }
     fn fit(
         input: &EmInput,
@@ -228,9 +236,11 @@ impl Model for TanModel {
             neighbours,
         });
         let f = tan2005::fit(input, init, &options.em, alignment.as_ref(), scratch);
-        let comps = f.gaussians().to_vec();
-        let texels = (0..comps.len()).map(|i| f.texel(i)).collect();
-        (comps, f.features().to_vec(), texels)
+        let mut out = TexelFit::empty(Gaussian::EMPTY);
+        for (j, g) in f.gaussians().iter().enumerate() {
+            (out.comps[j], out.colors[j], out.texels[j]) = (*g, f.features()[j], f.texel(j));
+        }
+        out
     }
     fn texel(c: &Gaussian) -> [f64; 4] {
         c.texel()
@@ -252,23 +262,38 @@ pub(crate) fn bake_tan2005(
     bake_mixture::<TanModel>(map, options, progress)
 }
 
-/// Components and colours of every texel of one level: `components[t * J + j]`, and per
-/// slot j the texture planes `texels[j][t]` and `colors[j][t]` laid out as the bake stores
-/// them (so [`assemble`] moves them without copying).
-struct LevelFit<C> {
-    /// Empty for the finest level, whose components are the normals themselves (level 1 reads
-    /// the normals directly).
-    components: Vec<C>,
-    /// Per slot: `α_j y_j` of each texel (eq 22), when a feature image is present, as stored
-    /// (f32).
+/// The fit of every texel of one level, as the bake stores it: per slot j the texture planes
+/// `texels[j][t]` and `colors[j][t]` (so [`assemble`] moves them without copying). Levels keep
+/// texels, not components: a finer or neighbouring texel's components are read back from its
+/// texels ([`Model::from_texel`]), 16 bytes per component instead of a component's 40.
+struct LevelFit {
+    /// Per slot: `α_j y_j` of each texel (eq 22), when a feature image is present and the
+    /// colours are wanted, as stored (f32).
     colors: Option<Vec<Vec<[f32; 4]>>>,
     /// Per slot: the texel of each texel's component, as its EM encodes it, as stored (f32).
-    /// Empty when the pass's textures are not wanted (the unaligned pass of an aligned bake).
+    /// Empty for a finest level that is only a placeholder (level 1 reads the normals).
     texels: Vec<Vec<[f32; 4]>>,
 }
 
-/// One texel's fit: its components, their eq 22 colours `y_j`, and their texels.
-pub(crate) type TexelFit<C> = (Vec<C>, Vec<[f64; 4]>, Vec<[f64; 4]>);
+/// One texel's fit: its components, their eq 22 colours `y_j`, and their texels, in fixed
+/// arrays (the first J entries are used), so fitting a texel allocates nothing.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct TexelFit<C> {
+    pub(crate) comps: [C; MAX_LOBES],
+    pub(crate) colors: [[f64; 4]; MAX_LOBES],
+    pub(crate) texels: [[f64; 4]; MAX_LOBES],
+}
+
+impl<C: Copy> TexelFit<C> {
+    /// Every slot empty.
+    pub(crate) fn empty(empty: C) -> Self {
+        TexelFit {
+            comps: [empty; MAX_LOBES],
+            colors: [[0.0; 4]; MAX_LOBES],
+            texels: [[0.0; 4]; MAX_LOBES],
+        }
+    }
+}
 
 /// Per-thread working memory for gathering a texel's samples.
 struct Gather<M: Model> {
@@ -321,7 +346,7 @@ impl<M: Model> Gather<M> {
     #[allow(clippy::too_many_arguments)]
     fn collect_children(
         &mut self,
-        children: &LevelFit<M::C>,
+        children: &LevelFit,
         child_width: u32,
         cx: &AxisFootprints,
         cy: &AxisFootprints,
@@ -336,7 +361,8 @@ impl<M: Model> Gather<M> {
         for (py, wy) in cy.taps(y as usize) {
             for (px, wx) in cx.taps(x as usize) {
                 let p = (py * child_width + px) as usize;
-                for (s, c) in children.components[p * j..(p + 1) * j].iter().enumerate() {
+                for s in 0..j {
+                    let c = &M::from_texel(children.texels[s][p]);
                     let a = M::alpha(c);
                     if a <= 0.0 {
                         continue;
@@ -360,18 +386,17 @@ impl<M: Model> Gather<M> {
     /// The maximum-likelihood mixture when there are no more samples than components: one
     /// component per normal, `α = w_i / Σw`, as sharp as storable (what EM converges to,
     /// without running it; level 1 of a power-of-two map, 4 normals per texel, is all this).
-    fn one_per_normal(&self, j: usize) -> TexelFit<M::C> {
+    fn one_per_normal(&self) -> TexelFit<M::C> {
         let total: f64 = self.weights.iter().sum();
-        let mut comps = vec![M::EMPTY; j];
-        let mut colors = vec![[0.0; 4]; j];
+        let mut out = TexelFit::empty(M::EMPTY);
         for (i, (&n, &w)) in self.normals.iter().zip(&self.weights).enumerate() {
-            comps[i] = M::with_alpha(&M::single(n), w / total);
+            out.comps[i] = M::with_alpha(&M::single(n), w / total);
+            out.texels[i] = M::texel(&out.comps[i]);
             if let Some(f) = self.features.get(i) {
-                colors[i] = f.map(|v| v as f64);
+                out.colors[i] = f.map(|v| v as f64);
             }
         }
-        let texels = comps.iter().map(M::texel).collect();
-        (comps, colors, texels)
+        out
     }
 
     /// The smallest weight fraction `w_i / Σ w` among the collected samples (1 when none).
@@ -435,46 +460,45 @@ fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]>> {
         .collect()
 }
 
-impl<C: Copy> LevelFit<C> {
-    /// An empty level of `texels` texels of `j` components, to be filled by [`LevelFit::push`]:
-    /// with texture planes when `textures`, with colour planes when `colors`.
-    fn with_capacity(texels: usize, j: usize, textures: bool, colors: bool) -> Self {
+impl LevelFit {
+    /// An empty level of `texels` texels of `j` components, to be filled by [`LevelFit::push`],
+    /// with colour planes when `colors`.
+    fn with_capacity(texels: usize, j: usize, colors: bool) -> Self {
         LevelFit {
-            components: Vec::with_capacity(texels * j),
             colors: colors.then(|| planes(j, texels, false)),
-            texels: if textures {
-                planes(j, texels, false)
-            } else {
-                Vec::new()
-            },
+            texels: planes(j, texels, false),
         }
     }
 
+    /// The J components of texel `t`, read back from their texels.
+    fn components<M: Model>(&self, t: usize, j: usize) -> [M::C; MAX_LOBES] {
+        let mut out = [M::EMPTY; MAX_LOBES];
+        for (o, plane) in out.iter_mut().zip(&self.texels).take(j) {
+            *o = M::from_texel(plane[t]);
+        }
+        out
+    }
+
     /// Appends one texel's result (colours become `α_j y_j`).
-    fn push<M: Model<C = C>>(&mut self, fit: TexelFit<C>) {
-        let (comps, colors, texels) = fit;
+    fn push<M: Model>(&mut self, fit: &TexelFit<M::C>) {
         if let Some(dst) = self.colors.as_mut() {
-            for ((plane, c), y) in dst.iter_mut().zip(&comps).zip(&colors) {
+            for ((plane, c), y) in dst.iter_mut().zip(&fit.comps).zip(&fit.colors) {
                 plane.push(y.map(|v| (M::alpha(c) * v) as f32));
             }
         }
-        self.components.extend_from_slice(&comps);
-        for (plane, t) in self.texels.iter_mut().zip(&texels) {
+        for (plane, t) in self.texels.iter_mut().zip(&fit.texels) {
             plane.push(t.map(|v| v as f32));
         }
     }
 
     /// Stores texel `t`'s result (colours become `α_j y_j`) into a level made with zeroed
     /// planes.
-    fn set<M: Model<C = C>>(&mut self, t: usize, fit: TexelFit<C>) {
-        let (comps, colors, texels) = fit;
-        let j = comps.len();
-        self.components[t * j..(t + 1) * j].copy_from_slice(&comps);
-        for (plane, v) in self.texels.iter_mut().zip(&texels) {
+    fn set<M: Model>(&mut self, t: usize, fit: &TexelFit<M::C>) {
+        for (plane, v) in self.texels.iter_mut().zip(&fit.texels) {
             plane[t] = v.map(|v| v as f32);
         }
         if let Some(dst) = self.colors.as_mut() {
-            for ((plane, c), y) in dst.iter_mut().zip(&comps).zip(&colors) {
+            for ((plane, c), y) in dst.iter_mut().zip(&fit.comps).zip(&fit.colors) {
                 plane[t] = y.map(|v| (M::alpha(c) * v) as f32);
             }
         }
@@ -486,7 +510,7 @@ fn finest_level<M: Model>(
     map: &NormalMap,
     j: usize,
     slot_of: impl Fn(usize) -> usize + Sync,
-) -> LevelFit<M::C> {
+) -> LevelFit {
     let slots: Vec<u8> = (0..map.normals().len())
         .into_par_iter()
         .map(|t| slot_of(t) as u8)
@@ -512,18 +536,13 @@ fn finest_level<M: Model>(
     let texels = fill(&|t| M::texel(&M::single(map.normals()[t])).map(|v| v as f32));
     // α = 1 in the slot: the colour texel is the feature itself.
     let colors = map.feature().map(|f| fill(&|t| f[t]));
-    LevelFit {
-        components: Vec::new(),
-        colors,
-        texels,
-    }
+    LevelFit { colors, texels }
 }
 
 /// The finest level of the unaligned pass of an aligned bake: nothing, since level 1 reads the
 /// normals directly and the aligned pass makes its own finest level.
-fn placeholder_level<C>() -> LevelFit<C> {
+fn placeholder_level() -> LevelFit {
     LevelFit {
-        components: Vec::new(),
         colors: None,
         texels: Vec::new(),
     }
@@ -578,11 +597,11 @@ fn bottom_up<M: Model>(
     sizes: &[(u32, u32)],
     progress: &mut Progress,
     (start, span): Pass,
-) -> Result<Vec<LevelFit<M::C>>> {
+) -> Result<Vec<LevelFit>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
-    // An aligned bake keeps only this pass's components (and, in approximate mode, its
-    // colours, which are the next level's features), not its textures.
+    // An aligned bake keeps this pass's texels (what the aligned pass starts from) but not
+    // its colours, unless approximate mode reads them as the next level's features.
     let textures = options.align.is_none();
     let colors = map.feature().is_some() && (textures || options.approximate);
     let mut fits = vec![if textures {
@@ -604,7 +623,7 @@ fn bottom_up<M: Model>(
             if !fast {
                 g.collect(map, &level, x, y);
                 if g.normals.len() <= j {
-                    return g.one_per_normal(j);
+                    return g.one_per_normal();
                 }
             }
             g.candidates.clear();
@@ -615,27 +634,33 @@ fn bottom_up<M: Model>(
                         let c = M::single(map.normals()[p]);
                         g.candidates.push(M::with_alpha(&c, wx * wy));
                     } else {
-                        for c in &prev.components[p * j..(p + 1) * j] {
-                            g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
+                        for plane in &prev.texels[..j] {
+                            let c = M::from_texel(plane[p]);
+                            g.candidates.push(M::with_alpha(&c, M::alpha(&c) * wx * wy));
                         }
                     }
                 }
             }
-            let init = M::init_from_children(&g.candidates, j);
-            g.fit(&init, options, None)
+            let mut init = [M::EMPTY; MAX_LOBES];
+            M::init_from_children(&g.candidates, &mut init[..j]);
+            g.fit(&init[..j], options, None)
         };
-        let mut out = LevelFit::with_capacity((w * h) as usize, j, textures, colors);
+        let mut out = LevelFit::with_capacity((w * h) as usize, j, colors);
+        let trace = std::time::Instant::now();
         for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK).min(w * h);
             let results: Vec<TexelFit<M::C>> = (lo..hi)
                 .into_par_iter()
                 .map_init(Gather::<M>::default, &fit_texel)
                 .collect();
-            for r in results {
+            for r in &results {
                 out.push::<M>(r);
             }
             let done = (k - 1) as f64 + hi as f64 / (w * h) as f64;
             progress.report(start + span * done / steps)?;
+        }
+        if std::env::var("NDF_TRACE").is_ok() {
+            eprintln!("up   level {k}: {:.3} s", trace.elapsed().as_secs_f64());
         }
         fits.push(out);
     }
@@ -648,54 +673,59 @@ fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
     (((2 * x + 1) as u64 * pn as u64) / (2 * n as u64)) as u32
 }
 
-/// Puts `own` components into the slots of `reference` ones ([`slot_order`]).
-fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> Vec<M::C> {
-    slot_order::<M>(own, reference)
-        .into_iter()
-        .map(|i| i.map_or(M::EMPTY, |i| own[i]))
-        .collect()
-}
-
 /// Which of `own`'s components goes into each slot of `reference` (`None`: an empty slot):
 /// greedily pairs the closest (non-empty) components first, then fills the remaining slots
-/// in order. Deterministic.
-fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> Vec<Option<usize>> {
+/// in order. Deterministic; allocates nothing.
+fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> [Option<usize>; MAX_LOBES] {
     let j = own.len();
     let live = |c: &M::C| M::alpha(c) > 0.0;
-    let mut pairs: Vec<(f64, usize, usize)> = Vec::with_capacity(j * j);
+    let mut pairs = [(0.0f64, 0usize, 0usize); MAX_LOBES * MAX_LOBES];
+    let mut count = 0;
     for (i, a) in own.iter().enumerate().filter(|(_, c)| live(c)) {
         for (s, b) in reference.iter().enumerate().filter(|(_, c)| live(c)) {
-            pairs.push((M::closeness(a, b), i, s));
+            pairs[count] = (M::closeness(a, b), i, s);
+            count += 1;
         }
     }
-    pairs.sort_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
-    let mut out: Vec<Option<usize>> = vec![None; j];
-    let mut used = vec![false; j];
-    for (_, i, s) in pairs {
+    let pairs = &mut pairs[..count];
+    pairs.sort_unstable_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
+    let mut out = [None; MAX_LOBES];
+    let mut used = [false; MAX_LOBES];
+    for &(_, i, s) in pairs.iter() {
         if !used[i] && out[s].is_none() {
             out[s] = Some(i);
             used[i] = true;
         }
     }
     let mut rest = (0..j).filter(|&i| !used[i]);
-    out.into_iter().map(|i| i.or_else(|| rest.next())).collect()
+    for o in out.iter_mut().take(j) {
+        if o.is_none() {
+            *o = rest.next();
+        }
+    }
+    out
 }
 
-/// `fit` with its components (and their colours and texels) moved into the slots of
+/// `own` components moved into the slots of `reference` ones ([`slot_order`]).
+fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] {
+    let order = slot_order::<M>(own, reference);
+    let mut out = [M::EMPTY; MAX_LOBES];
+    for (o, i) in out.iter_mut().zip(order).take(own.len()) {
+        *o = i.map_or(M::EMPTY, |i| own[i]);
+    }
+    out
+}
+
+/// `fit` (of `j` components) with its components, colours and texels moved into the slots of
 /// `reference` ([`slot_order`]).
-fn into_slots<M: Model>(fit: TexelFit<M::C>, reference: &[M::C]) -> TexelFit<M::C> {
-    let (comps, colors, texels) = fit;
-    let order = slot_order::<M>(&comps, reference);
-    let pick = |i: &Option<usize>| {
-        i.map_or((M::EMPTY, [0.0; 4], [0.0; 4]), |i| {
-            (comps[i], colors[i], texels[i])
-        })
-    };
-    let mut out: TexelFit<M::C> = (Vec::new(), Vec::new(), Vec::new());
-    for (c, y, t) in order.iter().map(pick) {
-        out.0.push(c);
-        out.1.push(y);
-        out.2.push(t);
+fn into_slots<M: Model>(fit: &TexelFit<M::C>, j: usize, reference: &[M::C]) -> TexelFit<M::C> {
+    let order = slot_order::<M>(&fit.comps[..j], reference);
+    let mut out = TexelFit::empty(M::EMPTY);
+    for (s, i) in order.iter().enumerate().take(j) {
+        if let Some(i) = *i {
+            (out.comps[s], out.colors[s], out.texels[s]) =
+                (fit.comps[i], fit.colors[i], fit.texels[i]);
+        }
     }
     out
 }
@@ -709,22 +739,22 @@ fn top_down<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     sizes: &[(u32, u32)],
-    unaligned: &[LevelFit<M::C>],
+    unaligned: &[LevelFit],
     progress: &mut Progress,
     (start, span): Pass,
-) -> Result<Vec<LevelFit<M::C>>> {
+) -> Result<Vec<LevelFit>> {
     let j = options.lobes;
     let finest = (map.width(), map.height());
     let levels = sizes.len();
-    let mut fits: Vec<Option<LevelFit<M::C>>> = (0..levels).map(|_| None).collect();
+    let mut fits: Vec<Option<LevelFit>> = (0..levels).map(|_| None).collect();
     for k in (0..levels).rev() {
         let (w, h) = sizes[k];
         let parent = fits.get(k + 1).and_then(|p| p.as_ref());
         let parent_size = sizes.get(k + 1).copied();
-        let parent_of_texel = |x: u32, y: u32| -> Option<&[M::C]> {
+        let parent_of_texel = |x: u32, y: u32| -> Option<[M::C; MAX_LOBES]> {
             let (p, (pw, ph)) = (parent?, parent_size?);
             let i = (parent_of(y, h, ph) * pw + parent_of(x, w, pw)) as usize;
-            Some(&p.components[i * j..(i + 1) * j])
+            Some(p.components::<M>(i, j))
         };
         if k == 0 {
             // One normal per texel: it goes, unpulled, to the parent's component that explains
@@ -737,7 +767,7 @@ fn top_down<M: Model>(
                     return 0;
                 };
                 let mut best = (0, f64::NEG_INFINITY);
-                for (s, c) in comps.iter().enumerate() {
+                for (s, c) in comps.iter().enumerate().take(j) {
                     let score = M::log_score(c, n);
                     if score > best.1 {
                         best = (s, score);
@@ -757,10 +787,10 @@ fn top_down<M: Model>(
         );
         let texels = (w * h) as usize;
         let mut out = LevelFit {
-            components: vec![M::EMPTY; texels * j],
             colors: map.feature().map(|_| planes(j, texels, true)),
             texels: planes(j, texels, true),
         };
+        let trace = std::time::Instant::now();
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
         let wavefronts = w + 2 * (h - 1);
         for d in 0..wavefronts {
@@ -777,25 +807,7 @@ fn top_down<M: Model>(
                 .into_par_iter()
                 .map_init(Gather::<M>::default, |g, y| {
                     let x = d - 2 * y;
-                    let at = |xx: i64, yy: i64| -> Option<&[M::C]> {
-                        if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
-                            return None;
-                        }
-                        let i = (yy as usize) * w as usize + xx as usize;
-                        Some(&done.components[i * j..(i + 1) * j])
-                    };
-                    let (xi, yi) = (x as i64, y as i64);
-                    let mut neighbours: Vec<&[M::C]> = [
-                        (xi - 1, yi),
-                        (xi - 1, yi - 1),
-                        (xi, yi - 1),
-                        (xi + 1, yi - 1),
-                    ]
-                    .into_iter()
-                    .filter_map(|(a, b)| at(a, b))
-                    .collect();
                     let t = (y * w + x) as usize;
-                    let own = &unaligned[k].components[t * j..(t + 1) * j];
                     let parent = parent_of_texel(x, y);
                     let fast = options.approximate
                         && k >= 2
@@ -805,27 +817,53 @@ fn top_down<M: Model>(
                         if g.normals.len() <= j
                             && M::closed_form_when_aligned(options, g.min_alpha())
                         {
-                            let fit = g.one_per_normal(j);
-                            let fit = match parent {
-                                Some(p) => into_slots::<M>(fit, p),
+                            let fit = g.one_per_normal();
+                            let fit = match &parent {
+                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
                                 None => fit,
                             };
                             return (x, y, fit);
                         }
                     }
-                    let init = match parent {
-                        Some(p) => {
-                            neighbours.push(p);
-                            match_slots::<M>(own, p)
+                    // The previously visited neighbours and the parent pull (at most
+                    // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
+                    let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
+                    let mut count = 0;
+                    let (xi, yi) = (x as i64, y as i64);
+                    for (a, b) in [
+                        (xi - 1, yi),
+                        (xi - 1, yi - 1),
+                        (xi, yi - 1),
+                        (xi + 1, yi - 1),
+                    ] {
+                        if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
+                            pulls[count] =
+                                done.components::<M>(b as usize * w as usize + a as usize, j);
+                            count += 1;
                         }
-                        None => own.to_vec(),
+                    }
+                    let own = unaligned[k].components::<M>(t, j);
+                    let init = match &parent {
+                        Some(p) => {
+                            pulls[count] = *p;
+                            count += 1;
+                            match_slots::<M>(&own[..j], &p[..j])
+                        }
+                        None => own,
                     };
-                    (x, y, g.fit(&init, options, Some(&neighbours)))
+                    let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
+                    for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
+                        *n = &p[..j];
+                    }
+                    (x, y, g.fit(&init[..j], options, Some(&neighbours[..count])))
                 })
                 .collect();
-            for (x, y, fit) in results {
+            for (x, y, fit) in &results {
                 out.set::<M>((y * w + x) as usize, fit);
             }
+        }
+        if std::env::var("NDF_TRACE").is_ok() {
+            eprintln!("down level {k}: {:.3} s", trace.elapsed().as_secs_f64());
         }
         fits[k] = Some(out);
     }
@@ -840,7 +878,7 @@ fn assemble<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     sizes: Vec<(u32, u32)>,
-    fits: Vec<LevelFit<M::C>>,
+    fits: Vec<LevelFit>,
 ) -> Bake {
     const COLOR_NAMES: [&str; MAX_LOBES] = [
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
