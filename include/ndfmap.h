@@ -242,6 +242,11 @@ typedef struct ndf_baseline_options {
 typedef uint32_t ndf_align_form;
 
 /**
+ * How hard the vMF baker fits each texel: one of `NDF_FIT_*` (the library's `FitMode`).
+ */
+typedef uint32_t ndf_fit_mode;
+
+/**
  * How vMF EM derives κ from the mean resultant length: one of `NDF_KAPPA_ESTIMATOR_*`.
  */
 typedef uint32_t ndf_kappa_estimator;
@@ -274,16 +279,19 @@ typedef struct ndf_vmf_options {
    */
   ndf_align_form align_form;
   /**
-   * Nonzero: approximate mode, levels 2 and coarser fitted to the lobes of the level below
-   * (about 4× faster on a 1024² map, about twice the error at levels 3 and coarser). Default 0.
+   * How hard each texel is fitted, `NDF_FIT_*`. Default `NDF_FIT_BALANCED`. (This field
+   * was `approximate` before 0.2; its old nonzero value, the removed approximate mode,
+   * now selects `NDF_FIT_FAST`.)
    */
-  uint32_t approximate;
+  ndf_fit_mode mode;
   /**
-   * Most EM iterations per texel, at least 1. Default 20.
+   * Most EM iterations per texel, at least 1: the cap of `NDF_FIT_EXACT`, an upper bound
+   * for the other modes. Default 20.
    */
   uint32_t em_max_iterations;
   /**
-   * EM convergence tolerance on the mean log-likelihood, ≥ 0. Default 1e-6.
+   * EM convergence tolerance on the mean log-likelihood, ≥ 0: that of `NDF_FIT_EXACT`, a
+   * lower bound for the other modes. Default 1e-6.
    */
   double em_tolerance;
   /**
@@ -570,6 +578,23 @@ typedef uint32_t ndf_shader_stage;
 #define NDF_ALIGN_FORM_MAIN_TEXT 1
 
 /**
+ * At most 8 EM iterations per texel (2 in the aligned pass), started from the finer level's
+ * lobes. The default.
+ */
+#define NDF_FIT_BALANCED 0
+
+/**
+ * At most 3 EM iterations per texel (1 in the aligned pass): about twice as fast as
+ * `NDF_FIT_BALANCED`, with a measurably worse fit at the coarse levels.
+ */
+#define NDF_FIT_FAST 1
+
+/**
+ * `em_max_iterations` and `em_tolerance` as given, in both passes: the exhaustive fit.
+ */
+#define NDF_FIT_EXACT 2
+
+/**
  * Banerjee's approximation `(3r − r³)/(1 − r²)` (the paper's; the shader inverts it). Default.
  */
 #define NDF_KAPPA_ESTIMATOR_BANERJEE 0
@@ -794,8 +819,8 @@ void ndf_normal_map_free(struct ndf_normal_map *map);
 struct ndf_baseline_options ndf_baseline_options_default(void);
 
 /**
- * The default vMF options: 6 unaligned lobes, exact mode, 20 EM iterations, tolerance 1e-6,
- * Banerjee's κ, no progress callback.
+ * The default vMF options: 6 unaligned lobes, balanced fit (`NDF_FIT_BALANCED`), 20 EM
+ * iterations and tolerance 1e-6 for the exact mode, Banerjee's κ, no progress callback.
  */
 struct ndf_vmf_options ndf_vmf_options_default(void);
 

@@ -124,8 +124,8 @@ pub struct Bake {
 
 impl Bake {
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
-    /// and `f` for the approximate mode for mixtures (`vmf6`, `vmf6a`, `vmf6f`, `tan2005-4`),
-    /// and the format when it is not f32
+    /// for mixtures, and for vMF `f` for the fast mode and `x` for the exact one (`vmf6`,
+    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), and the format when it is not f32
     /// (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
@@ -137,8 +137,10 @@ impl Bake {
             if self.parameters["aligned"] == serde_json::Value::Bool(true) {
                 l.push('a');
             }
-            if self.parameters["approximate"] == serde_json::Value::Bool(true) {
-                l.push('f');
+            match self.parameters["mode"].as_str() {
+                Some("fast") => l.push('f'),
+                Some("exact") => l.push('x'),
+                _ => {}
             }
         }
         if self.format != Format::F32 {
@@ -185,12 +187,80 @@ pub struct BakeOptions {
     /// vMF: which M-step maximizes the coherence prior, eq 29 (the default, C ≈ 1) or eq 23
     /// (C ≈ 0.1). Ignored without `align` and by Tan 2005.
     pub align_form: crate::em::AlignmentForm,
-    /// Approximate (fast) mode: levels 2 and coarser are fitted to the lobes of the level below
-    /// (their mean vectors `A(κ)μ` weighted by α, hierarchical EM) instead of to every finest
-    /// normal they cover. vMF only; Tan 2005 always fits the normals.
-    pub approximate: bool,
-    /// EM iteration cap and convergence tolerance.
+    /// vMF: how hard each texel is fitted ([`FitMode`]): how many EM iterations over the
+    /// covered normals follow the start from the finer level's lobes. Tan 2005 ignores it
+    /// and runs `em` as given.
+    pub mode: FitMode,
+    /// EM options: precision, κ estimator, over-relaxation, and the iteration cap and
+    /// convergence tolerance that [`FitMode::Exact`] uses as they are and the other modes
+    /// tighten ([`FitMode::passes`]).
     pub em: crate::em::EmOptions,
+}
+
+/// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
+/// finer texels it covers (`em::seed_from_children`) and runs EM (Algorithm 1) over every
+/// finest normal it covers; they differ in how many iterations, unaligned and in the aligned
+/// pass. Measured on the real maps in `docs/baker.md` (likelihood, error and time).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum FitMode {
+    /// At most 3 iterations per texel (tolerance ≥ 1e-4), 1 in the aligned pass.
+    Fast,
+    /// At most 8 iterations per texel (tolerance ≥ 1e-5), 2 in the aligned pass: within a few
+    /// hundredths of a nat per normal of EM run to convergence, at a third of its time.
+    #[default]
+    Balanced,
+    /// The EM options as given, in both passes (by default 20 iterations, tolerance 1e-6):
+    /// the exhaustive fit.
+    Exact,
+}
+
+impl FitMode {
+    /// Every mode, fastest first.
+    pub const ALL: [FitMode; 3] = [FitMode::Fast, FitMode::Balanced, FitMode::Exact];
+
+    /// The name `ndfmap` reads and manifests record: `fast`, `balanced`, `exact`.
+    pub fn name(self) -> &'static str {
+        match self {
+            FitMode::Fast => "fast",
+            FitMode::Balanced => "balanced",
+            FitMode::Exact => "exact",
+        }
+    }
+
+    /// The EM options of the unaligned and of the aligned pass: `em`'s iteration cap lowered
+    /// and its tolerance raised to the mode's (never the other way).
+    pub fn passes(self, em: &crate::em::EmOptions) -> (crate::em::EmOptions, crate::em::EmOptions) {
+        let (cap, tolerance, aligned) = match self {
+            FitMode::Fast => (3, 1e-4, 1),
+            FitMode::Balanced => (8, 1e-5, 2),
+            FitMode::Exact => return (*em, *em),
+        };
+        let unaligned = crate::em::EmOptions {
+            max_iterations: em.max_iterations.min(cap),
+            tolerance: em.tolerance.max(tolerance),
+            ..*em
+        };
+        let aligned = crate::em::EmOptions {
+            max_iterations: em.max_iterations.min(aligned),
+            ..unaligned
+        };
+        (unaligned, aligned)
+    }
+}
+
+impl FromStr for FitMode {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        FitMode::ALL
+            .into_iter()
+            .find(|m| m.name().eq_ignore_ascii_case(s.trim()))
+            .ok_or_else(|| {
+                Error::InvalidOption(format!("fit mode '{s}' (expected fast, balanced or exact)"))
+            })
+    }
 }
 
 impl Default for BakeOptions {
@@ -199,7 +269,7 @@ impl Default for BakeOptions {
             lobes: 6,
             align: None,
             align_form: crate::em::AlignmentForm::default(),
-            approximate: false,
+            mode: FitMode::default(),
             em: crate::em::EmOptions::default(),
         }
     }

@@ -145,28 +145,15 @@ pub struct EmInput<'a> {
     /// Feature vector `y_i` (colour, material weights) of each normal for eq 22. Must have the
     /// same length as `normals`.
     pub features: Option<&'a [[f32; 4]]>,
-    /// When true, `normals` are *mean vectors* `r_c = A(κ_c) μ_c` of finer lobes (|r| ≤ 1),
-    /// not unit normals, and are used as given (longer ones are scaled to length 1): the
-    /// E-step's `κ(r·μ − 1)` is then the expected log-density of the finer lobe's normals and
-    /// the M-step's `Σ z r / Σ z` combines their moments exactly — hierarchical EM, the
-    /// approximate mode of the baker.
-    pub mean_vectors: bool,
 }
 
 impl<'a> EmInput<'a> {
-    /// Marks the samples as mean vectors of finer lobes (see [`EmInput::mean_vectors`]).
-    pub fn as_mean_vectors(mut self) -> Self {
-        self.mean_vectors = true;
-        self
-    }
-
     /// Unweighted normals without features.
     pub fn new(normals: &'a [Vec3]) -> Self {
         EmInput {
             normals,
             weights: None,
             features: None,
-            mean_vectors: false,
         }
     }
 
@@ -330,7 +317,7 @@ impl EmScratch {
             if !is_positive(w) || !w.is_finite() {
                 continue;
             }
-            let Some(n) = input.sample(*v) else {
+            let Some(n) = normalize_robust(v.as_dvec3()) else {
                 continue;
             };
             let used = self.index.len();
@@ -388,26 +375,6 @@ impl EmScratch {
             }
         }
         (total, original)
-    }
-}
-
-impl EmInput<'_> {
-    /// One input vector as the sample EM uses: a unit normal (renormalized in `f64`), or a mean
-    /// vector used as given (longer ones scaled to length 1); `None` when unusable.
-    fn sample(&self, v: Vec3) -> Option<DVec3> {
-        let v = v.as_dvec3();
-        if self.mean_vectors {
-            if !v.is_finite() {
-                return None;
-            }
-            Some(if v.length_squared() > 1.0 {
-                v.normalize()
-            } else {
-                v
-            })
-        } else {
-            normalize_robust(v)
-        }
     }
 }
 

@@ -26,7 +26,7 @@
 //! stored as `α_j y_j`.
 
 use crate::bake::{Bake, BakeOptions, Method, Progress, Texture};
-use crate::em::{self, Alignment, AlignmentForm, EmInput, EmScratch, MAX_LOBES};
+use crate::em::{self, Alignment, AlignmentForm, EmInput, EmOptions, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
@@ -69,12 +69,14 @@ pub(crate) trait Model: Sync {
     /// The component a stored texel holds (what a finer or neighbouring texel's fit is read
     /// back as: levels keep texels, not components).
     fn from_texel(t: [f32; 4]) -> Self::C;
-    /// One texel's EM from `init` (`options.em`), optionally pulled towards `neighbours` with
-    /// the strength (and, for vMF, the form) of `options`' alignment.
+    /// The EM options of the unaligned and of the aligned pass.
+    fn passes(options: &BakeOptions) -> (EmOptions, EmOptions);
+    /// One texel's EM from `init` with `pass = (options, em)`'s EM options, optionally pulled
+    /// towards `neighbours` with the strength (and, for vMF, the form) of `options`' alignment.
     fn fit(
         input: &EmInput,
         init: &[Self::C],
-        options: &BakeOptions,
+        pass: (&BakeOptions, &EmOptions),
         neighbours: Option<&[&[Self::C]]>,
         scratch: &mut Self::Scratch,
     ) -> TexelFit<Self::C>;
@@ -85,9 +87,6 @@ pub(crate) trait Model: Sync {
     fn closed_form_when_aligned(options: &BakeOptions, min_alpha: f64) -> bool;
     /// The component's texel.
     fn texel(c: &Self::C) -> [f64; 4];
-    /// The component as a sample of the approximate mode: its mean vector, or `None` when the
-    /// model has no approximate mode.
-    fn mean_vector(c: &Self::C) -> Option<Vec3>;
 }
 
 /// The paper's vMF lobes (Sec 7).
@@ -136,10 +135,13 @@ impl Model for VmfModel {
             glam::DVec3::new(t[1] as f64, t[2] as f64, t[3] as f64),
         )
     }
+    fn passes(options: &BakeOptions) -> (EmOptions, EmOptions) {
+        options.mode.passes(&options.em)
+    }
     fn fit(
         input: &EmInput,
         init: &[Lobe],
-        options: &BakeOptions,
+        (options, em): (&BakeOptions, &EmOptions),
         neighbours: Option<&[&[Lobe]]>,
         scratch: &mut EmScratch,
     ) -> TexelFit<Lobe> {
@@ -148,7 +150,7 @@ impl Model for VmfModel {
             neighbours,
             form: options.align_form,
         });
-        let f = em::fit(input, init, &options.em, alignment.as_ref(), scratch);
+        let f = em::fit(input, init, em, alignment.as_ref(), scratch);
         let mut out = TexelFit::empty(Lobe::EMPTY);
         for (j, l) in f.lobes().iter().enumerate() {
             (out.comps[j], out.colors[j], out.texels[j]) = (*l, f.features()[j], f.texel(j));
@@ -166,12 +168,6 @@ impl Model for VmfModel {
         let c = options.align.unwrap_or(0.0);
         options.align_form == AlignmentForm::Appendix
             && c * ALIGN_NEIGHBOURS as f64 <= CLOSED_FORM_TILT * KAPPA_MAX * min_alpha
-    }
-    fn mean_vector(c: &Lobe) -> Option<Vec3> {
-        let t = c.texel();
-        (t[0] > 0.0)
-            .then(|| glam::DVec3::new(t[1], t[2], t[3]) / t[0])
-            .map(|r| r.as_vec3())
     }
 }
 
@@ -224,10 +220,13 @@ impl Model for TanModel {
     fn from_texel(t: [f32; 4]) -> Gaussian {
         Gaussian::from_texel(t)
     }
+    fn passes(options: &BakeOptions) -> (EmOptions, EmOptions) {
+        (options.em, options.em) // Tan 2005 runs its EM as given
+    }
     fn fit(
         input: &EmInput,
         init: &[Gaussian],
-        options: &BakeOptions,
+        (options, em): (&BakeOptions, &EmOptions),
         neighbours: Option<&[&[Gaussian]]>,
         scratch: &mut TanScratch,
     ) -> TexelFit<Gaussian> {
@@ -235,7 +234,7 @@ impl Model for TanModel {
             strength: options.align.unwrap_or(0.0),
             neighbours,
         });
-        let f = tan2005::fit(input, init, &options.em, alignment.as_ref(), scratch);
+        let f = tan2005::fit(input, init, em, alignment.as_ref(), scratch);
         let mut out = TexelFit::empty(Gaussian::EMPTY);
         for (j, g) in f.gaussians().iter().enumerate() {
             (out.comps[j], out.colors[j], out.texels[j]) = (*g, f.features()[j], f.texel(j));
@@ -247,9 +246,6 @@ impl Model for TanModel {
     }
     fn closed_form_when_aligned(_: &BakeOptions, _: f64) -> bool {
         false // Tan's prior weighs the neighbours like samples: it moves even sharp Gaussians.
-    }
-    fn mean_vector(_: &Gaussian) -> Option<Vec3> {
-        None
     }
 }
 
@@ -297,8 +293,6 @@ impl<C: Copy> TexelFit<C> {
 
 /// Per-thread working memory for gathering a texel's samples.
 struct Gather<M: Model> {
-    /// True when `normals` holds the mean vectors of finer components (approximate mode).
-    mean_vectors: bool,
     normals: Vec<Vec3>,
     weights: Vec<f64>,
     features: Vec<[f32; 4]>,
@@ -309,7 +303,6 @@ struct Gather<M: Model> {
 impl<M: Model> Default for Gather<M> {
     fn default() -> Self {
         Gather {
-            mean_vectors: false,
             normals: Vec::new(),
             weights: Vec::new(),
             features: Vec::new(),
@@ -322,7 +315,6 @@ impl<M: Model> Default for Gather<M> {
 impl<M: Model> Gather<M> {
     /// Collects the finest normals (and features) texel `(x, y)` of `level` covers.
     fn collect(&mut self, map: &NormalMap, level: &LevelFootprints, x: u32, y: u32) {
-        self.mean_vectors = false;
         self.normals.clear();
         self.weights.clear();
         self.features.clear();
@@ -337,50 +329,6 @@ impl<M: Model> Gather<M> {
                 }
             }
         }
-    }
-
-    /// Approximate mode: collects the components of the finer-level texels that texel `(x, y)`
-    /// covers (`children`: the finer level's fit, `cx`/`cy` its footprints on this level) as
-    /// samples — mean vector, `α × footprint weight`, colour `y`. Returns false (and collects
-    /// nothing) when the model has no approximate mode.
-    #[allow(clippy::too_many_arguments)]
-    fn collect_children(
-        &mut self,
-        children: &LevelFit,
-        child_width: u32,
-        cx: &AxisFootprints,
-        cy: &AxisFootprints,
-        x: u32,
-        y: u32,
-        j: usize,
-    ) -> bool {
-        self.mean_vectors = true;
-        self.normals.clear();
-        self.weights.clear();
-        self.features.clear();
-        for (py, wy) in cy.taps(y as usize) {
-            for (px, wx) in cx.taps(x as usize) {
-                let p = (py * child_width + px) as usize;
-                for s in 0..j {
-                    let c = &M::from_texel(children.texels[s][p]);
-                    let a = M::alpha(c);
-                    if a <= 0.0 {
-                        continue;
-                    }
-                    let Some(r) = M::mean_vector(c) else {
-                        self.mean_vectors = false;
-                        return false;
-                    };
-                    self.normals.push(r);
-                    self.weights.push(a * wx * wy);
-                    if let Some(colors) = &children.colors {
-                        self.features
-                            .push(colors[s][p].map(|v| (v as f64 / a) as f32));
-                    }
-                }
-            }
-        }
-        true
     }
 
     /// The maximum-likelihood mixture when there are no more samples than components: one
@@ -409,17 +357,14 @@ impl<M: Model> Gather<M> {
     fn fit(
         &mut self,
         init: &[M::C],
-        options: &BakeOptions,
+        pass: (&BakeOptions, &EmOptions),
         neighbours: Option<&[&[M::C]]>,
     ) -> TexelFit<M::C> {
         let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
         if !self.features.is_empty() {
             input = input.with_features(&self.features);
         }
-        if self.mean_vectors {
-            input = input.as_mean_vectors();
-        }
-        M::fit(&input, init, options, neighbours, &mut self.scratch)
+        M::fit(&input, init, pass, neighbours, &mut self.scratch)
     }
 }
 
@@ -601,9 +546,10 @@ fn bottom_up<M: Model>(
     let j = options.lobes;
     let finest = (map.width(), map.height());
     // An aligned bake keeps this pass's texels (what the aligned pass starts from) but not
-    // its colours, unless approximate mode reads them as the next level's features.
+    // its colours.
     let textures = options.align.is_none();
-    let colors = map.feature().is_some() && (textures || options.approximate);
+    let colors = map.feature().is_some() && textures;
+    let (em, _) = M::passes(options);
     let mut fits = vec![if textures {
         finest_level::<M>(map, j, |_| 0)
     } else {
@@ -618,13 +564,9 @@ fn bottom_up<M: Model>(
         let prev = &fits[k - 1];
         let fit_texel = |g: &mut Gather<M>, t: u32| -> TexelFit<M::C> {
             let (x, y) = (t % w, t / w);
-            let fast =
-                options.approximate && k >= 2 && g.collect_children(prev, pw, &cx, &cy, x, y, j);
-            if !fast {
-                g.collect(map, &level, x, y);
-                if g.normals.len() <= j {
-                    return g.one_per_normal();
-                }
+            g.collect(map, &level, x, y);
+            if g.normals.len() <= j {
+                return g.one_per_normal();
             }
             g.candidates.clear();
             for (py, wy) in cy.taps(y as usize) {
@@ -643,7 +585,7 @@ fn bottom_up<M: Model>(
             }
             let mut init = [M::EMPTY; MAX_LOBES];
             M::init_from_children(&g.candidates, &mut init[..j]);
-            g.fit(&init[..j], options, None)
+            g.fit(&init[..j], (options, &em), None)
         };
         let mut out = LevelFit::with_capacity((w * h) as usize, j, colors);
         let trace = std::time::Instant::now();
@@ -746,6 +688,7 @@ fn top_down<M: Model>(
     let j = options.lobes;
     let finest = (map.width(), map.height());
     let levels = sizes.len();
+    let (_, em) = M::passes(options);
     let mut fits: Vec<Option<LevelFit>> = (0..levels).map(|_| None).collect();
     for k in (0..levels).rev() {
         let (w, h) = sizes[k];
@@ -779,12 +722,6 @@ fn top_down<M: Model>(
             continue;
         }
         let level = LevelFootprints::new(finest, (w, h));
-        // Footprints of this level on the finer one (the approximate mode's samples).
-        let finer = sizes[k.saturating_sub(1)];
-        let (cx, cy) = (
-            AxisFootprints::new(finer.0, w),
-            AxisFootprints::new(finer.1, h),
-        );
         let texels = (w * h) as usize;
         let mut out = LevelFit {
             colors: map.feature().map(|_| planes(j, texels, true)),
@@ -809,21 +746,14 @@ fn top_down<M: Model>(
                     let x = d - 2 * y;
                     let t = (y * w + x) as usize;
                     let parent = parent_of_texel(x, y);
-                    let fast = options.approximate
-                        && k >= 2
-                        && g.collect_children(&unaligned[k - 1], sizes[k - 1].0, &cx, &cy, x, y, j);
-                    if !fast {
-                        g.collect(map, &level, x, y);
-                        if g.normals.len() <= j
-                            && M::closed_form_when_aligned(options, g.min_alpha())
-                        {
-                            let fit = g.one_per_normal();
-                            let fit = match &parent {
-                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
-                                None => fit,
-                            };
-                            return (x, y, fit);
-                        }
+                    g.collect(map, &level, x, y);
+                    if g.normals.len() <= j && M::closed_form_when_aligned(options, g.min_alpha()) {
+                        let fit = g.one_per_normal();
+                        let fit = match &parent {
+                            Some(p) => into_slots::<M>(&fit, j, &p[..j]),
+                            None => fit,
+                        };
+                        return (x, y, fit);
                     }
                     // The previously visited neighbours and the parent pull (at most
                     // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
@@ -855,7 +785,11 @@ fn top_down<M: Model>(
                     for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
                         *n = &p[..j];
                     }
-                    (x, y, g.fit(&init[..j], options, Some(&neighbours[..count])))
+                    (
+                        x,
+                        y,
+                        g.fit(&init[..j], (options, &em), Some(&neighbours[..count])),
+                    )
                 })
                 .collect();
             for (x, y, fit) in &results {
@@ -885,6 +819,7 @@ fn assemble<M: Model>(
     ];
     let j = options.lobes;
     let color = map.feature().is_some();
+    let (unaligned, aligned) = M::passes(options);
     let mut textures: Vec<Texture> = M::NAMES
         .iter()
         .take(j)
@@ -920,9 +855,11 @@ fn assemble<M: Model>(
         "align_form": (M::METHOD == Method::Vmf && options.align.is_some())
             .then(|| options.align_form.name()),
         "color": map.feature().is_some(),
-        "approximate": options.approximate && M::METHOD == Method::Vmf,
+        "mode": (M::METHOD == Method::Vmf).then(|| options.mode.name()),
         "em_max_iterations": options.em.max_iterations,
         "em_tolerance": options.em.tolerance,
+        "em_iterations": [unaligned.max_iterations, aligned.max_iterations],
+        "em_tolerances": [unaligned.tolerance, aligned.tolerance],
     });
     if M::METHOD == Method::Vmf {
         parameters["kappa_max"] = KAPPA_MAX.into();
@@ -984,6 +921,7 @@ mod tests {
     use crate::brdf::Brdf;
     use crate::eval::{default_directions, evaluate};
     use crate::ingest::{Addressing, BadNormals};
+    use crate::bake::FitMode;
     use crate::methods::bake_with;
 
     fn bumpy(w: u32, h: u32) -> NormalMap {
@@ -1217,59 +1155,88 @@ mod tests {
         );
     }
 
-    #[test]
-    fn approximate_mode_matches_exact_below_level_two_and_stays_accurate() {
-        let m = bumpy(32, 32);
-        let exact = bake_with(&m, Method::Vmf, &opts(4, None)).unwrap();
-        let fast_opts = BakeOptions {
-            approximate: true,
-            ..opts(4, None)
-        };
-        let fast = bake_with(&m, Method::Vmf, &fast_opts).unwrap();
-        all_finite(&fast);
-        for t in 0..4 {
-            for k in 0..=1 {
-                assert_eq!(
-                    exact.textures[t].levels[k], fast.textures[t].levels[k],
-                    "level {k}"
-                );
+    /// Mean log-likelihood per normal of every texel of levels 2 and coarser, averaged over
+    /// the texels.
+    fn mean_fit(map: &NormalMap, bake: &Bake) -> f64 {
+        let (mut sum, mut count) = (0.0, 0);
+        for k in 2..bake.level_count() {
+            let (w, h) = bake.sizes[k];
+            let level = LevelFootprints::new((map.width(), map.height()), (w, h));
+            for t in 0..(w * h) as usize {
+                let mut g = Gather::<VmfModel>::default();
+                g.collect(map, &level, t as u32 % w, t as u32 / w);
+                let lobes: Vec<Lobe> = (0..bake.lobes)
+                    .map(|s| VmfModel::from_texel(bake.textures[s].levels[k][t]))
+                    .collect();
+                sum += crate::quality::mean_log_likelihood(&g.normals, &g.weights, &lobes);
+                count += 1;
             }
         }
-        assert_eq!(fast.label(), "vmf4f");
+        sum / count as f64
+    }
+
+    #[test]
+    fn fit_modes_trade_iterations_for_likelihood() {
+        let m = bumpy(32, 32);
+        let bake = |mode| {
+            let o = BakeOptions {
+                mode,
+                ..opts(4, None)
+            };
+            bake_with(&m, Method::Vmf, &o).unwrap()
+        };
+        let (fast, balanced, exact) = (
+            bake(FitMode::Fast),
+            bake(FitMode::Balanced),
+            bake(FitMode::Exact),
+        );
+        for b in [&fast, &balanced] {
+            all_finite(b);
+            // Levels 0 and 1 are closed forms: no EM, no difference.
+            for t in 0..4 {
+                for k in 0..=1 {
+                    assert_eq!(exact.textures[t].levels[k], b.textures[t].levels[k]);
+                }
+            }
+        }
+        assert_eq!(
+            [fast.label(), balanced.label(), exact.label()],
+            ["vmf4f", "vmf4", "vmf4x"]
+        );
+        // More iterations, a higher likelihood (on average over the texels; EM from the same
+        // start climbs monotonically, up to Banerjee's κ bias).
+        let (lf, lb, lx) = (mean_fit(&m, &fast), mean_fit(&m, &balanced), mean_fit(&m, &exact));
+        assert!(lf <= lb + 1e-3 && lb <= lx + 1e-3, "{lf} {lb} {lx}");
+        assert!(lx - lf < 0.3, "fast is within 0.3 nats of exact: {lf} {lx}");
         let toksvig = crate::methods::bake(&m, Method::Toksvig);
         let e = evaluate(
             &m,
-            &[&exact, &fast, &toksvig],
+            &[&exact, &balanced, &fast, &toksvig],
             &Brdf::blinn_phong(&[64.0]),
             &default_directions(),
         );
-        assert!(
-            e[1].overall_specular < e[2].overall_specular,
-            "fast {} vs Toksvig {}",
-            e[1].overall_specular,
-            e[2].overall_specular
-        );
-        assert!(
-            e[1].overall_specular < 2.5 * e[0].overall_specular,
-            "fast {} vs exact {}",
-            e[1].overall_specular,
-            e[0].overall_specular
-        );
+        for (i, name) in [(1, "balanced"), (2, "fast")] {
+            assert!(
+                e[i].overall_specular < 1.5 * e[0].overall_specular,
+                "{name} {} vs exact {}",
+                e[i].overall_specular,
+                e[0].overall_specular
+            );
+            assert!(e[i].overall_specular < 0.6 * e[3].overall_specular, "{name} vs Toksvig");
+        }
         // Aligned and with colour it stays finite and deterministic too.
         let c = (0..32 * 32)
             .map(|i| [(i % 7) as f32 / 7.0, 0.5, 0.2, 1.0])
             .collect();
         let mc = m.clone().with_feature(c).unwrap();
-        let a = bake_with(
-            &mc,
-            Method::Vmf,
-            &BakeOptions {
-                align: Some(0.1),
-                ..fast_opts
-            },
-        )
-        .unwrap();
+        let aligned = BakeOptions {
+            align: Some(0.1),
+            mode: FitMode::Fast,
+            ..opts(4, None)
+        };
+        let a = bake_with(&mc, Method::Vmf, &aligned).unwrap();
         all_finite(&a);
+        assert_eq!(a, bake_with(&mc, Method::Vmf, &aligned).unwrap());
     }
 
     #[test]

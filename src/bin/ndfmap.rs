@@ -2,7 +2,7 @@
 //! each filtering method matches the exact shading.
 
 use clap::{Args, Parser, Subcommand};
-use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::bake::{Bake, BakeOptions, FitMode, Method};
 use ndfmap::brdf::Brdf;
 use ndfmap::em::AlignmentForm;
 use ndfmap::eval::{default_directions, evaluate, format_table};
@@ -48,6 +48,9 @@ enum Command {
         /// Alignments, comma-separated: `none` or a strength C.
         #[arg(long, default_value = "none,1", value_delimiter = ',')]
         align: Vec<String>,
+        /// vMF fitting modes, comma-separated: fast, balanced, exact.
+        #[arg(long, default_value = "fast,balanced,exact", value_delimiter = ',')]
+        modes: Vec<String>,
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
@@ -103,10 +106,10 @@ enum Command {
         /// for every lobe).
         #[arg(long, default_value = "appendix")]
         align_form: String,
-        /// vmf: approximate (fast) mode — levels 2 and coarser are fitted to the lobes of the
-        /// level below instead of to every normal they cover.
-        #[arg(long)]
-        fast: bool,
+        /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
+        /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
+        #[arg(long, default_value = "balanced")]
+        mode: String,
         /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
         #[arg(long, default_value = "f32")]
         format: String,
@@ -174,9 +177,9 @@ enum Command {
         /// vMF alignment M-step: `appendix` (eq 29) or `main-text` (eq 23).
         #[arg(long, default_value = "appendix")]
         align_form: String,
-        /// vMF fitting modes to compare, comma-separated: `exact` (every covered normal) and/or
-        /// `fast` (levels ≥ 2 fitted to the lobes of the level below).
-        #[arg(long, default_value = "exact", value_delimiter = ',')]
+        /// vMF fitting modes to compare, comma-separated: `fast`, `balanced` (the default),
+        /// `exact` (EM options as given).
+        #[arg(long, default_value = "balanced", value_delimiter = ',')]
         modes: Vec<String>,
         /// Blinn-Phong exponents, comma-separated.
         #[arg(
@@ -334,27 +337,21 @@ struct MixtureGrid {
     lobes: Vec<usize>,
     align: Vec<Option<f64>>,
     align_form: AlignmentForm,
-    /// `false` = exact, `true` = approximate (vMF only).
-    approximate: Vec<bool>,
+    /// vMF fitting modes.
+    modes: Vec<FitMode>,
 }
 
 impl MixtureGrid {
     fn parse(lobes: &[usize], align: &[String], form: &str, modes: &[String]) -> Result<Self> {
-        let approximate = modes
+        let modes = modes
             .iter()
-            .map(|m| match m.trim() {
-                "exact" => Ok(false),
-                "fast" => Ok(true),
-                other => Err(Error::InvalidOption(format!(
-                    "--modes '{other}' (expected exact or fast)"
-                ))),
-            })
-            .collect::<Result<Vec<bool>>>()?;
+            .map(|m| m.parse())
+            .collect::<Result<Vec<FitMode>>>()?;
         Ok(MixtureGrid {
             lobes: lobes.to_vec(),
             align: parse_align(align)?,
             align_form: form.parse()?,
-            approximate,
+            modes,
         })
     }
 
@@ -362,15 +359,15 @@ impl MixtureGrid {
         let mut out = Vec::new();
         for &lobes in &self.lobes {
             for &align in &self.align {
-                for &approximate in &self.approximate {
-                    if approximate && method != Method::Vmf {
-                        continue; // Tan 2005 has no approximate mode
+                for (i, &mode) in self.modes.iter().enumerate() {
+                    if i > 0 && method != Method::Vmf {
+                        continue; // Tan 2005 has no fitting modes: one bake
                     }
                     out.push(BakeOptions {
                         lobes,
                         align,
                         align_form: self.align_form,
-                        approximate,
+                        mode,
                         ..BakeOptions::default()
                     });
                 }
@@ -427,7 +424,7 @@ fn run(cli: Cli) -> Result<()> {
             lobes,
             align,
             align_form,
-            fast,
+            mode,
             format,
             ingest,
         } => {
@@ -442,7 +439,7 @@ fn run(cli: Cli) -> Result<()> {
                 lobes,
                 align,
                 align_form: align_form.parse()?,
-                approximate: fast,
+                mode: mode.parse()?,
                 ..BakeOptions::default()
             };
             let (map, info) = ingest.load(&input)?;
@@ -595,17 +592,18 @@ fn run(cli: Cli) -> Result<()> {
             sizes,
             lobes,
             align,
+            modes,
             json,
             quality,
             maps,
             samples,
             levels,
         } => {
-            let align = parse_align(&align)?;
+            let grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
             if quality {
-                bench_quality(&sizes, &maps, &lobes, &align, samples, &levels, json)?
+                bench_quality(&sizes, &maps, &grid, samples, &levels, json)?
             } else {
-                bench(&sizes, &lobes, &align, json)?
+                bench(&sizes, &grid, json)?
             }
         }
     }
@@ -653,7 +651,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         lobes: vec![6],
         align: vec![None],
         align_form: AlignmentForm::default(),
-        approximate: vec![false],
+        modes: vec![FitMode::default()],
     };
     let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
     for b in &bakes {
@@ -675,6 +673,14 @@ fn demo(output: &Path, size: u32) -> Result<()> {
     Ok(())
 }
 
+/// CPU seconds this process has used (`None` without the report feature or off Linux).
+fn cpu_seconds() -> Option<f64> {
+    #[cfg(feature = "report")]
+    return ndfmap::report::cpu_seconds();
+    #[cfg(not(feature = "report"))]
+    None
+}
+
 /// Peak resident memory of this process since the last [`reset_peak_memory`], in bytes (Linux;
 /// `None` elsewhere).
 fn peak_memory() -> Option<u64> {
@@ -691,14 +697,14 @@ fn reset_peak_memory() {
 }
 
 /// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo).
-fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> Result<()> {
+fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
     let mut rows = Vec::new();
     let threads = rayon::current_num_threads();
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>6} {:>10} {:>12}",
-            "size", "method", "lobes", "aligned", "mode", "seconds", "peak MiB"
+            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>10} {:>8} {:>12}",
+            "size", "method", "lobes", "aligned", "mode", "seconds", "CPU s", "peak MiB"
         );
     }
     for &size in sizes {
@@ -710,27 +716,19 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
         let sample = ndfmap::procedural::generate(size, 2007);
         let map = sample.map.with_feature(sample.albedo)?;
         let mut jobs = vec![(Method::Toksvig, BakeOptions::default())];
-        for &j in lobes {
-            for &a in align {
-                for approximate in [false, true] {
-                    jobs.push((
-                        Method::Vmf,
-                        BakeOptions {
-                            lobes: j,
-                            align: a,
-                            approximate,
-                            ..BakeOptions::default()
-                        },
-                    ));
-                }
-            }
-        }
+        jobs.extend(
+            grid.options(Method::Vmf)
+                .into_iter()
+                .map(|o| (Method::Vmf, o)),
+        );
         for (method, options) in jobs {
             reset_peak_memory();
             let base = peak_memory();
+            let cpu = cpu_seconds();
             let t = Instant::now();
             let b = bake_with(&map, method, &options)?;
             let seconds = t.elapsed().as_secs_f64();
+            let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
             let peak = peak_memory();
             drop(b);
             let lobes = if method == Method::Vmf {
@@ -740,7 +738,8 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
             };
             let row = serde_json::json!({
                 "size": size, "method": method, "lobes": lobes,
-                "align": options.align, "approximate": options.approximate, "seconds": seconds,
+                "align": options.align, "mode": options.mode, "seconds": seconds,
+                "cpu_seconds": cpu,
                 "peak_bytes": peak, "baseline_bytes": base, "threads": threads,
             });
             if !json {
@@ -748,10 +747,11 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
                     b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
                 };
                 println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>6} {seconds:>10.3} {:>12}",
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
-                    if options.approximate { "fast" } else { "exact" },
+                    options.mode.name(),
+                    cpu.map_or("?".into(), |c| format!("{c:.2}")),
                     mib(peak)
                 );
             }
@@ -767,13 +767,12 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
     Ok(())
 }
 
-/// `ndfmap bench --quality`: fit quality of each vMF configuration (exact and fast modes) on
-/// the given maps, or on the built-in sample at each size.
+/// `ndfmap bench --quality`: fit quality of each vMF configuration on the given maps, or on
+/// the built-in sample at each size.
 fn bench_quality(
     sizes: &[u32],
     maps: &[PathBuf],
-    lobes: &[usize],
-    align: &[Option<f64>],
+    grid: &MixtureGrid,
     samples: usize,
     levels: &str,
     json: bool,
@@ -806,54 +805,45 @@ fn bench_quality(
     }
     let mut rows = Vec::new();
     for (name, map) in &inputs {
-        for &j in lobes {
-            for &a in align {
-                for approximate in [false, true] {
-                    let options = BakeOptions {
-                        lobes: j,
-                        align: a,
-                        approximate,
-                        ..BakeOptions::default()
-                    };
-                    let t = Instant::now();
-                    let bake = bake_with(map, Method::Vmf, &options)?;
-                    let seconds = t.elapsed().as_secs_f64();
-                    let q = ndfmap::quality::fit_quality(map, &bake, &quality)?;
-                    if !json {
-                        println!("\n{name}: {} (baked in {seconds:.2} s)", bake.label());
-                        println!(
-                            "{:>5} {:>7} {:>10} {:>9} {:>8} {:>7} {:>7} {:>7} {:>8}",
-                            "level",
-                            "sampled",
-                            "mean gap",
-                            "max gap",
-                            ">= ref",
-                            "dead",
-                            "<0.01",
-                            "wasted",
-                            "ref<0.01"
-                        );
-                        for l in &q {
-                            println!(
-                                "{:>5} {:>7} {:>10.5} {:>9.4} {:>7.0}% {:>6.1}% {:>6.1}% {:>7.2} {:>7.1}%",
-                                l.level,
-                                l.sampled,
-                                l.mean_gap,
-                                l.max_gap,
-                                100.0 * l.at_least_as_good,
-                                100.0 * l.dead,
-                                100.0 * l.near_empty,
-                                l.wasted,
-                                100.0 * l.reference_near_empty
-                            );
-                        }
-                    }
-                    rows.push(serde_json::json!({
-                        "map": name, "label": bake.label(), "lobes": j, "align": a,
-                        "approximate": approximate, "seconds": seconds, "levels": q,
-                    }));
+        for options in grid.options(Method::Vmf) {
+            let t = Instant::now();
+            let bake = bake_with(map, Method::Vmf, &options)?;
+            let seconds = t.elapsed().as_secs_f64();
+            let q = ndfmap::quality::fit_quality(map, &bake, &quality)?;
+            if !json {
+                println!("\n{name}: {} (baked in {seconds:.2} s)", bake.label());
+                println!(
+                    "{:>5} {:>7} {:>10} {:>9} {:>8} {:>7} {:>7} {:>7} {:>8}",
+                    "level",
+                    "sampled",
+                    "mean gap",
+                    "max gap",
+                    ">= ref",
+                    "dead",
+                    "<0.01",
+                    "wasted",
+                    "ref<0.01"
+                );
+                for l in &q {
+                    println!(
+                        "{:>5} {:>7} {:>10.5} {:>9.4} {:>7.0}% {:>6.1}% {:>6.1}% {:>7.2} {:>7.1}%",
+                        l.level,
+                        l.sampled,
+                        l.mean_gap,
+                        l.max_gap,
+                        100.0 * l.at_least_as_good,
+                        100.0 * l.dead,
+                        100.0 * l.near_empty,
+                        l.wasted,
+                        100.0 * l.reference_near_empty
+                    );
                 }
             }
+            rows.push(serde_json::json!({
+                "map": name, "label": bake.label(), "lobes": options.lobes,
+                "align": options.align, "mode": options.mode, "seconds": seconds,
+                "levels": q,
+            }));
         }
     }
     if json {

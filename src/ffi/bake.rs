@@ -8,7 +8,7 @@ use super::{
     Out, Outcome, arg, c_str, choose, fail, guard, guard_value, index, ndf_status, path,
     read_options,
 };
-use crate::bake::{Bake, BakeOptions, Method};
+use crate::bake::{Bake, BakeOptions, FitMode, Method};
 use crate::em::{AlignmentForm, EmOptions, KappaEstimator};
 use crate::format::{Format, ValueRange};
 use crate::methods::bake_with_progress;
@@ -71,6 +71,17 @@ pub const NDF_ALIGN_FORM_APPENDIX: ndf_align_form = 0;
 /// every lobe; C about 0.1.
 pub const NDF_ALIGN_FORM_MAIN_TEXT: ndf_align_form = 1;
 
+/// How hard the vMF baker fits each texel: one of `NDF_FIT_*` (the library's `FitMode`).
+pub type ndf_fit_mode = u32;
+/// At most 8 EM iterations per texel (2 in the aligned pass), started from the finer level's
+/// lobes. The default.
+pub const NDF_FIT_BALANCED: ndf_fit_mode = 0;
+/// At most 3 EM iterations per texel (1 in the aligned pass): about twice as fast as
+/// `NDF_FIT_BALANCED`, with a measurably worse fit at the coarse levels.
+pub const NDF_FIT_FAST: ndf_fit_mode = 1;
+/// `em_max_iterations` and `em_tolerance` as given, in both passes: the exhaustive fit.
+pub const NDF_FIT_EXACT: ndf_fit_mode = 2;
+
 /// How vMF EM derives κ from the mean resultant length: one of `NDF_KAPPA_ESTIMATOR_*`.
 pub type ndf_kappa_estimator = u32;
 /// Banerjee's approximation `(3r − r³)/(1 − r²)` (the paper's; the shader inverts it). Default.
@@ -116,12 +127,15 @@ pub struct ndf_vmf_options {
     pub align_strength: f64,
     /// The alignment's M-step, `NDF_ALIGN_FORM_*`. Default `NDF_ALIGN_FORM_APPENDIX`.
     pub align_form: ndf_align_form,
-    /// Nonzero: approximate mode, levels 2 and coarser fitted to the lobes of the level below
-    /// (about 4× faster on a 1024² map, about twice the error at levels 3 and coarser). Default 0.
-    pub approximate: u32,
-    /// Most EM iterations per texel, at least 1. Default 20.
+    /// How hard each texel is fitted, `NDF_FIT_*`. Default `NDF_FIT_BALANCED`. (This field
+    /// was `approximate` before 0.2; its old nonzero value, the removed approximate mode,
+    /// now selects `NDF_FIT_FAST`.)
+    pub mode: ndf_fit_mode,
+    /// Most EM iterations per texel, at least 1: the cap of `NDF_FIT_EXACT`, an upper bound
+    /// for the other modes. Default 20.
     pub em_max_iterations: u32,
-    /// EM convergence tolerance on the mean log-likelihood, ≥ 0. Default 1e-6.
+    /// EM convergence tolerance on the mean log-likelihood, ≥ 0: that of `NDF_FIT_EXACT`, a
+    /// lower bound for the other modes. Default 1e-6.
     pub em_tolerance: f64,
     /// κ estimator, `NDF_KAPPA_ESTIMATOR_*`. Default `NDF_KAPPA_ESTIMATOR_BANERJEE`.
     pub kappa_estimator: ndf_kappa_estimator,
@@ -165,8 +179,8 @@ pub extern "C" fn ndf_baseline_options_default() -> ndf_baseline_options {
     guard_value(o, || o)
 }
 
-/// The default vMF options: 6 unaligned lobes, exact mode, 20 EM iterations, tolerance 1e-6,
-/// Banerjee's κ, no progress callback.
+/// The default vMF options: 6 unaligned lobes, balanced fit (`NDF_FIT_BALANCED`), 20 EM
+/// iterations and tolerance 1e-6 for the exact mode, Banerjee's κ, no progress callback.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_vmf_options_default() -> ndf_vmf_options {
     let d = BakeOptions::default();
@@ -176,7 +190,7 @@ pub extern "C" fn ndf_vmf_options_default() -> ndf_vmf_options {
         aligned: 0,
         align_strength: d.align_form.default_strength(),
         align_form: NDF_ALIGN_FORM_APPENDIX,
-        approximate: 0,
+        mode: NDF_FIT_BALANCED,
         em_max_iterations: d.em.max_iterations,
         em_tolerance: d.em.tolerance,
         kappa_estimator: NDF_KAPPA_ESTIMATOR_BANERJEE,
@@ -316,7 +330,11 @@ pub unsafe extern "C" fn ndf_bake_vmf(
             lobes: o.lobes as usize,
             align: (o.aligned != 0).then_some(o.align_strength),
             align_form: choose("align_form", o.align_form, &forms)?,
-            approximate: o.approximate != 0,
+            mode: choose(
+                "mode",
+                o.mode,
+                &[FitMode::Balanced, FitMode::Fast, FitMode::Exact],
+            )?,
             em: EmOptions {
                 max_iterations: o.em_max_iterations,
                 tolerance: o.em_tolerance,
@@ -359,7 +377,7 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
             lobes: o.lobes as usize,
             align: (o.aligned != 0).then_some(o.align_strength),
             align_form: AlignmentForm::default(),
-            approximate: false,
+            mode: FitMode::default(),
             em: EmOptions {
                 max_iterations: o.em_max_iterations,
                 tolerance: o.em_tolerance,

@@ -589,8 +589,9 @@ fn rss() -> Option<u64> {
 }
 
 /// CPU seconds (user + system) this process and its waited-for children (`glslangValidator`,
-/// the viewer's benchmark) have used (Linux `/proc/self/stat`, 100 ticks/s).
-fn cpu_seconds() -> Option<f64> {
+/// the viewer's benchmark) have used (Linux `/proc/self/stat`, 100 ticks/s). On a shared
+/// machine it is the steadier measure of work than wall time.
+pub fn cpu_seconds() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
     // Fields after the command name (which is in parentheses and may hold spaces).
     let rest = stat.rsplit_once(')')?.1;
