@@ -230,6 +230,17 @@ impl FitMode {
         }
     }
 
+    /// The most normals a texel's EM runs on, or `None` for all of them. Texels covering more
+    /// (levels 7 and coarser of a power-of-two map, over 4096 normals) are fitted to a
+    /// stratified sample of their normals: one per square cell of the footprint, weighted by
+    /// the cell. Exact mode fits every normal.
+    pub fn sample_cap(self) -> Option<usize> {
+        match self {
+            FitMode::Fast | FitMode::Balanced => Some(4096),
+            FitMode::Exact => None,
+        }
+    }
+
     /// The EM options of the unaligned and of the aligned pass: `em`'s iteration cap lowered
     /// and its tolerance raised to the mode's (never the other way).
     pub fn passes(self, em: &crate::em::EmOptions) -> (crate::em::EmOptions, crate::em::EmOptions) {

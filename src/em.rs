@@ -274,6 +274,8 @@ impl Alignment<'_> {
 pub struct EmScratch {
     blocks: Vec<Block>,
     blocks32: Vec<Block32>,
+    /// The features of `blocks32`'s samples, when the input has features.
+    features32: Vec<FeatureBlock>,
     /// Which of the two the last [`EmScratch::prepare`] filled.
     precision: Precision,
     index: Vec<u32>,
@@ -308,6 +310,7 @@ impl EmScratch {
         }
         self.blocks.clear();
         self.blocks32.clear();
+        self.features32.clear();
         self.index.clear();
         self.precision = precision;
         let mut original = 0.0;
@@ -317,7 +320,16 @@ impl EmScratch {
             if !is_positive(w) || !w.is_finite() {
                 continue;
             }
-            let Some(n) = normalize_robust(v.as_dvec3()) else {
+            // Renormalized in f64: by one square root when the length is near 1 (what ingest
+            // delivers), robustly otherwise (or dropped when zero or non-finite).
+            let d = v.as_dvec3();
+            let l2 = d.length_squared();
+            let near_unit = precision == Precision::F32 && (0.5..2.0).contains(&l2);
+            let Some(n) = (if near_unit {
+                Some(d * (1.0 / l2.sqrt()))
+            } else {
+                normalize_robust(d)
+            }) else {
                 continue;
             };
             let used = self.index.len();
@@ -334,10 +346,18 @@ impl EmScratch {
                     let l = used % LANES32;
                     if l == 0 {
                         self.blocks32.push(PAD_BLOCK32);
+                        if input.features.is_some() {
+                            self.features32.push([[0.0; LANES32]; 4]);
+                        }
                     }
                     let b = self.blocks32.last_mut().expect("a block was just pushed");
                     // w is rescaled below; keep it in f64 until then via the index pass.
                     (b.x[l], b.y[l], b.z[l]) = (n.x as f32, n.y as f32, n.z as f32);
+                    if let (Some(f), Some(fb)) = (input.features, self.features32.last_mut()) {
+                        for (c, lanes) in fb.iter_mut().enumerate() {
+                            lanes[l] = f[i][c];
+                        }
+                    }
                 }
             }
             self.index.push(i as u32);
@@ -692,7 +712,7 @@ mod kernel32;
 mod lanes32;
 mod simd;
 
-use kernel32::{Block32, LANES32, PAD_BLOCK32};
+use kernel32::{Block32, FeatureBlock, LANES32, PAD_BLOCK32};
 use simd::{LANES, Lane, Portable, Simd, exp_nonpositive, ln_positive};
 
 /// `LANES` (8) samples in structure-of-arrays form: normal components and weights. The E-step
@@ -726,6 +746,8 @@ struct Active {
     kmu: [[f64; MAX_LOBES]; 3],
     /// `ln α + ln(κ/(2π(1 − e^{−2κ}))) − κ`.
     offset: [f64; MAX_LOBES],
+    /// `ln α + ln(κ/(2π(1 − e^{−2κ})))` (the single-precision kernel's offset).
+    log_scaled: [f64; MAX_LOBES],
 }
 
 impl Active {
@@ -738,6 +760,7 @@ impl Active {
             kappa: [0.0; MAX_LOBES],
             kmu: [[0.0; MAX_LOBES]; 3],
             offset: [0.0; MAX_LOBES],
+            log_scaled: [0.0; MAX_LOBES],
         };
         for (j, l) in lobes.iter().enumerate() {
             if !is_positive(l.alpha) {
@@ -758,6 +781,7 @@ impl Active {
             } else {
                 l.alpha.ln() + peak.ln()
             };
+            a.log_scaled[s] = log_scaled;
             a.offset[s] = log_scaled - l.kappa;
             a.count += 1;
         }
@@ -1095,7 +1119,13 @@ pub fn fit(
     result.converged = converged;
     result.log_likelihood = ll;
     if let Some(features) = input.features {
-        result.features = lobe_features(samples, &scratch.index, features, &active);
+        result.features = match samples {
+            Samples::F32(blocks) => {
+                let (weight, sums) = kernel32::feature_sums(blocks, &scratch.features32, &active);
+                features_from_sums(&active, &weight, &sums)
+            }
+            Samples::F64(_) => lobe_features(samples, &scratch.index, features, &active),
+        };
     }
     result
 }
@@ -1143,9 +1173,10 @@ fn overrelax(
     (out, out_r)
 }
 
-/// Eq 22 as a post-process: `y_j = Σ_i w_i z_ij y_i / Σ_i w_i z_ij` with the responsibilities
-/// of the final lobes; 0 for lobes that win no weight. (Runs once per fit, with the portable
-/// lanes, which give the same responsibilities as the E-step.)
+/// Eq 22 as a post-process, `f64` samples: `y_j = Σ_i w_i z_ij y_i / Σ_i w_i z_ij` with the
+/// responsibilities of the final lobes; 0 for lobes that win no weight. (Runs once per fit,
+/// with the portable lanes, which give the same responsibilities as the E-step; the `f32`
+/// samples use the vectorized `kernel32::feature_sums`.)
 fn lobe_features(
     samples: Samples,
     index: &[u32],
@@ -1155,38 +1186,40 @@ fn lobe_features(
     let count = active.count.min(MAX_LOBES);
     let mut acc = [[0.0; 4]; MAX_LOBES];
     let mut weight = [0.0; MAX_LOBES];
-    let mut add = |i: u32, j: usize, wz: f64| {
-        let y = features[i as usize];
-        weight[j] += wz;
-        for (a, yc) in acc[j].iter_mut().zip(y) {
-            *a += wz * yc as f64;
-        }
-    };
-    match samples {
-        Samples::F64(blocks) => {
-            let mut e = [Portable::splat(0.0); MAX_LOBES];
-            for (b, idx) in blocks.iter().zip(index.chunks_exact(LANES)) {
-                let (_, scale) = block_responsibilities(b, active, &mut e);
-                let scale = scale.to_array();
-                let e = e.map(Portable::to_array);
-                for (l, &i) in idx.iter().enumerate() {
-                    if i == u32::MAX {
-                        continue; // padding
-                    }
-                    for (j, ej) in e.iter().enumerate().take(count) {
-                        add(i, j, ej[l] * scale[l]);
+    if let Samples::F64(blocks) = samples {
+        let mut e = [Portable::splat(0.0); MAX_LOBES];
+        for (b, idx) in blocks.iter().zip(index.chunks_exact(LANES)) {
+            let (_, scale) = block_responsibilities(b, active, &mut e);
+            let scale = scale.to_array();
+            let e = e.map(Portable::to_array);
+            for (l, &i) in idx.iter().enumerate() {
+                if i == u32::MAX {
+                    continue; // padding
+                }
+                let y = features[i as usize];
+                for (j, ej) in e.iter().enumerate().take(count) {
+                    let wz = ej[l] * scale[l];
+                    weight[j] += wz;
+                    for (a, yc) in acc[j].iter_mut().zip(y) {
+                        *a += wz * yc as f64;
                     }
                 }
             }
         }
-        Samples::F32(blocks) => kernel32::for_each_responsibility(blocks, active, |b, l, j, wz| {
-            add(index[b * LANES32 + l], j, wz)
-        }),
     }
+    features_from_sums(active, &weight, &acc)
+}
+
+/// `y_j = Σ w z y / Σ w z` per lobe from per-slot sums; 0 for lobes that win no weight.
+fn features_from_sums(
+    active: &Active,
+    weight: &[f64; MAX_LOBES],
+    sums: &[[f64; 4]; MAX_LOBES],
+) -> [[f64; 4]; MAX_LOBES] {
     let mut out = [[0.0; 4]; MAX_LOBES];
-    for j in 0..count {
+    for j in 0..active.count.min(MAX_LOBES) {
         if is_positive(weight[j]) {
-            out[active.lobe[j]] = acc[j].map(|a| a / weight[j]);
+            out[active.lobe[j]] = sums[j].map(|a| a / weight[j]);
         }
     }
     out
@@ -2000,15 +2033,17 @@ mod tests {
         assert_eq!(g.features()[0], [0.0; 4]);
         // Mixed features on overlapping lobes: y_j is the responsibility-weighted mean.
         let grey: Vec<[f32; 4]> = (0..normals.len()).map(|i| [i as f32 / 2000.0; 4]).collect();
-        let f = fit(
-            &EmInput::new(&normals).with_features(&grey),
-            &init[..1],
-            &EmOptions::default(),
-            None,
-            &mut scratch,
-        );
         let mean: f64 = grey.iter().map(|y| f64::from(y[0])).sum::<f64>() / 2000.0;
-        assert!((f.features()[0][0] - mean).abs() < 1e-12);
+        // f32 lanes sum up to 512 terms before they reach f64.
+        for (precision, tol) in [(Precision::F64, 1e-12), (Precision::F32, 1e-6)] {
+            let options = EmOptions {
+                precision,
+                ..EmOptions::default()
+            };
+            let input = EmInput::new(&normals).with_features(&grey);
+            let f = fit(&input, &init[..1], &options, None, &mut scratch);
+            assert!((f.features()[0][0] - mean).abs() < tol, "{precision:?}");
+        }
     }
 
     #[test]

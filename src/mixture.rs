@@ -313,20 +313,56 @@ impl<M: Model> Default for Gather<M> {
 }
 
 impl<M: Model> Gather<M> {
-    /// Collects the finest normals (and features) texel `(x, y)` of `level` covers.
-    fn collect(&mut self, map: &NormalMap, level: &LevelFootprints, x: u32, y: u32) {
+    /// Collects the finest normals (and features) texel `(x, y)` of `level` covers, with their
+    /// footprint weights; with `cap`, a stratified sample of at most about `cap` of them when
+    /// the texel covers more ([`sample_stride`]): the footprint is cut into `s × s` cells and
+    /// one normal per cell, at a position hashed from the texel and the cell (deterministic,
+    /// jittered so that it cannot alias with a periodic map), stands for the cell with the
+    /// cell's whole weight.
+    fn collect(
+        &mut self,
+        map: &NormalMap,
+        level: &LevelFootprints,
+        x: u32,
+        y: u32,
+        cap: Option<usize>,
+    ) {
         self.normals.clear();
         self.weights.clear();
         self.features.clear();
         let w = map.width() as usize;
-        for (fy, wy) in level.y.taps(y as usize) {
-            for (fx, wx) in level.x.taps(x as usize) {
-                let i = fy as usize * w + fx as usize;
-                self.normals.push(map.normals()[i]);
-                self.weights.push(wx * wy);
-                if let Some(f) = map.feature() {
-                    self.features.push(f[i]);
+        let xs: Vec<(u32, f64)> = level.x.taps(x as usize).collect();
+        let ys: Vec<(u32, f64)> = level.y.taps(y as usize).collect();
+        let stride = sample_stride(xs.len() * ys.len(), cap);
+        let mut push = |fx: u32, fy: u32, weight: f64| {
+            let i = fy as usize * w + fx as usize;
+            self.normals.push(map.normals()[i]);
+            self.weights.push(weight);
+            if let Some(f) = map.feature() {
+                self.features.push(f[i]);
+            }
+        };
+        if stride == 1 {
+            for &(fy, wy) in &ys {
+                for &(fx, wx) in &xs {
+                    push(fx, fy, wx * wy);
                 }
+            }
+            return;
+        }
+        for (cy, rows) in ys.chunks(stride).enumerate() {
+            let wy: f64 = rows.iter().map(|r| r.1).sum();
+            for (cx, cols) in xs.chunks(stride).enumerate() {
+                let wx: f64 = cols.iter().map(|c| c.1).sum();
+                let h = crate::rng::Rng(
+                    ((x as u64) << 40) ^ ((y as u64) << 20) ^ ((cy as u64) << 10) ^ cx as u64,
+                )
+                .next_u64();
+                let (oy, ox) = (
+                    (h >> 32) as usize % rows.len(),
+                    h as u32 as usize % cols.len(),
+                );
+                push(cols[ox].0, rows[oy].0, wx * wy);
             }
         }
     }
@@ -390,6 +426,18 @@ fn check(options: &BakeOptions) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// The side of the square cells a footprint of `taps` finest texels is cut into so that one
+/// sample per cell makes at most about `cap` samples: 1 (every texel) without a cap or when the
+/// footprint is small enough, else `ceil(sqrt(taps / cap))`.
+fn sample_stride(taps: usize, cap: Option<usize>) -> usize {
+    match cap {
+        Some(cap) if taps > cap && cap > 0 => {
+            ((taps as f64 / cap as f64).sqrt().ceil() as usize).max(2)
+        }
+        _ => 1,
+    }
 }
 
 /// `count` planes of `len` texels each, empty (reserved) or zeroed.
@@ -564,7 +612,7 @@ fn bottom_up<M: Model>(
         let prev = &fits[k - 1];
         let fit_texel = |g: &mut Gather<M>, t: u32| -> TexelFit<M::C> {
             let (x, y) = (t % w, t / w);
-            g.collect(map, &level, x, y);
+            g.collect(map, &level, x, y, options.mode.sample_cap());
             if g.normals.len() <= j {
                 return g.one_per_normal();
             }
@@ -746,7 +794,7 @@ fn top_down<M: Model>(
                     let x = d - 2 * y;
                     let t = (y * w + x) as usize;
                     let parent = parent_of_texel(x, y);
-                    g.collect(map, &level, x, y);
+                    g.collect(map, &level, x, y, options.mode.sample_cap());
                     if g.normals.len() <= j && M::closed_form_when_aligned(options, g.min_alpha()) {
                         let fit = g.one_per_normal();
                         let fit = match &parent {
@@ -918,10 +966,10 @@ pub fn lobe_coherence(bake: &Bake) -> Vec<Option<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bake::FitMode;
     use crate::brdf::Brdf;
     use crate::eval::{default_directions, evaluate};
     use crate::ingest::{Addressing, BadNormals};
-    use crate::bake::FitMode;
     use crate::methods::bake_with;
 
     fn bumpy(w: u32, h: u32) -> NormalMap {
@@ -1164,7 +1212,7 @@ mod tests {
             let level = LevelFootprints::new((map.width(), map.height()), (w, h));
             for t in 0..(w * h) as usize {
                 let mut g = Gather::<VmfModel>::default();
-                g.collect(map, &level, t as u32 % w, t as u32 / w);
+                g.collect(map, &level, t as u32 % w, t as u32 / w, None);
                 let lobes: Vec<Lobe> = (0..bake.lobes)
                     .map(|s| VmfModel::from_texel(bake.textures[s].levels[k][t]))
                     .collect();
@@ -1205,7 +1253,11 @@ mod tests {
         );
         // More iterations, a higher likelihood (on average over the texels; EM from the same
         // start climbs monotonically, up to Banerjee's κ bias).
-        let (lf, lb, lx) = (mean_fit(&m, &fast), mean_fit(&m, &balanced), mean_fit(&m, &exact));
+        let (lf, lb, lx) = (
+            mean_fit(&m, &fast),
+            mean_fit(&m, &balanced),
+            mean_fit(&m, &exact),
+        );
         assert!(lf <= lb + 1e-3 && lb <= lx + 1e-3, "{lf} {lb} {lx}");
         assert!(lx - lf < 0.3, "fast is within 0.3 nats of exact: {lf} {lx}");
         let toksvig = crate::methods::bake(&m, Method::Toksvig);
@@ -1222,7 +1274,10 @@ mod tests {
                 e[i].overall_specular,
                 e[0].overall_specular
             );
-            assert!(e[i].overall_specular < 0.6 * e[3].overall_specular, "{name} vs Toksvig");
+            assert!(
+                e[i].overall_specular < 0.6 * e[3].overall_specular,
+                "{name} vs Toksvig"
+            );
         }
         // Aligned and with colour it stays finite and deterministic too.
         let c = (0..32 * 32)
@@ -1237,6 +1292,33 @@ mod tests {
         let a = bake_with(&mc, Method::Vmf, &aligned).unwrap();
         all_finite(&a);
         assert_eq!(a, bake_with(&mc, Method::Vmf, &aligned).unwrap());
+    }
+
+    #[test]
+    fn single_precision_e_step_agrees_with_double_to_three_digits() {
+        let m = bumpy(32, 32);
+        let bake = |precision| {
+            let mut o = opts(4, Some(1.0));
+            o.em.precision = precision;
+            bake_with(&m, Method::Vmf, &o).unwrap()
+        };
+        let (single, double) = (bake(em::Precision::F32), bake(em::Precision::F64));
+        let (ls, ld) = (mean_fit(&m, &single), mean_fit(&m, &double));
+        assert!(
+            (ls - ld).abs() < 1e-3 * ld.abs(),
+            "log-likelihood {ls} vs {ld}"
+        );
+        let e = evaluate(
+            &m,
+            &[&single, &double],
+            &Brdf::blinn_phong(&[32.0, 256.0]),
+            &default_directions(),
+        );
+        // One row per bake and BRDF, bake-major.
+        for (a, b) in e[..2].iter().zip(&e[2..]) {
+            let (x, y) = (a.overall_specular, b.overall_specular);
+            assert!((x - y).abs() < 1e-3 * y + 1e-5, "specular error {x} vs {y}");
+        }
     }
 
     #[test]

@@ -12,7 +12,6 @@
 
 use super::lanes32::{LANES, Lane, Portable32, Simd32, exp_nonpositive, ln_positive};
 use super::{Active, MAX_LOBES, Sums};
-use crate::vmf::{is_positive, peak_density};
 
 /// Sixteen samples in structure-of-arrays form: normal components and weights (the tail block
 /// is padded with zero-weight samples, which add exact zeros).
@@ -46,6 +45,7 @@ struct Active32 {
 }
 
 impl Active32 {
+    /// The single-precision constants of `a`'s slots.
     fn new(a: &Active) -> Self {
         let mut out = Active32 {
             count: a.count,
@@ -54,20 +54,12 @@ impl Active32 {
             offset: [f32::NEG_INFINITY; MAX_LOBES],
         };
         for s in 0..a.count {
-            let (alpha, mu, kappa) = (a.alpha[s], a.mu[s], a.kappa[s]);
+            let (mu, kappa) = (a.mu[s], a.kappa[s]);
             out.mu[0][s] = mu.x as f32;
             out.mu[1][s] = mu.y as f32;
             out.mu[2][s] = mu.z as f32;
             out.half_kappa[s] = (0.5 * kappa) as f32;
-            let peak = peak_density(kappa);
-            let scaled = alpha * peak;
-            out.offset[s] = if scaled > 1e-300 {
-                scaled.ln()
-            } else if is_positive(alpha) {
-                alpha.ln() + peak.ln()
-            } else {
-                f64::NEG_INFINITY
-            } as f32;
+            out.offset[s] = a.log_scaled[s] as f32;
         }
         out
     }
@@ -160,36 +152,78 @@ fn e_step_kernel<S: Simd32>(blocks: &[Block32], active: &Active32) -> Sums {
     sums
 }
 
-/// The lanes added in `f64`, in lane order.
+/// The lanes added in `f64` by a fixed pairwise tree (16 → 8 → 4 → 2 → 1), which the
+/// compiler keeps in vector registers.
 #[inline(always)]
 fn lane_sum(l: Lane) -> f64 {
-    l.iter().map(|&v| v as f64).sum()
+    let mut v: [f64; LANES] = l.map(f64::from);
+    let mut n = LANES;
+    while n > 1 {
+        n /= 2;
+        for i in 0..n {
+            v[i] += v[i + n];
+        }
+    }
+    v[0]
 }
 
-/// Eq 22's responsibilities of the samples of `blocks` under `active`: calls `visit(block,
-/// lane, slot, w z)` for every real sample and active slot, in sample order. (Runs once per
-/// fit, with the portable lanes, which give the same responsibilities as the E-step.)
-pub(super) fn for_each_responsibility(
+/// A block's features (eq 22's `y_i`, four channels) in structure-of-arrays form, beside its
+/// [`Block32`] (zeros in the padding).
+pub(super) type FeatureBlock = [Lane; 4];
+
+/// Eq 22 as one more E-step pass: per active slot j, `Σ_i w_i z_ij` and `Σ_i w_i z_ij y_i`
+/// with the responsibilities of `active`'s lobes, in `f32` lanes flushed to `f64` like the
+/// E-step's sums. Returns `(weight[j], feature sums[j])`. Multiversioned like [`e_step32`].
+#[multiversion::multiversion(targets("x86_64+avx512f", "x86_64+avx2+avx", "x86_64+sse4.2"))]
+pub(super) fn feature_sums(
     blocks: &[Block32],
+    features: &[FeatureBlock],
     active: &Active,
-    mut visit: impl FnMut(usize, usize, usize, f64),
-) {
-    let a = Active32::new(active);
-    let count = a.count.min(MAX_LOBES);
-    let mut e = [Portable32::splat(0.0); MAX_LOBES];
-    let mut d = [[Portable32::splat(0.0); 3]; MAX_LOBES];
-    for (bi, b) in blocks.iter().enumerate() {
-        let (_, scale) = block_responsibilities(b, &a, &mut e, &mut d);
-        let scale = scale.to_array();
-        for (j, ej) in e.iter().enumerate().take(count) {
-            let ej = ej.to_array();
-            for l in 0..LANES {
-                if b.w[l] > 0.0 {
-                    visit(bi, l, j, (ej[l] * scale[l]) as f64);
+) -> ([f64; MAX_LOBES], [[f64; 4]; MAX_LOBES]) {
+    feature_kernel::<Portable32>(blocks, features, &Active32::new(active))
+}
+
+#[inline(always)]
+fn feature_kernel<S: Simd32>(
+    blocks: &[Block32],
+    features: &[FeatureBlock],
+    active: &Active32,
+) -> ([f64; MAX_LOBES], [[f64; 4]; MAX_LOBES]) {
+    let count = active.count.min(MAX_LOBES);
+    let zero = S::splat(0.0);
+    let mut weight = [0.0f64; MAX_LOBES];
+    let mut sums = [[0.0f64; 4]; MAX_LOBES];
+    let mut e = [zero; MAX_LOBES];
+    let mut d = [[zero; 3]; MAX_LOBES];
+    for (run, fruns) in blocks
+        .chunks(FLUSH_BLOCKS)
+        .zip(features.chunks(FLUSH_BLOCKS))
+    {
+        let mut acc = [[zero; 5]; MAX_LOBES];
+        for (b, f) in run.iter().zip(fruns) {
+            let (_, scale) = block_responsibilities(b, active, &mut e, &mut d);
+            let y = [
+                S::load(&f[0]),
+                S::load(&f[1]),
+                S::load(&f[2]),
+                S::load(&f[3]),
+            ];
+            for (a, ej) in acc.iter_mut().zip(&e).take(count) {
+                let wz = ej.mul(scale);
+                a[0] = a[0].add(wz);
+                for c in 0..4 {
+                    a[c + 1] = a[c + 1].add(wz.mul(y[c]));
                 }
             }
         }
+        for (j, a) in acc.iter().enumerate().take(count) {
+            weight[j] += lane_sum(a[0].to_array());
+            for c in 0..4 {
+                sums[j][c] += lane_sum(a[c + 1].to_array());
+            }
+        }
     }
+    (weight, sums)
 }
 
 #[cfg(test)]
