@@ -206,10 +206,12 @@ pub struct BakeOptions {
 )]
 #[serde(rename_all = "lowercase")]
 pub enum FitMode {
-    /// At most 3 iterations per texel (tolerance ≥ 1e-4), 1 in the aligned pass.
+    /// At most 3 iterations per texel (tolerance ≥ 1e-4); aligned, 2 and then 1 in the aligned
+    /// pass.
     Fast,
-    /// At most 8 iterations per texel (tolerance ≥ 1e-5), 2 in the aligned pass: within a few
-    /// hundredths of a nat per normal of EM run to convergence, at a third of its time.
+    /// At most 8 iterations per texel (tolerance ≥ 1e-4); aligned, 5 and then 2 in the
+    /// aligned pass: within about a hundredth of a nat per normal of EM run to convergence, at
+    /// a third of its time.
     #[default]
     Balanced,
     /// The EM options as given, in both passes (by default 20 iterations, tolerance 1e-6):
@@ -241,21 +243,29 @@ impl FitMode {
         }
     }
 
-    /// The EM options of the unaligned and of the aligned pass: `em`'s iteration cap lowered
-    /// and its tolerance raised to the mode's (never the other way).
-    pub fn passes(self, em: &crate::em::EmOptions) -> (crate::em::EmOptions, crate::em::EmOptions) {
-        let (cap, tolerance, aligned) = match self {
-            FitMode::Fast => (3, 1e-4, 1),
-            FitMode::Balanced => (8, 1e-5, 2),
+    /// The EM options of the unaligned and of the aligned pass (`aligned`: whether the bake
+    /// has an aligned pass): `em`'s iteration cap lowered and its tolerance raised to the
+    /// mode's (never the other way). An aligned bake's unaligned pass only starts the aligned
+    /// one, which goes on iterating from it, so it stops sooner.
+    pub fn passes(
+        self,
+        em: &crate::em::EmOptions,
+        aligned: bool,
+    ) -> (crate::em::EmOptions, crate::em::EmOptions) {
+        let (cap, first_of_two, tolerance, second) = match self {
+            FitMode::Fast => (3, 2, 1e-4, 1),
+            FitMode::Balanced => (8, 5, 1e-4, 2),
             FitMode::Exact => return (*em, *em),
         };
         let unaligned = crate::em::EmOptions {
-            max_iterations: em.max_iterations.min(cap),
+            max_iterations: em
+                .max_iterations
+                .min(if aligned { first_of_two } else { cap }),
             tolerance: em.tolerance.max(tolerance),
             ..*em
         };
         let aligned = crate::em::EmOptions {
-            max_iterations: em.max_iterations.min(aligned),
+            max_iterations: em.max_iterations.min(second),
             ..unaligned
         };
         (unaligned, aligned)

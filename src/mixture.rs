@@ -136,7 +136,7 @@ impl Model for VmfModel {
         )
     }
     fn passes(options: &BakeOptions) -> (EmOptions, EmOptions) {
-        options.mode.passes(&options.em)
+        options.mode.passes(&options.em, options.align.is_some())
     }
     fn fit(
         input: &EmInput,
@@ -293,6 +293,9 @@ impl<C: Copy> TexelFit<C> {
 
 /// Per-thread working memory for gathering a texel's samples.
 struct Gather<M: Model> {
+    /// The footprint's taps along x and y (reused).
+    xs: Vec<(u32, f64)>,
+    ys: Vec<(u32, f64)>,
     normals: Vec<Vec3>,
     weights: Vec<f64>,
     features: Vec<[f32; 4]>,
@@ -303,6 +306,8 @@ struct Gather<M: Model> {
 impl<M: Model> Default for Gather<M> {
     fn default() -> Self {
         Gather {
+            xs: Vec::new(),
+            ys: Vec::new(),
             normals: Vec::new(),
             weights: Vec::new(),
             features: Vec::new(),
@@ -327,12 +332,28 @@ impl<M: Model> Gather<M> {
         y: u32,
         cap: Option<usize>,
     ) {
+        let (mut xs, mut ys) = (std::mem::take(&mut self.xs), std::mem::take(&mut self.ys));
+        xs.clear();
+        ys.clear();
+        xs.extend(level.x.taps(x as usize));
+        ys.extend(level.y.taps(y as usize));
+        self.collect_taps(map, (x, y), &xs, &ys, cap);
+        (self.xs, self.ys) = (xs, ys);
+    }
+
+    /// [`Gather::collect`] over the footprint's taps `xs × ys` of texel `(x, y)`.
+    fn collect_taps(
+        &mut self,
+        map: &NormalMap,
+        (x, y): (u32, u32),
+        xs: &[(u32, f64)],
+        ys: &[(u32, f64)],
+        cap: Option<usize>,
+    ) {
         self.normals.clear();
         self.weights.clear();
         self.features.clear();
         let w = map.width() as usize;
-        let xs: Vec<(u32, f64)> = level.x.taps(x as usize).collect();
-        let ys: Vec<(u32, f64)> = level.y.taps(y as usize).collect();
         let stride = sample_stride(xs.len() * ys.len(), cap);
         let mut push = |fx: u32, fy: u32, weight: f64| {
             let i = fy as usize * w + fx as usize;
@@ -343,8 +364,8 @@ impl<M: Model> Gather<M> {
             }
         };
         if stride == 1 {
-            for &(fy, wy) in &ys {
-                for &(fx, wx) in &xs {
+            for &(fy, wy) in ys {
+                for &(fx, wx) in xs {
                     push(fx, fy, wx * wy);
                 }
             }
@@ -636,7 +657,6 @@ fn bottom_up<M: Model>(
             g.fit(&init[..j], (options, &em), None)
         };
         let mut out = LevelFit::with_capacity((w * h) as usize, j, colors);
-        let trace = std::time::Instant::now();
         for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK).min(w * h);
             let results: Vec<TexelFit<M::C>> = (lo..hi)
@@ -648,9 +668,6 @@ fn bottom_up<M: Model>(
             }
             let done = (k - 1) as f64 + hi as f64 / (w * h) as f64;
             progress.report(start + span * done / steps)?;
-        }
-        if std::env::var("NDF_TRACE").is_ok() {
-            eprintln!("up   level {k}: {:.3} s", trace.elapsed().as_secs_f64());
         }
         fits.push(out);
     }
@@ -775,7 +792,6 @@ fn top_down<M: Model>(
             colors: map.feature().map(|_| planes(j, texels, true)),
             texels: planes(j, texels, true),
         };
-        let trace = std::time::Instant::now();
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
         let wavefronts = w + 2 * (h - 1);
         for d in 0..wavefronts {
@@ -843,9 +859,6 @@ fn top_down<M: Model>(
             for (x, y, fit) in &results {
                 out.set::<M>((y * w + x) as usize, fit);
             }
-        }
-        if std::env::var("NDF_TRACE").is_ok() {
-            eprintln!("down level {k}: {:.3} s", trace.elapsed().as_secs_f64());
         }
         fits[k] = Some(out);
     }
