@@ -212,6 +212,10 @@ struct IngestArgs {
     /// Feature image encoding: srgb (decoded to linear) or linear.
     #[arg(long, default_value = "srgb")]
     feature_encoding: String,
+    /// Memory budget (e.g. 512M, 4G): a file or a bake estimated to need more is refused
+    /// before it starts. Default: half the machine's memory.
+    #[arg(long)]
+    memory: Option<String>,
 }
 
 /// Parses a lower-case option value into one of the library's serde enums.
@@ -234,7 +238,20 @@ impl IngestArgs {
                 &self.feature_encoding,
                 "srgb, linear",
             )?,
+            memory_limit: self.memory_limit()?,
         })
+    }
+
+    /// The `--memory` budget in bytes, `None` for the default.
+    fn memory_limit(&self) -> Result<Option<u64>> {
+        self.memory
+            .as_deref()
+            .map(ndfmap::budget::parse_bytes)
+            .transpose()
+            .map_err(|e| match e {
+                Error::InvalidOption(m) => Error::InvalidOption(format!("--memory: {m}")),
+                e => e,
+            })
     }
 
     fn load(&self, input: &Path) -> Result<(NormalMap, InputInfo)> {
