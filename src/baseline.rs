@@ -24,7 +24,7 @@ use rayon::prelude::*;
 pub const LEAN_MIN_Z: f64 = 0.01;
 
 /// Number of f64 moments each method accumulates per texel.
-fn moment_count(method: Method) -> usize {
+pub(crate) fn moment_count(method: Method) -> usize {
     match method {
         Method::Plain | Method::Toksvig => 3,
         Method::Lean => 5,

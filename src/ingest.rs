@@ -982,6 +982,58 @@ fn container(path: &Path, bytes: &[u8]) -> Result<Container> {
     }
 }
 
+/// Reads the width and height of the image file at `path` from its header, without decoding
+/// its pixels (the file is read as [`NormalMap::load`] reads it: a regular file within the
+/// memory budget of `opts`). For checks before any work, such as a bake's memory estimate.
+///
+/// # Errors
+///
+/// As [`NormalMap::load`], for what its header shows.
+pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
+    use image::ImageDecoder;
+    let bytes = read_file(path, opts.memory_limit)?;
+    if bytes.is_empty() {
+        return Err(decode_error(path, "the file is empty"));
+    }
+    let format = container(path, &bytes)?;
+    let size = std::panic::catch_unwind(|| -> Result<(u32, u32)> {
+        match format {
+            Container::Exr => {
+                let meta =
+                    exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+                        .map_err(|e| decode_error(path, &e.to_string()))?;
+                let size = meta
+                    .headers
+                    .first()
+                    .ok_or_else(|| decode_error(path, "no layer"))?
+                    .layer_size;
+                Ok((size.width() as u32, size.height() as u32))
+            }
+            Container::Jpeg => {
+                let mut d =
+                    zune_jpeg::JpegDecoder::new(zune_core::bytestream::ZCursor::new(&bytes));
+                d.decode_headers()
+                    .map_err(|e| decode_error(path, &e.to_string()))?;
+                let (w, h) = d
+                    .dimensions()
+                    .ok_or_else(|| decode_error(path, "no frame header"))?;
+                Ok((w as u32, h as u32))
+            }
+            Container::Image(f) => {
+                let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes));
+                reader.set_format(f);
+                let decoder = reader
+                    .into_decoder()
+                    .map_err(|e| decode_error(path, &e.to_string()))?;
+                Ok(decoder.dimensions())
+            }
+        }
+    })
+    .unwrap_or_else(|_| Err(decode_error(path, "the decoder failed unexpectedly")))?;
+    check_dimensions(&path.display().to_string(), size.0 as u64, size.1 as u64)?;
+    Ok(size)
+}
+
 /// Decodes the bytes of an image file (any supported format) to interleaved samples; `path`
 /// names it in errors and gives the extension. The one bounded-decoding policy: dimensions
 /// and the memory budget are checked from the header before pixels are decoded.
@@ -1328,7 +1380,7 @@ fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose, budget: &Budget) -> R
             .channels
             .list
             .iter()
-            .find(|c| c.name.eq(*name))
+            .find(|c| c.name.eq(name))
             .expect("picked from this list");
         if c.sampling != exr::math::Vec2(1, 1) {
             return Err(Error::UnsupportedLayout {

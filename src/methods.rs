@@ -2,9 +2,9 @@
 //! texture layout each method produces. Above the methods ([`crate::baseline`],
 //! [`crate::mixture`]), below the consumers (CLI, C API, eval, report).
 
-use crate::bake::{Bake, BakeOptions, Method, Progress};
-use crate::error::Result;
-use crate::format::ValueRange;
+use crate::bake::{Bake, BakeOptions, Method, run_with_progress};
+use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
 
 /// The value ranges of each texture a bake of `method` has, in texture order — what a shader
@@ -29,38 +29,187 @@ pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRa
     ranges
 }
 
+/// Checks `options` for a bake of `method`, and that `format` (the storage format the bake will
+/// be written or packed in, if known) can hold every texture it makes, before any work:
+/// [`Error::InvalidOption`] naming the option and its range. The baselines have no options but
+/// the memory budget.
+pub fn check_options(
+    method: Method,
+    options: &BakeOptions,
+    color: bool,
+    format: Option<Format>,
+) -> Result<()> {
+    if matches!(method, Method::Vmf | Method::Tan2005) {
+        crate::mixture::check(options)?;
+    }
+    if let Some(f) = format {
+        let lobes = if matches!(method, Method::Vmf | Method::Tan2005) {
+            options.lobes
+        } else {
+            0
+        };
+        crate::pack::check_ranges(method, &texture_ranges(method, lobes, color), f)?;
+    }
+    if options.memory_limit == Some(0) {
+        return Err(Error::InvalidOption(
+            "memory budget 0 (expected a number of bytes, or none for the default)".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Peak memory of a bake, in bytes per texel of the finest level: `base + per_lobe × J`, and
+/// with a feature (colour) image `color_base + color_per_lobe × J` more (the baselines have
+/// no lobes and no colour). Measured as the peak resident memory of the whole `ndfmap bake`
+/// command (decoding a PNG, the bake, writing f32 files) on the built-in sample at 512², 1024²
+/// and 2048² (per-texel peaks are the same at every size), then rounded up by 10–25 %.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PeakPerTexel {
+    /// Bytes per texel whatever the lobe count.
+    pub base: u64,
+    /// Bytes per texel per lobe.
+    pub per_lobe: u64,
+    /// Bytes per texel added by a feature image.
+    pub color_base: u64,
+    /// Bytes per texel per lobe added by a feature image.
+    pub color_per_lobe: u64,
+}
+
+impl PeakPerTexel {
+    /// Bytes per texel for `lobes` lobes, with or without colour.
+    pub fn bytes(&self, lobes: u64, color: bool) -> u64 {
+        let own = self.base + self.per_lobe * lobes;
+        let color = if color {
+            self.color_base + self.color_per_lobe * lobes
+        } else {
+            0
+        };
+        own + color
+    }
+}
+
+/// The vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or fast).
+/// Measured (bytes per texel, J = 1 / 6 / 8, 1024²): 115 / 290 / 366 unaligned without colour,
+/// 96 / 310 / 409 aligned, 168 / 451 / 567 unaligned with colour, 148 / 454 / 596 aligned with
+/// colour, 373 (J = 6, fast, colour); 512²: 477 (J = 6, colour), 639 (J = 8, aligned, colour).
+/// The estimate gives 140 / 360 / 448 without colour and 212 / 552 / 688 with it.
+///
+/// Update it when the vMF bake's memory changes (measure with `ndfmap bench`, which prints the
+/// peak per configuration, or with `/usr/bin/time -f %M ndfmap bake ...`).
+pub const VMF_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
+    base: 96,
+    per_lobe: 44,
+    color_base: 48,
+    color_per_lobe: 24,
+};
+
+/// The Tan 2005 bake's peak memory per texel. Measured (1024², bytes per texel): J = 4: 201
+/// unaligned, 193 aligned; J = 8: 334 unaligned, 367 aligned. The estimate gives 224 and 384.
+pub const TAN2005_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
+    base: 64,
+    per_lobe: 40,
+    color_base: 48,
+    color_per_lobe: 24,
+};
+
+/// The baselines' peak memory per texel per moment they average (plain and Toksvig 3, LEAN
+/// 5, Olano–North 9), plus [`BASELINE_PEAK_BASE`]. Measured at 2048² (bytes per texel): plain
+/// and Toksvig 76, LEAN 123, Olano–North 204; the estimate gives 88, 136 and 232.
+pub const BASELINE_PEAK_PER_MOMENT: u64 = 24;
+
+/// The baselines' peak memory per texel whatever their moments.
+pub const BASELINE_PEAK_BASE: u64 = 16;
+
+/// Memory every bake command needs whatever the map's size (the program, its threads, the
+/// allocator's slack): 64 MiB.
+pub const PEAK_FIXED_BYTES: u64 = 64 << 20;
+
+/// Estimates the peak memory, in bytes, of baking a `width`×`height` map with `method` and
+/// `options` (with a feature image when `color`), including the decoded map and writing the
+/// result: [`PEAK_FIXED_BYTES`] plus the method's bytes per texel ([`VMF_PEAK_PER_TEXEL`],
+/// [`TAN2005_PEAK_PER_TEXEL`], the baselines' per moment) times `width × height`. Conservative:
+/// the calibration's measured peaks lie 10–25 % below it.
+pub fn estimate_peak_bytes(
+    width: u32,
+    height: u32,
+    method: Method,
+    options: &BakeOptions,
+    color: bool,
+) -> u64 {
+    let lobes = options.lobes as u64;
+    let per_texel = match method {
+        Method::Vmf => VMF_PEAK_PER_TEXEL.bytes(lobes, color),
+        Method::Tan2005 => TAN2005_PEAK_PER_TEXEL.bytes(lobes, color),
+        _ => {
+            BASELINE_PEAK_BASE
+                + BASELINE_PEAK_PER_MOMENT * crate::baseline::moment_count(method) as u64
+        }
+    };
+    let texels = width as u64 * height as u64;
+    PEAK_FIXED_BYTES.saturating_add(texels.saturating_mul(per_texel))
+}
+
+/// Refuses a bake whose estimated peak ([`estimate_peak_bytes`]) exceeds the budget of
+/// `options` ([`Error::MemoryBudget`], naming the method, the size and the budget).
+pub fn check_memory(
+    width: u32,
+    height: u32,
+    method: Method,
+    options: &BakeOptions,
+    color: bool,
+) -> Result<()> {
+    crate::budget::check(
+        &format!("a {method} bake of {width}x{height}"),
+        estimate_peak_bytes(width, height, method, options, color),
+        options.memory_limit,
+    )
+}
+
 /// Bakes `method` for `map` with default options: the full MIP chain down to 1×1.
 pub fn bake(map: &NormalMap, method: Method) -> Bake {
     bake_with(map, method, &BakeOptions::default()).expect("default options are valid")
 }
 
-/// Bakes `method` for `map` with `options`; fails only on invalid options.
+/// Bakes `method` for `map` with `options`; fails only on invalid options or a bake beyond the
+/// memory budget.
 pub fn bake_with(map: &NormalMap, method: Method, options: &BakeOptions) -> Result<Bake> {
     bake_with_progress(map, method, options, &mut |_| true)
 }
 
 /// Bakes like [`bake_with`], reporting progress to `progress` and letting it cancel.
 ///
-/// `progress` is called on the calling thread (between parallel chunks of work, never from a
-/// worker) with the fraction done: first 0.0, then non-decreasing values at least every 0.1 %
-/// of the work's progress (per MIP level for the baselines, per chunk of texels or wavefront
-/// for the mixtures), last 1.0. Returning `false` stops the bake with [`Error::Cancelled`];
-/// the result does not depend on the callback otherwise (same bits as [`bake_with`]).
+/// Options and the memory budget are checked first ([`check_options`], [`check_memory`]),
+/// before any work and before `progress` is called.
+///
+/// `progress` is called on the calling thread, never from a worker, with the fraction done:
+/// first 0.0, then non-decreasing values at least every 0.1 % of the work's progress (per MIP
+/// level for the baselines, per chunk of texels or wavefront for the mixtures) and, while the
+/// work runs, the last value again at least every [`crate::bake::PROGRESS_POLL`] (50 ms), last
+/// 1.0. Returning `false` stops the bake with [`Error::Cancelled`] within a fraction of a
+/// second (workers stop between texels); the callback is not called again. The result does
+/// not depend on the callback otherwise (same bits as [`bake_with`]).
+///
+/// Called from a thread of a rayon pool, the bake runs on that thread and `progress` is called
+/// only between chunks of work (see `bake::run_with_progress`).
 pub fn bake_with_progress(
     map: &NormalMap,
     method: Method,
     options: &BakeOptions,
     progress: &mut dyn FnMut(f32) -> bool,
 ) -> Result<Bake> {
-    let mut progress = Progress::new(progress);
-    progress.report(0.0)?;
-    let bake = match method {
-        Method::Vmf => crate::mixture::bake_vmf(map, options, &mut progress),
-        Method::Tan2005 => crate::mixture::bake_tan2005(map, options, &mut progress),
-        _ => crate::baseline::bake(map, method, &mut progress),
-    }?;
-    progress.report(1.0)?;
-    Ok(bake)
+    let color = map.feature().is_some();
+    check_options(method, options, color, None)?;
+    check_memory(map.width(), map.height(), method, options, color)?;
+    run_with_progress(progress, |progress| {
+        progress.report(0.0)?;
+        let bake = match method {
+            Method::Vmf => crate::mixture::bake_vmf(map, options, progress),
+            Method::Tan2005 => crate::mixture::bake_tan2005(map, options, progress),
+            _ => crate::baseline::bake(map, method, progress),
+        }?;
+        progress.report(1.0)?;
+        Ok(bake)
+    })
 }
 
 #[cfg(test)]
@@ -104,8 +253,11 @@ mod tests {
             assert_eq!(with, bake_with(&map, method, &options).unwrap(), "{method}");
             assert_eq!(seen.first(), Some(&0.0), "{method}: {seen:?}");
             assert_eq!(seen.last(), Some(&1.0), "{method}: {seen:?}");
-            assert!(seen.len() >= 3, "{method}: {seen:?}");
-            assert!(seen.windows(2).all(|p| p[0] < p[1]), "{method}: {seen:?}");
+            // Non-decreasing: while a piece of work runs, the last value comes again.
+            assert!(seen.windows(2).all(|p| p[0] <= p[1]), "{method}: {seen:?}");
+            let mut distinct = seen.clone();
+            distinct.dedup();
+            assert!(distinct.len() >= 3, "{method}: {seen:?}");
         }
     }
 

@@ -25,7 +25,10 @@
 //! Colour (eq 22): with a feature image, each component also gets `y_j = Σ z_ij y_i / Σ z_ij`,
 //! stored as `α_j y_j`.
 
-use crate::bake::{Bake, BakeOptions, Method, Progress, Texture};
+use crate::bake::{
+    Bake, BakeOptions, CancelFlag, MAX_ALIGN_STRENGTH, MAX_EM_ITERATIONS, MAX_EM_TOLERANCE, Method,
+    Progress, Texture,
+};
 use crate::em::{self, Alignment, AlignmentForm, EmInput, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
@@ -66,13 +69,15 @@ pub(crate) trait Model: Sync {
     /// Furthest-first initialization from candidate components (Sec 7.1).
     fn farthest_first(candidates: &[Self::C], j: usize) -> Vec<Self::C>;
     /// One texel's EM from `init` (`options.em`), optionally pulled towards `neighbours` with
-    /// the strength (and, for vMF, the form) of `options`' alignment.
+    /// the strength (and, for vMF, the form) of `options`' alignment. `cancel` is the bake's
+    /// cancellation flag: a fit may stop early once it is set (its result is then discarded).
     fn fit(
         input: &EmInput,
         init: &[Self::C],
         options: &BakeOptions,
         neighbours: Option<&[&[Self::C]]>,
         scratch: &mut Self::Scratch,
+        cancel: &CancelFlag,
     ) -> TexelFit<Self::C>;
     /// Whether, in the aligned pass, a texel with no more samples than components, the
     /// lightest of weight fraction `min_alpha`, may take the closed-form fit (one component
@@ -132,7 +137,11 @@ impl Model for VmfModel {
         options: &BakeOptions,
         neighbours: Option<&[&[Lobe]]>,
         scratch: &mut EmScratch,
+        cancel: &CancelFlag,
     ) -> TexelFit<Lobe> {
+        // em::fit does not take the flag yet: a texel's fit runs to its end (at most
+        // MAX_EM_ITERATIONS), the driver polls the flag between texels.
+        let _ = cancel;
         let alignment = neighbours.map(|neighbours| Alignment {
             strength: options.align.unwrap_or(0.0),
             neighbours,
@@ -215,7 +224,10 @@ impl Model for TanModel {
         options: &BakeOptions,
         neighbours: Option<&[&[Gaussian]]>,
         scratch: &mut TanScratch,
+        cancel: &CancelFlag,
     ) -> TexelFit<Gaussian> {
+        let _ = cancel; // as for vMF: polled between texels
+
         let alignment = neighbours.map(|neighbours| GaussianAlignment {
             strength: options.align.unwrap_or(0.0),
             neighbours,
@@ -379,6 +391,7 @@ impl<M: Model> Gather<M> {
         init: &[M::C],
         options: &BakeOptions,
         neighbours: Option<&[&[M::C]]>,
+        cancel: &CancelFlag,
     ) -> TexelFit<M::C> {
         let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
         if !self.features.is_empty() {
@@ -387,12 +400,12 @@ impl<M: Model> Gather<M> {
         if self.mean_vectors {
             input = input.as_mean_vectors();
         }
-        M::fit(&input, init, options, neighbours, &mut self.scratch)
+        M::fit(&input, init, options, neighbours, &mut self.scratch, cancel)
     }
 }
 
-/// Validates the mixture options.
-fn check(options: &BakeOptions) -> Result<()> {
+/// Validates the mixture options against their documented ranges (`bake`'s `MAX_*`).
+pub(crate) fn check(options: &BakeOptions) -> Result<()> {
     if !(1..=MAX_LOBES).contains(&options.lobes) {
         return Err(Error::InvalidOption(format!(
             "lobe count {} (expected 1 to {MAX_LOBES})",
@@ -400,17 +413,23 @@ fn check(options: &BakeOptions) -> Result<()> {
         )));
     }
     if let Some(c) = options.align
-        && !(c.is_finite() && c >= 0.0)
+        && !(0.0..=MAX_ALIGN_STRENGTH).contains(&c)
     {
         return Err(Error::InvalidOption(format!(
-            "alignment strength {c} (expected a finite C ≥ 0)"
+            "alignment strength {c} (expected C from 0 to {MAX_ALIGN_STRENGTH})"
         )));
     }
-    if options.em.max_iterations == 0 || options.em.tolerance.is_nan() || options.em.tolerance < 0.0
-    {
-        return Err(Error::InvalidOption(
-            "EM needs at least one iteration and a tolerance ≥ 0".into(),
-        ));
+    if !(1..=MAX_EM_ITERATIONS).contains(&options.em.max_iterations) {
+        return Err(Error::InvalidOption(format!(
+            "EM iterations {} (expected 1 to {MAX_EM_ITERATIONS})",
+            options.em.max_iterations
+        )));
+    }
+    if !(0.0..=MAX_EM_TOLERANCE).contains(&options.em.tolerance) {
+        return Err(Error::InvalidOption(format!(
+            "EM tolerance {} (expected 0 to {MAX_EM_TOLERANCE})",
+            options.em.tolerance
+        )));
     }
     Ok(())
 }
@@ -584,6 +603,7 @@ fn bottom_up<M: Model>(
         placeholder_level()
     }];
     let steps = sizes.len().saturating_sub(1).max(1) as f64;
+    let cancel = progress.cancel_flag();
     for k in 1..sizes.len() {
         let (w, h) = sizes[k];
         let (pw, ph) = sizes[k - 1];
@@ -615,15 +635,19 @@ fn bottom_up<M: Model>(
                 }
             }
             let init = M::farthest_first(&g.candidates, j);
-            g.fit(&init, options, None)
+            g.fit(&init, options, None, cancel)
         };
         let mut out = LevelFit::with_capacity((w * h) as usize, j, textures, colors);
         for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK).min(w * h);
+            // Workers poll the cancellation flag between texels.
             let results: Vec<TexelFit<M::C>> = (lo..hi)
                 .into_par_iter()
-                .map_init(Gather::<M>::default, &fit_texel)
-                .collect();
+                .map_init(Gather::<M>::default, |g, t| {
+                    (!cancel.is_cancelled()).then(|| fit_texel(g, t))
+                })
+                .collect::<Option<_>>()
+                .ok_or(Error::Cancelled)?;
             for r in results {
                 out.push::<M>(r);
             }
@@ -710,6 +734,7 @@ fn top_down<M: Model>(
     let finest = (map.width(), map.height());
     let levels = sizes.len();
     let mut fits: Vec<Option<LevelFit<M::C>>> = (0..levels).map(|_| None).collect();
+    let cancel = progress.cancel_flag();
     for k in (0..levels).rev() {
         let (w, h) = sizes[k];
         let parent = fits.get(k + 1).and_then(|p| p.as_ref());
@@ -766,9 +791,13 @@ fn top_down<M: Model>(
                 continue;
             }
             let done = &out;
+            // Workers poll the cancellation flag between texels.
             let results: Vec<(u32, u32, TexelFit<M::C>)> = (y_lo..=y_hi)
                 .into_par_iter()
                 .map_init(Gather::<M>::default, |g, y| {
+                    if cancel.is_cancelled() {
+                        return None;
+                    }
                     let x = d - 2 * y;
                     let at = |xx: i64, yy: i64| -> Option<&[M::C]> {
                         if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
@@ -803,7 +832,7 @@ fn top_down<M: Model>(
                                 Some(p) => into_slots::<M>(fit, p),
                                 None => fit,
                             };
-                            return (x, y, fit);
+                            return Some((x, y, fit));
                         }
                     }
                     let init = match parent {
@@ -813,9 +842,10 @@ fn top_down<M: Model>(
                         }
                         None => own.to_vec(),
                     };
-                    (x, y, g.fit(&init, options, Some(&neighbours)))
+                    Some((x, y, g.fit(&init, options, Some(&neighbours), cancel)))
                 })
-                .collect();
+                .collect::<Option<_>>()
+                .ok_or(Error::Cancelled)?;
             for (x, y, fit) in results {
                 out.set::<M>((y * w + x) as usize, fit);
             }

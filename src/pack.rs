@@ -8,7 +8,7 @@
 //! format, and f16 refuses values beyond its range rather than storing infinity.
 //! Packed bytes are in the host's byte order, rows top to bottom: what `glTexImage2D` takes.
 
-use crate::bake::Bake;
+use crate::bake::{Bake, Method};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use half::f16;
@@ -43,6 +43,19 @@ fn from_unorm(c: f32, range: ValueRange, max: f32) -> f32 {
         ValueRange::Signed => 2.0 * u - 1.0,
         _ => u,
     }
+}
+
+/// Whether `format` can hold the textures a bake of `method` makes, whose value ranges are
+/// `ranges` (`methods::texture_ranges`), known before baking: unbounded channels need a float
+/// format. (Whether f16 holds every value is known only after: [`check`].)
+pub fn check_ranges(method: Method, ranges: &[[ValueRange; 4]], format: Format) -> Result<()> {
+    let unbounded = ranges.iter().any(|r| r.contains(&ValueRange::Any));
+    if unbounded && matches!(format, Format::Unorm16 | Format::Unorm8) {
+        return Err(Error::InvalidOption(format!(
+            "format {format} cannot hold the textures of {method} (unbounded values); use f16 or f32"
+        )));
+    }
+    Ok(())
 }
 
 /// Whether `format` can hold texture `texture` of `bake`: unbounded channels need a float

@@ -339,6 +339,8 @@ struct MixtureGrid {
     align_form: AlignmentForm,
     /// `false` = exact, `true` = approximate (vMF only).
     approximate: Vec<bool>,
+    /// The memory budget of every bake (`--memory`).
+    memory_limit: Option<u64>,
 }
 
 impl MixtureGrid {
@@ -358,6 +360,7 @@ impl MixtureGrid {
             align: parse_align(align)?,
             align_form: form.parse()?,
             approximate,
+            memory_limit: None,
         })
     }
 
@@ -374,6 +377,7 @@ impl MixtureGrid {
                         align,
                         align_form: self.align_form,
                         approximate,
+                        memory_limit: self.memory_limit,
                         ..BakeOptions::default()
                     });
                 }
@@ -398,7 +402,13 @@ fn bake_all(
                 jobs.push((m, o));
             }
         } else {
-            jobs.push((m, BakeOptions::default()));
+            jobs.push((
+                m,
+                BakeOptions {
+                    memory_limit: mixtures.memory_limit,
+                    ..BakeOptions::default()
+                },
+            ));
         }
     }
     jobs.into_iter()
@@ -434,20 +444,22 @@ fn run(cli: Cli) -> Result<()> {
             format,
             ingest,
         } => {
+            // Everything is checked before any work: the options, the format against the
+            // method, the input's header and the bake's memory estimate, then the decoding.
             let method: Method = method.parse()?;
             let format: Format = format.parse()?;
-            if let Some(c) = align.filter(|c| !(c.is_finite() && *c >= 0.0)) {
-                return Err(Error::InvalidOption(format!(
-                    "--align {c} (expected C >= 0)"
-                )));
-            }
             let options = BakeOptions {
                 lobes,
                 align,
                 align_form: align_form.parse()?,
                 approximate: fast,
+                memory_limit: ingest.memory_limit()?,
                 ..BakeOptions::default()
             };
+            let color = ingest.feature.is_some();
+            ndfmap::methods::check_options(method, &options, color, Some(format))?;
+            let (w, h) = ndfmap::ingest::probe_size(&input, &ingest.options()?)?;
+            ndfmap::methods::check_memory(w, h, method, &options, color)?;
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
             let b = bake_with(&map, method, &options)?;
@@ -472,13 +484,26 @@ fn run(cli: Cli) -> Result<()> {
             json,
             ingest,
         } => {
-            let mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
+            // Everything is checked before any work.
+            let mut mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
+            mixtures.memory_limit = ingest.memory_limit()?;
             check_exponents(&s)?;
+            if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+                return Err(Error::InvalidOption(format!(
+                    "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
+                )));
+            }
             let methods = parse_methods(&methods)?;
             let formats = formats
                 .iter()
                 .map(|f| f.trim().parse())
                 .collect::<Result<Vec<Format>>>()?;
+            let color = ingest.feature.is_some();
+            for &m in &methods {
+                for o in mixtures.options(m) {
+                    ndfmap::methods::check_options(m, &o, color, None)?;
+                }
+            }
             let (map, _) = ingest.load(&input)?;
             let mut bakes = Vec::new();
             for b in bake_all(&map, &methods, &mixtures, json)? {
@@ -491,11 +516,6 @@ fn run(cli: Cli) -> Result<()> {
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
-            if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
-                return Err(Error::InvalidOption(format!(
-                    "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
-                )));
-            }
             let brdfs: Vec<Brdf> = s
                 .iter()
                 .map(|&s| Brdf::BlinnPhong { s })
@@ -646,6 +666,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         align: vec![None],
         align_form: AlignmentForm::default(),
         approximate: vec![false],
+        memory_limit: None,
     };
     let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
     for b in &bakes {
@@ -1062,7 +1083,12 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("ndfmap: error: {e}");
+            // One line, whatever a decoder's message holds.
+            let text = e.to_string();
+            eprintln!(
+                "ndfmap: error: {}",
+                text.split_whitespace().collect::<Vec<_>>().join(" ")
+            );
             ExitCode::FAILURE
         }
     }

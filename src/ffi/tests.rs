@@ -144,7 +144,9 @@ fn status_numbers_and_names_are_stable() {
     assert_eq!(ndf_status::BufferTooSmall as u32, 4);
     assert_eq!(ndf_status::Cancelled as u32, 14);
     assert_eq!(ndf_status::Panic as u32, 15);
-    for unknown in [16, 1000, u32::MAX] {
+    assert_eq!(ndf_status::MemoryBudget as u32, 16);
+    assert_eq!(ndf_status::BadFeatures as u32, 17);
+    for unknown in [18, 1000, u32::MAX] {
         // SAFETY: as above.
         let name = unsafe { CStr::from_ptr(ndf_status_str(unknown)) };
         assert_eq!(name, c"NDF_STATUS_UNKNOWN");
@@ -590,7 +592,7 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
                     em_max_iterations: 0,
                     ..vmf
                 },
-                "at least one iteration",
+                "EM iterations 0 (expected 1 to 1000)",
             ),
             (
                 ndf_vmf_options {
