@@ -1017,6 +1017,7 @@ pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
                 let (w, h) = d
                     .dimensions()
                     .ok_or_else(|| decode_error(path, "no frame header"))?;
+                check_jpeg_structure(path, &bytes, w as u32, h as u32)?;
                 Ok((w as u32, h as u32))
             }
             Container::Image(f) => {
@@ -1214,19 +1215,7 @@ fn decode_jpeg(path: &Path, bytes: &[u8], budget: &Budget) -> Result<Decoded> {
         .ok_or_else(|| decode_error(path, "no frame header"))?;
     check_dimensions(&what, w as u64, h as u64)?;
     let (width, height) = (w as u32, h as u32);
-    let coded_bytes = jpeg_structure(bytes).map_err(|m| decode_error(path, &m))?;
-    // Every 8×8 block of the first component takes at least one bit (its DC code); a block
-    // covers at most 32×32 pixels (sampling factors ≤ 4).
-    let min_bits = (w as u64).div_ceil(32) * (h as u64).div_ceil(32);
-    if coded_bytes.saturating_mul(8) < min_bits {
-        return Err(decode_error(
-            path,
-            &format!(
-                "truncated or corrupt: {coded_bytes} bytes of coded data cannot hold a \
-                 {width}x{height} image"
-            ),
-        ));
-    }
+    check_jpeg_structure(path, bytes, width, height)?;
     let grey = matches!(
         decoder.input_colorspace(),
         Some(ColorSpace::Luma | ColorSpace::LumaA)
@@ -1255,6 +1244,26 @@ fn decode_jpeg(path: &Path, bytes: &[u8], budget: &Budget) -> Result<Decoded> {
         luma_alpha: false,
         samples: SampleBuf::U8(data),
     })
+}
+
+/// Checks a JPEG declaring `width`×`height` before decoding it: its marker structure ends with
+/// an end-of-image marker ([`jpeg_structure`]) and it holds enough coded bits for that size
+/// (a decompression bomb's header claims far more than its data can hold).
+fn check_jpeg_structure(path: &Path, bytes: &[u8], width: u32, height: u32) -> Result<()> {
+    let coded_bytes = jpeg_structure(bytes).map_err(|m| decode_error(path, &m))?;
+    // Every 8×8 block of the first component takes at least one bit (its DC code); a block
+    // covers at most 32×32 pixels (sampling factors ≤ 4).
+    let min_bits = (width as u64).div_ceil(32) * (height as u64).div_ceil(32);
+    if coded_bytes.saturating_mul(8) < min_bits {
+        return Err(decode_error(
+            path,
+            &format!(
+                "truncated or corrupt: {coded_bytes} bytes of coded data cannot hold a \
+                 {width}x{height} image"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Walks a JPEG's marker segments and returns the number of bytes of entropy-coded data;

@@ -459,7 +459,18 @@ fn run(cli: Cli) -> Result<()> {
             let color = ingest.feature.is_some();
             ndfmap::methods::check_options(method, &options, color, Some(format))?;
             let (w, h) = ndfmap::ingest::probe_size(&input, &ingest.options()?)?;
-            ndfmap::methods::check_memory(w, h, method, &options, color)?;
+            ndfmap::methods::check_memory(w, h, method, &options, color).map_err(|e| match e {
+                Error::MemoryBudget {
+                    what,
+                    needed,
+                    limit,
+                } => Error::MemoryBudget {
+                    what: format!("{}: {what}", input.display()),
+                    needed,
+                    limit,
+                },
+                e => e,
+            })?;
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
             let b = bake_with(&map, method, &options)?;
