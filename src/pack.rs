@@ -130,12 +130,17 @@ pub fn round_trip(v: f32, range: ValueRange, format: Format) -> f32 {
 /// The bake as a GPU sampling `format` textures sees it: every value rounded through the
 /// format, and [`Bake::format`] set so shading applies the format's clamps.
 pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
+    quantize_into(bake.clone(), format)
+}
+
+/// [`quantize`] in place: the bake's own texels are rounded, so that no second copy of its
+/// textures is held (what a writer of a large bake wants).
+pub fn quantize_into(mut bake: Bake, format: Format) -> Result<Bake> {
     use rayon::prelude::*;
     for i in 0..bake.textures.len() {
-        check(bake, i, format)?;
+        check(&bake, i, format)?;
     }
-    let mut out = bake.clone();
-    for t in &mut out.textures {
+    for t in &mut bake.textures {
         let ranges = t.ranges;
         for level in &mut t.levels {
             // Each value on its own: the same result for any split and thread count.
@@ -148,8 +153,8 @@ pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
             });
         }
     }
-    out.format = format;
-    Ok(out)
+    bake.format = format;
+    Ok(bake)
 }
 
 #[cfg(test)]

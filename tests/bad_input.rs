@@ -53,6 +53,9 @@
 //!   `a_panic_inside_any_entry_point_is_a_status_not_an_unwind`); C consumers under valgrind:
 //!   `tests/c_api.rs` `consumers_run_clean_under_valgrind`.
 
+mod common;
+
+use common::{assert_one_line_error, ndfmap, ndfmap_with};
 use glam::Vec3;
 use ndfmap::Error;
 use ndfmap::bake::{BakeOptions, Method};
@@ -65,34 +68,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn ndfmap(args: &[&str]) -> Output {
-    ndfmap_with(args, &[])
-}
-
-fn ndfmap_with(args: &[&str], env: &[(&str, &str)]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ndfmap"))
-        .args(args)
-        .envs(env.iter().copied())
-        .output()
-        .expect("runs ndfmap")
-}
-
-/// Asserts a failed run with exactly one stderr line that contains every `needle`.
-fn assert_one_line_error(out: &Output, needles: &[&str]) {
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !out.status.success(),
-        "expected failure, got success: {err}"
-    );
-    let lines: Vec<_> = err.lines().collect();
-    assert_eq!(lines.len(), 1, "one line expected, got: {err:?}");
-    assert!(lines[0].starts_with("ndfmap: error: "), "{err}");
-    for n in needles {
-        assert!(lines[0].contains(n), "'{n}' missing from: {err}");
-    }
-    assert!(!err.contains("panicked"), "{err}");
-}
 
 fn assert_success(out: &Output) {
     assert!(
@@ -115,6 +90,14 @@ fn normal_image(w: u32, h: u32) -> image::RgbImage {
 
 fn write_png(path: &Path, w: u32, h: u32) {
     normal_image(w, h).save(path).unwrap();
+}
+
+/// A temporary folder holding `n.png`, a `w`×`h` normal map, and that file's path.
+fn folder_with_map(w: u32, h: u32) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_png(&input, w, h);
+    (dir, input)
 }
 
 fn jpeg_bytes(w: u32, h: u32) -> Vec<u8> {
@@ -425,9 +408,7 @@ const GREENS: [&str; 2] = ["opengl", "directx"];
 
 impl Race {
     fn new() -> Race {
-        let dir = tempfile::tempdir().unwrap();
-        let input = dir.path().join("n.png");
-        write_png(&input, 256, 8);
+        let (dir, input) = folder_with_map(256, 8);
         image::RgbImage::from_fn(256, 8, |x, y| {
             image::Rgb([(x * 4) as u8, (y * 5) as u8, 90])
         })
@@ -612,9 +593,7 @@ fn stale_staging_folders_of_dead_writers_are_removed() {
 /// manifest. The folder now holds exactly what its manifest lists.
 #[test]
 fn rebaking_leaves_no_file_the_manifest_does_not_list() {
-    let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("n.png");
-    write_png(&input, 16, 16);
+    let (dir, input) = folder_with_map(16, 16);
     let out = dir.path().join("out");
     for lobes in ["4", "2"] {
         let args = [
@@ -637,9 +616,7 @@ fn rebaking_leaves_no_file_the_manifest_does_not_list() {
 /// A folder holding files no bake wrote is not replaced (the user's files are not deleted).
 #[test]
 fn a_folder_of_other_files_is_not_replaced() {
-    let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("n.png");
-    write_png(&input, 8, 8);
+    let (dir, input) = folder_with_map(8, 8);
     let out = dir.path().join("docs");
     std::fs::create_dir(&out).unwrap();
     std::fs::write(out.join("notes.txt"), b"mine").unwrap();
@@ -656,9 +633,7 @@ fn a_folder_of_other_files_is_not_replaced() {
 /// runs (f32 and f16 OpenEXR, unorm8 PNG).
 #[test]
 fn files_are_byte_identical_across_thread_counts_and_runs() {
-    let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("n.png");
-    write_png(&input, 512, 384);
+    let (dir, input) = folder_with_map(512, 384);
     for format in ["f32", "f16", "unorm8"] {
         let mut first: Option<BTreeMap<String, Vec<u8>>> = None;
         for (run, threads) in ["1", "2", "2", "1", "2"].iter().enumerate() {

@@ -35,7 +35,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Time the vMF bake (and Toksvig's, for scale) on the built-in sample at several sizes and
-    /// lobe counts: wall seconds and peak memory per run.
+    /// lobe counts: wall seconds, peak memory and the memory budget's estimate per run.
     Bench {
         /// Map sizes (square), comma-separated.
         #[arg(long, default_value = "256,512,1024", value_delimiter = ',')]
@@ -474,10 +474,8 @@ fn run(cli: Cli) -> Result<()> {
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
             let b = bake_with(&map, method, &options)?;
-            let b = match format {
-                Format::F32 => b,
-                f => ndfmap::pack::quantize(&b, f)?,
-            };
+            drop(map); // what the bake needs of it is done: less memory while writing
+            let b = ndfmap::pack::quantize_into(b, format)?;
             let seconds = t.elapsed().as_secs_f64();
             let manifest = write_bake(&b, info, &output)?;
             println!("baked {method} in {seconds:.3} s: {}", manifest.display());
@@ -721,8 +719,8 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>6} {:>10} {:>12}",
-            "size", "method", "lobes", "aligned", "mode", "seconds", "peak MiB"
+            "{:>6} {:>8} {:>6} {:>9} {:>6} {:>10} {:>12} {:>14}",
+            "size", "method", "lobes", "aligned", "mode", "seconds", "peak MiB", "estimate MiB"
         );
     }
     for &size in sizes {
@@ -757,6 +755,8 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
             let seconds = t.elapsed().as_secs_f64();
             let peak = peak_memory();
             drop(b);
+            // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
+            let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
             let lobes = if method == Method::Vmf {
                 options.lobes
             } else {
@@ -765,18 +765,20 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
             let row = serde_json::json!({
                 "size": size, "method": method, "lobes": lobes,
                 "align": options.align, "approximate": options.approximate, "seconds": seconds,
-                "peak_bytes": peak, "baseline_bytes": base, "threads": threads,
+                "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
+                "threads": threads,
             });
             if !json {
                 let mib = |b: Option<u64>| {
                     b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
                 };
                 println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>6} {seconds:>10.3} {:>12}",
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>6} {seconds:>10.3} {:>12} {:>14}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
                     if options.approximate { "fast" } else { "exact" },
-                    mib(peak)
+                    mib(peak),
+                    mib(Some(estimate))
                 );
             }
             rows.push(row);
