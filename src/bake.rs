@@ -230,8 +230,8 @@ impl Default for BakeOptions {
     }
 }
 
-/// How often a running bake calls its progress callback at least (when the callback is not
-/// called from inside a rayon pool, see [`run_with_progress`]), so that it can cancel.
+/// How often a running bake calls its progress callback at least, so that it can cancel (unless
+/// the bake was started on a thread of a rayon pool, see `methods::bake_with_progress`).
 pub const PROGRESS_POLL: Duration = Duration::from_millis(50);
 
 /// A bake's cancellation request: set when the progress callback says stop, read by every

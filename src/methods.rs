@@ -60,9 +60,10 @@ pub fn check_options(
 
 /// Peak memory of a bake, in bytes per texel of the finest level: `base + per_lobe × J`, and
 /// with a feature (colour) image `color_base + color_per_lobe × J` more (the baselines have
-/// no lobes and no colour). Measured as the peak resident memory of the whole `ndfmap bake`
-/// command (decoding a PNG, the bake, writing f32 files) on the built-in sample at 512², 1024²
-/// and 2048² (per-texel peaks are the same at every size), then rounded up by 10–25 %.
+/// no lobes and no colour). Calibrated on the peak resident memory of the whole `ndfmap bake`
+/// command (`/usr/bin/time -f %M`: decoding the PNG, the bake, quantizing and writing the files)
+/// on the built-in sample at 512², 1024² and 2048², whose peaks per texel are the same at every
+/// size, then rounded up so that the estimate lies 15–25 % above every measured peak.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PeakPerTexel {
     /// Bytes per texel whatever the lobe count.
@@ -88,14 +89,22 @@ impl PeakPerTexel {
     }
 }
 
-/// The vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or fast).
-/// Measured (bytes per texel, J = 1 / 6 / 8, 1024²): 115 / 290 / 366 unaligned without colour,
-/// 96 / 310 / 409 aligned, 168 / 451 / 567 unaligned with colour, 148 / 454 / 596 aligned with
-/// colour, 373 (J = 6, fast, colour); 512²: 477 (J = 6, colour), 639 (J = 8, aligned, colour).
-/// The estimate gives 140 / 360 / 448 without colour and 212 / 552 / 688 with it.
+/// The vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or fast, any
+/// storage format). Measured peaks against the estimate ([`estimate_peak_bytes`]), MiB:
 ///
-/// Update it when the vMF bake's memory changes (measure with `ndfmap bench`, which prints the
-/// peak per configuration, or with `/usr/bin/time -f %M ndfmap bake ...`).
+/// | map | configuration | measured | estimate |
+/// |---|---|---|---|
+/// | 1024² | J = 1, aligned, colour | 161 | 276 |
+/// | 1024² | J = 6, unaligned | 315 | 424 |
+/// | 1024² | J = 6, unaligned, colour, f16 | 473 | 616 |
+/// | 1024² | J = 6, aligned, colour (f32, f16) | 494, 495 | 616 |
+/// | 1024² | J = 6, aligned, colour, fast, unorm8 | 504 | 616 |
+/// | 1024² | J = 8, aligned, colour, f16 | 632 | 752 |
+/// | 512² | J = 8, aligned, colour, f16 | 181 | 236 |
+/// | 2048² | J = 6, aligned, colour | 1855 | 2272 |
+///
+/// Update it when the vMF bake's memory changes (`ndfmap bench` prints the measured peak and
+/// this estimate side by side; `/usr/bin/time -f %M ndfmap bake ...` gives the whole command's).
 pub const VMF_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
     base: 96,
     per_lobe: 44,
@@ -103,18 +112,18 @@ pub const VMF_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
     color_per_lobe: 24,
 };
 
-/// The Tan 2005 bake's peak memory per texel. Measured (1024², bytes per texel): J = 4: 201
-/// unaligned, 193 aligned; J = 8: 334 unaligned, 367 aligned. The estimate gives 224 and 384.
+/// The Tan 2005 bake's peak memory per texel. Measured at 1024² against the estimate, MiB:
+/// J = 8 aligned 393 (480); J = 4 unaligned with colour 340 (448).
 pub const TAN2005_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
     base: 64,
-    per_lobe: 40,
+    per_lobe: 44,
     color_base: 48,
     color_per_lobe: 24,
 };
 
 /// The baselines' peak memory per texel per moment they average (plain and Toksvig 3, LEAN
-/// 5, Olano–North 9), plus [`BASELINE_PEAK_BASE`]. Measured at 2048² (bytes per texel): plain
-/// and Toksvig 76, LEAN 123, Olano–North 204; the estimate gives 88, 136 and 232.
+/// 5, Olano–North 9), plus [`BASELINE_PEAK_BASE`]. Measured against the estimate, MiB: plain
+/// 1024² 86 (152), 2048² 320 (416); Olano–North 1024² 214 (296), 2048² 831 (992).
 pub const BASELINE_PEAK_PER_MOMENT: u64 = 24;
 
 /// The baselines' peak memory per texel whatever their moments.
@@ -128,7 +137,7 @@ pub const PEAK_FIXED_BYTES: u64 = 64 << 20;
 /// `options` (with a feature image when `color`), including the decoded map and writing the
 /// result: [`PEAK_FIXED_BYTES`] plus the method's bytes per texel ([`VMF_PEAK_PER_TEXEL`],
 /// [`TAN2005_PEAK_PER_TEXEL`], the baselines' per moment) times `width × height`. Conservative:
-/// the calibration's measured peaks lie 10–25 % below it.
+/// the calibration's measured peaks lie 15–25 % below it (more for small maps).
 pub fn estimate_peak_bytes(
     width: u32,
     height: u32,
