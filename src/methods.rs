@@ -246,6 +246,49 @@ mod tests {
         ]
     }
 
+    /// The peaks measured for the calibration (MiB, `VMF_PEAK_PER_TEXEL`'s table and the
+    /// others): the estimate must stay above each, by at least 10 %.
+    #[test]
+    fn estimates_stay_above_the_measured_peaks() {
+        let o = |lobes, align| BakeOptions {
+            lobes,
+            align,
+            ..BakeOptions::default()
+        };
+        let measured: [(u32, Method, BakeOptions, bool, u64); 13] = [
+            (1024, Method::Vmf, o(1, Some(1.0)), true, 161),
+            (1024, Method::Vmf, o(6, None), false, 315),
+            (1024, Method::Vmf, o(6, None), true, 473),
+            (1024, Method::Vmf, o(6, Some(1.0)), true, 495),
+            (1024, Method::Vmf, o(8, Some(1.0)), true, 632),
+            (512, Method::Vmf, o(8, Some(1.0)), true, 181),
+            (2048, Method::Vmf, o(6, Some(1.0)), true, 1855),
+            (1024, Method::Tan2005, o(8, Some(1.0)), false, 393),
+            (1024, Method::Tan2005, o(4, None), true, 340),
+            (1024, Method::Plain, o(6, None), false, 86),
+            (2048, Method::Plain, o(6, None), false, 320),
+            (1024, Method::Olano, o(6, None), false, 214),
+            (2048, Method::Olano, o(6, None), false, 831),
+        ];
+        for (size, method, options, color, mib) in measured {
+            let estimate = estimate_peak_bytes(size, size, method, &options, color);
+            assert!(
+                estimate as f64 >= 1.1 * (mib << 20) as f64,
+                "{method} {size}² J={}: {} MiB estimated, {mib} MiB measured",
+                options.lobes,
+                estimate >> 20
+            );
+        }
+        // More texels, lobes or colour never need less.
+        let base = estimate_peak_bytes(512, 512, Method::Vmf, &o(6, None), false);
+        assert!(estimate_peak_bytes(1024, 512, Method::Vmf, &o(6, None), false) > base);
+        assert!(estimate_peak_bytes(512, 512, Method::Vmf, &o(7, None), false) > base);
+        assert!(estimate_peak_bytes(512, 512, Method::Vmf, &o(6, None), true) > base);
+        // The largest map (2^28 texels) with the most lobes: hundreds of GiB, no overflow.
+        let huge = estimate_peak_bytes(65536, 4096, Method::Vmf, &o(8, None), true);
+        assert!(huge > 100 << 30);
+    }
+
     #[test]
     fn progress_rises_from_zero_to_one_and_leaves_the_bake_unchanged() {
         // 512²: level 1 has four chunks of PROGRESS_CHUNK texels.
