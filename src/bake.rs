@@ -326,9 +326,9 @@ impl<'a> Progress<'a> {
 /// [`CancelFlag`] is set, and the result is [`Error::Cancelled`] (after `work` has stopped, at
 /// its next poll of the flag).
 ///
-/// `work` runs on a thread of its own (its parallel parts on the global rayon pool) while the
-/// calling thread waits for its reports and polls the callback. When the caller is itself a
-/// thread of a rayon pool (a bake started from parallel code, as the report's sweeps do), the
+/// `work` runs as a job of the global rayon pool (no thread is created) while the calling
+/// thread waits for its reports and polls the callback. When the caller is itself a thread of
+/// a rayon pool (a bake started from parallel code, as the report's sweeps do), the
 /// work runs on the calling thread instead: blocking a pool thread until pool work finishes
 /// can deadlock when every pool thread does it. The callback is then called only when `work`
 /// reports (between chunks of texels), and cancellation takes effect there.
@@ -348,16 +348,19 @@ pub(crate) fn run_with_progress<T: Send>(
         return work(&mut progress);
     }
     let (to_caller, reports) = mpsc::channel::<f32>();
-    std::thread::scope(|scope| {
+    let mut outcome = None;
+    // The work is a job of the global pool; this thread polls the callback meanwhile.
+    let stopped = rayon::in_place_scope(|scope| {
         let cancel = &cancel;
+        let outcome = &mut outcome;
         let _stop_on_panic = CancelOnDrop(cancel);
-        let worker = scope.spawn(move || {
+        scope.spawn(move |_| {
             let mut progress = Progress {
                 sink: Sink::Caller(to_caller),
                 cancel,
                 reported: -1.0,
             };
-            work(&mut progress)
+            *outcome = Some(work(&mut progress));
         });
         let mut last = None;
         let mut stopped = false;
@@ -365,6 +368,7 @@ pub(crate) fn run_with_progress<T: Send>(
             let fraction = match reports.recv_timeout(PROGRESS_POLL) {
                 Ok(f) => Some(f),
                 Err(mpsc::RecvTimeoutError::Timeout) => last,
+                // The work has ended (its `Progress` is gone).
                 Err(mpsc::RecvTimeoutError::Disconnected) => break,
             };
             if let Some(f) = fraction.filter(|_| !stopped) {
@@ -375,13 +379,13 @@ pub(crate) fn run_with_progress<T: Send>(
                 }
             }
         }
-        let result = worker
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-        if stopped {
-            Err(Error::Cancelled)
-        } else {
-            result
-        }
-    })
+        stopped
+    });
+    // A panic of the work has been resumed by the scope: here the outcome is set.
+    let result = outcome.expect("the bake's job ran to its end");
+    if stopped {
+        Err(Error::Cancelled)
+    } else {
+        result
+    }
 }

@@ -227,7 +227,6 @@ impl Model for TanModel {
         cancel: &CancelFlag,
     ) -> TexelFit<Gaussian> {
         let _ = cancel; // as for vMF: polled between texels
-
         let alignment = neighbours.map(|neighbours| GaussianAlignment {
             strength: options.align.unwrap_or(0.0),
             neighbours,
