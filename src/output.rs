@@ -195,8 +195,9 @@ fn write_level(
 }
 
 /// Writes an RGBA OpenEXR file: run-length encoded 64×64 tiles (the `exr` crate's default
-/// encoding) in increasing order, so that the chunks, and the file's bytes, do not depend on
-/// which compression thread finishes first.
+/// encoding) in increasing order, compressed on the calling thread (the files of a bake are
+/// written in parallel instead: `exr`'s parallel writer starts a thread pool per file and
+/// writes its chunks in the order they finish), so the file's bytes depend only on its texels.
 fn write_exr<S: exr::prelude::IntoSample>(
     path: &Path,
     w: u32,
@@ -213,6 +214,7 @@ fn write_exr<S: exr::prelude::IntoSample>(
     let channels = SpecificChannels::rgba(|Vec2(x, y): Vec2<usize>| px(x, y));
     Image::from_encoded_channels((w as usize, h as usize), encoding, channels)
         .write()
+        .non_parallel()
         .to_file(path)
         .map_err(|e| e.to_string())
 }
@@ -237,17 +239,34 @@ pub fn write_bake(bake: &Bake, input: InputInfo, dir: &Path) -> Result<PathBuf> 
     let manifest = Manifest::new(bake, input);
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| write_err(dir, e))?;
     write_folder(dir, |staging| {
-        for (t, info) in bake.textures.iter().zip(&manifest.textures) {
-            for (k, level) in t.levels.iter().enumerate() {
+        use rayon::prelude::*;
+        // One job per file, in parallel; each file is written alone (same bytes for any thread
+        // count), and the first failure in file order is the one reported.
+        let files: Vec<(usize, usize)> = (0..bake.textures.len())
+            .flat_map(|t| (0..bake.sizes.len()).map(move |k| (t, k)))
+            .collect();
+        let results: Vec<Result<()>> = files
+            .par_iter()
+            .map(|&(t, k)| {
+                let (texture, name) = (&bake.textures[t], &manifest.textures[t].files[k]);
                 let (w, h) = bake.sizes[k];
-                let path = staging.join(&info.files[k]);
+                let level = &texture.levels[k];
+                write_level(
+                    &staging.join(name),
+                    w,
+                    h,
+                    level,
+                    texture.ranges,
+                    bake.format,
+                )
                 // Name the final file in the error, not the staging copy.
-                write_level(&path, w, h, level, t.ranges, bake.format).map_err(|e| match e {
-                    Error::Write { message, .. } => write_err(&dir.join(&info.files[k]), message),
+                .map_err(|e| match e {
+                    Error::Write { message, .. } => write_err(&dir.join(name), message),
                     other => other,
-                })?;
-            }
-        }
+                })
+            })
+            .collect();
+        results.into_iter().collect::<Result<()>>()?;
         let staged = staging.join(MANIFEST);
         std::fs::write(&staged, json + "\n").map_err(|e| write_err(&dir.join(MANIFEST), e))
     })?;
