@@ -112,6 +112,17 @@ enum ndf_status
    * Handles passed to the call are still valid; the call had no other effect.
    */
   NDF_STATUS_PANIC = 15,
+  /**
+   * Decoding the file or running the bake would need more memory than the budget
+   * (`memory_limit` of the options, or half the machine's memory by default); refused before
+   * allocating. The message names the size, the estimate and the budget.
+   */
+  NDF_STATUS_MEMORY_BUDGET = 16,
+  /**
+   * A feature (colour) image has NaN, infinite or negative values with
+   * `NDF_BAD_NORMALS_REJECT`.
+   */
+  NDF_STATUS_BAD_FEATURES = 17,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -200,6 +211,12 @@ typedef struct ndf_ingest_options {
    * Feature image encoding, `NDF_FEATURE_ENCODING_*`. Default `NDF_FEATURE_ENCODING_SRGB`.
    */
   ndf_feature_encoding feature_encoding;
+  /**
+   * Memory budget of one load in bytes: a file whose decoding would need more (estimated
+   * from its header, before decoding) fails with `NDF_STATUS_MEMORY_BUDGET`. Default 0: half
+   * the machine's memory (its control group's limit when lower).
+   */
+  uint64_t memory_limit;
 } ndf_ingest_options;
 
 /**
@@ -208,9 +225,12 @@ typedef struct ndf_ingest_options {
 typedef uint32_t ndf_sample_type;
 
 /**
- * A progress callback, called on the thread that called the bake, between chunks of work,
- * with the fraction done: first 0, then increasing, last 1. Return nonzero to go on, 0 to
- * cancel (the bake then fails with `NDF_STATUS_CANCELLED` and makes no handle).
+ * A progress callback, called on the thread that called the bake with the fraction done:
+ * first 0, then non-decreasing (the same value again while a long piece of work runs: it is
+ * called at least every 50 ms while the bake runs, unless the bake was called from a thread
+ * of a Rust rayon pool), last 1. Return nonzero to go on, 0 to cancel: the bake stops within
+ * a fraction of a second, fails with `NDF_STATUS_CANCELLED` and makes no handle, and the
+ * callback is not called again.
  * `user_data` is the options' `progress_user_data`. The callback must not throw (C++) and must
  * not call back into the bake being made.
  */
@@ -233,6 +253,12 @@ typedef struct ndf_baseline_options {
    * Passed to `progress` unchanged. Default NULL.
    */
   void *progress_user_data;
+  /**
+   * Memory budget of the bake in bytes: a bake whose estimated peak (from the map's size and
+   * the method) exceeds it fails with `NDF_STATUS_MEMORY_BUDGET` before it starts. Default
+   * 0: half the machine's memory (its control group's limit when lower).
+   */
+  uint64_t memory_limit;
 } ndf_baseline_options;
 
 /**
@@ -270,8 +296,8 @@ typedef struct ndf_vmf_options {
    */
   uint32_t aligned;
   /**
-   * Alignment strength C when `aligned`, finite and ≥ 0. Default 1 (for eq 29; use about
-   * 0.1 with `NDF_ALIGN_FORM_MAIN_TEXT`).
+   * Alignment strength C when `aligned`, 0 to 1000. Default 1 (for eq 29; use about 0.1
+   * with `NDF_ALIGN_FORM_MAIN_TEXT`).
    */
   double align_strength;
   /**
@@ -285,13 +311,13 @@ typedef struct ndf_vmf_options {
    */
   ndf_fit_mode mode;
   /**
-   * Most EM iterations per texel, at least 1: the cap of `NDF_FIT_EXACT`, an upper bound
+   * Most EM iterations per texel, 1 to 1000: the cap of `NDF_FIT_EXACT`, an upper bound
    * for the other modes. Default 20.
    */
   uint32_t em_max_iterations;
   /**
-   * EM convergence tolerance on the mean log-likelihood, ≥ 0: that of `NDF_FIT_EXACT`, a
-   * lower bound for the other modes. Default 1e-6.
+   * EM convergence tolerance on the mean log-likelihood, 0 to 1: that of `NDF_FIT_EXACT`,
+   * a lower bound for the other modes. Default 1e-6.
    */
   double em_tolerance;
   /**
@@ -306,6 +332,11 @@ typedef struct ndf_vmf_options {
    * Passed to `progress` unchanged. Default NULL.
    */
   void *progress_user_data;
+  /**
+   * Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+   * machine's memory.
+   */
+  uint64_t memory_limit;
 } ndf_vmf_options;
 
 /**
@@ -326,15 +357,15 @@ typedef struct ndf_tan2005_options {
    */
   uint32_t aligned;
   /**
-   * Prior strength c when `aligned`, finite and ≥ 0. Default 1 (Tan's choice).
+   * Prior strength c when `aligned`, 0 to 1000. Default 1 (Tan's choice).
    */
   double align_strength;
   /**
-   * Most EM iterations per texel, at least 1. Default 20.
+   * Most EM iterations per texel, 1 to 1000. Default 20.
    */
   uint32_t em_max_iterations;
   /**
-   * EM convergence tolerance, ≥ 0. Default 1e-6.
+   * EM convergence tolerance, 0 to 1. Default 1e-6.
    */
   double em_tolerance;
   /**
@@ -345,6 +376,11 @@ typedef struct ndf_tan2005_options {
    * Passed to `progress` unchanged. Default NULL.
    */
   void *progress_user_data;
+  /**
+   * Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+   * machine's memory.
+   */
+  uint64_t memory_limit;
 } ndf_tan2005_options;
 
 /**

@@ -13,6 +13,9 @@ use crate::ingest::Addressing;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::Duration;
 
 /// The filtering methods ndfmap bakes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -174,15 +177,30 @@ impl Bake {
     }
 }
 
-/// Options of the mixture methods (ignored by the baselines).
+/// Most EM iterations per texel a bake accepts ([`crate::em::EmOptions::max_iterations`]): far
+/// beyond what converges (the paper: "we seldom need more than 10"; the default is 20), and
+/// small enough that every texel's fit ends.
+pub const MAX_EM_ITERATIONS: u32 = 1000;
+
+/// Largest EM convergence tolerance a bake accepts ([`crate::em::EmOptions::tolerance`], a
+/// relative change of the mean log-likelihood); the range is 0 to this.
+pub const MAX_EM_TOLERANCE: f64 = 1.0;
+
+/// Largest alignment strength C a bake accepts ([`BakeOptions::align`]): a thousand times the
+/// useful values (eq 29: about 1, eq 23: about 0.1, Tan 2005's prior: 1).
+pub const MAX_ALIGN_STRENGTH: f64 = 1000.0;
+
+/// Options of a bake: the mixture methods' parameters (ignored by the baselines) and the
+/// memory budget (every method). Every value has a documented range, checked before any work
+/// ([`Error::InvalidOption`] otherwise).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeOptions {
     /// Lobes per texel, J, 1 to [`crate::em::MAX_LOBES`] (default 6, the paper's choice).
     pub lobes: usize,
     /// Coherent lobes for hardware interpolation (Sec 7.3): `Some(C)` fits from the coarsest
     /// level down, pulling each lobe towards the same lobe of already-fitted neighbours with
-    /// strength C (vMF: see [`BakeOptions::align_form`]; Tan 2005: its prior's c); `None` fits
-    /// each texel on its own from the finest level up (unaligned).
+    /// strength C, 0 to [`MAX_ALIGN_STRENGTH`] (vMF: see [`BakeOptions::align_form`]; Tan 2005:
+    /// its prior's c); `None` fits each texel on its own from the finest level up (unaligned).
     pub align: Option<f64>,
     /// vMF: which M-step maximizes the coherence prior, eq 29 (the default, C ≈ 1) or eq 23
     /// (C ≈ 0.1). Ignored without `align` and by Tan 2005.
@@ -191,10 +209,15 @@ pub struct BakeOptions {
     /// covered normals follow the start from the finer level's lobes. Tan 2005 ignores it
     /// and runs `em` as given.
     pub mode: FitMode,
-    /// EM options: precision, κ estimator, over-relaxation, and the iteration cap and
-    /// convergence tolerance that [`FitMode::Exact`] uses as they are and the other modes
-    /// tighten ([`FitMode::passes`]).
+    /// EM options: precision, κ estimator, over-relaxation, and the iteration cap (1 to
+    /// [`MAX_EM_ITERATIONS`]) and convergence tolerance (0 to [`MAX_EM_TOLERANCE`]) that
+    /// [`FitMode::Exact`] uses as they are and the other modes tighten ([`FitMode::passes`]).
     pub em: crate::em::EmOptions,
+    /// Memory budget of the bake in bytes: a bake whose estimated peak (`methods`'
+    /// `estimate_peak_bytes`, from the map's size and these options) exceeds it is refused
+    /// with [`Error::MemoryBudget`] before it starts. `None` (default): the machine's default
+    /// ([`crate::budget::default_memory_limit`]).
+    pub memory_limit: Option<u64>,
 }
 
 /// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
@@ -292,30 +315,79 @@ impl Default for BakeOptions {
             align_form: crate::em::AlignmentForm::default(),
             mode: FitMode::default(),
             em: crate::em::EmOptions::default(),
+            memory_limit: None,
         }
     }
 }
 
-/// A bake's progress reporting: forwards the fraction done to the caller's callback (at most
-/// once per 0.1 % of progress, plus the first and the last call) and turns "stop" into
-/// [`Error::Cancelled`].
+/// How often a running bake calls its progress callback at least, so that it can cancel (unless
+/// the bake was started on a thread of a rayon pool, see `methods::bake_with_progress`).
+pub const PROGRESS_POLL: Duration = Duration::from_millis(50);
+
+/// A bake's cancellation request: set when the progress callback says stop, read by every
+/// worker between texels (one relaxed atomic load: cheap enough to poll per texel or per EM
+/// iteration). `Sync`; borrowed from [`Progress::cancel_flag`].
+#[derive(Debug, Default)]
+pub(crate) struct CancelFlag(AtomicBool);
+
+impl CancelFlag {
+    /// Whether the bake was cancelled; work should stop as soon as it can.
+    pub(crate) fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    /// The flag itself, for [`crate::em::EmInput::with_cancel`].
+    pub(crate) fn as_atomic(&self) -> &AtomicBool {
+        &self.0
+    }
+
+    /// [`Error::Cancelled`] once cancelled.
+    pub(crate) fn check(&self) -> Result<()> {
+        if self.is_cancelled() {
+            Err(Error::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+
+    fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Sets the flag when dropped: a panic on the thread that polls the callback stops the work.
+struct CancelOnDrop<'a>(&'a CancelFlag);
+
+impl Drop for CancelOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.cancel();
+    }
+}
+
+/// Where [`Progress::report`] sends the fraction done.
+enum Sink<'a> {
+    /// The caller's callback, called directly (the work runs on the caller's thread).
+    Callback(&'a mut dyn FnMut(f32) -> bool),
+    /// The calling thread, which calls the callback (the work runs on a thread of its own).
+    Caller(mpsc::Sender<f32>),
+}
+
+/// A bake's progress reporting, as the methods see it: [`Progress::report`] passes the fraction
+/// done on (at most once per 0.1 % of progress, plus the first and the last call) and fails with
+/// [`Error::Cancelled`] once the callback has said stop; [`Progress::cancel_flag`] is what
+/// workers poll between texels. Made by [`run_with_progress`].
 pub(crate) struct Progress<'a> {
-    callback: &'a mut dyn FnMut(f32) -> bool,
-    /// The last fraction passed to the callback (−1 before the first call).
+    sink: Sink<'a>,
+    cancel: &'a CancelFlag,
+    /// The last fraction passed on (−1 before the first).
     reported: f32,
 }
 
 impl<'a> Progress<'a> {
-    /// Reports to `callback`.
-    pub(crate) fn new(callback: &'a mut dyn FnMut(f32) -> bool) -> Self {
-        Progress {
-            callback,
-            reported: -1.0,
-        }
-    }
-
     /// Reports that `fraction` (0 to 1) of the whole bake is done; fractions never go back.
+    /// Fails with [`Error::Cancelled`] once the bake is cancelled.
     pub(crate) fn report(&mut self, fraction: f64) -> Result<()> {
+        self.cancel.check()?;
         let f = (fraction.clamp(0.0, 1.0) as f32).max(self.reported.max(0.0));
         let first = self.reported < 0.0;
         let finished = f == 1.0 && self.reported < 1.0;
@@ -323,10 +395,92 @@ impl<'a> Progress<'a> {
             return Ok(());
         }
         self.reported = f;
-        if (self.callback)(f) {
-            Ok(())
-        } else {
-            Err(Error::Cancelled)
+        match &mut self.sink {
+            Sink::Callback(callback) => {
+                if !callback(f) {
+                    self.cancel.cancel();
+                }
+            }
+            // A caller that has gone has stopped listening: nothing to do.
+            Sink::Caller(to_caller) => drop(to_caller.send(f)),
         }
+        self.cancel.check()
+    }
+
+    /// The bake's cancellation flag, for workers to poll between texels (and for an EM fit to
+    /// poll between iterations). Outlives this borrow, so a driver may hold it while it
+    /// reports.
+    pub(crate) fn cancel_flag(&self) -> &'a CancelFlag {
+        self.cancel
+    }
+}
+
+/// Runs `work` (a bake) with a [`Progress`] that reports to `callback`, on the calling thread:
+/// `callback` gets every fraction `work` reports and, while `work` runs, the last one again at
+/// least every [`PROGRESS_POLL`]; once it returns `false`, it is not called again, the
+/// [`CancelFlag`] is set, and the result is [`Error::Cancelled`] (after `work` has stopped, at
+/// its next poll of the flag).
+///
+/// `work` runs as a job of the global rayon pool (no thread is created) while the calling
+/// thread waits for its reports and polls the callback. When the caller is itself a thread of
+/// a rayon pool (a bake started from parallel code, as the report's sweeps do), the
+/// work runs on the calling thread instead: blocking a pool thread until pool work finishes
+/// can deadlock when every pool thread does it. The callback is then called only when `work`
+/// reports (between chunks of texels), and cancellation takes effect there.
+///
+/// A panic in `work` or in `callback` reaches the caller (after `work` has stopped).
+pub(crate) fn run_with_progress<T: Send>(
+    callback: &mut dyn FnMut(f32) -> bool,
+    work: impl FnOnce(&mut Progress) -> Result<T> + Send,
+) -> Result<T> {
+    let cancel = CancelFlag::default();
+    if rayon::current_thread_index().is_some() {
+        let mut progress = Progress {
+            sink: Sink::Callback(callback),
+            cancel: &cancel,
+            reported: -1.0,
+        };
+        return work(&mut progress);
+    }
+    let (to_caller, reports) = mpsc::channel::<f32>();
+    let mut outcome = None;
+    // The work is a job of the global pool; this thread polls the callback meanwhile.
+    let stopped = rayon::in_place_scope(|scope| {
+        let cancel = &cancel;
+        let outcome = &mut outcome;
+        let _stop_on_panic = CancelOnDrop(cancel);
+        scope.spawn(move |_| {
+            let mut progress = Progress {
+                sink: Sink::Caller(to_caller),
+                cancel,
+                reported: -1.0,
+            };
+            *outcome = Some(work(&mut progress));
+        });
+        let mut last = None;
+        let mut stopped = false;
+        loop {
+            let fraction = match reports.recv_timeout(PROGRESS_POLL) {
+                Ok(f) => Some(f),
+                Err(mpsc::RecvTimeoutError::Timeout) => last,
+                // The work has ended (its `Progress` is gone).
+                Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            };
+            if let Some(f) = fraction.filter(|_| !stopped) {
+                last = Some(f);
+                if !callback(f) {
+                    stopped = true;
+                    cancel.cancel();
+                }
+            }
+        }
+        stopped
+    });
+    // A panic of the work has been resumed by the scope: here the outcome is set.
+    let result = outcome.expect("the bake's job ran to its end");
+    if stopped {
+        Err(Error::Cancelled)
+    } else {
+        result
     }
 }

@@ -24,7 +24,7 @@ use rayon::prelude::*;
 pub const LEAN_MIN_Z: f64 = 0.01;
 
 /// Number of f64 moments each method accumulates per texel.
-fn moment_count(method: Method) -> usize {
+pub(crate) fn moment_count(method: Method) -> usize {
     match method {
         Method::Plain | Method::Toksvig => 3,
         Method::Lean => 5,
@@ -141,12 +141,18 @@ pub(crate) fn bake(map: &NormalMap, method: Method, progress: &mut Progress) -> 
         })
         .collect();
     let levels = pyramid(w, h);
+    let cancel = progress.cancel_flag();
     for (k, lf) in levels.iter().enumerate() {
+        progress.report(k as f64 / levels.len() as f64)?;
         let avg = reduce(&finest, c, w, lf);
         let texels = (lf.size.0 * lf.size.1) as usize;
         let mut per_texture = vec![vec![[0.0f32; 4]; texels]; textures.len()];
         let mut scratch = vec![[0.0f32; 4]; textures.len()];
         for (i, m) in avg.chunks_exact(c).enumerate() {
+            // A large level takes a while: the cancellation flag is polled as it goes.
+            if i % (1 << 16) == 0 {
+                cancel.check()?;
+            }
             finalize(method, m, &mut scratch);
             for (t, v) in per_texture.iter_mut().zip(&scratch) {
                 t[i] = *v;

@@ -145,6 +145,9 @@ pub struct EmInput<'a> {
     /// Feature vector `y_i` (colour, material weights) of each normal for eq 22. Must have the
     /// same length as `normals`.
     pub features: Option<&'a [[f32; 4]]>,
+    /// A cancellation flag [`fit`] reads before every iteration: once it is set, the fit stops
+    /// where it is (its result is then to be discarded). `None`: runs to its end.
+    pub cancel: Option<&'a std::sync::atomic::AtomicBool>,
 }
 
 impl<'a> EmInput<'a> {
@@ -154,6 +157,7 @@ impl<'a> EmInput<'a> {
             normals,
             weights: None,
             features: None,
+            cancel: None,
         }
     }
 
@@ -167,6 +171,19 @@ impl<'a> EmInput<'a> {
     pub fn with_features(mut self, features: &'a [[f32; 4]]) -> Self {
         self.features = Some(features);
         self
+    }
+
+    /// Adds a cancellation flag (a long fit, one texel over millions of normals, stops within
+    /// an iteration of it being set).
+    pub fn with_cancel(mut self, cancel: &'a std::sync::atomic::AtomicBool) -> Self {
+        self.cancel = Some(cancel);
+        self
+    }
+
+    /// Whether the cancellation flag is set.
+    pub(crate) fn cancelled(&self) -> bool {
+        self.cancel
+            .is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed))
     }
 }
 
@@ -1058,7 +1075,7 @@ pub fn fit(
             *r = options.kappa_estimator.r_from_kappa(l.kappa);
         }
     }
-    while iterations < options.max_iterations {
+    while iterations < options.max_iterations && !input.cancelled() {
         let mut plain = lobes;
         let mut plain_r = rlen;
         m_step(
@@ -2285,6 +2302,26 @@ mod tests {
             "{} {ll}",
             portable.log_likelihood
         );
+    }
+
+    #[test]
+    fn a_set_cancellation_flag_stops_the_fit_before_its_next_iteration() {
+        let mut rng = Rng(5);
+        let normals: Vec<Vec3> = (0..500)
+            .map(|_| sample_vmf(&mut rng, dir(20.0, 40.0), 30.0).as_vec3())
+            .collect();
+        let opts = EmOptions {
+            max_iterations: 50,
+            tolerance: 0.0,
+            ..EmOptions::default()
+        };
+        let init = [init_single(Vec3::Z), init_single(Vec3::X)];
+        let flag = std::sync::atomic::AtomicBool::new(false);
+        let mut scratch = EmScratch::new();
+        let input = EmInput::new(&normals).with_cancel(&flag);
+        assert!(fit(&input, &init, &opts, None, &mut scratch).iterations > 10);
+        flag.store(true, std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(fit(&input, &init, &opts, None, &mut scratch).iterations, 0);
     }
 
     #[test]

@@ -101,6 +101,58 @@ pub enum Error {
     /// A long operation was cancelled by its progress callback.
     #[error("cancelled")]
     Cancelled,
+    /// Decoding a file or running a bake would need more memory than the budget allows
+    /// (module `budget`); refused before the memory is allocated.
+    #[error(
+        "{what}: needs about {} of memory, more than the budget of {} (raise it with --memory, \
+         or memory_limit in the C API)",
+        bytes_in_words(*needed),
+        bytes_in_words(*limit)
+    )]
+    MemoryBudget {
+        /// The file (with its size) or the bake (method and size).
+        what: String,
+        /// The estimated peak, in bytes.
+        needed: u64,
+        /// The budget, in bytes.
+        limit: u64,
+    },
+    /// The feature (colour) image has NaN, infinite or negative values and the caller asked to
+    /// reject rather than repair them.
+    #[error("{what}: {count} bad feature values ({kind}), the first at x={x}, y={y}")]
+    BadFeatures {
+        /// The file or buffer.
+        what: String,
+        /// How many texels have a bad value.
+        count: u64,
+        /// Which kind the first bad texel is.
+        kind: &'static str,
+        /// Column of the first bad texel.
+        x: u32,
+        /// Row of the first bad texel.
+        y: u32,
+    },
+}
+
+/// A byte count in words: `512 MiB`, `4.0 GiB`, `3 bytes` (what `budget::format_bytes` gives).
+pub(crate) fn bytes_in_words(bytes: u64) -> String {
+    const UNITS: [(&str, u64); 4] = [
+        ("TiB", 1 << 40),
+        ("GiB", 1 << 30),
+        ("MiB", 1 << 20),
+        ("KiB", 1 << 10),
+    ];
+    for (name, size) in UNITS {
+        if bytes >= size {
+            let v = bytes as f64 / size as f64;
+            return if v < 10.0 {
+                format!("{v:.1} {name}")
+            } else {
+                format!("{v:.0} {name}")
+            };
+        }
+    }
+    format!("{bytes} bytes")
 }
 
 /// Shorthand for results carrying [`Error`].

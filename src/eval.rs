@@ -347,7 +347,8 @@ pub fn relative_rms(num: f64, den: f64) -> f64 {
 }
 
 /// Formats errors as plain-text tables, one per exponent: a row per level, a diffuse and a
-/// specular column per method, and a closing row with the overall (levels ≥ 1) error.
+/// specular column per method, and a closing row with the overall (levels ≥ 1) error (level 0's
+/// for a 1×1 map, which has no other).
 pub fn format_table(errors: &[MethodError]) -> String {
     use std::fmt::Write;
     let mut out = String::new();
@@ -384,7 +385,13 @@ pub fn format_table(errors: &[MethodError]) -> String {
             }
             out.push('\n');
         }
-        let _ = write!(out, "{:>5} {:>11}", "all", "levels 1+");
+        // A 1×1 map has no level 1: its overall error is level 0's.
+        let overall = if rows[0].levels.len() > 1 {
+            "levels 1+"
+        } else {
+            "level 0"
+        };
+        let _ = write!(out, "{:>5} {:>11}", "all", overall);
         for r in &rows {
             let _ = write!(
                 out,

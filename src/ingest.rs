@@ -65,15 +65,17 @@ pub enum Addressing {
     Clamp,
 }
 
-/// What to do with zero-length, NaN, or below-horizon normals.
+/// What to do with zero-length, NaN, or below-horizon normals, and with NaN, infinite or
+/// negative values in a feature (colour) image.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BadNormals {
     /// Replace zero-length and NaN normals by +Z, clamp below-horizon normals onto the horizon
-    /// (z = 0, same azimuth; +Z for a normal pointing straight down), and report counts.
+    /// (z = 0, same azimuth; +Z for a normal pointing straight down), replace NaN and infinite
+    /// feature values by 0 and clamp negative ones to 0, and report counts.
     #[default]
     Repair,
-    /// Fail with [`Error::BadNormals`] naming the first bad texel.
+    /// Fail with [`Error::BadNormals`] (or [`Error::BadFeatures`]) naming the first bad texel.
     Reject,
 }
 
@@ -90,7 +92,7 @@ pub enum FeatureEncoding {
 }
 
 /// Options for reading a normal map. `Default` gives OpenGL, auto encoding and channels,
-/// wrap addressing, repair bad normals.
+/// wrap addressing, repair bad normals, and the machine's default memory budget.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct IngestOptions {
     /// Green channel direction.
@@ -101,10 +103,16 @@ pub struct IngestOptions {
     pub channels: Channels,
     /// Edge addressing (recorded in the map; used by footprints and filters).
     pub addressing: Addressing,
-    /// Bad-normal policy.
+    /// Bad-normal policy (also applied to bad feature values).
     pub bad_normals: BadNormals,
     /// Feature image encoding.
     pub feature_encoding: FeatureEncoding,
+    /// Memory budget of one load, in bytes: a file whose decoding would need more (its bytes,
+    /// the decoder's buffers and the decoded map, estimated from its header before any pixel
+    /// is decoded) is refused with [`Error::MemoryBudget`], as is a file larger than the budget.
+    /// `None` (default): [`crate::budget::default_memory_limit`]. Not recorded in manifests.
+    #[serde(skip)]
+    pub memory_limit: Option<u64>,
 }
 
 /// Count and first position (x, y) of one kind of bad normal.
@@ -135,12 +143,18 @@ pub struct IngestStats {
     pub mean_z: f64,
     /// Mean length of the decoded vectors before renormalization (finite, non-zero ones).
     pub mean_length: f64,
-    /// Zero-length vectors (length below 1e-6).
+    /// Zero-length vectors (every component zero; any other length is renormalized in `f64`).
     pub zero_length: BadCount,
     /// Vectors with a NaN or infinite component.
     pub nan: BadCount,
     /// Vectors with z < 0 (below the tangent-plane horizon).
     pub below_horizon: BadCount,
+    /// Feature texels with a NaN or infinite value (repaired to 0 unless rejected).
+    #[serde(default)]
+    pub feature_nan: BadCount,
+    /// Feature texels with a negative value (clamped to 0 unless rejected).
+    #[serde(default)]
+    pub feature_negative: BadCount,
 }
 
 impl IngestStats {
@@ -244,8 +258,10 @@ impl NormalMap {
         &self.stats
     }
 
-    /// Attaches a per-texel feature (linear RGBA, row-major). Its length must be width × height.
-    pub fn with_feature(mut self, feature: Vec<[f32; 4]>) -> Result<Self> {
+    /// Attaches a per-texel feature (linear RGBA, row-major). Its length must be width × height
+    /// and every value finite and ≥ 0 ([`Error::BadFeatures`] otherwise; the image readers
+    /// repair or reject such values as [`IngestOptions::bad_normals`] says).
+    pub fn with_feature(self, mut feature: Vec<[f32; 4]>) -> Result<Self> {
         let needed = self.width as usize * self.height as usize;
         if feature.len() != needed {
             return Err(Error::ShortBuffer {
@@ -254,14 +270,71 @@ impl NormalMap {
                 needed,
             });
         }
-        self.feature = Some(feature);
+        self.attach_feature("feature", &mut feature, BadNormals::Reject)
+            .map(|map| NormalMap {
+                feature: Some(feature),
+                ..map
+            })
+    }
+
+    /// Checks (and under [`BadNormals::Repair`] repairs) feature values, counting NaN or
+    /// infinite and negative ones in the statistics; the caller stores `feature`.
+    fn attach_feature(
+        mut self,
+        what: &str,
+        feature: &mut [[f32; 4]],
+        policy: BadNormals,
+    ) -> Result<Self> {
+        let mut nan = BadCount::default();
+        let mut negative = BadCount::default();
+        for (i, texel) in feature.iter_mut().enumerate() {
+            if texel.iter().any(|v| !v.is_finite()) {
+                nan.note(i, self.width);
+                texel
+                    .iter_mut()
+                    .filter(|v| !v.is_finite())
+                    .for_each(|v| *v = 0.0);
+            }
+            if texel.iter().any(|v| *v < 0.0) {
+                negative.note(i, self.width);
+                texel.iter_mut().for_each(|v| *v = v.max(0.0));
+            }
+        }
+        if policy == BadNormals::Reject
+            && let Some((kind, (x, y))) =
+                first_bad(&[("NaN or infinite", nan), ("negative", negative)])
+        {
+            return Err(Error::BadFeatures {
+                what: what.to_string(),
+                count: nan.count + negative.count,
+                kind,
+                x,
+                y,
+            });
+        }
+        self.stats.feature_nan = nan;
+        self.stats.feature_negative = negative;
         Ok(self)
     }
 }
 
-/// Largest buffer (bytes) an image decoder may allocate for the decoded pixels: RGBA `f32` at
-/// [`MAX_TEXELS`]. Checked against the size declared in the file header before allocating.
-pub const MAX_DECODE_BYTES: u64 = MAX_TEXELS * 16;
+impl BadCount {
+    /// Counts texel `i` (row-major in a map `width` wide), keeping the first position.
+    fn note(&mut self, i: usize, width: u32) {
+        if self.first.is_none() {
+            self.first = Some(((i % width as usize) as u32, (i / width as usize) as u32));
+        }
+        self.count += 1;
+    }
+}
+
+/// The kind and position of the first bad texel in scan-line order among `counts`, if any.
+fn first_bad(counts: &[(&'static str, BadCount)]) -> Option<(&'static str, (u32, u32))> {
+    counts
+        .iter()
+        .filter_map(|&(k, c)| c.first.map(|f| (k, f)))
+        .min_by_key(|&(_, (x, y))| (y, x))
+}
 
 /// The first four bytes of every OpenEXR file.
 const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
@@ -276,18 +349,34 @@ impl NormalMap {
     /// layer).
     ///
     /// Values are converted as described by `opts` (see [`NormalMap::from_samples`]); pixels are
-    /// linear data, no sRGB or gamma decoding is ever applied. Sizes are checked from the header
-    /// before any pixel buffer is allocated.
+    /// linear data, no sRGB or gamma decoding is ever applied. A grey + alpha image is not
+    /// taken for x and y unless `opts.channels` is [`Channels::Xy`] (it is far more often a
+    /// height map with a mask).
+    ///
+    /// Decoding is bounded (module docs of [`crate::budget`]): only regular files are read (a
+    /// FIFO, a device or a folder is refused before it is opened for reading); sizes are checked
+    /// from the header, and the memory the decoding needs is estimated from it and checked
+    /// against `opts.memory_limit` before any pixel buffer is allocated; OpenEXR files are read
+    /// channel by channel, only the channels used. JPEG is decoded strictly: a file that ends
+    /// before its end-of-image marker, or whose coded data is corrupt, is an error, never an
+    /// image filled with grey.
     ///
     /// # Errors
     ///
-    /// [`Error::Read`] if the file cannot be read, [`Error::Decode`] if it is empty, corrupt,
-    /// truncated or of an unknown format, [`Error::Dimensions`] if its size is absurd,
-    /// [`Error::UnsupportedLayout`] for one-channel (grey) images, EXR files without `R` and `G`,
-    /// or a channel layout that contradicts `opts.channels`, and [`Error::BadNormals`] if
+    /// [`Error::Read`] if the file cannot be read or is not a regular file, [`Error::Decode`] if
+    /// it is empty, corrupt, truncated or of an unknown or unsupported format,
+    /// [`Error::Dimensions`] if its size is absurd, [`Error::MemoryBudget`] if decoding it
+    /// would exceed the memory budget, [`Error::UnsupportedLayout`] for one-channel (grey)
+    /// images, grey + alpha images under [`Channels::Auto`], EXR files without `R` and `G`, or a
+    /// channel layout that contradicts `opts.channels`, and [`Error::BadNormals`] if
     /// `opts.bad_normals` is [`BadNormals::Reject`] and a texel is bad.
     pub fn load(path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
-        Self::from_decoded(path, decode_file(path, Purpose::Normals)?, opts)
+        let bytes = read_file(path, opts.memory_limit)?;
+        Self::from_decoded(
+            path,
+            decode_bytes(path, &bytes, Purpose::Normals, opts)?,
+            opts,
+        )
     }
 
     /// Reads a normal map from the bytes of an image file held in memory, exactly as
@@ -299,10 +388,23 @@ impl NormalMap {
     /// Those of [`NormalMap::load`] except [`Error::Read`].
     pub fn load_memory(name: &str, bytes: &[u8], opts: &IngestOptions) -> Result<NormalMap> {
         let path = Path::new(name);
-        Self::from_decoded(path, decode_bytes(path, bytes, Purpose::Normals)?, opts)
+        Self::from_decoded(
+            path,
+            decode_bytes(path, bytes, Purpose::Normals, opts)?,
+            opts,
+        )
     }
 
     fn from_decoded(path: &Path, decoded: Decoded, opts: &IngestOptions) -> Result<NormalMap> {
+        if decoded.luma_alpha && opts.channels == Channels::Auto {
+            return Err(Error::UnsupportedLayout {
+                what: path.display().to_string(),
+                layout: "grey + alpha (2 channels): probably a height map with a mask, not a \
+                         normal map; if it holds x and y, read it with channels = xy \
+                         (--channels xy)"
+                    .to_string(),
+            });
+        }
         convert_normals(
             &path.display().to_string(),
             decoded.width,
@@ -362,7 +464,12 @@ impl NormalMap {
     /// The decoding errors of [`NormalMap::load`], and [`Error::FeatureSize`] if the image's
     /// size differs from the normal map's.
     pub fn with_feature_file(self, path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
-        self.with_feature_decoded(path, decode_file(path, Purpose::Feature)?, opts)
+        let bytes = read_file(path, opts.memory_limit)?;
+        self.with_feature_decoded(
+            path,
+            decode_bytes(path, &bytes, Purpose::Feature, opts)?,
+            opts,
+        )
     }
 
     /// Attaches a feature (albedo colour) image read from the bytes of an image file held in
@@ -375,7 +482,11 @@ impl NormalMap {
         opts: &IngestOptions,
     ) -> Result<NormalMap> {
         let path = Path::new(name);
-        self.with_feature_decoded(path, decode_bytes(path, bytes, Purpose::Feature)?, opts)
+        self.with_feature_decoded(
+            path,
+            decode_bytes(path, bytes, Purpose::Feature, opts)?,
+            opts,
+        )
     }
 
     fn with_feature_decoded(
@@ -406,8 +517,10 @@ impl NormalMap {
     /// # Errors
     ///
     /// [`Error::FeatureSize`] if `width × height` differs from the normal map's size,
-    /// [`Error::UnsupportedLayout`] for `channels` outside 1..=4, and [`Error::ShortBuffer`] if
-    /// `samples` is too short.
+    /// [`Error::UnsupportedLayout`] for `channels` outside 1..=4, [`Error::ShortBuffer`] if
+    /// `samples` is too short, and [`Error::BadFeatures`] for NaN, infinite or negative values
+    /// under [`BadNormals::Reject`] (under [`BadNormals::Repair`] they become 0 and are counted
+    /// in [`IngestStats::feature_nan`] and [`IngestStats::feature_negative`]).
     pub fn with_feature_samples(
         self,
         what: &str,
@@ -427,8 +540,13 @@ impl NormalMap {
             });
         }
         let texels = check_buffer(what, width, height, channels, samples)?;
-        let feature = convert_feature(channels as usize, samples, texels, opts.feature_encoding);
-        self.with_feature(feature)
+        let mut feature =
+            convert_feature(channels as usize, samples, texels, opts.feature_encoding);
+        let map = self.attach_feature(what, &mut feature, opts.bad_normals)?;
+        Ok(NormalMap {
+            feature: Some(feature),
+            ..map
+        })
     }
 }
 
@@ -708,6 +826,17 @@ enum Purpose {
     Feature,
 }
 
+impl Purpose {
+    /// Bytes per texel of what ingest keeps from a decoded image: unit normals (3 × f32) or
+    /// linear RGBA features (4 × f32).
+    fn kept_bytes_per_texel(self) -> u64 {
+        match self {
+            Purpose::Normals => 12,
+            Purpose::Feature => 16,
+        }
+    }
+}
+
 /// Decoded samples owned by ingest.
 enum SampleBuf {
     U8(Vec<u8>),
@@ -732,31 +861,206 @@ struct Decoded {
     channels: u32,
     /// Bits per channel in the file (16 for half floats, which are widened to `f32`).
     bits: u32,
+    /// A grey + alpha image (not named channels, as OpenEXR's `R`, `G` are).
+    luma_alpha: bool,
     samples: SampleBuf,
 }
 
-/// Reads and decodes an image file (any supported format) to interleaved samples.
-fn decode_file(path: &Path, purpose: Purpose) -> Result<Decoded> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Read {
+/// Reads a whole input file, bounded: only a regular file (a FIFO would block, a device such as
+/// `/dev/zero` never ends), and at most the memory budget's bytes.
+fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let read_error = |source: std::io::Error| Error::Read {
         path: path.to_path_buf(),
         source,
-    })?;
-    decode_bytes(path, &bytes, purpose)
+    };
+    let not_regular = |meta: &std::fs::Metadata| {
+        read_error(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("not a regular file ({})", file_kind(meta)),
+        ))
+    };
+    // The path is checked before it is opened: opening a FIFO for reading blocks until a
+    // writer comes. The open file is checked again (the path may have changed meanwhile).
+    let meta = std::fs::metadata(path).map_err(read_error)?;
+    if !meta.is_file() {
+        return Err(not_regular(&meta));
+    }
+    let file = std::fs::File::open(path).map_err(read_error)?;
+    let meta = file.metadata().map_err(read_error)?;
+    if !meta.is_file() {
+        return Err(not_regular(&meta));
+    }
+    let limit = crate::budget::resolve(limit);
+    let file_budget = |len: u64| {
+        crate::budget::check(
+            &format!(
+                "{} (a file of {})",
+                path.display(),
+                crate::budget::format_bytes(len)
+            ),
+            len,
+            Some(limit),
+        )
+    };
+    file_budget(meta.len())?;
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(limit.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(read_error)?;
+    file_budget(bytes.len() as u64)?; // it grew while being read
+    Ok(bytes)
 }
 
-/// Decodes the bytes of an image file (any supported format) to interleaved samples; `path`
-/// names it in errors and gives the extension.
-fn decode_bytes(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
+/// What a file that is not a regular file is, in words.
+fn file_kind(meta: &std::fs::Metadata) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let t = meta.file_type();
+        if t.is_fifo() {
+            return "a FIFO";
+        } else if t.is_char_device() || t.is_block_device() {
+            return "a device";
+        } else if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if meta.is_dir() {
+        "a folder"
+    } else {
+        "not a file"
+    }
+}
+
+/// The container formats ingest reads, from the content (the extension only for TGA).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Container {
+    Exr,
+    Jpeg,
+    /// PNG, TGA or TIFF, decoded by the `image` crate.
+    Image(image::ImageFormat),
+}
+
+/// The supported formats, for messages.
+const SUPPORTED: &str = "PNG, JPEG, TGA, TIFF and OpenEXR are supported";
+
+/// Recognizes the format of `bytes` by content: the known signatures first; the extension of
+/// `path` only for content without one (TGA has no signature) or for a `.tga` file. Content
+/// that another format's signature names (a WebP file named `.png`) is an unsupported format,
+/// not a broken PNG.
+fn container(path: &Path, bytes: &[u8]) -> Result<Container> {
+    use image::ImageFormat;
+    if bytes.starts_with(&EXR_MAGIC) {
+        return Ok(Container::Exr);
+    }
+    let from_format = |f: ImageFormat| match f {
+        ImageFormat::Jpeg => Some(Container::Jpeg),
+        ImageFormat::Png | ImageFormat::Tga | ImageFormat::Tiff => Some(Container::Image(f)),
+        _ => None,
+    };
+    let by_extension = ImageFormat::from_path(path).ok();
+    let is_exr = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    match image::guess_format(bytes).ok() {
+        Some(f) if from_format(f).is_some() => Ok(from_format(f).expect("checked")),
+        _ if by_extension == Some(ImageFormat::Tga) => Ok(Container::Image(ImageFormat::Tga)),
+        Some(f) => Err(decode_error(
+            path,
+            &format!(
+                "unsupported image format: the content is {} ({SUPPORTED})",
+                f.extensions_str()
+                    .first()
+                    .map_or("unknown".into(), |e| e.to_uppercase())
+            ),
+        )),
+        None if is_exr => Ok(Container::Exr),
+        None => by_extension
+            .and_then(from_format)
+            .ok_or_else(|| decode_error(path, &format!("unrecognized image format ({SUPPORTED})"))),
+    }
+}
+
+/// Reads the width and height of the image file at `path` from its header, without decoding
+/// its pixels (the file is read as [`NormalMap::load`] reads it: a regular file within the
+/// memory budget of `opts`). For checks before any work, such as a bake's memory estimate.
+///
+/// # Errors
+///
+/// As [`NormalMap::load`], for what its header shows.
+pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
+    use image::ImageDecoder;
+    let bytes = read_file(path, opts.memory_limit)?;
     if bytes.is_empty() {
         return Err(decode_error(path, "the file is empty"));
     }
+    let format = container(path, &bytes)?;
+    let size = std::panic::catch_unwind(|| -> Result<(u32, u32)> {
+        match format {
+            Container::Exr => {
+                let meta =
+                    exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+                        .map_err(|e| decode_error(path, &e.to_string()))?;
+                let size = meta
+                    .headers
+                    .first()
+                    .ok_or_else(|| decode_error(path, "no layer"))?
+                    .layer_size;
+                Ok((size.width() as u32, size.height() as u32))
+            }
+            Container::Jpeg => {
+                let mut d =
+                    zune_jpeg::JpegDecoder::new(zune_core::bytestream::ZCursor::new(&bytes));
+                d.decode_headers()
+                    .map_err(|e| decode_error(path, &e.to_string()))?;
+                let (w, h) = d
+                    .dimensions()
+                    .ok_or_else(|| decode_error(path, "no frame header"))?;
+                check_jpeg_structure(path, &bytes, w as u32, h as u32)?;
+                Ok((w as u32, h as u32))
+            }
+            Container::Image(f) => {
+                let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes));
+                reader.set_format(f);
+                let decoder = reader
+                    .into_decoder()
+                    .map_err(|e| decode_error(path, &e.to_string()))?;
+                Ok(decoder.dimensions())
+            }
+        }
+    })
+    .unwrap_or_else(|_| Err(decode_error(path, "the decoder failed unexpectedly")))?;
+    check_dimensions(&path.display().to_string(), size.0 as u64, size.1 as u64)?;
+    Ok(size)
+}
+
+/// Decodes the bytes of an image file (any supported format) to interleaved samples; `path`
+/// names it in errors and gives the extension. The one bounded-decoding policy: dimensions
+/// and the memory budget are checked from the header before pixels are decoded.
+fn decode_bytes(
+    path: &Path,
+    bytes: &[u8],
+    purpose: Purpose,
+    opts: &IngestOptions,
+) -> Result<Decoded> {
+    if bytes.is_empty() {
+        return Err(decode_error(path, "the file is empty"));
+    }
+    let format = container(path, bytes)?;
     // Third-party decoders are fuzzed but not proven panic-free; a panic on hostile input
     // becomes a decode error instead of unwinding into the caller (or across the C API).
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        if bytes.starts_with(&EXR_MAGIC) {
-            decode_exr(path, bytes, purpose)
-        } else {
-            decode_image(path, bytes, purpose)
+        let budget = Budget {
+            path,
+            file_bytes: bytes.len() as u64,
+            purpose,
+            limit: opts.memory_limit,
+        };
+        match format {
+            Container::Exr => decode_exr(path, bytes, purpose, &budget),
+            Container::Jpeg => decode_jpeg(path, bytes, &budget),
+            Container::Image(f) => decode_image(path, bytes, f, &budget),
         }
     }))
     .unwrap_or_else(|payload| {
@@ -775,60 +1079,66 @@ fn decode_bytes(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> 
     Ok(decoded)
 }
 
+/// A decode error naming `path`; the decoder's message on one line.
 fn decode_error(path: &Path, message: &str) -> Error {
     Error::Decode {
         path: path.to_path_buf(),
-        message: message.to_string(),
+        message: message.split_whitespace().collect::<Vec<_>>().join(" "),
     }
 }
 
-fn is_exr_extension(path: &Path) -> bool {
-    path.extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+/// The memory budget of one decode: what it needs is estimated from the header and refused
+/// before the decoder allocates.
+struct Budget<'a> {
+    path: &'a Path,
+    /// The file's bytes, held while decoding.
+    file_bytes: u64,
+    purpose: Purpose,
+    limit: Option<u64>,
 }
 
-/// Decodes PNG, JPEG, TGA or TIFF bytes with the `image` crate.
-fn decode_image(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
-    use image::{DynamicImage, ImageDecoder, ImageFormat, ImageReader, Limits};
+impl Budget<'_> {
+    /// Checks a `width`×`height` image whose decoder holds `decoder_bytes` at its peak: the
+    /// file, the decoder's buffers, and the normals or features made from them.
+    fn check(&self, width: u32, height: u32, decoder_bytes: u64) -> Result<()> {
+        let texels = width as u64 * height as u64;
+        let needed = self
+            .file_bytes
+            .saturating_add(decoder_bytes)
+            .saturating_add(texels.saturating_mul(self.purpose.kept_bytes_per_texel()));
+        crate::budget::check(
+            &format!("{} ({width}x{height})", self.path.display()),
+            needed,
+            self.limit,
+        )
+    }
+}
+
+/// Decodes PNG, TGA or TIFF bytes with the `image` crate, under its [`image::Limits`].
+fn decode_image(
+    path: &Path,
+    bytes: &[u8],
+    format: image::ImageFormat,
+    budget: &Budget,
+) -> Result<Decoded> {
+    use image::{DynamicImage, ImageDecoder, ImageReader, Limits};
 
     let what = path.display().to_string();
-    let supported = |f: ImageFormat| {
-        matches!(
-            f,
-            ImageFormat::Png | ImageFormat::Jpeg | ImageFormat::Tga | ImageFormat::Tiff
-        )
-    };
-    let mut reader = ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| decode_error(path, &e.to_string()))?;
-    // Content first; the extension decides only when the content has no known signature
-    // (TGA has none) or names a format ndfmap does not read.
-    if !reader.format().is_some_and(supported) {
-        if is_exr_extension(path) {
-            return decode_exr(path, bytes, purpose);
-        }
-        match ImageFormat::from_path(path) {
-            Ok(f) if supported(f) => reader.set_format(f),
-            _ if reader.format().is_some() => {}
-            _ => {
-                return Err(decode_error(
-                    path,
-                    "unrecognized image format (PNG, JPEG, TGA, TIFF and OpenEXR are supported)",
-                ));
-            }
-        }
-    }
-
+    let mut reader = ImageReader::new(std::io::Cursor::new(bytes));
+    reader.set_format(format);
+    let limit = crate::budget::resolve(budget.limit);
     // Dimensions are checked by ndfmap's own rule first (for a precise error), then by the
     // decoder's limits; the pixel buffer is reserved against `max_alloc` before decoding.
     let mut limits = Limits::default();
-    limits.max_alloc = Some(MAX_DECODE_BYTES);
+    limits.max_alloc = Some(limit);
     reader.limits(limits.clone());
     let mut decoder = reader
         .into_decoder()
         .map_err(|e| decode_error(path, &e.to_string()))?;
     let (width, height) = decoder.dimensions();
     check_dimensions(&what, width as u64, height as u64)?;
+    // The pixel buffer, and as much again for the decoder's own (TIFF strips, PNG rows).
+    budget.check(width, height, decoder.total_bytes().saturating_mul(2))?;
     let too_big = |e: image::ImageError| Error::Dimensions {
         what: what.clone(),
         width: width as u64,
@@ -845,6 +1155,10 @@ fn decode_image(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> 
     })?;
 
     let (width, height) = (image.width(), image.height());
+    let luma_alpha = matches!(
+        image,
+        DynamicImage::ImageLumaA8(_) | DynamicImage::ImageLumaA16(_)
+    );
     let (channels, samples) = match image {
         DynamicImage::ImageLuma8(b) => (1, SampleBuf::U8(b.into_raw())),
         DynamicImage::ImageLumaA8(b) => (2, SampleBuf::U8(b.into_raw())),
@@ -873,14 +1187,144 @@ fn decode_image(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> 
         height,
         channels,
         bits,
+        luma_alpha,
         samples,
     })
 }
 
-/// Decodes OpenEXR bytes with the `exr` crate: the first layer, full resolution, the channels
-/// `purpose` asks for, widened to interleaved `f32`.
-fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
-    use exr::prelude::{FlatSamples, ReadChannels, ReadLayers};
+/// Decodes JPEG bytes with `zune-jpeg` in strict mode: a premature end, an unknown marker or
+/// an invalid Huffman code in the coded data is an error (the `image` crate's JPEG decoder
+/// fills what it could not decode with grey instead). Before decoding, the marker structure
+/// must end with an end-of-image marker ([`jpeg_structure`]) and hold enough coded bits for
+/// the size the header declares.
+fn decode_jpeg(path: &Path, bytes: &[u8], budget: &Budget) -> Result<Decoded> {
+    use zune_core::bytestream::ZCursor;
+    use zune_core::colorspace::ColorSpace;
+    use zune_core::options::DecoderOptions;
+
+    let what = path.display().to_string();
+    let jpeg_error = |e: zune_jpeg::errors::DecodeErrors| decode_error(path, &e.to_string());
+    let options = DecoderOptions::default()
+        .set_strict_mode(true)
+        .set_max_width(MAX_DIMENSION as usize)
+        .set_max_height(MAX_DIMENSION as usize);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+    decoder.decode_headers().map_err(jpeg_error)?;
+    let (w, h) = decoder
+        .dimensions()
+        .ok_or_else(|| decode_error(path, "no frame header"))?;
+    check_dimensions(&what, w as u64, h as u64)?;
+    let (width, height) = (w as u32, h as u32);
+    check_jpeg_structure(path, bytes, width, height)?;
+    let grey = matches!(
+        decoder.input_colorspace(),
+        Some(ColorSpace::Luma | ColorSpace::LumaA)
+    );
+    let (out, channels) = if grey {
+        (ColorSpace::Luma, 1)
+    } else {
+        (ColorSpace::RGB, 3)
+    };
+    decoder.set_options(options.jpeg_set_out_colorspace(out));
+    // The output, and twice as much for a progressive file's coefficients (i16 per sample).
+    let pixels = w as u64 * h as u64 * channels as u64;
+    budget.check(width, height, pixels.saturating_mul(3))?;
+    let data = decoder.decode().map_err(jpeg_error)?;
+    if data.len() as u64 != pixels {
+        return Err(decode_error(
+            path,
+            "the decoder returned the wrong amount of pixels",
+        ));
+    }
+    Ok(Decoded {
+        width,
+        height,
+        channels,
+        bits: 8,
+        luma_alpha: false,
+        samples: SampleBuf::U8(data),
+    })
+}
+
+/// Checks a JPEG declaring `width`×`height` before decoding it: its marker structure ends with
+/// an end-of-image marker ([`jpeg_structure`]) and it holds enough coded bits for that size
+/// (a decompression bomb's header claims far more than its data can hold).
+fn check_jpeg_structure(path: &Path, bytes: &[u8], width: u32, height: u32) -> Result<()> {
+    let coded_bytes = jpeg_structure(bytes).map_err(|m| decode_error(path, &m))?;
+    // Every 8×8 block of the first component takes at least one bit (its DC code); a block
+    // covers at most 32×32 pixels (sampling factors ≤ 4).
+    let min_bits = (width as u64).div_ceil(32) * (height as u64).div_ceil(32);
+    if coded_bytes.saturating_mul(8) < min_bits {
+        return Err(decode_error(
+            path,
+            &format!(
+                "truncated or corrupt: {coded_bytes} bytes of coded data cannot hold a \
+                 {width}x{height} image"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Walks a JPEG's marker segments and returns the number of bytes of entropy-coded data;
+/// fails when the file ends before its end-of-image marker (a truncated file) or a segment runs
+/// past the end.
+fn jpeg_structure(bytes: &[u8]) -> std::result::Result<u64, String> {
+    let truncated = || "truncated: the file ends before its end-of-image marker".to_string();
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return Err("not a JPEG (no start-of-image marker)".into());
+    }
+    let mut i = 2;
+    let mut coded = 0u64;
+    loop {
+        // A marker: 0xFF, any fill bytes 0xFF, then its code.
+        if bytes.get(i) != Some(&0xFF) {
+            return Err(match bytes.get(i) {
+                None => truncated(),
+                Some(_) => format!("corrupt: no marker at byte {i}"),
+            });
+        }
+        while bytes.get(i) == Some(&0xFF) {
+            i += 1;
+        }
+        let code = *bytes.get(i).ok_or_else(truncated)?;
+        i += 1;
+        match code {
+            0xD9 => return Ok(coded),
+            0x01 | 0xD0..=0xD7 => continue, // no length
+            0xD8 | 0x00 => return Err(format!("corrupt: unexpected marker 0xFF{code:02X}")),
+            _ => {}
+        }
+        let len = match bytes.get(i..i + 2) {
+            Some(l) => u16::from_be_bytes([l[0], l[1]]) as usize,
+            None => return Err(truncated()),
+        };
+        if len < 2 || i + len > bytes.len() {
+            return Err(truncated());
+        }
+        i += len;
+        if code == 0xDA {
+            // Entropy-coded data follows a scan header, up to the next marker that is neither
+            // a stuffed 0xFF00 nor a restart marker.
+            let start = i;
+            loop {
+                match bytes.get(i..i + 2) {
+                    None => return Err(truncated()),
+                    Some([0xFF, 0x00 | 0xD0..=0xD7]) => i += 2,
+                    Some([0xFF, _]) => break,
+                    Some(_) => i += 1,
+                }
+            }
+            coded += (i - start) as u64;
+        }
+    }
+}
+
+/// Decodes OpenEXR bytes with the `exr` crate: the first layer that has the channels `purpose`
+/// needs, full resolution, only those channels (a file with hundreds of other channels costs
+/// no memory for them), widened to interleaved `f32`.
+fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose, budget: &Budget) -> Result<Decoded> {
+    use exr::meta::attribute::SampleType;
     use std::io::Cursor;
 
     let what = path.display().to_string();
@@ -893,42 +1337,44 @@ fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
         let size = header.layer_size;
         check_dimensions(&what, size.width() as u64, size.height() as u64)?;
     }
-
-    // Sequential decoding: the parallel decoder runs on a rayon pool, where a panic on hostile
-    // input would abort the process instead of reaching `catch_unwind`.
-    let image = exr::prelude::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .non_parallel()
-        .from_buffered(Cursor::new(bytes))
-        .map_err(exr_error)?;
-    let layer = image.layer_data;
-    let (w, h) = (layer.size.width(), layer.size.height());
-    check_dimensions(&what, w as u64, h as u64)?;
-    let list = &layer.channel_data.list;
-    let find = |name: &str| list.iter().find(|c| c.name.eq(name));
-    // The channels to read, in sample order; empty if the layer lacks the required ones.
-    let wanted: Vec<Option<_>> = match purpose {
-        Purpose::Normals => match (find("R"), find("G")) {
-            (Some(r), Some(g)) => vec![Some(r), Some(g), find("B")],
-            _ => vec![],
-        },
-        Purpose::Feature => match (find("R"), find("G"), find("B"), find("Y")) {
-            (Some(r), Some(g), Some(b), _) => vec![Some(r), Some(g), Some(b), find("A")],
-            (_, _, _, Some(y)) => vec![Some(y), find("A")],
-            _ => vec![],
-        },
+    let names_in = |header: &exr::meta::header::Header| -> Vec<String> {
+        header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.name.to_string())
+            .collect()
     };
-    let picked: Vec<_> = wanted.into_iter().flatten().collect();
-    if picked.is_empty() {
-        let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
+    // The channels to read, in sample order, from the first layer that has them.
+    let pick = |header: &exr::meta::header::Header| -> Option<Vec<&'static str>> {
+        let names = names_in(header);
+        let has = |n: &str| names.iter().any(|c| c == n);
+        let with = |base: &[&'static str], optional: &'static str| {
+            let mut v = base.to_vec();
+            if has(optional) {
+                v.push(optional);
+            }
+            v
+        };
+        match purpose {
+            Purpose::Normals if has("R") && has("G") => Some(with(&["R", "G"], "B")),
+            Purpose::Feature if has("R") && has("G") && has("B") => {
+                Some(with(&["R", "G", "B"], "A"))
+            }
+            Purpose::Feature if has("Y") => Some(with(&["Y"], "A")),
+            _ => None,
+        }
+    };
+    let Some((header, picked)) = meta
+        .headers
+        .iter()
+        .find_map(|h| pick(h).map(|names| (h, names)))
+    else {
         let needed = match purpose {
             Purpose::Normals => "R and G (B optional)",
             Purpose::Feature => "R, G and B, or Y (A optional)",
         };
+        let names = meta.headers.first().map(names_in).unwrap_or_default();
         return Err(Error::UnsupportedLayout {
             what,
             layout: format!(
@@ -936,49 +1382,102 @@ fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose) -> Result<Decoded> {
                 names.join(", ")
             ),
         });
-    }
-
-    let texels = w * h;
-    let channels = picked.len();
+    };
     let mut bits = 16;
-    let mut data = vec![0.0f32; texels * channels];
-    for (k, channel) in picked.iter().enumerate() {
-        let len = match &channel.sample_data {
-            FlatSamples::F16(v) => v.len(),
-            FlatSamples::F32(v) => v.len(),
-            FlatSamples::U32(v) => v.len(),
-        };
-        if len != texels {
+    for name in &picked {
+        let c = header
+            .channels
+            .list
+            .iter()
+            .find(|c| c.name.eq(name))
+            .expect("picked from this list");
+        if c.sampling != exr::math::Vec2(1, 1) {
             return Err(Error::UnsupportedLayout {
                 what,
-                layout: format!("OpenEXR channel {} is subsampled", channel.name),
+                layout: format!("OpenEXR channel {name} is subsampled"),
             });
         }
-        let out = data.iter_mut().skip(k).step_by(channels);
-        match &channel.sample_data {
-            FlatSamples::F16(v) => out.zip(v).for_each(|(o, s)| *o = s.to_f32()),
-            FlatSamples::F32(v) => {
-                bits = 32;
-                out.zip(v).for_each(|(o, s)| *o = *s);
-            }
-            FlatSamples::U32(_) => {
+        match c.sample_type {
+            SampleType::U32 => {
                 return Err(Error::UnsupportedLayout {
                     what,
                     layout: format!(
-                        "OpenEXR channel {} holds 32-bit integers; half or float is needed",
-                        channel.name
+                        "OpenEXR channel {name} holds 32-bit integers; half or float is needed"
                     ),
                 });
             }
+            SampleType::F32 => bits = 32,
+            SampleType::F16 => {}
         }
     }
+    let (w, h) = (header.layer_size.width(), header.layer_size.height());
+    let channels = picked.len();
+    // The interleaved samples, and one decompressed block of every channel.
+    let samples = (w * h * channels * 4) as u64;
+    budget.check(
+        w as u32,
+        h as u32,
+        samples + header.max_block_byte_size() as u64,
+    )?;
+    let data = read_exr_channels(bytes, &picked, (w, h)).map_err(exr_error)?;
     Ok(Decoded {
         width: w as u32,
         height: h as u32,
         channels: channels as u32,
         bits,
+        luma_alpha: false,
         samples: SampleBuf::F32(data),
     })
+}
+
+/// Reads channels `names` (1 to 4 of them, the first layer that has them, full resolution) of
+/// an OpenEXR file of `size` as interleaved `f32`, decoding nothing else into memory.
+/// Sequential: the parallel decoder runs on a rayon pool, where a panic on hostile input would
+/// abort the process instead of reaching ingest's `catch_unwind`.
+fn read_exr_channels(
+    bytes: &[u8],
+    names: &[&str],
+    size: (usize, usize),
+) -> exr::error::Result<Vec<f32>> {
+    use exr::math::Vec2;
+    use exr::prelude::{ReadChannels, ReadLayers, ReadSpecificChannel};
+    let n = names.len();
+    let width = size.0;
+    let index = move |at: Vec2<usize>| (at.y() * width + at.x()) * n;
+    let reader = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level();
+    let cursor = std::io::Cursor::new(bytes);
+    // One arm per channel count: each count is its own pixel type (a tuple of f32).
+    macro_rules! read {
+        ($($name:ident => $sample:ident),+) => {
+            reader
+                .specific_channels()
+                $(.required($name))+
+                .collect_pixels(
+                    move |s: Vec2<usize>, _: &_| vec![0.0f32; s.area() * n],
+                    move |px: &mut Vec<f32>, at: Vec2<usize>, ($($sample,)+): ($(read!(@f32 $sample),)+)| {
+                        px[index(at)..][..n].copy_from_slice(&[$($sample),+]);
+                    },
+                )
+                .first_valid_layer()
+                .all_attributes()
+                .non_parallel()
+                .from_buffered(cursor)?
+                .layer_data
+                .channel_data
+                .pixels
+        };
+        (@f32 $sample:ident) => { f32 };
+    }
+    let image_data = match *names {
+        [a] => read!(a => x),
+        [a, b] => read!(a => x, b => y),
+        [a, b, c] => read!(a => x, b => y, c => z),
+        [a, b, c, d] => read!(a => x, b => y, c => z, d => w),
+        _ => unreachable!("1 to 4 channels are picked"),
+    };
+    Ok(image_data)
 }
 
 /// Refuses zero, absurd, or overflowing dimensions.
@@ -1013,31 +1512,27 @@ fn finish(
     policy: BadNormals,
     mut stats: IngestStats,
 ) -> Result<NormalMap> {
-    fn note(c: &mut BadCount, i: usize, width: u32) {
-        if c.first.is_none() {
-            c.first = Some(((i % width as usize) as u32, (i / width as usize) as u32));
-        }
-        c.count += 1;
-    }
     let mut sum_len = 0.0f64;
     let mut n_len = 0u64;
     let mut sum_z = 0.0f64;
     for (i, v) in vectors.iter_mut().enumerate() {
         let mut n = *v;
         if !n.is_finite() {
-            note(&mut stats.nan, i, width);
+            stats.nan.note(i, width);
             n = Vec3::Z;
         } else {
+            // In f64, a float map's tiny vectors (1e-30) keep their direction: only exact zeros
+            // have none.
             let len = (n.as_dvec3()).length();
-            if len < 1e-6 {
-                note(&mut stats.zero_length, i, width);
+            if len == 0.0 {
+                stats.zero_length.note(i, width);
                 n = Vec3::Z;
             } else {
                 sum_len += len;
                 n_len += 1;
                 n = (n.as_dvec3() / len).as_vec3();
                 if n.z < 0.0 {
-                    note(&mut stats.below_horizon, i, width);
+                    stats.below_horizon.note(i, width);
                     let xy = glam::DVec2::new(n.x as f64, n.y as f64);
                     let l = xy.length();
                     // A normal pointing (almost) straight down has no azimuth to keep: +Z.
@@ -1052,16 +1547,13 @@ fn finish(
         sum_z += n.z as f64;
         *v = n;
     }
-    if policy == BadNormals::Reject && stats.bad_total() > 0 {
-        let (kind, first) = [
-            ("NaN", stats.nan.first),
-            ("zero length", stats.zero_length.first),
-            ("below the horizon", stats.below_horizon.first),
-        ]
-        .into_iter()
-        .filter_map(|(k, f)| f.map(|f| (k, f)))
-        .min_by_key(|&(_, (x, y))| (y, x))
-        .expect("bad_total > 0 implies a first position");
+    if policy == BadNormals::Reject
+        && let Some((kind, first)) = first_bad(&[
+            ("NaN", stats.nan),
+            ("zero length", stats.zero_length),
+            ("below the horizon", stats.below_horizon),
+        ])
+    {
         return Err(Error::BadNormals {
             what: what.to_string(),
             count: stats.bad_total(),

@@ -4,7 +4,7 @@
 //! and the baselines it compares with. Data flows forward through one module per stage, and no
 //! module imports one above it:
 //!
-//! - data: [`format`] (storage formats, value ranges) → [`bake`] (the textures every method
+//! - data: [`budget`] (the memory budget), [`format`] (storage formats, value ranges) → [`bake`] (the textures every method
 //!   produces, options, progress); [`brdf`] (the BRDFs and the exact unfiltered shading);
 //! - input: [`ingest`] → [`pyramid`] (exact footprints);
 //! - methods: [`baseline`]; [`vmf`], [`em`] and [`tan2005`] driven per level by [`mixture`];
@@ -16,6 +16,7 @@
 pub mod bake;
 pub mod baseline;
 pub mod brdf;
+pub mod budget;
 pub mod em;
 pub mod error;
 pub mod eval;

@@ -2,9 +2,9 @@
 //! texture layout each method produces. Above the methods ([`crate::baseline`],
 //! [`crate::mixture`]), below the consumers (CLI, C API, eval, report).
 
-use crate::bake::{Bake, BakeOptions, Method, Progress};
-use crate::error::Result;
-use crate::format::ValueRange;
+use crate::bake::{Bake, BakeOptions, Method, run_with_progress};
+use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
 
 /// The value ranges of each texture a bake of `method` has, in texture order — what a shader
@@ -29,38 +29,196 @@ pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRa
     ranges
 }
 
+/// Checks `options` for a bake of `method`, and that `format` (the storage format the bake will
+/// be written or packed in, if known) can hold every texture it makes, before any work:
+/// [`Error::InvalidOption`] naming the option and its range. The baselines have no options but
+/// the memory budget.
+pub fn check_options(
+    method: Method,
+    options: &BakeOptions,
+    color: bool,
+    format: Option<Format>,
+) -> Result<()> {
+    if matches!(method, Method::Vmf | Method::Tan2005) {
+        crate::mixture::check(options)?;
+    }
+    if let Some(f) = format {
+        let lobes = if matches!(method, Method::Vmf | Method::Tan2005) {
+            options.lobes
+        } else {
+            0
+        };
+        crate::pack::check_ranges(method, &texture_ranges(method, lobes, color), f)?;
+    }
+    if options.memory_limit == Some(0) {
+        return Err(Error::InvalidOption(
+            "memory budget 0 (expected a number of bytes, or none for the default)".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Peak memory of a bake, in bytes per texel of the finest level: `base + per_lobe × J`, and
+/// with a feature (colour) image `color_base + color_per_lobe × J` more (the baselines have
+/// no lobes and no colour). Calibrated on the peak resident memory of the whole `ndfmap bake`
+/// command (`/usr/bin/time -f %M`: decoding the PNG, the bake, quantizing and writing the files)
+/// on the built-in sample at 512², 1024² and 2048², whose peaks per texel are the same at every
+/// size, then rounded up so that the estimate lies 15–25 % above every measured peak.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PeakPerTexel {
+    /// Bytes per texel whatever the lobe count.
+    pub base: u64,
+    /// Bytes per texel per lobe.
+    pub per_lobe: u64,
+    /// Bytes per texel added by a feature image.
+    pub color_base: u64,
+    /// Bytes per texel per lobe added by a feature image.
+    pub color_per_lobe: u64,
+}
+
+impl PeakPerTexel {
+    /// Bytes per texel for `lobes` lobes, with or without colour.
+    pub fn bytes(&self, lobes: u64, color: bool) -> u64 {
+        let own = self.base + self.per_lobe * lobes;
+        let color = if color {
+            self.color_base + self.color_per_lobe * lobes
+        } else {
+            0
+        };
+        own + color
+    }
+}
+
+/// The vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or fast, any
+/// storage format). Measured peaks against the estimate ([`estimate_peak_bytes`]), MiB:
+///
+/// | map | configuration | measured | estimate |
+/// |---|---|---|---|
+/// | 1024² | J = 1, aligned, colour | 161 | 276 |
+/// | 1024² | J = 6, unaligned | 315 | 424 |
+/// | 1024² | J = 6, unaligned, colour, f16 | 473 | 616 |
+/// | 1024² | J = 6, aligned, colour (f32, f16) | 494, 495 | 616 |
+/// | 1024² | J = 6, aligned, colour, fast, unorm8 | 504 | 616 |
+/// | 1024² | J = 8, aligned, colour, f16 | 632 | 752 |
+/// | 512² | J = 8, aligned, colour, f16 | 181 | 236 |
+/// | 2048² | J = 6, aligned, colour | 1855 | 2272 |
+///
+/// Update it when the vMF bake's memory changes (`ndfmap bench` prints the measured peak and
+/// this estimate side by side; `/usr/bin/time -f %M ndfmap bake ...` gives the whole command's).
+pub const VMF_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
+    base: 96,
+    per_lobe: 44,
+    color_base: 48,
+    color_per_lobe: 24,
+};
+
+/// The Tan 2005 bake's peak memory per texel. Measured at 1024² against the estimate, MiB:
+/// J = 8 aligned 393 (480); J = 4 unaligned with colour 340 (448).
+pub const TAN2005_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
+    base: 64,
+    per_lobe: 44,
+    color_base: 48,
+    color_per_lobe: 24,
+};
+
+/// The baselines' peak memory per texel per moment they average (plain and Toksvig 3, LEAN
+/// 5, Olano–North 9), plus [`BASELINE_PEAK_BASE`]. Measured against the estimate, MiB: plain
+/// 1024² 86 (152), 2048² 320 (416); Olano–North 1024² 214 (296), 2048² 831 (992).
+pub const BASELINE_PEAK_PER_MOMENT: u64 = 24;
+
+/// The baselines' peak memory per texel whatever their moments.
+pub const BASELINE_PEAK_BASE: u64 = 16;
+
+/// Memory every bake command needs whatever the map's size (the program, its threads, the
+/// allocator's slack): 64 MiB.
+pub const PEAK_FIXED_BYTES: u64 = 64 << 20;
+
+/// Estimates the peak memory, in bytes, of baking a `width`×`height` map with `method` and
+/// `options` (with a feature image when `color`), including the decoded map and writing the
+/// result: [`PEAK_FIXED_BYTES`] plus the method's bytes per texel ([`VMF_PEAK_PER_TEXEL`],
+/// [`TAN2005_PEAK_PER_TEXEL`], the baselines' per moment) times `width × height`. Conservative:
+/// the calibration's measured peaks lie 15–25 % below it (more for small maps).
+pub fn estimate_peak_bytes(
+    width: u32,
+    height: u32,
+    method: Method,
+    options: &BakeOptions,
+    color: bool,
+) -> u64 {
+    let lobes = options.lobes as u64;
+    let per_texel = match method {
+        Method::Vmf => VMF_PEAK_PER_TEXEL.bytes(lobes, color),
+        Method::Tan2005 => TAN2005_PEAK_PER_TEXEL.bytes(lobes, color),
+        _ => {
+            BASELINE_PEAK_BASE
+                + BASELINE_PEAK_PER_MOMENT * crate::baseline::moment_count(method) as u64
+        }
+    };
+    let texels = width as u64 * height as u64;
+    PEAK_FIXED_BYTES.saturating_add(texels.saturating_mul(per_texel))
+}
+
+/// Refuses a bake whose estimated peak ([`estimate_peak_bytes`]) exceeds the budget of
+/// `options` ([`Error::MemoryBudget`], naming the method, the size and the budget).
+pub fn check_memory(
+    width: u32,
+    height: u32,
+    method: Method,
+    options: &BakeOptions,
+    color: bool,
+) -> Result<()> {
+    crate::budget::check(
+        &format!("a {method} bake of {width}x{height}"),
+        estimate_peak_bytes(width, height, method, options, color),
+        options.memory_limit,
+    )
+}
+
 /// Bakes `method` for `map` with default options: the full MIP chain down to 1×1.
 pub fn bake(map: &NormalMap, method: Method) -> Bake {
     bake_with(map, method, &BakeOptions::default()).expect("default options are valid")
 }
 
-/// Bakes `method` for `map` with `options`; fails only on invalid options.
+/// Bakes `method` for `map` with `options`; fails only on invalid options or a bake beyond the
+/// memory budget.
 pub fn bake_with(map: &NormalMap, method: Method, options: &BakeOptions) -> Result<Bake> {
     bake_with_progress(map, method, options, &mut |_| true)
 }
 
 /// Bakes like [`bake_with`], reporting progress to `progress` and letting it cancel.
 ///
-/// `progress` is called on the calling thread (between parallel chunks of work, never from a
-/// worker) with the fraction done: first 0.0, then non-decreasing values at least every 0.1 %
-/// of the work's progress (per MIP level for the baselines, per chunk of texels or wavefront
-/// for the mixtures), last 1.0. Returning `false` stops the bake with [`Error::Cancelled`];
-/// the result does not depend on the callback otherwise (same bits as [`bake_with`]).
+/// Options and the memory budget are checked first ([`check_options`], [`check_memory`]),
+/// before any work and before `progress` is called.
+///
+/// `progress` is called on the calling thread, never from a worker, with the fraction done:
+/// first 0.0, then non-decreasing values at least every 0.1 % of the work's progress (per MIP
+/// level for the baselines, per chunk of texels or wavefront for the mixtures) and, while the
+/// work runs, the last value again at least every [`crate::bake::PROGRESS_POLL`] (50 ms), last
+/// 1.0. Returning `false` stops the bake with [`Error::Cancelled`] within a fraction of a
+/// second (workers stop between texels); the callback is not called again. The result does
+/// not depend on the callback otherwise (same bits as [`bake_with`]).
+///
+/// Called from a thread of a rayon pool, the bake runs on that thread and `progress` is called
+/// only between chunks of work (see `bake::run_with_progress`).
 pub fn bake_with_progress(
     map: &NormalMap,
     method: Method,
     options: &BakeOptions,
     progress: &mut dyn FnMut(f32) -> bool,
 ) -> Result<Bake> {
-    let mut progress = Progress::new(progress);
-    progress.report(0.0)?;
-    let bake = match method {
-        Method::Vmf => crate::mixture::bake_vmf(map, options, &mut progress),
-        Method::Tan2005 => crate::mixture::bake_tan2005(map, options, &mut progress),
-        _ => crate::baseline::bake(map, method, &mut progress),
-    }?;
-    progress.report(1.0)?;
-    Ok(bake)
+    let color = map.feature().is_some();
+    check_options(method, options, color, None)?;
+    check_memory(map.width(), map.height(), method, options, color)?;
+    run_with_progress(progress, |progress| {
+        progress.report(0.0)?;
+        let bake = match method {
+            Method::Vmf => crate::mixture::bake_vmf(map, options, progress),
+            Method::Tan2005 => crate::mixture::bake_tan2005(map, options, progress),
+            _ => crate::baseline::bake(map, method, progress),
+        }?;
+        progress.report(1.0)?;
+        Ok(bake)
+    })
 }
 
 #[cfg(test)]
@@ -88,6 +246,49 @@ mod tests {
         ]
     }
 
+    /// The peaks measured for the calibration (MiB, `VMF_PEAK_PER_TEXEL`'s table and the
+    /// others): the estimate must stay above each, by at least 10 %.
+    #[test]
+    fn estimates_stay_above_the_measured_peaks() {
+        let o = |lobes, align| BakeOptions {
+            lobes,
+            align,
+            ..BakeOptions::default()
+        };
+        let measured: [(u32, Method, BakeOptions, bool, u64); 13] = [
+            (1024, Method::Vmf, o(1, Some(1.0)), true, 161),
+            (1024, Method::Vmf, o(6, None), false, 315),
+            (1024, Method::Vmf, o(6, None), true, 473),
+            (1024, Method::Vmf, o(6, Some(1.0)), true, 495),
+            (1024, Method::Vmf, o(8, Some(1.0)), true, 632),
+            (512, Method::Vmf, o(8, Some(1.0)), true, 181),
+            (2048, Method::Vmf, o(6, Some(1.0)), true, 1855),
+            (1024, Method::Tan2005, o(8, Some(1.0)), false, 393),
+            (1024, Method::Tan2005, o(4, None), true, 340),
+            (1024, Method::Plain, o(6, None), false, 86),
+            (2048, Method::Plain, o(6, None), false, 320),
+            (1024, Method::Olano, o(6, None), false, 214),
+            (2048, Method::Olano, o(6, None), false, 831),
+        ];
+        for (size, method, options, color, mib) in measured {
+            let estimate = estimate_peak_bytes(size, size, method, &options, color);
+            assert!(
+                estimate as f64 >= 1.1 * (mib << 20) as f64,
+                "{method} {size}² J={}: {} MiB estimated, {mib} MiB measured",
+                options.lobes,
+                estimate >> 20
+            );
+        }
+        // More texels, lobes or colour never need less.
+        let base = estimate_peak_bytes(512, 512, Method::Vmf, &o(6, None), false);
+        assert!(estimate_peak_bytes(1024, 512, Method::Vmf, &o(6, None), false) > base);
+        assert!(estimate_peak_bytes(512, 512, Method::Vmf, &o(7, None), false) > base);
+        assert!(estimate_peak_bytes(512, 512, Method::Vmf, &o(6, None), true) > base);
+        // The largest map (2^28 texels) with the most lobes: hundreds of GiB, no overflow.
+        let huge = estimate_peak_bytes(65536, 4096, Method::Vmf, &o(8, None), true);
+        assert!(huge > 100 << 30);
+    }
+
     #[test]
     fn progress_rises_from_zero_to_one_and_leaves_the_bake_unchanged() {
         // 512²: level 1 has four chunks of PROGRESS_CHUNK texels.
@@ -104,8 +305,11 @@ mod tests {
             assert_eq!(with, bake_with(&map, method, &options).unwrap(), "{method}");
             assert_eq!(seen.first(), Some(&0.0), "{method}: {seen:?}");
             assert_eq!(seen.last(), Some(&1.0), "{method}: {seen:?}");
-            assert!(seen.len() >= 3, "{method}: {seen:?}");
-            assert!(seen.windows(2).all(|p| p[0] < p[1]), "{method}: {seen:?}");
+            // Non-decreasing: while a piece of work runs, the last value comes again.
+            assert!(seen.windows(2).all(|p| p[0] <= p[1]), "{method}: {seen:?}");
+            let mut distinct = seen.clone();
+            distinct.dedup();
+            assert!(distinct.len() >= 3, "{method}: {seen:?}");
         }
     }
 

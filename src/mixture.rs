@@ -25,7 +25,10 @@
 //! Colour (eq 22): with a feature image, each component also gets `y_j = Σ z_ij y_i / Σ z_ij`,
 //! stored as `α_j y_j`.
 
-use crate::bake::{Bake, BakeOptions, Method, Progress, Texture};
+use crate::bake::{
+    Bake, BakeOptions, CancelFlag, MAX_ALIGN_STRENGTH, MAX_EM_ITERATIONS, MAX_EM_TOLERANCE, Method,
+    Progress, Texture,
+};
 use crate::em::{self, Alignment, AlignmentForm, EmInput, EmOptions, EmScratch, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
@@ -73,6 +76,8 @@ pub(crate) trait Model: Sync {
     fn passes(options: &BakeOptions) -> (EmOptions, EmOptions);
     /// One texel's EM from `init` with `pass = (options, em)`'s EM options, optionally pulled
     /// towards `neighbours` with the strength (and, for vMF, the form) of `options`' alignment.
+    /// A fit stops early once `input`'s cancellation flag is set (its result is then
+    /// discarded).
     fn fit(
         input: &EmInput,
         init: &[Self::C],
@@ -416,8 +421,11 @@ impl<M: Model> Gather<M> {
         init: &[M::C],
         pass: (&BakeOptions, &EmOptions),
         neighbours: Option<&[&[M::C]]>,
+        cancel: &CancelFlag,
     ) -> TexelFit<M::C> {
-        let mut input = EmInput::new(&self.normals).with_weights(&self.weights);
+        let mut input = EmInput::new(&self.normals)
+            .with_weights(&self.weights)
+            .with_cancel(cancel.as_atomic());
         if !self.features.is_empty() {
             input = input.with_features(&self.features);
         }
@@ -425,8 +433,8 @@ impl<M: Model> Gather<M> {
     }
 }
 
-/// Validates the mixture options.
-fn check(options: &BakeOptions) -> Result<()> {
+/// Validates the mixture options against their documented ranges (`bake`'s `MAX_*`).
+pub(crate) fn check(options: &BakeOptions) -> Result<()> {
     if !(1..=MAX_LOBES).contains(&options.lobes) {
         return Err(Error::InvalidOption(format!(
             "lobe count {} (expected 1 to {MAX_LOBES})",
@@ -434,17 +442,23 @@ fn check(options: &BakeOptions) -> Result<()> {
         )));
     }
     if let Some(c) = options.align
-        && !(c.is_finite() && c >= 0.0)
+        && !(0.0..=MAX_ALIGN_STRENGTH).contains(&c)
     {
         return Err(Error::InvalidOption(format!(
-            "alignment strength {c} (expected a finite C ≥ 0)"
+            "alignment strength {c} (expected C from 0 to {MAX_ALIGN_STRENGTH})"
         )));
     }
-    if options.em.max_iterations == 0 || options.em.tolerance.is_nan() || options.em.tolerance < 0.0
-    {
-        return Err(Error::InvalidOption(
-            "EM needs at least one iteration and a tolerance ≥ 0".into(),
-        ));
+    if !(1..=MAX_EM_ITERATIONS).contains(&options.em.max_iterations) {
+        return Err(Error::InvalidOption(format!(
+            "EM iterations {} (expected 1 to {MAX_EM_ITERATIONS})",
+            options.em.max_iterations
+        )));
+    }
+    if !(0.0..=MAX_EM_TOLERANCE).contains(&options.em.tolerance) {
+        return Err(Error::InvalidOption(format!(
+            "EM tolerance {} (expected 0 to {MAX_EM_TOLERANCE})",
+            options.em.tolerance
+        )));
     }
     Ok(())
 }
@@ -625,6 +639,7 @@ fn bottom_up<M: Model>(
         placeholder_level()
     }];
     let steps = sizes.len().saturating_sub(1).max(1) as f64;
+    let cancel = progress.cancel_flag();
     for k in 1..sizes.len() {
         let (w, h) = sizes[k];
         let (pw, ph) = sizes[k - 1];
@@ -654,15 +669,19 @@ fn bottom_up<M: Model>(
             }
             let mut init = [M::EMPTY; MAX_LOBES];
             M::init_from_children(&g.candidates, &mut init[..j]);
-            g.fit(&init[..j], (options, &em), None)
+            g.fit(&init[..j], (options, &em), None, cancel)
         };
         let mut out = LevelFit::with_capacity((w * h) as usize, j, colors);
         for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK).min(w * h);
+            // Workers poll the cancellation flag between texels.
             let results: Vec<TexelFit<M::C>> = (lo..hi)
                 .into_par_iter()
-                .map_init(Gather::<M>::default, &fit_texel)
-                .collect();
+                .map_init(Gather::<M>::default, |g, t| {
+                    (!cancel.is_cancelled()).then(|| fit_texel(g, t))
+                })
+                .collect::<Option<_>>()
+                .ok_or(Error::Cancelled)?;
             for r in &results {
                 out.push::<M>(r);
             }
@@ -755,6 +774,7 @@ fn top_down<M: Model>(
     let levels = sizes.len();
     let (_, em) = M::passes(options);
     let mut fits: Vec<Option<LevelFit>> = (0..levels).map(|_| None).collect();
+    let cancel = progress.cancel_flag();
     for k in (0..levels).rev() {
         let (w, h) = sizes[k];
         let parent = fits.get(k + 1).and_then(|p| p.as_ref());
@@ -804,9 +824,13 @@ fn top_down<M: Model>(
                 continue;
             }
             let done = &out;
+            // Workers poll the cancellation flag between texels.
             let results: Vec<(u32, u32, TexelFit<M::C>)> = (y_lo..=y_hi)
                 .into_par_iter()
                 .map_init(Gather::<M>::default, |g, y| {
+                    if cancel.is_cancelled() {
+                        return None;
+                    }
                     let x = d - 2 * y;
                     let t = (y * w + x) as usize;
                     let parent = parent_of_texel(x, y);
@@ -817,7 +841,7 @@ fn top_down<M: Model>(
                             Some(p) => into_slots::<M>(&fit, j, &p[..j]),
                             None => fit,
                         };
-                        return (x, y, fit);
+                        return Some((x, y, fit));
                     }
                     // The previously visited neighbours and the parent pull (at most
                     // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
@@ -849,13 +873,19 @@ fn top_down<M: Model>(
                     for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
                         *n = &p[..j];
                     }
-                    (
+                    Some((
                         x,
                         y,
-                        g.fit(&init[..j], (options, &em), Some(&neighbours[..count])),
-                    )
+                        g.fit(
+                            &init[..j],
+                            (options, &em),
+                            Some(&neighbours[..count]),
+                            cancel,
+                        ),
+                    ))
                 })
-                .collect();
+                .collect::<Option<_>>()
+                .ok_or(Error::Cancelled)?;
             for (x, y, fit) in &results {
                 out.set::<M>((y * w + x) as usize, fit);
             }

@@ -1,10 +1,14 @@
-//! Writing a bake to a folder: `manifest.json` plus one OpenEXR file (RGBA, 32-bit float) per
-//! texture per MIP level, named `<texture>_L<level>.exr`.
+//! Writing a bake to a folder: `manifest.json` plus one OpenEXR file (RGBA, 32-bit or 16-bit
+//! float) or PNG file (unorm) per texture per MIP level, named `<texture>_L<level>.exr`.
 //!
-//! Writing is all-or-nothing: every file goes to a staging folder inside the destination first;
-//! only when all are written is an older `manifest.json` removed, the files renamed into place,
-//! and the new manifest renamed in last. A folder with a `manifest.json` therefore always holds
-//! a complete bake, and a failure leaves no partial output behind.
+//! The folder is written as a whole, atomically ([`write_folder`], the one atomic writer):
+//! every file goes into a complete sibling staging folder first, which then replaces the
+//! destination by rename. A folder therefore always holds one complete bake and nothing its
+//! manifest does not list: never a mix of two bakes, never stale files of an earlier one.
+//! Concurrent writers of one folder serialize on a lock file beside it; what a killed writer
+//! left (a staging folder, or the previous folder set aside) is cleaned up or restored by the
+//! next writer. Files are byte-deterministic: the same bake gives the same bytes, whatever the
+//! thread count (OpenEXR chunks in increasing order).
 
 use crate::bake::{Bake, Method};
 use crate::error::{Error, Result};
@@ -154,16 +158,14 @@ fn write_level(
 ) -> Result<()> {
     let px = |x: usize, y: usize| level[y * w as usize + x];
     let result = match format {
-        Format::F32 => exr::prelude::write_rgba_file(path, w as usize, h as usize, |x, y| {
+        Format::F32 => write_exr(path, w, h, |x, y| {
             let v = px(x, y);
             (v[0], v[1], v[2], v[3])
-        })
-        .map_err(|e| e.to_string()),
-        Format::F16 => exr::prelude::write_rgba_file(path, w as usize, h as usize, |x, y| {
+        }),
+        Format::F16 => write_exr(path, w, h, |x, y| {
             let v = px(x, y).map(half::f16::from_f32);
             (v[0], v[1], v[2], v[3])
-        })
-        .map_err(|e| e.to_string()),
+        }),
         Format::Unorm16 => {
             let data: Vec<u16> = level
                 .iter()
@@ -192,6 +194,31 @@ fn write_level(
     result.map_err(|e| write_err(path, e))
 }
 
+/// Writes an RGBA OpenEXR file: run-length encoded 64×64 tiles (the `exr` crate's default
+/// encoding) in increasing order, compressed on the calling thread (the files of a bake are
+/// written in parallel instead: `exr`'s parallel writer starts a thread pool per file and
+/// writes its chunks in the order they finish), so the file's bytes depend only on its texels.
+fn write_exr<S: exr::prelude::IntoSample>(
+    path: &Path,
+    w: u32,
+    h: u32,
+    px: impl Fn(usize, usize) -> (S, S, S, S) + Sync,
+) -> std::result::Result<(), String> {
+    use exr::prelude::WritableImage;
+    use exr::prelude::{Blocks, Compression, Encoding, Image, LineOrder, SpecificChannels, Vec2};
+    let encoding = Encoding {
+        compression: Compression::RLE,
+        blocks: Blocks::Tiles(Vec2(64, 64)),
+        line_order: LineOrder::Increasing,
+    };
+    let channels = SpecificChannels::rgba(|Vec2(x, y): Vec2<usize>| px(x, y));
+    Image::from_encoded_channels((w as usize, h as usize), encoding, channels)
+        .write()
+        .non_parallel()
+        .to_file(path)
+        .map_err(|e| e.to_string())
+}
+
 fn write_err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Write {
         path: path.to_path_buf(),
@@ -199,50 +226,209 @@ fn write_err(path: &Path, e: impl std::fmt::Display) -> Error {
     }
 }
 
-/// Writes `bake` and its manifest into `dir` (created if missing), all-or-nothing (module docs).
-/// Returns the manifest's path.
+/// Writes `bake` and its manifest as folder `dir` (its parent created if missing), atomically
+/// ([`write_folder`]): afterwards `dir` holds this bake and nothing else, or, on failure, what
+/// it held before. Returns the manifest's path.
+///
+/// # Errors
+///
+/// [`Error::InvalidOption`] for an empty path or one without a folder name (`/`, `..`),
+/// [`Error::Write`] when `dir` holds files that no ndfmap bake wrote (it is not replaced), or
+/// when a file or folder cannot be written.
 pub fn write_bake(bake: &Bake, input: InputInfo, dir: &Path) -> Result<PathBuf> {
-    std::fs::create_dir_all(dir).map_err(|e| write_err(dir, e))?;
-    let staging = dir.join(format!(".ndfmap-staging-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&staging);
-    std::fs::create_dir(&staging).map_err(|e| write_err(dir, e))?;
-    let result = stage_and_commit(bake, input, dir, &staging);
-    let _ = std::fs::remove_dir_all(&staging);
+    let manifest = Manifest::new(bake, input);
+    let json = serde_json::to_string_pretty(&manifest).map_err(|e| write_err(dir, e))?;
+    write_folder(dir, |staging| {
+        use rayon::prelude::*;
+        // One job per file, in parallel; each file is written alone (same bytes for any thread
+        // count), and the first failure in file order is the one reported.
+        let files: Vec<(usize, usize)> = (0..bake.textures.len())
+            .flat_map(|t| (0..bake.sizes.len()).map(move |k| (t, k)))
+            .collect();
+        let results: Vec<Result<()>> = files
+            .par_iter()
+            .map(|&(t, k)| {
+                let (texture, name) = (&bake.textures[t], &manifest.textures[t].files[k]);
+                let (w, h) = bake.sizes[k];
+                let level = &texture.levels[k];
+                write_level(
+                    &staging.join(name),
+                    w,
+                    h,
+                    level,
+                    texture.ranges,
+                    bake.format,
+                )
+                // Name the final file in the error, not the staging copy.
+                .map_err(|e| match e {
+                    Error::Write { message, .. } => write_err(&dir.join(name), message),
+                    other => other,
+                })
+            })
+            .collect();
+        results.into_iter().collect::<Result<()>>()?;
+        let staged = staging.join(MANIFEST);
+        std::fs::write(&staged, json + "\n").map_err(|e| write_err(&dir.join(MANIFEST), e))
+    })?;
+    Ok(dir.join(MANIFEST))
+}
+
+/// The manifest's file name.
+pub const MANIFEST: &str = "manifest.json";
+
+/// What a folder written by [`write_folder`] has beside it while it is written: `.NAME` and one
+/// of these suffixes (then the writer's process id and a nonce).
+const STAGING: &str = ".ndfmap-staging-";
+/// The previous folder, set aside during the swap.
+const OLD: &str = ".ndfmap-old-";
+/// The lock file beside the folder (kept: removing a lock file races with its next user).
+const LOCK: &str = ".ndfmap-lock";
+
+/// Writes folder `dir` as a whole, atomically: `fill` writes every file into an empty staging
+/// folder beside `dir`; only when it succeeds does the staging folder replace `dir` (the old
+/// folder is renamed aside, the staging folder renamed to `dir`, the old one removed). At every
+/// moment `dir` is either the old folder or the new one, complete; a failure of `fill` leaves
+/// `dir` as it was.
+///
+/// - Writers of the same `dir` serialize on an exclusive lock of the file `.NAME.ndfmap-lock`
+///   beside it (released by the system when a writer dies): the last to finish wins, complete.
+/// - Under the lock, what earlier writers left is cleaned up first: their staging folders are
+///   removed, and a folder set aside by a writer killed between its two renames is restored
+///   (or removed when `dir` exists).
+/// - An existing `dir` is replaced only if it is empty or holds nothing but an ndfmap bake
+///   (`manifest.json`, the files it lists, files named like texture levels, and staging
+///   folders of older versions): a folder of other files is an error, untouched.
+pub fn write_folder(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if dir.as_os_str().is_empty() {
+        return Err(Error::InvalidOption(
+            "the output folder's path is empty".into(),
+        ));
+    }
+    let Some(name) = dir.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Err(Error::InvalidOption(format!(
+            "output folder '{}' has no name (write into a named folder, e.g. out/bake)",
+            dir.display()
+        )));
+    };
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(|e| write_err(&parent, e))?;
+    let lock_path = parent.join(format!(".{name}{LOCK}"));
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_path)
+        .map_err(|e| write_err(&lock_path, e))?;
+    lock.lock().map_err(|e| write_err(&lock_path, e))?;
+    clean_up(&parent, &name, dir)?;
+    check_replaceable(dir)?;
+    let nonce = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let tag = format!("{}-{nonce}", std::process::id());
+    let staging = parent.join(format!(".{name}{STAGING}{tag}"));
+    std::fs::create_dir(&staging).map_err(|e| write_err(&staging, e))?;
+    let result = fill(&staging)
+        .and_then(|()| swap_in(&staging, dir, &parent.join(format!(".{name}{OLD}{tag}"))));
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&staging);
+    }
+    drop(lock);
     result
 }
 
-fn stage_and_commit(bake: &Bake, input: InputInfo, dir: &Path, staging: &Path) -> Result<PathBuf> {
-    let manifest = Manifest::new(bake, input);
-    for (t, info) in bake.textures.iter().zip(&manifest.textures) {
-        for (k, level) in t.levels.iter().enumerate() {
-            let (w, h) = bake.sizes[k];
-            let path = staging.join(&info.files[k]);
-            // Name the final file in the error, not the staging copy.
-            write_level(&path, w, h, level, t.ranges, bake.format).map_err(|e| match e {
-                Error::Write { message, .. } => write_err(&dir.join(&info.files[k]), message),
-                other => other,
-            })?;
+/// Replaces `dir` by `staging`, setting an existing `dir` aside as `old` first.
+fn swap_in(staging: &Path, dir: &Path, old: &Path) -> Result<()> {
+    let existed = dir.exists();
+    if existed {
+        std::fs::rename(dir, old).map_err(|e| write_err(dir, e))?;
+    }
+    if let Err(e) = std::fs::rename(staging, dir) {
+        if existed {
+            let _ = std::fs::rename(old, dir);
+        }
+        return Err(write_err(dir, e));
+    }
+    if existed {
+        // The new folder is in place; a failure to remove the old one is cleaned up by the
+        // next writer.
+        let _ = std::fs::remove_dir_all(old);
+    }
+    Ok(())
+}
+
+/// Under the lock: removes the staging folders writers of `dir` (named `name` in `parent`)
+/// left, and restores (or removes) a folder set aside by a writer killed between its renames.
+fn clean_up(parent: &Path, name: &str, dir: &Path) -> Result<()> {
+    let (staging, old) = (format!(".{name}{STAGING}"), format!(".{name}{OLD}"));
+    let entries = std::fs::read_dir(parent).map_err(|e| write_err(parent, e))?;
+    let mut leftovers: Vec<(bool, PathBuf)> = entries
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let n = e.file_name().to_string_lossy().into_owned();
+            let is_old = n.starts_with(&old);
+            (is_old || n.starts_with(&staging)).then(|| (is_old, e.path()))
+        })
+        .collect();
+    leftovers.sort();
+    for (is_old, path) in leftovers {
+        if is_old && !dir.exists() {
+            std::fs::rename(&path, dir).map_err(|e| write_err(dir, e))?;
+        } else {
+            std::fs::remove_dir_all(&path).map_err(|e| write_err(&path, e))?;
         }
     }
-    let json = serde_json::to_string_pretty(&manifest).map_err(|e| write_err(dir, e))?;
-    let staged_manifest = staging.join("manifest.json");
-    std::fs::write(&staged_manifest, json + "\n").map_err(|e| write_err(&staged_manifest, e))?;
-    // Commit: the old manifest goes first, the new one comes last.
-    let final_manifest = dir.join("manifest.json");
-    match std::fs::remove_file(&final_manifest) {
-        Ok(()) => {}
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-        Err(e) => return Err(write_err(&final_manifest, e)),
+    Ok(())
+}
+
+/// Whether `dir` may be replaced: missing, empty, or holding only an ndfmap bake.
+fn check_replaceable(dir: &Path) -> Result<()> {
+    let meta = match std::fs::symlink_metadata(dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(write_err(dir, e)),
+        Ok(m) => m,
+    };
+    if !meta.is_dir() {
+        return Err(write_err(dir, "exists and is not a folder"));
     }
-    for info in &manifest.textures {
-        for f in &info.files {
-            std::fs::rename(staging.join(f), dir.join(f))
-                .map_err(|e| write_err(&dir.join(f), e))?;
+    let listed: Vec<String> = std::fs::read_to_string(dir.join(MANIFEST))
+        .ok()
+        .and_then(|text| serde_json::from_str::<Manifest>(&text).ok())
+        .map(|m| m.textures.into_iter().flat_map(|t| t.files).collect())
+        .unwrap_or_default();
+    for entry in std::fs::read_dir(dir).map_err(|e| write_err(dir, e))? {
+        let entry = entry.map_err(|e| write_err(dir, e))?;
+        let n = entry.file_name().to_string_lossy().into_owned();
+        if n == MANIFEST || listed.contains(&n) || is_level_file(&n) || n.starts_with(STAGING) {
+            continue;
         }
+        return Err(write_err(
+            dir,
+            format!(
+                "holds '{n}', which no ndfmap bake wrote: not replacing a folder of other \
+                 files (write into a new or empty folder)"
+            ),
+        ));
     }
-    std::fs::rename(&staged_manifest, &final_manifest)
-        .map_err(|e| write_err(&final_manifest, e))?;
-    Ok(final_manifest)
+    Ok(())
+}
+
+/// Whether `n` is named like a level file of a bake (`lobe0_L03.exr`, `mean_L00.png`).
+fn is_level_file(n: &str) -> bool {
+    let Some((stem, ext)) = n.rsplit_once('.') else {
+        return false;
+    };
+    let Some((texture, level)) = stem.rsplit_once("_L") else {
+        return false;
+    };
+    matches!(ext, "exr" | "png")
+        && !texture.is_empty()
+        && texture.chars().all(|c| c.is_ascii_alphanumeric())
+        && level.len() >= 2
+        && level.chars().all(|c| c.is_ascii_digit())
 }
 
 /// Reads one written level back as RGBA f32 texels (for tests and tools).

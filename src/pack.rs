@@ -8,7 +8,7 @@
 //! format, and f16 refuses values beyond its range rather than storing infinity.
 //! Packed bytes are in the host's byte order, rows top to bottom: what `glTexImage2D` takes.
 
-use crate::bake::Bake;
+use crate::bake::{Bake, Method};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use half::f16;
@@ -43,6 +43,19 @@ fn from_unorm(c: f32, range: ValueRange, max: f32) -> f32 {
         ValueRange::Signed => 2.0 * u - 1.0,
         _ => u,
     }
+}
+
+/// Whether `format` can hold the textures a bake of `method` makes, whose value ranges are
+/// `ranges` (`methods::texture_ranges`), known before baking: unbounded channels need a float
+/// format. (Whether f16 holds every value is known only after: [`check`].)
+pub fn check_ranges(method: Method, ranges: &[[ValueRange; 4]], format: Format) -> Result<()> {
+    let unbounded = ranges.iter().any(|r| r.contains(&ValueRange::Any));
+    if unbounded && matches!(format, Format::Unorm16 | Format::Unorm8) {
+        return Err(Error::InvalidOption(format!(
+            "format {format} cannot hold the textures of {method} (unbounded values); use f16 or f32"
+        )));
+    }
+    Ok(())
 }
 
 /// Whether `format` can hold texture `texture` of `bake`: unbounded channels need a float
@@ -117,12 +130,17 @@ pub fn round_trip(v: f32, range: ValueRange, format: Format) -> f32 {
 /// The bake as a GPU sampling `format` textures sees it: every value rounded through the
 /// format, and [`Bake::format`] set so shading applies the format's clamps.
 pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
+    quantize_into(bake.clone(), format)
+}
+
+/// [`quantize`] in place: the bake's own texels are rounded, so that no second copy of its
+/// textures is held (what a writer of a large bake wants).
+pub fn quantize_into(mut bake: Bake, format: Format) -> Result<Bake> {
     use rayon::prelude::*;
     for i in 0..bake.textures.len() {
-        check(bake, i, format)?;
+        check(&bake, i, format)?;
     }
-    let mut out = bake.clone();
-    for t in &mut out.textures {
+    for t in &mut bake.textures {
         let ranges = t.ranges;
         for level in &mut t.levels {
             // Each value on its own: the same result for any split and thread count.
@@ -135,8 +153,8 @@ pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
             });
         }
     }
-    out.format = format;
-    Ok(out)
+    bake.format = format;
+    Ok(bake)
 }
 
 #[cfg(test)]

@@ -742,7 +742,7 @@ pub fn fit(
     scratch.log_likelihoods.push(ll);
     let mut iterations = 0;
     let mut converged = false;
-    while iterations < options.max_iterations {
+    while iterations < options.max_iterations && !input.cancelled() {
         m_step(&mut gaussians[..j_count], &active, &sums, total, &pull);
         iterations += 1;
         active = Active::new(&gaussians[..j_count]);

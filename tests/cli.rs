@@ -1,15 +1,10 @@
 //! The `ndfmap` command: the main jobs succeed and write what they say, and bad input exits
 //! non-zero with one clear line naming the file, leaving no output that looks complete.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
-fn ndfmap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ndfmap"))
-        .args(args)
-        .output()
-        .expect("runs ndfmap")
-}
+use common::{assert_one_line_error, ndfmap};
+use std::path::Path;
 
 fn write_normal_png(path: &Path, w: u32, h: u32) {
     let img = image::RgbImage::from_fn(w, h, |x, y| {
@@ -35,19 +30,6 @@ fn bake_manifest(args: &[&str], out: &Path) -> serde_json::Value {
     );
     let text = std::fs::read_to_string(out.join("manifest.json")).unwrap();
     serde_json::from_str(&text).unwrap()
-}
-
-/// Asserts a failed run with exactly one stderr line that contains every `needle`.
-fn assert_one_line_error(out: &Output, needles: &[&str]) {
-    assert!(!out.status.success(), "expected failure");
-    let err = String::from_utf8_lossy(&out.stderr);
-    let lines: Vec<_> = err.lines().collect();
-    assert_eq!(lines.len(), 1, "one line expected, got: {err}");
-    assert!(lines[0].starts_with("ndfmap: error: "), "{err}");
-    for n in needles {
-        assert!(lines[0].contains(n), "'{n}' missing from: {err}");
-    }
-    assert!(!err.contains("panicked"), "{err}");
 }
 
 #[test]

@@ -416,8 +416,10 @@ fn directx_negates_green() {
     assert_normals(&dx, &flipped, 1e-6, "directx");
 }
 
+/// A grey + alpha image holds x and y only when the caller says so (`channels = xy`); under
+/// `auto` it is refused (issue 13: it is far more often a height map with a mask).
 #[test]
-fn luma_alpha_png_reconstructs_z() {
+fn luma_alpha_png_reconstructs_z_with_channels_xy() {
     let tmp = dir();
     let path = tmp.path().join("xy.png");
     let ns = normals(W, H);
@@ -432,7 +434,20 @@ fn luma_alpha_png_reconstructs_z() {
         .unwrap()
         .save(&path)
         .unwrap();
-    let map = NormalMap::load(&path, &opts()).unwrap();
+    match NormalMap::load(&path, &opts()) {
+        Err(Error::UnsupportedLayout { layout, .. }) => {
+            assert!(
+                layout.contains("grey + alpha") && layout.contains("xy"),
+                "{layout}"
+            )
+        }
+        other => panic!("channels = auto: expected UnsupportedLayout, got {other:?}"),
+    }
+    let xy = IngestOptions {
+        channels: Channels::Xy,
+        ..opts()
+    };
+    let map = NormalMap::load(&path, &xy).unwrap();
     assert_normals(&map, &expected, 1e-6, "luma+alpha png");
     let s = map.stats();
     assert_eq!((s.source_channels, s.source_bits), (2, 8));
@@ -442,7 +457,7 @@ fn luma_alpha_png_reconstructs_z() {
         &path,
         &IngestOptions {
             green: GreenChannel::DirectX,
-            ..opts()
+            ..xy
         },
     )
     .unwrap();
@@ -1127,7 +1142,9 @@ fn load_memory_reads_every_format_as_load_reads_the_file() {
 /// Fuzzing finding 1 (fuzz/README.md): an OpenEXR file whose scan line lies outside the level
 /// being read makes `exr` 1.74.2 panic inside its decoder (a debug assertion; without debug
 /// assertions the line is written at a wrong place or an index panics). Ingest's decoder guard
-/// turns the panic into a decode error; nothing unwinds into the caller.
+/// turns such a panic into a decode error; nothing unwinds into the caller. Since ingest reads
+/// only the channels it uses (issue 13), `exr`'s channel-selecting reader skips the stray line,
+/// so the file may also load.
 #[test]
 fn fuzz_finding_exr_line_outside_its_level_is_a_decode_error() {
     let path =
@@ -1144,8 +1161,8 @@ fn fuzz_finding_exr_line_outside_its_level_is_a_decode_error() {
                     "{message}"
                 )
             }
-            Ok(_) if !cfg!(debug_assertions) => {}
-            other => panic!("expected a decode error, got {other:?}"),
+            Ok(map) => assert_eq!((map.width(), map.height()), (8, 8)),
+            other => panic!("expected a map or a decode error, got {other:?}"),
         }
     }
 }

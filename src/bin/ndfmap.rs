@@ -35,9 +35,10 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Time the vMF bake (and Toksvig's, for scale) on the built-in sample at several sizes and
-    /// lobe counts: wall seconds and peak memory per run. With `--quality`, measure instead how
-    /// well each vMF bake fits its normals (`ndfmap::quality`): per level, the log-likelihood
-    /// gap to a multi-start reference fit and the dead / near-empty lobe shares.
+    /// lobe counts: wall seconds, CPU seconds, peak memory and the memory budget's estimate
+    /// per run. With `--quality`, measure instead how well each vMF bake fits its normals
+    /// (`ndfmap::quality`): per level, the log-likelihood gap to a multi-start reference fit
+    /// and the dead / near-empty lobe shares.
     Bench {
         /// Map sizes (square), comma-separated.
         #[arg(long, default_value = "256,512,1024", value_delimiter = ',')]
@@ -229,6 +230,10 @@ struct IngestArgs {
     /// Feature image encoding: srgb (decoded to linear) or linear.
     #[arg(long, default_value = "srgb")]
     feature_encoding: String,
+    /// Memory budget (e.g. 512M, 4G): a file or a bake estimated to need more is refused
+    /// before it starts. Default: half the machine's memory.
+    #[arg(long)]
+    memory: Option<String>,
 }
 
 /// Parses a lower-case option value into one of the library's serde enums.
@@ -251,7 +256,20 @@ impl IngestArgs {
                 &self.feature_encoding,
                 "srgb, linear",
             )?,
+            memory_limit: self.memory_limit()?,
         })
+    }
+
+    /// The `--memory` budget in bytes, `None` for the default.
+    fn memory_limit(&self) -> Result<Option<u64>> {
+        self.memory
+            .as_deref()
+            .map(ndfmap::budget::parse_bytes)
+            .transpose()
+            .map_err(|e| match e {
+                Error::InvalidOption(m) => Error::InvalidOption(format!("--memory: {m}")),
+                e => e,
+            })
     }
 
     fn load(&self, input: &Path) -> Result<(NormalMap, InputInfo)> {
@@ -339,6 +357,8 @@ struct MixtureGrid {
     align_form: AlignmentForm,
     /// vMF fitting modes.
     modes: Vec<FitMode>,
+    /// The memory budget of every bake (`--memory`).
+    memory_limit: Option<u64>,
 }
 
 impl MixtureGrid {
@@ -352,6 +372,7 @@ impl MixtureGrid {
             align: parse_align(align)?,
             align_form: form.parse()?,
             modes,
+            memory_limit: None,
         })
     }
 
@@ -368,6 +389,7 @@ impl MixtureGrid {
                         align,
                         align_form: self.align_form,
                         mode,
+                        memory_limit: self.memory_limit,
                         ..BakeOptions::default()
                     });
                 }
@@ -392,7 +414,13 @@ fn bake_all(
                 jobs.push((m, o));
             }
         } else {
-            jobs.push((m, BakeOptions::default()));
+            jobs.push((
+                m,
+                BakeOptions {
+                    memory_limit: mixtures.memory_limit,
+                    ..BakeOptions::default()
+                },
+            ));
         }
     }
     jobs.into_iter()
@@ -428,27 +456,38 @@ fn run(cli: Cli) -> Result<()> {
             format,
             ingest,
         } => {
+            // Everything is checked before any work: the options, the format against the
+            // method, the input's header and the bake's memory estimate, then the decoding.
             let method: Method = method.parse()?;
             let format: Format = format.parse()?;
-            if let Some(c) = align.filter(|c| !(c.is_finite() && *c >= 0.0)) {
-                return Err(Error::InvalidOption(format!(
-                    "--align {c} (expected C >= 0)"
-                )));
-            }
             let options = BakeOptions {
                 lobes,
                 align,
                 align_form: align_form.parse()?,
                 mode: mode.parse()?,
+                memory_limit: ingest.memory_limit()?,
                 ..BakeOptions::default()
             };
+            let color = ingest.feature.is_some();
+            ndfmap::methods::check_options(method, &options, color, Some(format))?;
+            let (w, h) = ndfmap::ingest::probe_size(&input, &ingest.options()?)?;
+            ndfmap::methods::check_memory(w, h, method, &options, color).map_err(|e| match e {
+                Error::MemoryBudget {
+                    what,
+                    needed,
+                    limit,
+                } => Error::MemoryBudget {
+                    what: format!("{}: {what}", input.display()),
+                    needed,
+                    limit,
+                },
+                e => e,
+            })?;
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
             let b = bake_with(&map, method, &options)?;
-            let b = match format {
-                Format::F32 => b,
-                f => ndfmap::pack::quantize(&b, f)?,
-            };
+            drop(map); // what the bake needs of it is done: less memory while writing
+            let b = ndfmap::pack::quantize_into(b, format)?;
             let seconds = t.elapsed().as_secs_f64();
             let manifest = write_bake(&b, info, &output)?;
             println!("baked {method} in {seconds:.3} s: {}", manifest.display());
@@ -466,13 +505,26 @@ fn run(cli: Cli) -> Result<()> {
             json,
             ingest,
         } => {
-            let mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
+            // Everything is checked before any work.
+            let mut mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
+            mixtures.memory_limit = ingest.memory_limit()?;
             check_exponents(&s)?;
+            if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+                return Err(Error::InvalidOption(format!(
+                    "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
+                )));
+            }
             let methods = parse_methods(&methods)?;
             let formats = formats
                 .iter()
                 .map(|f| f.trim().parse())
                 .collect::<Result<Vec<Format>>>()?;
+            let color = ingest.feature.is_some();
+            for &m in &methods {
+                for o in mixtures.options(m) {
+                    ndfmap::methods::check_options(m, &o, color, None)?;
+                }
+            }
             let (map, _) = ingest.load(&input)?;
             let mut bakes = Vec::new();
             for b in bake_all(&map, &methods, &mixtures, json)? {
@@ -485,11 +537,6 @@ fn run(cli: Cli) -> Result<()> {
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
-            if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
-                return Err(Error::InvalidOption(format!(
-                    "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
-                )));
-            }
             let brdfs: Vec<Brdf> = s
                 .iter()
                 .map(|&s| Brdf::BlinnPhong { s })
@@ -652,6 +699,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         align: vec![None],
         align_form: AlignmentForm::default(),
         modes: vec![FitMode::default()],
+        memory_limit: None,
     };
     let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
     for b in &bakes {
@@ -703,8 +751,16 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>10} {:>8} {:>12}",
-            "size", "method", "lobes", "aligned", "mode", "seconds", "CPU s", "peak MiB"
+            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>10} {:>8} {:>12} {:>14}",
+            "size",
+            "method",
+            "lobes",
+            "aligned",
+            "mode",
+            "seconds",
+            "CPU s",
+            "peak MiB",
+            "estimate MiB"
         );
     }
     for &size in sizes {
@@ -731,6 +787,8 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
             let peak = peak_memory();
             drop(b);
+            // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
+            let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
             let lobes = if method == Method::Vmf {
                 options.lobes
             } else {
@@ -740,19 +798,21 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                 "size": size, "method": method, "lobes": lobes,
                 "align": options.align, "mode": options.mode, "seconds": seconds,
                 "cpu_seconds": cpu,
-                "peak_bytes": peak, "baseline_bytes": base, "threads": threads,
+                "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
+                "threads": threads,
             });
             if !json {
                 let mib = |b: Option<u64>| {
                     b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
                 };
                 println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12}",
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12} {:>14}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
                     options.mode.name(),
                     cpu.map_or("?".into(), |c| format!("{c:.2}")),
-                    mib(peak)
+                    mib(peak),
+                    mib(Some(estimate))
                 );
             }
             rows.push(row);
@@ -1158,7 +1218,12 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("ndfmap: error: {e}");
+            // One line, whatever a decoder's message holds.
+            let text = e.to_string();
+            eprintln!(
+                "ndfmap: error: {}",
+                text.split_whitespace().collect::<Vec<_>>().join(" ")
+            );
             ExitCode::FAILURE
         }
     }

@@ -89,9 +89,12 @@ pub const NDF_KAPPA_ESTIMATOR_BANERJEE: ndf_kappa_estimator = 0;
 /// The exact maximum-likelihood κ (slower; every EM step then increases the likelihood).
 pub const NDF_KAPPA_ESTIMATOR_EXACT: ndf_kappa_estimator = 1;
 
-/// A progress callback, called on the thread that called the bake, between chunks of work,
-/// with the fraction done: first 0, then increasing, last 1. Return nonzero to go on, 0 to
-/// cancel (the bake then fails with `NDF_STATUS_CANCELLED` and makes no handle).
+/// A progress callback, called on the thread that called the bake with the fraction done:
+/// first 0, then non-decreasing (the same value again while a long piece of work runs: it is
+/// called at least every 50 ms while the bake runs, unless the bake was called from a thread
+/// of a Rust rayon pool), last 1. Return nonzero to go on, 0 to cancel: the bake stops within
+/// a fraction of a second, fails with `NDF_STATUS_CANCELLED` and makes no handle, and the
+/// callback is not called again.
 /// `user_data` is the options' `progress_user_data`. The callback must not throw (C++) and must
 /// not call back into the bake being made.
 pub type ndf_progress_fn =
@@ -108,6 +111,10 @@ pub struct ndf_baseline_options {
     pub progress: ndf_progress_fn,
     /// Passed to `progress` unchanged. Default NULL.
     pub progress_user_data: *mut c_void,
+    /// Memory budget of the bake in bytes: a bake whose estimated peak (from the map's size and
+    /// the method) exceeds it fails with `NDF_STATUS_MEMORY_BUDGET` before it starts. Default
+    /// 0: half the machine's memory (its control group's limit when lower).
+    pub memory_limit: u64,
 }
 
 /// Options of the vMF bake (`NDF_METHOD_VMF`, the paper's method). Initialize with
@@ -122,8 +129,8 @@ pub struct ndf_vmf_options {
     /// Nonzero: coherent lobes (Sec 7.3), so that hardware trilinear filtering of the lobe
     /// textures is valid; 0 (default): each texel fitted on its own.
     pub aligned: u32,
-    /// Alignment strength C when `aligned`, finite and ≥ 0. Default 1 (for eq 29; use about
-    /// 0.1 with `NDF_ALIGN_FORM_MAIN_TEXT`).
+    /// Alignment strength C when `aligned`, 0 to 1000. Default 1 (for eq 29; use about 0.1
+    /// with `NDF_ALIGN_FORM_MAIN_TEXT`).
     pub align_strength: f64,
     /// The alignment's M-step, `NDF_ALIGN_FORM_*`. Default `NDF_ALIGN_FORM_APPENDIX`.
     pub align_form: ndf_align_form,
@@ -131,11 +138,11 @@ pub struct ndf_vmf_options {
     /// was `approximate` before 0.2; its old nonzero value, the removed approximate mode,
     /// now selects `NDF_FIT_FAST`.)
     pub mode: ndf_fit_mode,
-    /// Most EM iterations per texel, at least 1: the cap of `NDF_FIT_EXACT`, an upper bound
+    /// Most EM iterations per texel, 1 to 1000: the cap of `NDF_FIT_EXACT`, an upper bound
     /// for the other modes. Default 20.
     pub em_max_iterations: u32,
-    /// EM convergence tolerance on the mean log-likelihood, ≥ 0: that of `NDF_FIT_EXACT`, a
-    /// lower bound for the other modes. Default 1e-6.
+    /// EM convergence tolerance on the mean log-likelihood, 0 to 1: that of `NDF_FIT_EXACT`,
+    /// a lower bound for the other modes. Default 1e-6.
     pub em_tolerance: f64,
     /// κ estimator, `NDF_KAPPA_ESTIMATOR_*`. Default `NDF_KAPPA_ESTIMATOR_BANERJEE`.
     pub kappa_estimator: ndf_kappa_estimator,
@@ -143,6 +150,9 @@ pub struct ndf_vmf_options {
     pub progress: ndf_progress_fn,
     /// Passed to `progress` unchanged. Default NULL.
     pub progress_user_data: *mut c_void,
+    /// Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+    /// machine's memory.
+    pub memory_limit: u64,
 }
 
 /// Options of the Tan et al. 2005 bake (`NDF_METHOD_TAN2005`). Initialize with
@@ -156,16 +166,19 @@ pub struct ndf_tan2005_options {
     pub lobes: u32,
     /// Nonzero: coherent Gaussians (Tan's alignment prior); 0 (default): unaligned.
     pub aligned: u32,
-    /// Prior strength c when `aligned`, finite and ≥ 0. Default 1 (Tan's choice).
+    /// Prior strength c when `aligned`, 0 to 1000. Default 1 (Tan's choice).
     pub align_strength: f64,
-    /// Most EM iterations per texel, at least 1. Default 20.
+    /// Most EM iterations per texel, 1 to 1000. Default 20.
     pub em_max_iterations: u32,
-    /// EM convergence tolerance, ≥ 0. Default 1e-6.
+    /// EM convergence tolerance, 0 to 1. Default 1e-6.
     pub em_tolerance: f64,
     /// Progress callback, or NULL (default) for none.
     pub progress: ndf_progress_fn,
     /// Passed to `progress` unchanged. Default NULL.
     pub progress_user_data: *mut c_void,
+    /// Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+    /// machine's memory.
+    pub memory_limit: u64,
 }
 
 /// The default baseline options: no progress callback.
@@ -175,6 +188,7 @@ pub extern "C" fn ndf_baseline_options_default() -> ndf_baseline_options {
         struct_size: size_of::<ndf_baseline_options>(),
         progress: None,
         progress_user_data: std::ptr::null_mut(),
+        memory_limit: 0,
     };
     guard_value(o, || o)
 }
@@ -196,6 +210,7 @@ pub extern "C" fn ndf_vmf_options_default() -> ndf_vmf_options {
         kappa_estimator: NDF_KAPPA_ESTIMATOR_BANERJEE,
         progress: None,
         progress_user_data: std::ptr::null_mut(),
+        memory_limit: 0,
     };
     guard_value(o, || o)
 }
@@ -214,6 +229,7 @@ pub extern "C" fn ndf_tan2005_options_default() -> ndf_tan2005_options {
         em_tolerance: d.em.tolerance,
         progress: None,
         progress_user_data: std::ptr::null_mut(),
+        memory_limit: 0,
     };
     guard_value(o, || o)
 }
@@ -299,7 +315,10 @@ pub unsafe extern "C" fn ndf_bake_baseline(
                 format!("method {m} is not a baseline (use ndf_bake_{m})"),
             ));
         }
-        let none = BakeOptions::default();
+        let none = BakeOptions {
+            memory_limit: super::memory_limit(o.memory_limit),
+            ..BakeOptions::default()
+        };
         unsafe { run(map, m, &none, o.progress, o.progress_user_data, out) }
     })
 }
@@ -341,6 +360,7 @@ pub unsafe extern "C" fn ndf_bake_vmf(
                 kappa_estimator: choose("kappa_estimator", o.kappa_estimator, &kappa)?,
                 ..EmOptions::default()
             },
+            memory_limit: super::memory_limit(o.memory_limit),
         };
         unsafe {
             run(
@@ -383,6 +403,7 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
                 tolerance: o.em_tolerance,
                 ..EmOptions::default()
             },
+            memory_limit: super::memory_limit(o.memory_limit),
         };
         unsafe {
             run(

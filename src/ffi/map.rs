@@ -86,6 +86,10 @@ pub struct ndf_ingest_options {
     pub bad_normals: ndf_bad_normals,
     /// Feature image encoding, `NDF_FEATURE_ENCODING_*`. Default `NDF_FEATURE_ENCODING_SRGB`.
     pub feature_encoding: ndf_feature_encoding,
+    /// Memory budget of one load in bytes: a file whose decoding would need more (estimated
+    /// from its header, before decoding) fails with `NDF_STATUS_MEMORY_BUDGET`. Default 0: half
+    /// the machine's memory (its control group's limit when lower).
+    pub memory_limit: u64,
 }
 
 /// The default ingest options: OpenGL green, automatic encoding and channels, wrap
@@ -103,6 +107,7 @@ const DEFAULT_INGEST: ndf_ingest_options = ndf_ingest_options {
     addressing: NDF_ADDRESSING_WRAP,
     bad_normals: NDF_BAD_NORMALS_REPAIR,
     feature_encoding: NDF_FEATURE_ENCODING_SRGB,
+    memory_limit: 0,
 };
 
 /// The `NDF_GREEN_*` values, in order.
@@ -128,6 +133,7 @@ impl ndf_ingest_options {
             addressing: choose("addressing", self.addressing, &ADDRESSING)?,
             bad_normals: choose("bad_normals", self.bad_normals, &BAD_NORMALS)?,
             feature_encoding: choose("feature_encoding", self.feature_encoding, &FEATURE_ENCODING)?,
+            memory_limit: super::memory_limit(self.memory_limit),
         })
     }
 }

@@ -82,10 +82,17 @@ pub enum ndf_status {
     /// An internal error (a bug in ndfmap) was caught at the boundary; the message says where.
     /// Handles passed to the call are still valid; the call had no other effect.
     Panic = 15,
+    /// Decoding the file or running the bake would need more memory than the budget
+    /// (`memory_limit` of the options, or half the machine's memory by default); refused before
+    /// allocating. The message names the size, the estimate and the budget.
+    MemoryBudget = 16,
+    /// A feature (colour) image has NaN, infinite or negative values with
+    /// `NDF_BAD_NORMALS_REJECT`.
+    BadFeatures = 17,
 }
 
 /// Every status, in number order.
-const STATUSES: [ndf_status; 16] = [
+const STATUSES: [ndf_status; 18] = [
     ndf_status::Ok,
     ndf_status::NullArgument,
     ndf_status::InvalidArgument,
@@ -102,6 +109,8 @@ const STATUSES: [ndf_status; 16] = [
     ndf_status::Write,
     ndf_status::Cancelled,
     ndf_status::Panic,
+    ndf_status::MemoryBudget,
+    ndf_status::BadFeatures,
 ];
 
 impl ndf_status {
@@ -124,6 +133,8 @@ impl ndf_status {
             ndf_status::Write => c"NDF_STATUS_WRITE",
             ndf_status::Cancelled => c"NDF_STATUS_CANCELLED",
             ndf_status::Panic => c"NDF_STATUS_PANIC",
+            ndf_status::MemoryBudget => c"NDF_STATUS_MEMORY_BUDGET",
+            ndf_status::BadFeatures => c"NDF_STATUS_BAD_FEATURES",
         }
     }
 }
@@ -208,6 +219,8 @@ impl From<Error> for Failure {
             Error::InvalidOption(_) => ndf_status::InvalidArgument,
             Error::Write { .. } => ndf_status::Write,
             Error::Cancelled => ndf_status::Cancelled,
+            Error::MemoryBudget { .. } => ndf_status::MemoryBudget,
+            Error::BadFeatures { .. } => ndf_status::BadFeatures,
         };
         fail(status, e.to_string())
     }
@@ -384,6 +397,11 @@ pub(crate) fn choose<T: Copy>(what: &str, v: u32, table: &[T]) -> Outcome<T> {
             ),
         )
     })
+}
+
+/// A `memory_limit` field of an options struct: bytes, 0 for the default budget.
+pub(crate) fn memory_limit(bytes: u64) -> Option<u64> {
+    (bytes != 0).then_some(bytes)
 }
 
 /// An index argument below `count`, or an out-of-range failure.

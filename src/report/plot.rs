@@ -89,6 +89,21 @@ fn log_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo / 1.5, hi * 1.5)
 }
 
+/// A tick label: `v` with three significant digits, trailing zeros dropped (`0.0003`, not
+/// `0.00030000000000000003`; `12.5`; `1500`).
+fn tick_label(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let decimals = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+    let text = format!("{v:.decimals$}");
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        text
+    }
+}
+
 /// Draws a log-log scatter with labels and the Pareto front.
 fn scatter<DB: DrawingBackend>(
     root: DrawingArea<DB, plotters::coord::Shift>,
@@ -113,8 +128,8 @@ fn scatter<DB: DrawingBackend>(
         .y_desc(y_desc)
         .y_labels(12)
         .x_labels(12)
-        .y_label_formatter(&|y| format!("{y:.3}"))
-        .x_label_formatter(&|x| format!("{x}"))
+        .y_label_formatter(&|y| tick_label(*y))
+        .x_label_formatter(&|x| tick_label(*x))
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|e| e.to_string())?;
@@ -177,7 +192,7 @@ fn levels_chart<DB: DrawingBackend>(
         .x_desc("MIP level (texel space) / centre λ (image space)")
         .y_desc("relative RMS error")
         .y_labels(12)
-        .y_label_formatter(&|y| format!("{y:.3}"))
+        .y_label_formatter(&|y| tick_label(*y))
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|e| e.to_string())?;
@@ -490,6 +505,18 @@ pub fn write_plots(report: &Report, out: &Path) -> Result<Vec<String>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 13: a log axis tick at 3e-4 read `0.00030000000000000003`.
+    #[test]
+    fn tick_labels_have_three_significant_digits_at_most() {
+        assert_eq!(tick_label(0.1 * 0.003), "0.0003");
+        assert_eq!(tick_label(0.00030000000000000003), "0.0003");
+        assert_eq!(tick_label(12.5), "12.5");
+        assert_eq!(tick_label(1500.0), "1500");
+        assert_eq!(tick_label(0.123456), "0.123");
+        assert_eq!(tick_label(1.0), "1");
+        assert_eq!(tick_label(0.0), "0");
+    }
 
     #[test]
     fn pareto_front_keeps_only_undominated_points() {
