@@ -37,17 +37,22 @@ pub enum Method {
     /// The paper's method (Sec 7): a mixture of J von Mises–Fisher lobes per texel fitted by
     /// spherical EM (Algorithm 1), one `(α, α·r)` texture per lobe, shaded by Algorithm 2.
     Vmf,
+    /// The paper's spherical-harmonic NDF (Sec 5): the coefficients `γ_lm` of the normals for
+    /// bands `l ≤ l*`, linear in the normals (no fitting), shaded by eq 12 under any BRDF.
+    Sh,
 }
 
 impl Method {
-    /// Every method, in the order tables list them.
-    pub const ALL: [Method; 6] = [
+    /// Every method, in the order tables list them (and the C API numbers them: new methods
+    /// are appended).
+    pub const ALL: [Method; 7] = [
         Method::Plain,
         Method::Toksvig,
         Method::Lean,
         Method::Olano,
         Method::Tan2005,
         Method::Vmf,
+        Method::Sh,
     ];
 
     /// The baselines (no options, closed-form moments).
@@ -63,6 +68,7 @@ impl Method {
             Method::Olano => "olano",
             Method::Tan2005 => "tan2005",
             Method::Vmf => "vmf",
+            Method::Sh => "sh",
         }
     }
 }
@@ -125,10 +131,13 @@ pub struct Bake {
 impl Bake {
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
     /// and `f` for the approximate mode for mixtures (`vmf6`, `vmf6a`, `vmf6f`, `tan2005-4`),
-    /// and the format when it is not f32
+    /// the band limit for SH (`sh4`), and the format when it is not f32
     /// (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
+        if self.method == Method::Sh {
+            l += &self.parameters["lmax"].to_string();
+        }
         if self.lobes > 0 {
             if l.ends_with(|c: char| c.is_ascii_digit()) {
                 l.push('-');
@@ -172,7 +181,7 @@ impl Bake {
     }
 }
 
-/// Options of the mixture methods (ignored by the baselines).
+/// Options of the mixture methods and of SH (ignored by the baselines).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeOptions {
     /// Lobes per texel, J, 1 to [`crate::em::MAX_LOBES`] (default 6, the paper's choice).
@@ -191,6 +200,9 @@ pub struct BakeOptions {
     pub approximate: bool,
     /// EM iteration cap and convergence tolerance.
     pub em: crate::em::EmOptions,
+    /// SH: the band limit l* (0 to `sh::MAX_LMAX` = 16, default 4: 25 coefficients in 7
+    /// textures); [`crate::brdf::Brdf::suggested_lmax`] gives the paper's choice for a BRDF.
+    pub lmax: usize,
 }
 
 impl Default for BakeOptions {
@@ -201,6 +213,7 @@ impl Default for BakeOptions {
             align_form: crate::em::AlignmentForm::default(),
             approximate: false,
             em: crate::em::EmOptions::default(),
+            lmax: 4,
         }
     }
 }

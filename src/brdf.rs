@@ -1,25 +1,48 @@
-//! The BRDFs every method is shaded with, and the exact shading of one unfiltered normal (the
-//! ground truth the filters approximate).
+//! The one BRDF library every method is shaded with ([`Brdf`]), and the exact shading of one
+//! unfiltered normal (the ground truth the filters approximate).
 //!
-//! The BRDF is the paper's (Algorithm 2 line 14, Sec 7.2): a Lambert term and a specular lobe
-//! — normalized Blinn-Phong `(s+1)/(2π) (ω_h·n)^s` (eq 20's form) or the Torrance–Sparrow-like
-//! Gaussian of eq 18 — both multiplied by the cosine `max(ω_i·n, 0)`. The two terms are
-//! returned separately (unit weights): any `K_d·diffuse + K_s·specular` is a combination of
-//! them, and the error of each is reported on its own.
+//! Every BRDF has the paper's form (eq 3 and footnote 4): a 1D lobe `f(ω·n)` radially symmetric
+//! about the shading normal, times a factor `g(ω_i, ω_o)` that does not depend on n, times the
+//! cosine `max(ω_i·n, 0)` (Algorithm 2 line 14). The diffuse term is always Lambert
+//! (`ω = ω_i`, `f(u) = max(u, 0)`, Sec 3.1); the specular lobe (`ω = ω_h`) is one of
+//! - none ([`Brdf::Lambert`]: the diffuse term alone);
+//! - normalized Blinn-Phong `(s+1)/(2π) (ω_h·n)^s` (eq 20's form);
+//! - the Torrance–Sparrow-like Gaussian of eq 18, `e^{−β²/(4σ²)}/(4πσ²)`;
+//! - GGX / Trowbridge–Reitz `D(ω_h·n) = α²/(π((ω_h·n)²(α²−1)+1)²)` ([`Ggx`]), with Smith's
+//!   height-correlated masking and Schlick's Fresnel as the g factor (off by default);
+//! - a tabulated `f(θ_h)·g(θ_d)` read from a file ([`Tabulated`], the factored measured
+//!   materials of Sec 5.2).
 //!
-//! Also here: the lobe shapes the methods widen ([`widened_lobe`], [`torrance_sparrow_lobe`])
-//! and the geometry they share ([`half_vector`], [`tangent_frame`], [`psd`]). Below every
-//! method; the per-method filtered shading (the shaders' CPU twin) is module `shade`.
+//! The two terms are returned separately (unit weights): any `K_d·diffuse + K_s·specular` is a
+//! combination of them, and the error of each is reported on its own.
+//!
+//! For every BRDF: its spherical-harmonic coefficients `ρ̂_l` (eq 11) by Gauss–Legendre
+//! quadrature ([`Brdf::sh_coefficients`]) beside the paper's closed forms
+//! ([`Brdf::sh_closed_form`]), and its lobe-widening rule under an NDF lobe of concentration κ
+//! (eq 20, eq 21, `α'² = α² + c/κ` for GGX, eq 14 tabulated numerically for tabulated lobes,
+//! module [`convolution`]).
+//!
+//! Also here: the lobe shapes the methods widen ([`widened_lobe`], [`torrance_sparrow_lobe`],
+//! [`ggx`], [`ggx_aniso`]) and the geometry they share ([`half_vector`], [`tangent_frame`],
+//! [`psd`]). Below every method; the per-method filtered shading (the shaders' CPU twin) is
+//! module `shade`.
+
+pub mod convolution;
+pub mod tabulated;
+
+pub use tabulated::Tabulated;
 
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 /// The two shading terms at one point for one light and view.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Shading {
     /// Lambert: `max(ω_i·n, 0)`.
     pub diffuse: f64,
-    /// Normalized Blinn-Phong times the cosine: `(s+1)/(2π) max(ω_h·n, 0)^s max(ω_i·n, 0)`.
+    /// The specular lobe times the cosine and the g factor: `f(ω_h·n) max(ω_i·n, 0) g`
+    /// (0 for [`Brdf::Lambert`]).
     pub specular: f64,
 }
 
@@ -96,12 +119,120 @@ pub fn psd(m: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-/// The specular lobe of a BRDF: normalized Blinn-Phong with exponent `s` (eq 20's form), or the
-/// Torrance–Sparrow-like Gaussian of eq 18 with roughness σ,
-/// `e^{−β²/(4σ²)}/(4πσ²)` in the angle β between ω_h and the normal.
+/// GGX / Trowbridge–Reitz normal distribution `D(c) = α²/(π(c²(α²−1)+1)²)` at `c = ω_h·n`
+/// (Walter et al. 2007; normalized so that `∫ D(ω_h·n)(ω_h·n) dω_h = 1`), zero for `c ≤ 0`.
+/// `α > 0` is the roughness (the slope-space width). Evaluated as `α²/(π((1−c)(1+c) + c²α²)²)`
+/// so that sharp lobes keep their precision near `c = 1`.
+pub fn ggx(cos_h: f64, alpha: f64) -> f64 {
+    if cos_h.is_nan() || cos_h <= 0.0 {
+        return 0.0;
+    }
+    let c = cos_h.min(1.0);
+    let a2 = alpha * alpha;
+    let d = (1.0 - c) * (1.0 + c) + c * c * a2;
+    if d <= 0.0 {
+        return 0.0;
+    }
+    a2 / (PI * d * d)
+}
+
+/// Anisotropic GGX in slope space: `1/(π sqrt(det S) c⁴ (1 + dᵀS⁻¹d)²)` for the slope offset `d`
+/// of ω_h from the lobe's centre (in the lobe's frame) and the slope covariance-like matrix
+/// `S = (xx, yy, xy)` (`α² I` gives [`ggx`] exactly; `α² I + c Σ` widens it by an NDF
+/// covariance Σ, the GGX form of LEAN's and Olano–North's rules). `c = cos_h` is the cosine
+/// between ω_h and the lobe's centre; zero for `c ≤ 0`. S must be positive definite (its
+/// determinant is floored at `f64::MIN_POSITIVE`).
+pub fn ggx_aniso(cos_h: f64, d: DVec2, s: [f64; 3]) -> f64 {
+    if cos_h.is_nan() || cos_h <= 0.0 {
+        return 0.0;
+    }
+    let (a, c, b) = (s[0], s[1], s[2]);
+    let det = (a * c - b * b).max(f64::MIN_POSITIVE);
+    let q = (c * d.x * d.x - 2.0 * b * d.x * d.y + a * d.y * d.y) / det;
+    let c2 = cos_h.min(1.0) * cos_h.min(1.0);
+    let t = 1.0 + q.max(0.0);
+    1.0 / (PI * det.sqrt() * c2 * c2 * t * t)
+}
+
+/// Schlick's Fresnel `F0 + (1 − F0)(1 − cos θ_d)⁵` at `cos θ_d = ω_i·ω_h`.
+pub fn schlick(cos_d: f64, f0: f64) -> f64 {
+    let m = (1.0 - cos_d.clamp(0.0, 1.0)).powi(5);
+    f0 + (1.0 - f0) * m
+}
+
+/// Smith's height-correlated visibility for GGX, `V = G₂/(4 cos θ_i cos θ_o)
+/// = 0.5/(cos θ_i sqrt(cos²θ_o(1−α²)+α²) + cos θ_o sqrt(cos²θ_i(1−α²)+α²))` (Heitz 2014), with
+/// the cosines taken against the geometric normal (tangent-space +Z) so that it does not depend
+/// on the filtered normal (footnote 4). Zero when either direction is at or below the horizon.
+pub fn smith_visibility(cos_i: f64, cos_o: f64, alpha: f64) -> f64 {
+    if !(cos_i > 0.0 && cos_o > 0.0) {
+        return 0.0;
+    }
+    let a2 = alpha * alpha;
+    let vi = cos_o * (cos_i * cos_i * (1.0 - a2) + a2).sqrt();
+    let vo = cos_i * (cos_o * cos_o * (1.0 - a2) + a2).sqrt();
+    let den = vi + vo;
+    if den > 0.0 { 0.5 / den } else { 0.0 }
+}
+
+/// The widening constant `c` of GGX under an NDF lobe of concentration κ, `α'² = α² + c/κ`
+/// (the vMF lobe's per-axis angular variance is 1/κ). Chosen by measurement
+/// (`docs/sh-brdf.md`): the least-squares fit against eq 14 computed numerically
+/// ([`convolution::fit_ggx_widening`]) and the texel-space errors of the constants in use
+/// elsewhere (0.5, 0.75, 1, 2) on the shared maps.
+pub const GGX_WIDENING_C: f64 = 2.0;
+
+/// A GGX / Trowbridge–Reitz specular lobe ([`ggx`]) and its g factor.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Ggx {
+    /// Roughness α > 0 (slope-space width; glTF's perceptual roughness squared).
+    pub alpha: f64,
+    /// Multiply by the g factor `F(ω_i·ω_h) · V(ω_i, ω_o)`: Schlick's Fresnel ([`schlick`])
+    /// and Smith's height-correlated visibility against the geometric normal
+    /// ([`smith_visibility`]). Off: the lobe `D` alone, times the cosine.
+    #[serde(default)]
+    pub g: bool,
+    /// Schlick's `F0`, the reflectance at normal incidence (0.04: a dielectric).
+    #[serde(default = "default_f0")]
+    pub f0: f64,
+    /// The widening constant `c` of `α'² = α² + c/κ` (default [`GGX_WIDENING_C`]).
+    #[serde(default = "default_widening")]
+    pub widening: f64,
+}
+
+fn default_f0() -> f64 {
+    0.04
+}
+
+fn default_widening() -> f64 {
+    GGX_WIDENING_C
+}
+
+impl Ggx {
+    /// GGX with roughness `alpha`, no g factor, `F0 = 0.04`, widening [`GGX_WIDENING_C`].
+    pub fn new(alpha: f64) -> Ggx {
+        Ggx {
+            alpha,
+            g: false,
+            f0: default_f0(),
+            widening: default_widening(),
+        }
+    }
+
+    /// The roughness widened by an NDF lobe of per-axis angular variance `var` (1/κ for a vMF
+    /// lobe): `sqrt(α² + c·var)`.
+    pub fn widened(&self, var: f64) -> f64 {
+        (self.alpha * self.alpha + self.widening * var.max(0.0)).sqrt()
+    }
+}
+
+/// A BRDF of the library (module docs): the specular lobe `f(ω_h·n)` with its parameters and
+/// g factor; the Lambert term is always there as the diffuse term.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(tag = "model", rename_all = "snake_case")]
 pub enum Brdf {
+    /// No specular lobe: the diffuse Lambert term `max(ω_i·n, 0)` alone.
+    Lambert,
     /// `(s+1)/(2π)(ω_h·n)^s`, s > 0.
     BlinnPhong {
         /// The exponent.
@@ -112,6 +243,10 @@ pub enum Brdf {
         /// The roughness.
         sigma: f64,
     },
+    /// GGX / Trowbridge–Reitz ([`Ggx`]).
+    Ggx(Ggx),
+    /// A tabulated `f(θ_h)·g(θ_d)` ([`Tabulated`]).
+    Tabulated(Arc<Tabulated>),
 }
 
 impl Brdf {
@@ -120,11 +255,196 @@ impl Brdf {
         s.iter().map(|&s| Brdf::BlinnPhong { s }).collect()
     }
 
-    /// The Blinn-Phong exponent with the same angular width: `s`, or `1/(2σ²)` (eq 18 vs eq 20).
-    pub fn equivalent_exponent(&self) -> f64 {
+    /// GGX with roughness `alpha` and the defaults of [`Ggx::new`].
+    pub fn ggx(alpha: f64) -> Brdf {
+        Brdf::Ggx(Ggx::new(alpha))
+    }
+
+    /// The model's name as the command line spells it: `lambert`, `blinn-phong`,
+    /// `torrance-sparrow`, `ggx`, `tabulated`.
+    pub fn model(&self) -> &'static str {
+        match self {
+            Brdf::Lambert => "lambert",
+            Brdf::BlinnPhong { .. } => "blinn-phong",
+            Brdf::TorranceSparrow { .. } => "torrance-sparrow",
+            Brdf::Ggx(_) => "ggx",
+            Brdf::Tabulated(_) => "tabulated",
+        }
+    }
+
+    /// Whether the BRDF has a specular lobe (every model but [`Brdf::Lambert`]).
+    pub fn has_specular(&self) -> bool {
+        !matches!(self, Brdf::Lambert)
+    }
+
+    /// Checks the parameters: s, σ, α finite and positive, F0 in [0, 1], c ≥ 0.
+    pub fn validate(&self) -> crate::error::Result<()> {
+        let bad = |what: &str, v: f64| {
+            Err(crate::error::Error::InvalidOption(format!(
+                "{what} {v} (must be finite and > 0)"
+            )))
+        };
         match *self {
-            Brdf::BlinnPhong { s } => s,
+            Brdf::BlinnPhong { s } if !(s.is_finite() && s > 0.0) => bad("Blinn-Phong exponent", s),
+            Brdf::TorranceSparrow { sigma } if !(sigma.is_finite() && sigma > 0.0) => {
+                bad("Torrance-Sparrow sigma", sigma)
+            }
+            Brdf::Ggx(g) if !(g.alpha.is_finite() && g.alpha > 0.0) => bad("GGX alpha", g.alpha),
+            Brdf::Ggx(g) if !((0.0..=1.0).contains(&g.f0) && g.widening >= 0.0) => {
+                Err(crate::error::Error::InvalidOption(format!(
+                    "GGX F0 {} / widening {} (expected F0 in [0, 1], widening >= 0)",
+                    g.f0, g.widening
+                )))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The Blinn-Phong exponent with about the same angular width: `s`, `1/(2σ²)` (eq 18 vs
+    /// eq 20), `2/α² − 2` for GGX (equal curvature at the peak), from the half-maximum angle
+    /// for a tabulated lobe; 1 for Lambert.
+    pub fn equivalent_exponent(&self) -> f64 {
+        match self {
+            Brdf::Lambert => 1.0,
+            Brdf::BlinnPhong { s } => *s,
             Brdf::TorranceSparrow { sigma } => 0.5 / (sigma * sigma),
+            Brdf::Ggx(g) => (2.0 / (g.alpha * g.alpha) - 2.0).max(1.0),
+            Brdf::Tabulated(t) => {
+                // (1/2)^(1/s) = cos θ_half  ⇒  s = ln 2 / −ln cos θ_half.
+                let c = t.half_width().cos();
+                if c < 1.0 && c > 0.0 {
+                    (std::f64::consts::LN_2 / -c.ln()).max(1.0)
+                } else {
+                    1.0
+                }
+            }
+        }
+    }
+
+    /// The lobe's angular width in radians (for quadratures): `1/sqrt(s)` of the equivalent
+    /// exponent, π/2 for Lambert.
+    pub fn angular_width(&self) -> f64 {
+        match self {
+            Brdf::Lambert => 0.5 * PI,
+            Brdf::Ggx(g) => g.alpha.min(0.5 * PI),
+            _ => (1.0 / self.equivalent_exponent().sqrt()).min(0.5 * PI),
+        }
+    }
+
+    /// The lobe `f(c)` at `c = ω·n` (`ω = ω_h` for the specular lobes; Lambert's `max(c, 0)`
+    /// for [`Brdf::Lambert`]), without the cosine and the g factor. Zero for `c ≤ 0`.
+    pub fn lobe(&self, c: f64) -> f64 {
+        match self {
+            Brdf::Lambert => c.max(0.0),
+            Brdf::BlinnPhong { s } => blinn_phong(c, *s),
+            Brdf::TorranceSparrow { sigma } => torrance_sparrow_lobe(c, DVec2::X, *sigma, [0.0; 3]),
+            Brdf::Ggx(g) => ggx(c, g.alpha),
+            Brdf::Tabulated(t) => {
+                if c.is_nan() || c <= 0.0 {
+                    0.0
+                } else {
+                    t.f(c.min(1.0).acos())
+                }
+            }
+        }
+    }
+
+    /// The lobe's largest value, `f(1)` for the analytic lobes, the table's maximum for a
+    /// tabulated one (0 for Lambert's specular term, which is absent). Without the g factor.
+    pub fn peak(&self) -> f64 {
+        match self {
+            Brdf::Lambert => 0.0,
+            Brdf::Tabulated(t) => t.peak(),
+            b => b.lobe(1.0),
+        }
+    }
+
+    /// The g factor for light `l` and half vector `h` (unit, tangent space): 1 for Blinn-Phong
+    /// and eq 18; for GGX with `g` on, `F(l·h) V(l_z, v_z)` with the view `v = 2(l·h)h − l`
+    /// ([`schlick`], [`smith_visibility`]); for a tabulated BRDF its `g(θ_d)`, `θ_d = acos(l·h)`.
+    /// It does not depend on the normal, so every method multiplies its specular term by it.
+    pub fn g(&self, l: DVec3, h: DVec3) -> f64 {
+        match self {
+            Brdf::Ggx(g) if g.g => {
+                let cd = l.dot(h).clamp(0.0, 1.0);
+                let v = 2.0 * cd * h - l;
+                schlick(cd, g.f0) * smith_visibility(l.z, v.z, g.alpha)
+            }
+            Brdf::Tabulated(t) => t.g(l.dot(h).clamp(-1.0, 1.0).acos()),
+            _ => 1.0,
+        }
+    }
+
+    /// `ρ̂_l`, l = 0 … `lmax` (eq 11): the lobe's zonal spherical-harmonic coefficients times
+    /// `Λ_l`, by Gauss–Legendre quadrature over θ ([`crate::harmonics::zonal_coefficients`],
+    /// panels sized to the lobe's width; accurate to ~1e-12 relative for every lobe the
+    /// library accepts). For Lambert: the clamped cosine's `π, 2π/3, π/4, 0, −π/24, …`.
+    pub fn sh_coefficients(&self, lmax: usize) -> Vec<f64> {
+        let width = self.angular_width();
+        match self {
+            Brdf::Lambert => crate::harmonics::zonal_coefficients(&|c| c.max(0.0), lmax, PI),
+            b => crate::harmonics::zonal_coefficients(&|c| b.lobe(c), lmax, width),
+        }
+    }
+
+    /// The paper's closed form of `ρ̂_l`, where there is one: `e^{−l²/2s}` for Blinn-Phong
+    /// (Sec 5.1, eq 20, Ramamoorthi & Hanrahan's approximation), `e^{−(σl)²}` for eq 18, and the
+    /// exact values for Lambert (`π, 2π/3, π/4`, then `2π (−1)^{l/2+1} (l−2)!/(2^l (l/2−1)!
+    /// (l/2+1)!)` for even l, 0 for odd l > 1). `None` for GGX and tabulated lobes.
+    pub fn sh_closed_form(&self, l: usize) -> Option<f64> {
+        let lf = l as f64;
+        match self {
+            Brdf::Lambert => Some(lambert_coefficient(l)),
+            Brdf::BlinnPhong { s } => Some((-lf * lf / (2.0 * s)).exp()),
+            Brdf::TorranceSparrow { sigma } => Some((-(sigma * lf).powi(2)).exp()),
+            Brdf::Ggx(_) | Brdf::Tabulated(_) => None,
+        }
+    }
+
+    /// The band limit the spherical-harmonic method needs for this BRDF (Sec 5.1): 2 for
+    /// Lambert (Ramamoorthi & Hanrahan's nine coefficients), `⌈√(4s)⌉` of the equivalent
+    /// Blinn-Phong exponent otherwise, at most [`crate::harmonics`]'s practical 16.
+    pub fn suggested_lmax(&self) -> usize {
+        match self {
+            Brdf::Lambert => 2,
+            b => ((4.0 * b.equivalent_exponent()).sqrt().ceil() as usize).clamp(2, 16),
+        }
+    }
+
+    /// The exact shading of one unfiltered unit normal `n` for light `l` and half vector `h`:
+    /// Lambert `max(n·l, 0)` and `f(n·h) max(n·l, 0) g(l, h)`.
+    pub fn reference(&self, n: DVec3, l: DVec3, h: DVec3) -> Shading {
+        let cos_i = n.dot(l).max(0.0);
+        let specular = match self {
+            Brdf::Lambert => 0.0,
+            Brdf::BlinnPhong { s } => return reference(n, l, h, *s),
+            b => b.lobe(n.dot(h)) * cos_i * b.g(l, h),
+        };
+        Shading {
+            diffuse: cos_i,
+            specular,
+        }
+    }
+}
+
+/// `ρ̂_l` of Lambert's clamped cosine in closed form (Ramamoorthi & Hanrahan 2001): `π`,
+/// `2π/3`, then 0 for odd l and `2π (−1)^{l/2+1} (l−2)! / (2^l (l/2−1)! (l/2+1)!)` for even l,
+/// evaluated by the ratio `(l−1)/(l+4)` between successive even l (from `1/8` at l = 2), so no
+/// factorial is formed.
+pub fn lambert_coefficient(l: usize) -> f64 {
+    match l {
+        0 => PI,
+        1 => 2.0 * PI / 3.0,
+        l if l % 2 == 1 => 0.0,
+        l => {
+            let mut v = 0.125;
+            let mut k = 2;
+            while k < l {
+                v *= (k as f64 - 1.0) / (k as f64 + 4.0);
+                k += 2;
+            }
+            let sign = if (l / 2) % 2 == 1 { 1.0 } else { -1.0 };
+            2.0 * PI * sign * v
         }
     }
 }
@@ -132,8 +452,20 @@ impl Brdf {
 impl std::fmt::Display for Brdf {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
+            Brdf::Lambert => write!(f, "Lambert"),
             Brdf::BlinnPhong { s } => write!(f, "Blinn-Phong s = {s}"),
             Brdf::TorranceSparrow { sigma } => write!(f, "Torrance-Sparrow sigma = {sigma}"),
+            Brdf::Ggx(g) => {
+                write!(f, "GGX alpha = {}", g.alpha)?;
+                if g.g {
+                    write!(f, " (Smith, Schlick F0 = {})", g.f0)?;
+                }
+                if g.widening != GGX_WIDENING_C {
+                    write!(f, " c = {}", g.widening)?;
+                }
+                Ok(())
+            }
+            Brdf::Tabulated(t) => write!(f, "tabulated '{}'", t.name()),
         }
     }
 }
@@ -161,18 +493,10 @@ pub fn torrance_sparrow_lobe(cos_h: f64, dir: DVec2, sigma: f64, cov: [f64; 3]) 
     (-0.5 * q).exp() / (2.0 * PI * det.sqrt())
 }
 
-/// The exact shading of one unfiltered unit normal under `brdf` (the ground truth).
-pub fn reference_brdf(n: DVec3, l: DVec3, h: DVec3, brdf: Brdf) -> Shading {
-    match brdf {
-        Brdf::BlinnPhong { s } => reference(n, l, h, s),
-        Brdf::TorranceSparrow { sigma } => {
-            let cos_i = n.dot(l).max(0.0);
-            Shading {
-                diffuse: cos_i,
-                specular: torrance_sparrow_lobe(n.dot(h), DVec2::X, sigma, [0.0; 3]) * cos_i,
-            }
-        }
-    }
+/// The exact shading of one unfiltered unit normal under `brdf` (the ground truth):
+/// [`Brdf::reference`].
+pub fn reference_brdf(n: DVec3, l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
+    brdf.reference(n, l, h)
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@ use crate::brdf::{Brdf, half_vector, reference_brdf};
 use crate::format::Format;
 use crate::ingest::NormalMap;
 use crate::pyramid::{LevelFootprints, pyramid, reduce};
-use crate::shade::shade_brdf;
+use crate::shade::{ShadeOptions, shade_with};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -101,7 +101,7 @@ fn exact_levels(
         .for_each(|(o, n)| {
             let n = n.as_dvec3();
             o[0] = n.dot(l).max(0.0);
-            for (si, &brdf) in brdfs.iter().enumerate() {
+            for (si, brdf) in brdfs.iter().enumerate() {
                 o[1 + si] = reference_brdf(n, l, h, brdf).specular;
             }
         });
@@ -127,6 +127,7 @@ fn level_sums(
     exact: &[f64],
     k: usize,
     (l, v): LightView,
+    options: &ShadeOptions,
 ) -> Vec<[f64; 4]> {
     let h = half_vector(l, v);
     let ns = brdfs.len();
@@ -136,8 +137,8 @@ fn level_sums(
         let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
         for (i, g) in exact.chunks_exact(ch).enumerate() {
             bake.texel_into(k, i, &mut texel);
-            for (si, &brdf) in brdfs.iter().enumerate() {
-                let f = shade_brdf(bake, &texel, l, h, brdf);
+            for (si, brdf) in brdfs.iter().enumerate() {
+                let f = shade_with(bake, &texel, l, h, brdf, options);
                 let e = &mut sums[b * ns + si];
                 e[0] += (f.diffuse - g[0]).powi(2);
                 e[1] += g[0] * g[0];
@@ -173,6 +174,25 @@ pub fn evaluate_from(
     directions: &[LightView],
     first_level: usize,
 ) -> Vec<MethodError> {
+    evaluate_with(
+        map,
+        bakes,
+        brdfs,
+        directions,
+        first_level,
+        &ShadeOptions::default(),
+    )
+}
+
+/// [`evaluate_from`] with the shading choices of `options` (the vMF lobes' diffuse term).
+pub fn evaluate_with(
+    map: &NormalMap,
+    bakes: &[&Bake],
+    brdfs: &[Brdf],
+    directions: &[LightView],
+    first_level: usize,
+    options: &ShadeOptions,
+) -> Vec<MethodError> {
     let levels = pyramid(map.width(), map.height());
     // Per direction, per level: the sums of level_sums.
     let per_direction: Vec<Vec<Vec<[f64; 4]>>> = directions
@@ -184,7 +204,7 @@ pub fn evaluate_from(
                     if k < first_level {
                         vec![[0.0; 4]; bakes.len() * brdfs.len()]
                     } else {
-                        level_sums(bakes, brdfs, &exact[k], k, lv)
+                        level_sums(bakes, brdfs, &exact[k], k, lv, options)
                     }
                 })
                 .collect()
@@ -215,7 +235,7 @@ fn errors(
     let rel = relative_rms;
     let mut out = Vec::new();
     for (b, bake) in bakes.iter().enumerate() {
-        for (si, &brdf) in brdfs.iter().enumerate() {
+        for (si, brdf) in brdfs.iter().enumerate() {
             let levels_err: Vec<LevelError> = levels
                 .iter()
                 .enumerate()
@@ -242,7 +262,7 @@ fn errors(
                 method: bake.method,
                 label: bake.label(),
                 format: bake.format,
-                brdf,
+                brdf: brdf.clone(),
                 overall_diffuse: rms(|e| e.diffuse),
                 overall_specular: rms(|e| e.specular),
                 levels: levels_err,
@@ -322,6 +342,7 @@ impl Reference {
                     &self.exact[d][k],
                     k,
                     self.directions[d],
+                    &ShadeOptions::default(),
                 )
             })
             .collect();
@@ -354,7 +375,7 @@ pub fn format_table(errors: &[MethodError]) -> String {
     let mut brdfs: Vec<Brdf> = Vec::new();
     for e in errors {
         if !brdfs.contains(&e.brdf) {
-            brdfs.push(e.brdf);
+            brdfs.push(e.brdf.clone());
         }
     }
     for brdf in brdfs {

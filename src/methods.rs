@@ -1,5 +1,5 @@
 //! The one place every method is dispatched: bake a [`NormalMap`] with any [`Method`], and the
-//! texture layout each method produces. Above the methods ([`crate::baseline`],
+//! texture layout each method produces. Above the methods ([`crate::baseline`], [`crate::sh`],
 //! [`crate::mixture`]), below the consumers (CLI, C API, eval, report).
 
 use crate::bake::{Bake, BakeOptions, Method, Progress};
@@ -9,12 +9,20 @@ use crate::ingest::NormalMap;
 
 /// The value ranges of each texture a bake of `method` has, in texture order — what a shader
 /// needs to decode unsigned-normalized storage without a bake at hand: the baseline's textures,
-/// or `lobes` lobe textures followed, with `color`, by `lobes` colour textures (`α·y`, unit).
-pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRange; 4]> {
+/// SH's textures for band limit `lobes_or_lmax`, or `lobes_or_lmax` lobe textures followed,
+/// with `color`, by as many colour textures (`α·y`, unit).
+pub fn texture_ranges(method: Method, lobes_or_lmax: usize, color: bool) -> Vec<[ValueRange; 4]> {
     use crate::mixture::{Model, TanModel, VmfModel};
+    let lobes = lobes_or_lmax;
     let lobe = match method {
         Method::Vmf => VmfModel::RANGES,
         Method::Tan2005 => TanModel::RANGES,
+        Method::Sh => {
+            return crate::sh::layout(lobes_or_lmax)
+                .into_iter()
+                .map(|(_, _, ranges)| ranges)
+                .collect();
+        }
         _ => {
             return crate::baseline::layout(method)
                 .into_iter()
@@ -57,6 +65,7 @@ pub fn bake_with_progress(
     let bake = match method {
         Method::Vmf => crate::mixture::bake_vmf(map, options, &mut progress),
         Method::Tan2005 => crate::mixture::bake_tan2005(map, options, &mut progress),
+        Method::Sh => crate::sh::bake(map, options.lmax, &mut progress),
         _ => crate::baseline::bake(map, method, &mut progress),
     }?;
     progress.report(1.0)?;

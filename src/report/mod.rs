@@ -235,7 +235,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
                     radiance: 0.5,
                 },
             ],
-            material,
+            material: material.clone(),
         });
     }
     // Grazing: 12° above the horizon, λ ≈ 4 at the centre, the horizon near the top.
@@ -259,7 +259,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
                 intensity: 0.25 * d * d,
             },
         ],
-        material,
+        material: material.clone(),
     });
     out.push(Scene {
         name: "sphere".into(),
@@ -842,7 +842,7 @@ pub fn run(
             <= REFERENCE_BUDGET;
         let reference = fits.then(|| {
             timed(&mut ph.texel_eval, || {
-                Reference::new(map, &[brdf], &directions, first)
+                Reference::new(map, std::slice::from_ref(&brdf), &directions, first)
             })
         });
         let mut skipped = Vec::new();
@@ -881,7 +881,7 @@ pub fn run(
             let refs: Vec<&Bake> = variants.iter().collect();
             let errors = timed(&mut ph.texel_eval, || match &reference {
                 Some(r) => r.evaluate(&refs),
-                None => evaluate_from(map, &refs, &[brdf], &directions, first),
+                None => evaluate_from(map, &refs, std::slice::from_ref(&brdf), &directions, first),
             });
             // Shader costs not known yet (the first map's), one `glslangValidator` per core.
             timed(&mut ph.shader_cost, || {
