@@ -71,7 +71,7 @@ pub enum Sampling {
 }
 
 /// The BRDF the shader evaluates (its parameters are uniforms, [`uniforms`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum ShaderBrdf {
     /// Normalized Blinn-Phong, uniform `ndf_s` (eq 20).
     #[default]
