@@ -587,6 +587,115 @@ mod tests {
         assert_eq!(torrance_sparrow_lobe(-0.1, DVec2::X, 0.1, [0.0; 3]), 0.0);
     }
 
+
+    #[test]
+    fn ggx_is_normalized_and_its_anisotropic_form_agrees() {
+        // ∫ D(θ) cos θ dω = 1 (projected-area normalization), by the polar quadrature.
+        for alpha in [0.01, 0.05, 0.3, 1.0] {
+            let sum: f64 = crate::harmonics::polar_quadrature(alpha)
+                .into_iter()
+                .map(|(t, w)| 2.0 * PI * w * t.sin() * t.cos() * ggx(t.cos(), alpha))
+                .sum();
+            assert!((sum - 1.0).abs() < 1e-9, "α={alpha}: {sum}");
+            for t in [0.0f64, 0.05, 0.4, 1.2] {
+                let slope = DVec2::new(t.tan() * 0.6, t.tan() * 0.8);
+                let a = ggx_aniso(t.cos(), slope, [alpha * alpha, alpha * alpha, 0.0]);
+                let b = ggx(t.cos(), alpha);
+                assert!((a - b).abs() <= 1e-12 * b.max(1e-300), "α={alpha} θ={t}: {a} {b}");
+            }
+        }
+        assert_eq!(ggx(-0.2, 0.1), 0.0);
+        assert_eq!(ggx_aniso(0.0, DVec2::ZERO, [0.01, 0.01, 0.0]), 0.0);
+    }
+
+    #[test]
+    fn ggx_g_factor_on_a_flat_surface_is_cook_torrance() {
+        // Independent form: D G₂ F / (4 (n·l)(n·v)) · (n·l) with G₂ = 1/(1 + Λ(l) + Λ(v)),
+        // Λ(θ) = (−1 + sqrt(1 + α² tan²θ))/2 (Heitz 2014), F Schlick's.
+        let lam = |c: f64, a: f64| 0.5 * (-1.0 + (1.0 + a * a * (1.0 - c * c) / (c * c)).sqrt());
+        for alpha in [0.05, 0.3, 0.8] {
+            let brdf = Brdf::Ggx(Ggx {
+                g: true,
+                f0: 0.04,
+                ..Ggx::new(alpha)
+            });
+            for (l, v) in [
+                (DVec3::new(0.3, 0.1, 0.9), DVec3::new(-0.2, 0.0, 1.0)),
+                (DVec3::new(0.9, 0.0, 0.2), DVec3::new(-0.5, 0.3, 0.6)),
+            ] {
+                let (l, v) = (l.normalize(), v.normalize());
+                let h = half_vector(l, v);
+                let g2 = 1.0 / (1.0 + lam(l.z, alpha) + lam(v.z, alpha));
+                let f = 0.04 + 0.96 * (1.0 - l.dot(h)).powi(5);
+                let want = ggx(h.z, alpha) * g2 * f / (4.0 * l.z * v.z) * l.z;
+                let got = brdf.reference(DVec3::Z, l, h).specular;
+                assert!((got - want).abs() <= 1e-12 * want, "α={alpha}: {got} vs {want}");
+            }
+        }
+        // Below the horizon the g factor is 0.
+        let b = Brdf::Ggx(Ggx {
+            g: true,
+            ..Ggx::new(0.2)
+        });
+        assert_eq!(b.g(DVec3::new(0.0, 0.6, -0.8), DVec3::Z), 0.0);
+    }
+
+    #[test]
+    fn sh_coefficients_match_the_closed_forms() {
+        // Lambert: the exact values, by quadrature and by the closed form, to 1e-12.
+        let q = Brdf::Lambert.sh_coefficients(16);
+        for (l, v) in q.iter().enumerate() {
+            assert!((v - lambert_coefficient(l)).abs() < 1e-12, "l={l}: {v}");
+        }
+        assert!((lambert_coefficient(4) + PI / 24.0).abs() < 1e-15);
+        assert!((lambert_coefficient(6) - PI / 64.0).abs() < 1e-15);
+        // Blinn-Phong and eq 18: ρ̂_0 = 1 (normalized lobes) and the paper's Gaussians
+        // e^{−l²/2s}, e^{−(σl)²} are approximations; measured maximum differences over l ≤ 16
+        // (docs/sh-brdf.md lists them per parameter): 0.052 at s = 8 and 0.139 at σ = 0.3,
+        // smaller for sharper lobes.
+        for b in [
+            Brdf::BlinnPhong { s: 8.0 },
+            Brdf::BlinnPhong { s: 128.0 },
+            Brdf::TorranceSparrow { sigma: 0.1 },
+            Brdf::TorranceSparrow { sigma: 0.3 },
+        ] {
+            let r = b.sh_coefficients(16);
+            // Blinn-Phong integrates to 1; eq 18 only in its small-angle form (ρ̂_0 = 0.9934 at
+            // σ = 0.1, 0.9415 at σ = 0.3).
+            let want0 = match b {
+                Brdf::TorranceSparrow { sigma } if sigma > 0.2 => 0.9415,
+                Brdf::TorranceSparrow { .. } => 0.9934,
+                _ => 1.0,
+            };
+            assert!((r[0] - want0).abs() < 1e-4, "{b}: ρ̂_0 = {}", r[0]);
+            let worst = (0..=16)
+                .map(|l| (r[l] - b.sh_closed_form(l).unwrap()).abs())
+                .fold(0.0, f64::max);
+            eprintln!("{b}: largest |ρ̂_l − closed form| over l ≤ 16: {worst:.4}");
+            assert!(worst < 0.15, "{b}: {worst}");
+        }
+        // A single normal's SH series reproduces the lobe: f(ω·n) = Σ ρ̂_l (2l+1)/(4π) P_l.
+        let b = Brdf::BlinnPhong { s: 4.0 };
+        let r = b.sh_coefficients(40);
+        for c in [1.0, 0.8, 0.3] {
+            let p = crate::harmonics::legendre(40, c);
+            let f: f64 = (0..=40)
+                .map(|l| r[l] * (2 * l + 1) as f64 / (4.0 * PI) * p[l])
+                .sum();
+            assert!((f - b.lobe(c)).abs() < 1e-3 * b.peak(), "c={c}: {f}");
+        }
+    }
+
+    #[test]
+    fn suggested_band_limits_follow_sec_5() {
+        assert_eq!(Brdf::Lambert.suggested_lmax(), 2);
+        assert_eq!(Brdf::BlinnPhong { s: 16.0 }.suggested_lmax(), 8);
+        assert_eq!(Brdf::BlinnPhong { s: 12.0 }.suggested_lmax(), 7);
+        assert_eq!(Brdf::BlinnPhong { s: 1e4 }.suggested_lmax(), 16);
+        assert_eq!(Brdf::TorranceSparrow { sigma: 0.25 }.suggested_lmax(), 6);
+        assert_eq!(Brdf::ggx(0.5).suggested_lmax(), 5);
+    }
+
     #[test]
     fn tangent_frame_is_orthonormal() {
         for n in [

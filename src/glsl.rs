@@ -430,7 +430,12 @@ mod tests {
                 };
                 let m = if color { &colored } else { &sample.map };
                 let b = bake_with(m, method, &opts).unwrap();
-                let want = crate::methods::texture_ranges(method, b.lobes, color);
+                let size = if method == Method::Sh {
+                    crate::sh::lmax_of(&b)
+                } else {
+                    b.lobes
+                };
+                let want = crate::methods::texture_ranges(method, size, color);
                 assert_eq!(ShaderSpec::of(&b).ranges, want, "{method} color={color}");
             }
         }
