@@ -2,7 +2,8 @@
 //! answer is the footprint average of the unfiltered shading of every finest normal t covers
 //! (eq 4's effective BRDF); the filtered answer is what the method's shading computes from t's
 //! baked values. The error is the relative RMS over texels and light/view pairs,
-//! `sqrt(Σ (F − G)² / Σ G²)`, per level and per shading term (Lambert, Blinn-Phong).
+//! `sqrt(Σ (F − G)² / Σ G²)`, per level and per shading term (Lambert, and the specular lobe of
+//! each [`Brdf`] with its g factor).
 //!
 //! The exact answers of every level come from one image of per-normal shading per light/view
 //! pair, box-filtered over the exact footprints ([`crate::pyramid::reduce`]), so they are exact
@@ -393,14 +394,23 @@ pub fn format_table(errors: &[MethodError]) -> String {
             let _ = write!(out, " | {:>8} {:>8}", "diffuse", "specular");
         }
         out.push('\n');
+        // Lambert has no specular term: its column shows a dash.
+        let spec = |v: f64| {
+            if brdf.has_specular() {
+                format!("{v:>8.5}")
+            } else {
+                format!("{:>8}", "-")
+            }
+        };
         for k in 0..rows[0].levels.len() {
             let l = &rows[0].levels[k];
             let _ = write!(out, "{:>5} {:>11}", k, format!("{}x{}", l.width, l.height));
             for r in &rows {
                 let _ = write!(
                     out,
-                    " | {:>8.5} {:>8.5}",
-                    r.levels[k].diffuse, r.levels[k].specular
+                    " | {:>8.5} {}",
+                    r.levels[k].diffuse,
+                    spec(r.levels[k].specular)
                 );
             }
             out.push('\n');
@@ -409,8 +419,9 @@ pub fn format_table(errors: &[MethodError]) -> String {
         for r in &rows {
             let _ = write!(
                 out,
-                " | {:>8.5} {:>8.5}",
-                r.overall_diffuse, r.overall_specular
+                " | {:>8.5} {}",
+                r.overall_diffuse,
+                spec(r.overall_specular)
             );
         }
         out.push_str("\n\n");

@@ -22,7 +22,7 @@ use std::f64::consts::PI;
 fn every_method_and_format_is_finite_non_negative_and_bounded_on_stiff_cases() {
     let s = sweep(true);
     eprintln!("{}", ndfmap::report::stability::markdown(&s));
-    let configs = 7;
+    let configs = 9;
     assert_eq!(s.cases.len(), 10);
     assert_eq!(
         s.outcomes.len(),

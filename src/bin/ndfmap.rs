@@ -984,6 +984,23 @@ struct ReportArgs {
     /// Blinn-Phong exponent of the material.
     #[arg(short, long = "exponent", default_value_t = 128.0)]
     s: f64,
+    /// The material's specular BRDF instead of Blinn-Phong -s: lambert, torrance-sparrow
+    /// (--sigma), ggx (--alpha), or a tabulated BRDF file (JSON).
+    #[arg(long)]
+    brdf: Option<String>,
+    /// Torrance–Sparrow roughness σ of --brdf torrance-sparrow.
+    #[arg(long, default_value_t = 0.1)]
+    sigma: f64,
+    /// GGX roughness α of --brdf ggx.
+    #[arg(long, default_value_t = 0.1)]
+    alpha: f64,
+    /// SH band limits l*, comma-separated (one row each; empty: none).
+    #[arg(long, default_value = "2,4,6,8", value_delimiter = ',')]
+    sh_lmax: Vec<String>,
+    /// Also measure anisotropic filtering with up to this many probes (its floor per view, and
+    /// the configurations that filter linearly under it); 0: off.
+    #[arg(long, default_value_t = 0)]
+    anisotropy: u32,
     /// Images to write: none, some (ground truth and a few methods), all.
     #[arg(long, default_value = "some")]
     images: String,
@@ -1150,6 +1167,29 @@ fn report(a: ReportArgs) -> Result<()> {
         )));
     }
     check_exponents(&[a.s])?;
+    let brdf = a
+        .brdf
+        .as_deref()
+        .map(|b| parse_brdf(b, a.s, a.sigma, a.alpha))
+        .transpose()?;
+    let sh_lmax: Vec<usize> = a
+        .sh_lmax
+        .iter()
+        .map(|s| s.trim())
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse()
+                .ok()
+                .filter(|l| *l <= ndfmap::sh::MAX_LMAX)
+                .ok_or_else(|| Error::InvalidOption(format!("--sh-lmax {s} (expected 0 to 16)")))
+        })
+        .collect::<Result<_>>()?;
+    if a.anisotropy == 1 || a.anisotropy > 16 {
+        return Err(Error::InvalidOption(format!(
+            "--anisotropy {} (expected 0, or 2 to 16)",
+            a.anisotropy
+        )));
+    }
     let given_frame_times = load_frame_times(&a)?;
     let options = ReportOptions {
         image_size: a.size,
@@ -1162,6 +1202,9 @@ fn report(a: ReportArgs) -> Result<()> {
         formats: formats(&a.formats)?,
         image_formats: formats(&a.image_formats)?,
         images: choice::<ImageSet>("images", &a.images, "none, some, all")?,
+        brdf,
+        sh_lmax,
+        anisotropy: a.anisotropy,
         ..ReportOptions::default()
     };
     let mut maps = a.maps.clone();

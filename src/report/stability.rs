@@ -139,9 +139,11 @@ pub fn cases(large: bool) -> Vec<Case> {
 }
 
 /// The configurations swept: the baselines, Tan 2005 and vMF unaligned and aligned, with 2
-/// lobes (1 on maps above 10⁴ texels, to keep the suite quick).
+/// lobes (1 on maps above 10⁴ texels, to keep the suite quick), and SH at the extreme band
+/// limits l* = 0 and 16 (16 → 2 above 10⁴ texels: 73 textures of f32 per texel otherwise).
 pub fn configs(texels: u64) -> Vec<(String, Method, BakeOptions)> {
     let j = if texels > 10_000 { 1 } else { 2 };
+    let top = if texels > 10_000 { 2 } else { 16 };
     let mut out: Vec<(String, Method, BakeOptions)> = Method::BASELINES
         .iter()
         .map(|&m| (m.name().to_string(), m, BakeOptions::default()))
@@ -154,18 +156,54 @@ pub fn configs(texels: u64) -> Vec<(String, Method, BakeOptions)> {
     out.push((format!("tan2005-{j}"), Method::Tan2005, o(None)));
     out.push((format!("vmf{j}"), Method::Vmf, o(None)));
     out.push((format!("vmf{j}a"), Method::Vmf, o(Some(0.1))));
+    for lmax in [0, top] {
+        let o = BakeOptions {
+            lmax,
+            ..BakeOptions::default()
+        };
+        out.push((format!("sh{lmax}"), Method::Sh, o));
+    }
     out
 }
 
-/// The BRDFs swept: Blinn-Phong s from 1 to 10⁶, Torrance–Sparrow σ from 10⁻⁴ to 1.
+/// The BRDFs swept: Blinn-Phong s from 1 to 10⁶ (10⁵ among them, the SH extreme),
+/// Torrance–Sparrow σ from 10⁻⁴ to 1, GGX α = 10⁻³ and 1, Lambert, and two tabulated BRDFs
+/// with a zero column: GGX α = 0.2 whose g is 0 everywhere, and a lobe that is 0 from 5° to
+/// 20° and again past 30°.
 pub fn brdfs() -> Vec<Brdf> {
-    let mut b = Brdf::blinn_phong(&[1.0, 10.0, 100.0, 1e4, 1e6]);
+    let mut b = Brdf::blinn_phong(&[1.0, 10.0, 100.0, 1e4, 1e5, 1e6]);
     b.extend(
         [1e-4, 1e-2, 0.3, 1.0]
             .into_iter()
             .map(|sigma| Brdf::TorranceSparrow { sigma }),
     );
+    b.push(Brdf::ggx(1e-3));
+    b.push(Brdf::ggx(1.0));
+    b.push(Brdf::Lambert);
+    b.extend(zero_column_brdfs());
     b
+}
+
+/// The tabulated BRDFs with a zero column of [`brdfs`].
+fn zero_column_brdfs() -> Vec<Brdf> {
+    use crate::brdf::Tabulated;
+    let ggx = |t: f64| crate::brdf::ggx(t.cos(), 0.2);
+    let zero_g = |_: f64| 0.0;
+    let gappy = |t: f64| {
+        let d = t.to_degrees();
+        if (5.0..20.0).contains(&d) || d > 30.0 {
+            0.0
+        } else {
+            10.0 * (1.0 - d / 30.0)
+        }
+    };
+    [
+        Tabulated::sample("ggx0.2, g = 0", 90, &ggx, Some(&zero_g)),
+        Tabulated::sample("zero band", 90, &gappy, None),
+    ]
+    .into_iter()
+    .map(|t| Brdf::Tabulated(std::sync::Arc::new(t.expect("valid table"))))
+    .collect()
 }
 
 /// A configuration's label without its lobe count: `vmf2a` → `vmf aligned`, `tan2005-1` →
@@ -173,6 +211,9 @@ pub fn brdfs() -> Vec<Brdf> {
 pub fn family(label: &str) -> String {
     if label.starts_with("tan2005") {
         return "tan2005".into();
+    }
+    if label.starts_with("sh") {
+        return label.into();
     }
     if let Some(rest) = label.strip_prefix("vmf") {
         return if rest.ends_with('a') {
@@ -323,6 +364,7 @@ fn energy_settings() -> Vec<(DVec3, Brdf)> {
             Brdf::BlinnPhong { s: 10.0 },
             Brdf::TorranceSparrow { sigma: 0.3 },
             Brdf::TorranceSparrow { sigma: 1.0 },
+            Brdf::ggx(1.0),
         ] {
             out.push((view, brdf));
         }
@@ -566,7 +608,8 @@ pub fn markdown(s: &Summary) -> String {
     let _ = writeln!(
         m,
         "{} cases × {} configurations × 4 formats, {} BRDFs (Blinn-Phong s = 1 … 10⁶, \
-         Torrance–Sparrow σ = 10⁻⁴ … 1), {} light/view pairs per texel (up to {} texels per \
+         Torrance–Sparrow σ = 10⁻⁴ … 1, GGX α = 10⁻³ and 1, Lambert, two tabulated BRDFs with \
+         a zero column), {} light/view pairs per texel (up to {} texels per \
          level): {} shading evaluations in {:.1} s; {} outcome(s) out of bounds. Bounds: \
          Lambert ≤ {PEAK_BOUND}, specular ≤ {PEAK_BOUND} × the unfiltered peak; energy at the \
          coarsest level ≤ {} × exact on maps of at most {ENERGY_MAX_TEXELS} texels (plain, \

@@ -42,14 +42,16 @@ use std::sync::Arc;
 /// relative error is `β δβ / (2σ²)`. GGX (α = 0.2, g on): f32 rounding of the widened α and of
 /// the Smith term. Tabulated (GGX α = 0.2 tabulated): the table's bilinear lookup at an angle
 /// from GLSL's `atan` (Mesa's polynomial approximation again) on the `sqrt(θ/π)` grid, whose
-/// cells are narrowest at the peak. Lambert: the SH sums in f32.
+/// cells are narrowest at the peak. Lambert: the SH sums in f32 (≤ 3.2e-5 measured: the
+/// diffuse term of an SH bake is a sum of up to 81 terms). Measured: GGX ≤ 3.2e-5, tabulated
+/// ≤ 2.5e-4 (Tan 2005, whose lifted means put some lobes' peaks between grid cells).
 fn tolerance(brdf: &Brdf) -> f64 {
     match brdf {
         Brdf::BlinnPhong { s } => 3e-5 + 2e-6 * s,
         Brdf::TorranceSparrow { .. } => 1.5e-3,
-        Brdf::Lambert => 3e-5,
-        Brdf::Ggx(_) => 2e-4,
-        Brdf::Tabulated(_) => 2e-3,
+        Brdf::Lambert => 6e-5,
+        Brdf::Ggx(_) => 1e-4,
+        Brdf::Tabulated(_) => 1e-3,
     }
 }
 
@@ -269,7 +271,7 @@ fn cases() -> Vec<Case> {
             push(&bake_with(map, method, &options).unwrap(), color);
         }
     }
-    // The new BRDFs on one bake per method (f32), both samplings where valid.
+    // The other BRDFs on one bake per method (f32), in the bake's natural sampling.
     let three = |align| BakeOptions {
         lobes: 3,
         align,
@@ -286,18 +288,13 @@ fn cases() -> Vec<Case> {
     let aligned = bake_with(&sample.map, Method::Vmf, &three(Some(1.0))).unwrap();
     for b in &bakes {
         for brdf in [Brdf::Lambert, ggx(), tabulated()] {
-            for sampling in [Sampling::Hardware, Sampling::Manual] {
-                if b.method == Method::Sh && sampling == Sampling::Manual {
-                    continue;
-                }
-                out.push(Case {
-                    bake: b.clone(),
-                    color: b.lobes > 0 && brdf == Brdf::Lambert,
-                    brdf: brdf.clone(),
-                    sampling,
-                    diffuse: VmfDiffuse::default(),
-                });
-            }
+            out.push(Case {
+                bake: b.clone(),
+                color: b.lobes > 0 && brdf == Brdf::Lambert,
+                brdf,
+                sampling: Sampling::Auto,
+                diffuse: VmfDiffuse::default(),
+            });
         }
     }
     // Anisotropic sampling: SH, aligned vMF lobes, Toksvig; f32 and f16.
