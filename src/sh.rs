@@ -224,23 +224,65 @@ pub fn mean_normal(texels: &[[f32; 4]], lmax: usize) -> DVec3 {
     .unwrap_or(DVec3::Z)
 }
 
+thread_local! {
+    /// The basis at the two directions shaded last on this thread (light and half vector:
+    /// shading a level texel by texel asks for the same two directions every time).
+    static BASIS: std::cell::RefCell<[(usize, DVec3, Vec<f64>); 2]> = std::cell::RefCell::new([
+        (usize::MAX, DVec3::ZERO, vec![0.0; count(MAX_LMAX)]),
+        (usize::MAX, DVec3::ZERO, vec![0.0; count(MAX_LMAX)]),
+    ]);
+}
+
+/// `f(Y(d))` with the basis up to `lmax` at `d` in slot `slot` of this thread's cache
+/// (evaluated only when `d` or `lmax` changed; bit for bit what [`eval_into`] gives).
+fn with_basis<T>(slot: usize, lmax: usize, d: DVec3, f: impl FnOnce(&[f64]) -> T) -> T {
+    BASIS.with(|cache| {
+        let mut cache = cache.borrow_mut();
+        let (l, dir, y) = &mut cache[slot];
+        if *l != lmax || *dir != d {
+            eval_into(lmax, d, y);
+            *l = lmax;
+            *dir = d;
+        }
+        f(y)
+    })
+}
+
 /// Filtered shading of one SH texel (band limit `lmax`) for light `l`, half vector `h` and
 /// `brdf`, without the g factor (module docs; the CPU twin of `ndf_sh.glsl`):
 /// diffuse `max(Σ ρ̂^Lambert_l/Λ_l Σ_m c_lm Y_lm(ω_i), 0)`,
 /// specular `max(Σ ρ̂_l/Λ_l Σ_m c_lm Y_lm(ω_h), 0) · max(ω_i·n̄, 0)`.
 pub fn shade(texels: &[[f32; 4]], lmax: usize, l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
-    let mut y = [0.0f64; count(MAX_LMAX)];
-    let lmax = lmax.min(MAX_LMAX);
-    eval_into(lmax, l, &mut y);
-    let diffuse = series(texels, lmax, &lambert_rho(), &y).max(0.0);
+    let (diffuse, f) = shade_series(texels, lmax, l, h, brdf);
     let specular = if brdf.has_specular() {
-        eval_into(lmax, h, &mut y);
-        let f = series(texels, lmax, &rho(brdf), &y).max(0.0);
-        f * mean_normal(texels, lmax).dot(l).max(0.0)
+        f.max(0.0) * mean_normal(texels, lmax).dot(l).max(0.0)
     } else {
         0.0
     };
-    Shading { diffuse, specular }
+    Shading {
+        diffuse: diffuse.max(0.0),
+        specular,
+    }
+}
+
+/// The two sums of eq 12 before any clamp: Lambert's at `l` and the BRDF's at `h` (0 for
+/// Lambert). Negative values are the ringing [`shade`] clamps.
+pub fn shade_series(
+    texels: &[[f32; 4]],
+    lmax: usize,
+    l: DVec3,
+    h: DVec3,
+    brdf: &Brdf,
+) -> (f64, f64) {
+    let lmax = lmax.min(MAX_LMAX);
+    let diffuse = with_basis(0, lmax, l, |y| series(texels, lmax, &lambert_rho(), y));
+    let f = if brdf.has_specular() {
+        let rho = rho(brdf);
+        with_basis(1, lmax, h, |y| series(texels, lmax, &rho, y))
+    } else {
+        0.0
+    };
+    (diffuse, f)
 }
 
 /// The exact alternative to the MIP-mapped cosine (module docs), for measurement on the CPU:

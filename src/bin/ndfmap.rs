@@ -34,15 +34,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Time the vMF bake (and Toksvig's, for scale) on the built-in sample at several sizes and
-    /// lobe counts: wall seconds and peak memory per run.
+    /// Time the vMF and SH bakes (and Toksvig's, for scale) on the built-in sample at several
+    /// sizes, lobe counts and band limits: wall seconds, peak memory and texture bytes per run.
     Bench {
         /// Map sizes (square), comma-separated.
         #[arg(long, default_value = "256,512,1024", value_delimiter = ',')]
         sizes: Vec<u32>,
-        /// Lobe counts, comma-separated.
+        /// Lobe counts, comma-separated (0: no vMF bake).
         #[arg(long, default_value = "6", value_delimiter = ',')]
         lobes: Vec<usize>,
+        /// SH band limits l*, comma-separated.
+        #[arg(long, default_value = "2,4,8", value_delimiter = ',')]
+        lmax: Vec<usize>,
         /// Alignments, comma-separated: `none` or a strength C.
         #[arg(long, default_value = "none,1", value_delimiter = ',')]
         align: Vec<String>,
@@ -218,6 +221,10 @@ enum Command {
         /// vMF diffuse term: mean-vector (default) or algorithm2.
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// Measure levels from this one on (finer ones are reported as 0; the overall error is
+        /// over levels 1 and coarser either way, and level 0 is three quarters of the work).
+        #[arg(long, default_value_t = 0)]
+        first_level: usize,
         /// Storage formats to measure, comma-separated (f32, f16, unorm16, unorm8): each bake
         /// is rounded through the format before shading, so the format's own error shows.
         #[arg(long, default_value = "f32", value_delimiter = ',')]
@@ -627,6 +634,7 @@ fn run(cli: Cli) -> Result<()> {
             ggx_g,
             ggx_c,
             vmf_diffuse,
+            first_level,
             formats,
             json,
             ingest,
@@ -655,7 +663,14 @@ fn run(cli: Cli) -> Result<()> {
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
-            let errors = evaluate_with(&map, &refs, &brdfs, &default_directions(), 0, &shading);
+            let errors = evaluate_with(
+                &map,
+                &refs,
+                &brdfs,
+                &default_directions(),
+                first_level,
+                &shading,
+            );
             // How well lobe j lines up across neighbouring texels (Sec 7.3), per vMF bake.
             let coherence: Vec<(String, Vec<Option<f64>>)> = bakes
                 .iter()
@@ -783,9 +798,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench {
             sizes,
             lobes,
+            lmax,
             align,
             json,
-        } => bench(&sizes, &lobes, &parse_align(&align)?, json)?,
+        } => bench(&sizes, &lobes, &lmax, &parse_align(&align)?, json)?,
     }
     Ok(())
 }
@@ -870,14 +886,20 @@ fn reset_peak_memory() {
 }
 
 /// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo).
-fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> Result<()> {
+fn bench(
+    sizes: &[u32],
+    lobes: &[usize],
+    lmax: &[usize],
+    align: &[Option<f64>],
+    json: bool,
+) -> Result<()> {
     let mut rows = Vec::new();
     let threads = rayon::current_num_threads();
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>6} {:>10} {:>12}",
-            "size", "method", "lobes", "aligned", "mode", "seconds", "peak MiB"
+            "{:>6} {:>8} {:>6} {:>9} {:>6} {:>10} {:>12} {:>12}",
+            "size", "method", "lobes", "aligned", "mode", "seconds", "peak MiB", "f32 MiB"
         );
     }
     for &size in sizes {
@@ -889,7 +911,16 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
         let sample = ndfmap::procedural::generate(size, 2007);
         let map = sample.map.with_feature(sample.albedo)?;
         let mut jobs = vec![(Method::Toksvig, BakeOptions::default())];
-        for &j in lobes {
+        for &l in lmax {
+            jobs.push((
+                Method::Sh,
+                BakeOptions {
+                    lmax: l,
+                    ..BakeOptions::default()
+                },
+            ));
+        }
+        for &j in lobes.iter().filter(|&&j| j > 0) {
             for &a in align {
                 for approximate in [false, true] {
                     jobs.push((
@@ -911,27 +942,33 @@ fn bench(sizes: &[u32], lobes: &[usize], align: &[Option<f64>], json: bool) -> R
             let b = bake_with(&map, method, &options)?;
             let seconds = t.elapsed().as_secs_f64();
             let peak = peak_memory();
+            let texture_bytes: u64 = (0..b.textures.len())
+                .flat_map(|_| 0..b.level_count())
+                .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
+                .sum();
             drop(b);
-            let lobes = if method == Method::Vmf {
-                options.lobes
-            } else {
-                0
+            let lobes = match method {
+                Method::Vmf => options.lobes,
+                Method::Sh => options.lmax,
+                _ => 0,
             };
             let row = serde_json::json!({
                 "size": size, "method": method, "lobes": lobes,
                 "align": options.align, "approximate": options.approximate, "seconds": seconds,
                 "peak_bytes": peak, "baseline_bytes": base, "threads": threads,
+                "texture_bytes_f32": texture_bytes,
             });
             if !json {
                 let mib = |b: Option<u64>| {
                     b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
                 };
                 println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>6} {seconds:>10.3} {:>12}",
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>6} {seconds:>10.3} {:>12} {:>12.1}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
                     if options.approximate { "fast" } else { "exact" },
-                    mib(peak)
+                    mib(peak),
+                    texture_bytes as f64 / 1048576.0
                 );
             }
             rows.push(row);

@@ -29,7 +29,8 @@ use ndfmap::methods::{bake, bake_with};
 use ndfmap::sample::{Filtering, anisotropic, shade_at};
 use ndfmap::shade::{ShadeOptions, VmfDiffuse, shade_rgb_with};
 use ndfmap_gl::{
-    BakeTextures, BrdfBinding, Gl, Program, RenderTarget, Route, draw_fullscreen, read_rgba_f32,
+    BakeTextures, BrdfBinding, Gl, Program, RenderTarget, Route, draw_fullscreen, glow,
+    read_rgba_f32,
 };
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -330,6 +331,7 @@ fn run(route: Route) {
         return;
     }
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    report_hardware_anisotropy(&gl);
     let mut table: BTreeMap<String, (f64, f64)> = BTreeMap::new();
     let mut failures = Vec::new();
     for case in cases() {
@@ -355,6 +357,30 @@ fn run(route: Route) {
         println!("  {k:<16} {e:.2e} / {et:.2e}");
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Whether the driver offers `GL_EXT_texture_filter_anisotropic` (or GL 4.6's ARB version) and
+/// its largest ratio. Mesa's llvmpipe does (16): an elliptical weighted average (Heckbert's EWA,
+/// a Gaussian weight table) over the texels of one MIP level — a different footprint from the
+/// shaders' `NDF_ANISO` probes, which is why the shaders do their own (module docs of
+/// `ndfmap::sample::aniso_probes`). Both are linear filters of the texel values.
+fn report_hardware_anisotropy(gl: &Gl) {
+    use glow::HasContext;
+    let ext = gl.glow().supported_extensions();
+    let has = ext.contains("GL_EXT_texture_filter_anisotropic")
+        || ext.contains("GL_ARB_texture_filter_anisotropic");
+    // SAFETY: the context is current on this thread; a valid enum of the extension.
+    let max = if has {
+        unsafe { gl.glow().get_parameter_f32(glow::MAX_TEXTURE_MAX_ANISOTROPY) }
+    } else {
+        0.0
+    };
+    println!(
+        "{} ({}): texture_filter_anisotropic {}, max ratio {max}",
+        gl.route(),
+        gl.renderer(),
+        if has { "offered" } else { "absent" }
+    );
 }
 
 #[test]
