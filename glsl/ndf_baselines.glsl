@@ -45,9 +45,13 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 #elif defined(NDF_BRDF_BLINN_PHONG)
     float spec = h.z > 1e-9 ? ndf_widened_lobe(dot(mu, h), dir, cov, ndf_s) * d : 0.0;
 #elif defined(NDF_BRDF_GGX)
-    // S = alpha^2 I + c Sigma in slope space (the GGX form of LEAN's rule).
+    // S = alpha^2 I + c Sigma in slope space (the GGX form of LEAN's rule), the slope offset
+    // along dir with the length tan(theta) of the angle between mu and h: GGX about mu at Sigma = 0.
     vec3 sm = vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov;
-    float spec = h.z > 1e-9 ? ndf_ggx_aniso(h.z, dir, sm) * d : 0.0;
+    float c = dot(mu, h);
+    float len = length(dir);
+    vec2 slope = (len > 1e-30 && c > 0.0) ? dir * (length(cross(mu, h)) / c / len) : vec2(0.0);
+    float spec = ndf_ggx_aniso(c, slope, sm) * d;
 #else
     // The closest isotropic lobe: the mean per-axis variance.
     float spec = ndf_iso_lobe(mu, 0.5 * (cov.x + cov.y), h) * d;

@@ -10,9 +10,10 @@ const float NDF_PI = 3.14159265358979;
 // The BRDF (src/brdf.rs): one NDF_BRDF_* define picks the specular lobe, Blinn-Phong when none
 // does. Its parameters are uniforms set by the application (they may change every frame:
 // Sec 7.2).
-#if !defined(NDF_BRDF_TORRANCE_SPARROW) && !defined(NDF_BRDF_GGX) && \
-    !defined(NDF_BRDF_TABULATED) && !defined(NDF_BRDF_LAMBERT)
+#if !defined(NDF_BRDF_TORRANCE_SPARROW) && !defined(NDF_BRDF_GGX) && !defined(NDF_BRDF_TABULATED)
+#ifndef NDF_BRDF_LAMBERT
 #define NDF_BRDF_BLINN_PHONG 1
+#endif
 #endif
 #if defined(NDF_BRDF_TORRANCE_SPARROW)
 uniform float ndf_sigma;  // eq 18 roughness sigma > 0

