@@ -4,12 +4,14 @@
 // (l, m) order (coefficient i = l*l + l + m is t[i/4][i%4]); they filter linearly, so hardware
 // trilinear and anisotropic filtering are exact (DESIGN.md "Texture layouts"). Per texel (CPU
 // twin: sh::shade, harmonics::eval_into):
-//   diffuse   max(sum_l rhoL_l/Lambda_l sum_m c_lm Y_lm(w_i), 0)   Lambert's rho (the generated
+//   diffuse   clamp(sum_l rhoL_l/Lambda_l sum_m c_lm Y_lm(w_i), 0, 1)  Lambert's rho (the generated
 //             NDF_SH_LAMBERT): the cosine is Lambert's f itself, exact up to the band limit;
 //   specular  max(sum_l rho_l/Lambda_l sum_m c_lm Y_lm(w_h), 0) * max(w_i . nbar, 0), rho_l the
 //             BRDF's (eq 11, uniform ndf_sh_rho, from Brdf::sh_coefficients) and nbar the
 //             MIP-mapped normal normalize(c_11, c_1-1, c_10) (Sec 4.3).
-// Ringing of truncated sharp lobes is clamped at 0. The g factor is applied by ndf_fragment.glsl.
+// Ringing of truncated sharp lobes is clamped at 0, the diffuse term also at 1 (its exact value
+// lies in [0, 1]; the truncated clamped cosine overshoots by up to 1/16 at l* = 2). The g factor
+// is applied by ndf_fragment.glsl.
 
 #ifndef NDF_BRDF_LAMBERT
 uniform float ndf_sh_rho[NDF_SH_LMAX + 1];  // the BRDF's rho_l, l = 0 .. NDF_SH_LMAX
@@ -78,7 +80,7 @@ float ndf_sh_series(vec4 t[NDF_TEXTURES], float y[NDF_SH_COUNT], float w[NDF_SH_
 void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
     float y[NDF_SH_COUNT];
     ndf_sh_eval(l, y);
-    float d = max(ndf_sh_series(t, y, NDF_SH_LAMBERT), 0.0);
+    float d = clamp(ndf_sh_series(t, y, NDF_SH_LAMBERT), 0.0, 1.0);
     float spec = 0.0;
 #ifndef NDF_BRDF_LAMBERT
     ndf_sh_eval(h, y);

@@ -29,7 +29,9 @@ fn moment_count(method: Method) -> usize {
         Method::Plain | Method::Toksvig => 3,
         Method::Lean => 5,
         Method::Olano => 9,
-        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("baked by modules mixture and sh"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
     }
 }
 
@@ -44,7 +46,9 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
             out.copy_from_slice(&[bx, by, bx * bx, by * by, bx * by]);
         }
         Method::Olano => out.copy_from_slice(&[x, y, z, x * x, y * y, z * z, x * y, x * z, y * z]),
-        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("baked by modules mixture and sh"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
     }
 }
 
@@ -52,7 +56,9 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
 pub(crate) fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
     use ValueRange::{Any, Signed as S, Unit as U};
     match method {
-        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("baked by modules mixture and sh"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
         Method::Plain => vec![("normal", ["n_x", "n_y", "n_z", "unused"], [S, S, S, U])],
         Method::Toksvig => vec![(
             "mean",
@@ -111,7 +117,9 @@ fn finalize(method: Method, m: &[f64], out: &mut [[f32; 4]]) {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), f(m[3])];
             out[1] = [f(m[4]), 0.0, 0.0, 0.0];
         }
-        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("baked by modules mixture and sh"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
         Method::Olano => {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), 0.0];
             out[1] = [f(m[3]), f(m[4]), f(m[5]), 0.0];
@@ -244,7 +252,9 @@ mod tests {
                             }
                             close(t[1][0], m[4]);
                         }
-                        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("not a baseline"),
+                        Method::Vmf | Method::Tan2005 | Method::Sh => {
+                            unreachable!("not a baseline")
+                        }
                         Method::Olano => {
                             let m = direct(&map, level, x, y, |n| {
                                 [

@@ -587,7 +587,6 @@ mod tests {
         assert_eq!(torrance_sparrow_lobe(-0.1, DVec2::X, 0.1, [0.0; 3]), 0.0);
     }
 
-
     #[test]
     fn ggx_is_normalized_and_its_anisotropic_form_agrees() {
         // ∫ D(θ) cos θ dω = 1 (projected-area normalization), by the polar quadrature.
@@ -601,7 +600,10 @@ mod tests {
                 let slope = DVec2::new(t.tan() * 0.6, t.tan() * 0.8);
                 let a = ggx_aniso(t.cos(), slope, [alpha * alpha, alpha * alpha, 0.0]);
                 let b = ggx(t.cos(), alpha);
-                assert!((a - b).abs() <= 1e-12 * b.max(1e-300), "α={alpha} θ={t}: {a} {b}");
+                assert!(
+                    (a - b).abs() <= 1e-12 * b.max(1e-300),
+                    "α={alpha} θ={t}: {a} {b}"
+                );
             }
         }
         assert_eq!(ggx(-0.2, 0.1), 0.0);
@@ -629,7 +631,10 @@ mod tests {
                 let f = 0.04 + 0.96 * (1.0 - l.dot(h)).powi(5);
                 let want = ggx(h.z, alpha) * g2 * f / (4.0 * l.z * v.z) * l.z;
                 let got = brdf.reference(DVec3::Z, l, h).specular;
-                assert!((got - want).abs() <= 1e-12 * want, "α={alpha}: {got} vs {want}");
+                assert!(
+                    (got - want).abs() <= 1e-12 * want,
+                    "α={alpha}: {got} vs {want}"
+                );
             }
         }
         // Below the horizon the g factor is 0.

@@ -669,7 +669,10 @@ pub fn render_oracle_footprint(
             Footprint::Anisotropic(max) => {
                 let (lambda, offsets) =
                     crate::sample::aniso_probes(g.duv_dx, g.duv_dy, sizes[0], max);
-                offsets.into_iter().map(|o| (g.hit.uv + o, lambda)).collect()
+                offsets
+                    .into_iter()
+                    .map(|o| (g.hit.uv + o, lambda))
+                    .collect()
             }
             _ => vec![(g.hit.uv, lod(g.duv_dx, g.duv_dy, sizes[0]))],
         };

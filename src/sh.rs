@@ -22,10 +22,12 @@
 //!   `n̄ = normalize(E[n])` (the paper's choice, Sec 4.3), times the BRDF's g factor.
 //!   [`product_coefficients`] computes the exact alternative (the SH projection of
 //!   `f(ω_h·n) max(ω_i·n, 0)`), for measurement on the CPU.
+//!
 //! Ringing of a truncated sharp lobe can make either sum negative; both are clamped at 0
-//! (the cost is measured in `docs/sh-brdf.md`).
+//! (the cost is measured in `docs/sh-brdf.md`), and the diffuse sum at 1 (the truncated
+//! clamped cosine overshoots it by up to 1/16 at l* = 2, where the exact average cannot).
 
-use crate::bake::{Bake, Progress, Method, Texture};
+use crate::bake::{Bake, Method, Progress, Texture};
 use crate::brdf::{Brdf, Shading, lambert_coefficient};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
@@ -52,7 +54,11 @@ pub fn layout(lmax: usize) -> Vec<(&'static str, [&'static str; 4], [ValueRange;
         .map(|t| {
             let channels = std::array::from_fn(|c| {
                 let i = 4 * t + c;
-                if i < n { COEFFICIENT_NAMES[i] } else { "unused" }
+                if i < n {
+                    COEFFICIENT_NAMES[i]
+                } else {
+                    "unused"
+                }
             });
             let ranges = std::array::from_fn(|c| {
                 if 4 * t + c < n {
@@ -164,15 +170,17 @@ fn coefficient(texels: &[[f32; 4]], i: usize) -> f64 {
 /// BRDF's `ρ̂_l`), from the texel's `c_lm` and the basis `y` at ω.
 fn series(texels: &[[f32; 4]], lmax: usize, weights: &[f64], y: &[f64]) -> f64 {
     let mut sum = 0.0;
-    for l in 0..=lmax {
-        if weights[l] == 0.0 {
+    for (l, &w) in weights.iter().enumerate().take(lmax + 1) {
+        if w == 0.0 {
             continue;
         }
-        let mut band_sum = 0.0;
-        for i in l * l..(l + 1) * (l + 1) {
-            band_sum += coefficient(texels, i) * y[i];
-        }
-        sum += weights[l] / lambda(l) * band_sum;
+        let band = l * l..(l + 1) * (l + 1);
+        let band_sum: f64 = band
+            .clone()
+            .zip(&y[band])
+            .map(|(i, yi)| coefficient(texels, i) * yi)
+            .sum();
+        sum += w / lambda(l) * band_sum;
     }
     sum
 }
@@ -250,7 +258,9 @@ fn with_basis<T>(slot: usize, lmax: usize, d: DVec3, f: impl FnOnce(&[f64]) -> T
 
 /// Filtered shading of one SH texel (band limit `lmax`) for light `l`, half vector `h` and
 /// `brdf`, without the g factor (module docs; the CPU twin of `ndf_sh.glsl`):
-/// diffuse `max(Σ ρ̂^Lambert_l/Λ_l Σ_m c_lm Y_lm(ω_i), 0)`,
+/// diffuse `Σ ρ̂^Lambert_l/Λ_l Σ_m c_lm Y_lm(ω_i)` clamped to [0, 1] (the footprint average of
+/// `max(ω_i·n, 0)` lies there; the truncated clamped cosine overshoots it by up to 1/16 at
+/// l* = 2),
 /// specular `max(Σ ρ̂_l/Λ_l Σ_m c_lm Y_lm(ω_h), 0) · max(ω_i·n̄, 0)`.
 pub fn shade(texels: &[[f32; 4]], lmax: usize, l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
     let (diffuse, f) = shade_series(texels, lmax, l, h, brdf);
@@ -260,7 +270,7 @@ pub fn shade(texels: &[[f32; 4]], lmax: usize, l: DVec3, h: DVec3, brdf: &Brdf) 
         0.0
     };
     Shading {
-        diffuse: diffuse.max(0.0),
+        diffuse: diffuse.clamp(0.0, 1.0),
         specular,
     }
 }
@@ -330,46 +340,46 @@ pub fn shade_product(texels: &[[f32; 4]], lmax: usize, p: &[f64]) -> f64 {
 
 /// Texture names `sh0`, `sh1`, … (file names, manifest).
 const TEXTURE_NAMES: [&str; 73] = [
-    "sh0", "sh1", "sh2", "sh3", "sh4", "sh5", "sh6", "sh7", "sh8", "sh9", "sh10", "sh11",
-    "sh12", "sh13", "sh14", "sh15", "sh16", "sh17", "sh18", "sh19", "sh20", "sh21", "sh22", "sh23",
-    "sh24", "sh25", "sh26", "sh27", "sh28", "sh29", "sh30", "sh31", "sh32", "sh33", "sh34", "sh35",
-    "sh36", "sh37", "sh38", "sh39", "sh40", "sh41", "sh42", "sh43", "sh44", "sh45", "sh46", "sh47",
-    "sh48", "sh49", "sh50", "sh51", "sh52", "sh53", "sh54", "sh55", "sh56", "sh57", "sh58", "sh59",
-    "sh60", "sh61", "sh62", "sh63", "sh64", "sh65", "sh66", "sh67", "sh68", "sh69", "sh70", "sh71",
-    "sh72",
+    "sh0", "sh1", "sh2", "sh3", "sh4", "sh5", "sh6", "sh7", "sh8", "sh9", "sh10", "sh11", "sh12",
+    "sh13", "sh14", "sh15", "sh16", "sh17", "sh18", "sh19", "sh20", "sh21", "sh22", "sh23", "sh24",
+    "sh25", "sh26", "sh27", "sh28", "sh29", "sh30", "sh31", "sh32", "sh33", "sh34", "sh35", "sh36",
+    "sh37", "sh38", "sh39", "sh40", "sh41", "sh42", "sh43", "sh44", "sh45", "sh46", "sh47", "sh48",
+    "sh49", "sh50", "sh51", "sh52", "sh53", "sh54", "sh55", "sh56", "sh57", "sh58", "sh59", "sh60",
+    "sh61", "sh62", "sh63", "sh64", "sh65", "sh66", "sh67", "sh68", "sh69", "sh70", "sh71", "sh72",
 ];
 
 /// Channel names `c<l>,<m>` of the coefficients in (l, m) order.
 const COEFFICIENT_NAMES: [&str; 289] = [
-    "c0,0", "c1,-1", "c1,0", "c1,1", "c2,-2", "c2,-1", "c2,0", "c2,1", "c2,2", "c3,-3",
-    "c3,-2", "c3,-1", "c3,0", "c3,1", "c3,2", "c3,3", "c4,-4", "c4,-3", "c4,-2", "c4,-1",
-    "c4,0", "c4,1", "c4,2", "c4,3", "c4,4", "c5,-5", "c5,-4", "c5,-3", "c5,-2", "c5,-1",
-    "c5,0", "c5,1", "c5,2", "c5,3", "c5,4", "c5,5", "c6,-6", "c6,-5", "c6,-4", "c6,-3",
-    "c6,-2", "c6,-1", "c6,0", "c6,1", "c6,2", "c6,3", "c6,4", "c6,5", "c6,6", "c7,-7",
-    "c7,-6", "c7,-5", "c7,-4", "c7,-3", "c7,-2", "c7,-1", "c7,0", "c7,1", "c7,2", "c7,3",
-    "c7,4", "c7,5", "c7,6", "c7,7", "c8,-8", "c8,-7", "c8,-6", "c8,-5", "c8,-4", "c8,-3",
-    "c8,-2", "c8,-1", "c8,0", "c8,1", "c8,2", "c8,3", "c8,4", "c8,5", "c8,6", "c8,7",
-    "c8,8", "c9,-9", "c9,-8", "c9,-7", "c9,-6", "c9,-5", "c9,-4", "c9,-3", "c9,-2", "c9,-1",
-    "c9,0", "c9,1", "c9,2", "c9,3", "c9,4", "c9,5", "c9,6", "c9,7", "c9,8", "c9,9",
-    "c10,-10", "c10,-9", "c10,-8", "c10,-7", "c10,-6", "c10,-5", "c10,-4", "c10,-3", "c10,-2", "c10,-1",
-    "c10,0", "c10,1", "c10,2", "c10,3", "c10,4", "c10,5", "c10,6", "c10,7", "c10,8", "c10,9",
-    "c10,10", "c11,-11", "c11,-10", "c11,-9", "c11,-8", "c11,-7", "c11,-6", "c11,-5", "c11,-4", "c11,-3",
-    "c11,-2", "c11,-1", "c11,0", "c11,1", "c11,2", "c11,3", "c11,4", "c11,5", "c11,6", "c11,7",
-    "c11,8", "c11,9", "c11,10", "c11,11", "c12,-12", "c12,-11", "c12,-10", "c12,-9", "c12,-8", "c12,-7",
-    "c12,-6", "c12,-5", "c12,-4", "c12,-3", "c12,-2", "c12,-1", "c12,0", "c12,1", "c12,2", "c12,3",
-    "c12,4", "c12,5", "c12,6", "c12,7", "c12,8", "c12,9", "c12,10", "c12,11", "c12,12", "c13,-13",
-    "c13,-12", "c13,-11", "c13,-10", "c13,-9", "c13,-8", "c13,-7", "c13,-6", "c13,-5", "c13,-4", "c13,-3",
-    "c13,-2", "c13,-1", "c13,0", "c13,1", "c13,2", "c13,3", "c13,4", "c13,5", "c13,6", "c13,7",
-    "c13,8", "c13,9", "c13,10", "c13,11", "c13,12", "c13,13", "c14,-14", "c14,-13", "c14,-12", "c14,-11",
-    "c14,-10", "c14,-9", "c14,-8", "c14,-7", "c14,-6", "c14,-5", "c14,-4", "c14,-3", "c14,-2", "c14,-1",
-    "c14,0", "c14,1", "c14,2", "c14,3", "c14,4", "c14,5", "c14,6", "c14,7", "c14,8", "c14,9",
-    "c14,10", "c14,11", "c14,12", "c14,13", "c14,14", "c15,-15", "c15,-14", "c15,-13", "c15,-12", "c15,-11",
-    "c15,-10", "c15,-9", "c15,-8", "c15,-7", "c15,-6", "c15,-5", "c15,-4", "c15,-3", "c15,-2", "c15,-1",
-    "c15,0", "c15,1", "c15,2", "c15,3", "c15,4", "c15,5", "c15,6", "c15,7", "c15,8", "c15,9",
-    "c15,10", "c15,11", "c15,12", "c15,13", "c15,14", "c15,15", "c16,-16", "c16,-15", "c16,-14", "c16,-13",
-    "c16,-12", "c16,-11", "c16,-10", "c16,-9", "c16,-8", "c16,-7", "c16,-6", "c16,-5", "c16,-4", "c16,-3",
-    "c16,-2", "c16,-1", "c16,0", "c16,1", "c16,2", "c16,3", "c16,4", "c16,5", "c16,6", "c16,7",
-    "c16,8", "c16,9", "c16,10", "c16,11", "c16,12", "c16,13", "c16,14", "c16,15", "c16,16",
+    "c0,0", "c1,-1", "c1,0", "c1,1", "c2,-2", "c2,-1", "c2,0", "c2,1", "c2,2", "c3,-3", "c3,-2",
+    "c3,-1", "c3,0", "c3,1", "c3,2", "c3,3", "c4,-4", "c4,-3", "c4,-2", "c4,-1", "c4,0", "c4,1",
+    "c4,2", "c4,3", "c4,4", "c5,-5", "c5,-4", "c5,-3", "c5,-2", "c5,-1", "c5,0", "c5,1", "c5,2",
+    "c5,3", "c5,4", "c5,5", "c6,-6", "c6,-5", "c6,-4", "c6,-3", "c6,-2", "c6,-1", "c6,0", "c6,1",
+    "c6,2", "c6,3", "c6,4", "c6,5", "c6,6", "c7,-7", "c7,-6", "c7,-5", "c7,-4", "c7,-3", "c7,-2",
+    "c7,-1", "c7,0", "c7,1", "c7,2", "c7,3", "c7,4", "c7,5", "c7,6", "c7,7", "c8,-8", "c8,-7",
+    "c8,-6", "c8,-5", "c8,-4", "c8,-3", "c8,-2", "c8,-1", "c8,0", "c8,1", "c8,2", "c8,3", "c8,4",
+    "c8,5", "c8,6", "c8,7", "c8,8", "c9,-9", "c9,-8", "c9,-7", "c9,-6", "c9,-5", "c9,-4", "c9,-3",
+    "c9,-2", "c9,-1", "c9,0", "c9,1", "c9,2", "c9,3", "c9,4", "c9,5", "c9,6", "c9,7", "c9,8",
+    "c9,9", "c10,-10", "c10,-9", "c10,-8", "c10,-7", "c10,-6", "c10,-5", "c10,-4", "c10,-3",
+    "c10,-2", "c10,-1", "c10,0", "c10,1", "c10,2", "c10,3", "c10,4", "c10,5", "c10,6", "c10,7",
+    "c10,8", "c10,9", "c10,10", "c11,-11", "c11,-10", "c11,-9", "c11,-8", "c11,-7", "c11,-6",
+    "c11,-5", "c11,-4", "c11,-3", "c11,-2", "c11,-1", "c11,0", "c11,1", "c11,2", "c11,3", "c11,4",
+    "c11,5", "c11,6", "c11,7", "c11,8", "c11,9", "c11,10", "c11,11", "c12,-12", "c12,-11",
+    "c12,-10", "c12,-9", "c12,-8", "c12,-7", "c12,-6", "c12,-5", "c12,-4", "c12,-3", "c12,-2",
+    "c12,-1", "c12,0", "c12,1", "c12,2", "c12,3", "c12,4", "c12,5", "c12,6", "c12,7", "c12,8",
+    "c12,9", "c12,10", "c12,11", "c12,12", "c13,-13", "c13,-12", "c13,-11", "c13,-10", "c13,-9",
+    "c13,-8", "c13,-7", "c13,-6", "c13,-5", "c13,-4", "c13,-3", "c13,-2", "c13,-1", "c13,0",
+    "c13,1", "c13,2", "c13,3", "c13,4", "c13,5", "c13,6", "c13,7", "c13,8", "c13,9", "c13,10",
+    "c13,11", "c13,12", "c13,13", "c14,-14", "c14,-13", "c14,-12", "c14,-11", "c14,-10", "c14,-9",
+    "c14,-8", "c14,-7", "c14,-6", "c14,-5", "c14,-4", "c14,-3", "c14,-2", "c14,-1", "c14,0",
+    "c14,1", "c14,2", "c14,3", "c14,4", "c14,5", "c14,6", "c14,7", "c14,8", "c14,9", "c14,10",
+    "c14,11", "c14,12", "c14,13", "c14,14", "c15,-15", "c15,-14", "c15,-13", "c15,-12", "c15,-11",
+    "c15,-10", "c15,-9", "c15,-8", "c15,-7", "c15,-6", "c15,-5", "c15,-4", "c15,-3", "c15,-2",
+    "c15,-1", "c15,0", "c15,1", "c15,2", "c15,3", "c15,4", "c15,5", "c15,6", "c15,7", "c15,8",
+    "c15,9", "c15,10", "c15,11", "c15,12", "c15,13", "c15,14", "c15,15", "c16,-16", "c16,-15",
+    "c16,-14", "c16,-13", "c16,-12", "c16,-11", "c16,-10", "c16,-9", "c16,-8", "c16,-7", "c16,-6",
+    "c16,-5", "c16,-4", "c16,-3", "c16,-2", "c16,-1", "c16,0", "c16,1", "c16,2", "c16,3", "c16,4",
+    "c16,5", "c16,6", "c16,7", "c16,8", "c16,9", "c16,10", "c16,11", "c16,12", "c16,13", "c16,14",
+    "c16,15", "c16,16",
 ];
 
 #[cfg(test)]
@@ -431,7 +441,13 @@ mod tests {
         assert_eq!(l[0].1, ["c0,0", "c1,-1", "c1,0", "c1,1"]);
         assert_eq!(l[2].1, ["c2,2", "unused", "unused", "unused"]);
         let b = sh_bake(&test_map(4, 4), 2);
-        assert!(b.textures[2].levels.iter().flatten().all(|t| t[1..] == [0.0; 3]));
+        assert!(
+            b.textures[2]
+                .levels
+                .iter()
+                .flatten()
+                .all(|t| t[1..] == [0.0; 3])
+        );
         for i in 0..count(MAX_LMAX) {
             assert_eq!(l_of(i), band(i));
         }
@@ -472,6 +488,10 @@ mod tests {
         assert!(worst < 0.0183 && far < 0.0055, "{worst} {far}");
         // At ω = n the truncated series of max(u, 0) is 1 − 0.00545 (the Legendre tail).
         let s = shade(&t, 16, n, DVec3::Z, &Brdf::Lambert);
-        assert!((s.diffuse - (1.0 - 0.005455017)).abs() < 1e-6, "{}", s.diffuse);
+        assert!(
+            (s.diffuse - (1.0 - 0.005455017)).abs() < 1e-6,
+            "{}",
+            s.diffuse
+        );
     }
 }

@@ -152,6 +152,7 @@ pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &B
 ///   lobe's κ (`1/v` for the single-lobe baselines, `2/tr Σ` for LEAN and Olano–North: the
 ///   closest isotropic lobe);
 /// - SH: eq 12 ([`crate::sh::shade`]), any BRDF through its `ρ̂_l`.
+///
 /// The specular term is then multiplied by the BRDF's g factor ([`Brdf::g`]).
 pub fn shade_with(
     bake: &Bake,
@@ -250,9 +251,7 @@ fn baseline(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf
             let lobe = match brdf {
                 Brdf::BlinnPhong { s } if h.z > 1e-9 => widened_lobe(mu.dot(h), d, cov, *s),
                 Brdf::BlinnPhong { .. } => 0.0,
-                Brdf::TorranceSparrow { sigma } => {
-                    torrance_sparrow_lobe(mu.dot(h), d, *sigma, cov)
-                }
+                Brdf::TorranceSparrow { sigma } => torrance_sparrow_lobe(mu.dot(h), d, *sigma, cov),
                 Brdf::Ggx(g) => {
                     // The slope offset's direction d with the length tan θ of the angle between
                     // μ and h (as the other BRDFs take only d's direction): at Σ = 0 this is

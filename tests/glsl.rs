@@ -55,7 +55,8 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                     ShaderBrdf::Ggx { g: true },
                     ShaderBrdf::Tabulated,
                 ] {
-                    let classic = matches!(brdf, ShaderBrdf::BlinnPhong | ShaderBrdf::TorranceSparrow);
+                    let classic =
+                        matches!(brdf, ShaderBrdf::BlinnPhong | ShaderBrdf::TorranceSparrow);
                     for sampling in [
                         Sampling::Hardware,
                         Sampling::Manual,
@@ -70,8 +71,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                             continue;
                         }
                         for probe in [false, true] {
-                            if (!classic || matches!(sampling, Sampling::Anisotropic(_)))
-                                && !probe
+                            if (!classic || matches!(sampling, Sampling::Anisotropic(_))) && !probe
                             {
                                 continue;
                             }

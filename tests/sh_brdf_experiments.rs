@@ -120,8 +120,7 @@ fn ringing_and_what_the_clamp_costs() {
                 Brdf::BlinnPhong { s: 1e5 },
             ] {
                 let levels = b.level_count();
-                let (mut clamped, mut raw) =
-                    (vec![(0.0, 0.0); levels], vec![(0.0, 0.0); levels]);
+                let (mut clamped, mut raw) = (vec![(0.0, 0.0); levels], vec![(0.0, 0.0); levels]);
                 let (mut negative, mut total) = (0u64, 0u64);
                 for &(l, v) in &default_directions() {
                     let h = half_vector(l, v);

@@ -23,6 +23,7 @@
 //!   `θ_d = acos(ω_i·ω_h)`, non-negative and finite; `theta_d_deg` likewise (default: equally
 //!   spaced over [0, 90]).
 //! - `name` (optional): shown in tables.
+//!
 //! Both functions are piecewise linear between samples and constant beyond the first and last;
 //! f is zero past θ_h = 90°.
 //!
@@ -157,10 +158,7 @@ fn samples(what: &str, name: &str, v: &[f64], angles: Option<&Vec<f64>>) -> Resu
     let angles: Vec<f64> = match angles {
         Some(a) => {
             if a.len() != n {
-                return Err(bad(format!(
-                    "{} angles for {n} {name} samples",
-                    a.len()
-                )));
+                return Err(bad(format!("{} angles for {n} {name} samples", a.len())));
             }
             if let Some(i) = a.iter().position(|x| !(0.0..=90.0).contains(x)) {
                 return Err(bad(format!(
@@ -324,8 +322,7 @@ impl Tabulated {
                     let kappa = table_kappa(k);
                     (0..GRID)
                         .map(|i| {
-                            super::convolution::convolve_vmf(&f, width, kappa, grid_theta(i))
-                                as f32
+                            super::convolution::convolve_vmf(&f, width, kappa, grid_theta(i)) as f32
                         })
                         .collect()
                 })
@@ -397,7 +394,10 @@ mod tests {
         // analytic one where it matters (above 1 % of the peak); the two linear interpolations
         // of a convex lobe overshoot its tail by up to about 1 %.
         for (name, f) in [
-            ("bp32", Box::new(|t: f64| blinn_phong(t.cos(), 32.0)) as Box<dyn Fn(f64) -> f64>),
+            (
+                "bp32",
+                Box::new(|t: f64| blinn_phong(t.cos(), 32.0)) as Box<dyn Fn(f64) -> f64>,
+            ),
             ("ggx0.2", Box::new(|t: f64| ggx(t.cos(), 0.2))),
         ] {
             let t = Tabulated::sample(name, 90, &*f, None).unwrap();
@@ -451,7 +451,10 @@ mod tests {
             let kappa = table_kappa(k);
             let want = crate::brdf::convolution::convolve_vmf(&|b| t.f(b), 0.3, kappa, theta);
             let got = lookup(table, theta, kappa);
-            assert!((got - want).abs() <= 2e-3 * want.max(0.01), "{got} vs {want}");
+            assert!(
+                (got - want).abs() <= 2e-3 * want.max(0.01),
+                "{got} vs {want}"
+            );
         }
     }
 }

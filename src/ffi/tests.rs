@@ -1099,7 +1099,10 @@ fn a_panic_inside_any_entry_point_is_a_status_not_an_unwind() {
         ..ndf_material_options_default()
     };
     // SAFETY: valid options and out-pointer; freed below.
-    assert_eq!(unsafe { ndf_material_new(&table, &mut mat) }, ndf_status::Ok);
+    assert_eq!(
+        unsafe { ndf_material_new(&table, &mut mat) },
+        ndf_status::Ok
+    );
     for (name, call) in every_entry_point(map, bake, mat, &px, &png, &dir) {
         INJECT_PANIC.with(|p| p.set(true));
         let status = call();
@@ -1209,7 +1212,10 @@ fn sh_bakes_and_materials_through_the_c_api() {
         let mut rho = [0.0; 5];
         check!(ndf_material_sh_coefficients(m, 4, rho.as_mut_ptr(), 5) => Ok, "");
         let pi = std::f64::consts::PI;
-        for (got, want) in rho.iter().zip([pi, 2.0 * pi / 3.0, pi / 4.0, 0.0, -pi / 24.0]) {
+        for (got, want) in rho
+            .iter()
+            .zip([pi, 2.0 * pi / 3.0, pi / 4.0, 0.0, -pi / 24.0])
+        {
             assert!((got - want).abs() < 1e-15, "{got} vs {want}");
         }
         check!(ndf_material_sh_coefficients(m, 4, rho.as_mut_ptr(), 4) => BufferTooSmall, "4 doubles");
@@ -1350,7 +1356,10 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
                 "anisotropic sampling with 17 probes",
             ),
             (
-                ndf_shader_options { vmf_diffuse: 2, ..o },
+                ndf_shader_options {
+                    vmf_diffuse: 2,
+                    ..o
+                },
                 "unknown vmf_diffuse value 2",
             ),
             (

@@ -112,7 +112,9 @@ impl ReportOptions {
     /// The material's specular BRDF: [`ReportOptions::brdf`], else Blinn-Phong with
     /// [`ReportOptions::exponent`].
     pub fn material_brdf(&self) -> Brdf {
-        self.brdf.clone().unwrap_or(Brdf::BlinnPhong { s: self.exponent })
+        self.brdf
+            .clone()
+            .unwrap_or(Brdf::BlinnPhong { s: self.exponent })
     }
 }
 
@@ -1046,7 +1048,9 @@ pub fn run(
                             .par_iter()
                             .zip(&truths)
                             .zip(&images)
-                            .map(|((scene, (gt, exp)), img)| compare(metric, scene, gt, img, *exp).0)
+                            .map(|((scene, (gt, exp)), img)| {
+                                compare(metric, scene, gt, img, *exp).0
+                            })
                             .collect()
                     });
                 }
@@ -1422,7 +1426,8 @@ fn aniso_table(report: &Report, m: &MapSummary) -> String {
             )
         );
         for r in &rows {
-            let find = |list: &[ViewError]| list.iter().find(|e| &e.view == name).map(|e| e.rel_rmse);
+            let find =
+                |list: &[ViewError]| list.iter().find(|e| &e.view == name).map(|e| e.rel_rmse);
             let _ = write!(s, " {} |", cell(find(&r.views), find(&r.aniso_views)));
         }
         s += "\n";

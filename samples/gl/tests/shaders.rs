@@ -371,7 +371,10 @@ fn report_hardware_anisotropy(gl: &Gl) {
         || ext.contains("GL_ARB_texture_filter_anisotropic");
     // SAFETY: the context is current on this thread; a valid enum of the extension.
     let max = if has {
-        unsafe { gl.glow().get_parameter_f32(glow::MAX_TEXTURE_MAX_ANISOTROPY) }
+        unsafe {
+            gl.glow()
+                .get_parameter_f32(glow::MAX_TEXTURE_MAX_ANISOTROPY)
+        }
     } else {
         0.0
     };
