@@ -330,6 +330,49 @@ mod tests {
     }
 
     #[test]
+    fn a_constant_and_a_vmf_lobe_have_their_closed_form_coefficients() {
+        // The constant 1: only Y_00, with coefficient sqrt(4π).
+        let mut c = vec![0.0; count(6)];
+        let mut y = vec![0.0; count(6)];
+        for (d, w) in sphere_rule(6) {
+            eval_into(6, d, &mut y);
+            for (a, v) in c.iter_mut().zip(&y) {
+                *a += w * v;
+            }
+        }
+        assert!((c[0] - (4.0 * PI).sqrt()).abs() < 1e-12);
+        assert!(c[1..].iter().all(|v| v.abs() < 1e-12), "{c:?}");
+        // A normalized vMF lobe (eq 15): Λ_l γ_l = I_{l+1/2}(κ)/I_{1/2}(κ), which is 1, A(κ)
+        // (eq 16), 1 − 3A/κ, A − 5(1 − 3A/κ)/κ for l = 0 … 3 (the Bessel recurrence), by
+        // Gauss–Legendre over the whole sphere; eq 19's e^{−l²/2κ} approximates them.
+        for kappa in [2.0f64, 10.0, 40.0] {
+            let (x, w) = gauss_legendre(200);
+            let norm = kappa / (2.0 * PI * -(-2.0 * kappa).exp_m1());
+            let mut got = [0.0; 4];
+            for (xi, wi) in x.iter().zip(&w) {
+                let density = norm * (kappa * (xi - 1.0)).exp();
+                for (l, p) in legendre(3, *xi).iter().enumerate() {
+                    got[l] += 2.0 * PI * wi * density * p;
+                }
+            }
+            let a = 1.0 / kappa.tanh() - 1.0 / kappa;
+            let r2 = 1.0 - 3.0 * a / kappa;
+            let want = [1.0, a, r2, a - 5.0 * r2 / kappa];
+            for l in 0..4 {
+                assert!((got[l] - want[l]).abs() < 1e-12, "κ={kappa} l={l}: {}", got[l]);
+                // eq 19 drops a factor: the exact values are close to e^{−l(l+1)/2κ}, eq 19 is
+                // e^{−l²/2κ} (0.103 too high at κ = 10, l = 3; about 0.03 at κ = 40).
+                let eq19 = (-((l * l) as f64) / (2.0 * kappa)).exp();
+                let better = (-((l * (l + 1)) as f64) / (2.0 * kappa)).exp();
+                if kappa >= 10.0 {
+                    assert!((got[l] - eq19).abs() < 0.11, "κ={kappa} l={l}: {eq19}");
+                    assert!((got[l] - better).abs() < 0.015, "κ={kappa} l={l}: {better}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn lambert_coefficients_are_the_closed_forms() {
         // ρ̂_l of max(u, 0): π, 2π/3, π/4, 0, −π/24, 0, π/64 (Ramamoorthi & Hanrahan 2001).
         let r = zonal_coefficients(&|u: f64| u.max(0.0), 6, PI);
