@@ -177,13 +177,13 @@ pub(crate) fn bake(map: &NormalMap, method: Method, progress: &mut Progress) -> 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::ingest::{Addressing, BadNormals};
     use glam::DVec3;
 
-    /// A small deterministic bumpy map of odd size.
-    fn test_map(w: u32, h: u32) -> NormalMap {
+    /// A small deterministic bumpy map of any size (also the SH bake's tests).
+    pub(crate) fn test_map(w: u32, h: u32) -> NormalMap {
         let v = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f32, (i / w) as f32);

@@ -386,18 +386,8 @@ const COEFFICIENT_NAMES: [&str; 289] = [
 mod tests {
     use super::*;
     use crate::bake::BakeOptions;
+    use crate::baseline::tests::test_map;
     use crate::ingest::{Addressing, BadNormals};
-    use glam::Vec3;
-
-    fn test_map(w: u32, h: u32) -> NormalMap {
-        let v = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f32, (i / w) as f32);
-                Vec3::new((x * 0.9).sin() * 0.6, (y * 1.3 + x * 0.2).cos() * 0.5, 1.0)
-            })
-            .collect();
-        NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
-    }
 
     fn sh_bake(map: &NormalMap, lmax: usize) -> Bake {
         let o = BakeOptions {
