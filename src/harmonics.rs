@@ -359,7 +359,11 @@ mod tests {
             let r2 = 1.0 - 3.0 * a / kappa;
             let want = [1.0, a, r2, a - 5.0 * r2 / kappa];
             for l in 0..4 {
-                assert!((got[l] - want[l]).abs() < 1e-12, "κ={kappa} l={l}: {}", got[l]);
+                assert!(
+                    (got[l] - want[l]).abs() < 1e-12,
+                    "κ={kappa} l={l}: {}",
+                    got[l]
+                );
                 // eq 19 drops a factor: the exact values are close to e^{−l(l+1)/2κ}, eq 19 is
                 // e^{−l²/2κ} (0.103 too high at κ = 10, l = 3; about 0.03 at κ = 40).
                 let eq19 = (-((l * l) as f64) / (2.0 * kappa)).exp();

@@ -106,14 +106,24 @@ fn report_writes_markdown_json_plots_and_images() {
         }
         assert!(r["cost"]["fetches"].as_u64().unwrap() >= 1);
         // Anisotropic renders for the f32 rows that filter linearly (not unaligned mixtures).
-        let linear = !(r["config"] == "vmf1" || r["config"] == "vmf2" || r["config"] == "tan2005-1");
+        let linear =
+            !(r["config"] == "vmf1" || r["config"] == "vmf2" || r["config"] == "tan2005-1");
         let aniso = r["aniso_views"].as_array().unwrap();
-        assert_eq!(aniso.is_empty(), !(linear && r["format"] == "f32"), "{}", r["label"]);
+        assert_eq!(
+            aniso.is_empty(),
+            !(linear && r["format"] == "f32"),
+            "{}",
+            r["label"]
+        );
         for v in aniso {
             assert!(v["rel_rmse"].as_f64().unwrap().is_finite(), "{v}");
         }
     }
-    assert!(json["maps"][0]["views"][0]["aniso_floor"]["rel_rmse"].as_f64().is_some());
+    assert!(
+        json["maps"][0]["views"][0]["aniso_floor"]["rel_rmse"]
+            .as_f64()
+            .is_some()
+    );
     assert!(json["maps"][0]["ground_truth_error"][1].as_f64().unwrap() > 0.0);
     // Frame times: (far + grazing) / 2, and over plain's (2 + 10) / 2 = 6 ms.
     let frame = |config: &str, format: &str| {
