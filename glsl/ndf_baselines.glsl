@@ -47,7 +47,8 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 #elif defined(NDF_BRDF_GGX)
     // S = alpha^2 I + c Sigma in slope space (the GGX form of LEAN's rule), the slope offset
     // along dir with the length tan(theta) of the angle between mu and h: GGX about mu at Sigma = 0.
-    vec3 sm = vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov;
+    vec3 sm = ndf_clamp_eigen(vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov,
+                              0.0, 1.0);
     float c = dot(mu, h);
     float len = length(dir);
     vec2 slope = (len > 1e-30 && c > 0.0) ? dir * (length(cross(mu, h)) / c / len) : vec2(0.0);
@@ -77,7 +78,8 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 #elif defined(NDF_BRDF_GGX)
     // S = alpha^2 I + c Sigma with the slope of h in mu's frame.
     float c = dot(mu, h);
-    vec3 sm = vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov;
+    vec3 sm = ndf_clamp_eigen(vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov,
+                              0.0, 1.0);
     float spec = c > 0.0 ? ndf_ggx_aniso(c, dir / c, sm) * max(dot(mu, l), 0.0) : 0.0;
 #else
     float spec = ndf_iso_lobe(mu, 0.5 * (cov.x + cov.y), h) * max(dot(mu, l), 0.0);

@@ -18,7 +18,7 @@ const float NDF_PI = 3.14159265358979;
 #if defined(NDF_BRDF_TORRANCE_SPARROW)
 uniform float ndf_sigma;  // eq 18 roughness sigma > 0
 #elif defined(NDF_BRDF_GGX)
-uniform float ndf_alpha;  // GGX roughness alpha > 0
+uniform float ndf_alpha;  // GGX roughness alpha in (0, 1]
 uniform float ndf_ggx_c;  // widening alpha'^2 = alpha^2 + c var (brdf::GGX_WIDENING_C)
 #ifdef NDF_BRDF_G
 uniform float ndf_f0;     // Schlick's F0
@@ -54,13 +54,13 @@ void ndf_tangent_frame(vec3 n, out vec3 t1, out vec3 t2) {
     t2 = vec3(b, sgn + n.y * n.y * a, -n.y);
 }
 
-// A symmetric 2x2 matrix (xx, yy, xy) projected onto the positive semi-definite cone by clamping
-// its eigenvalues at 0. CPU: shade::psd.
-vec3 ndf_psd(vec3 m) {
+// A symmetric 2x2 matrix (xx, yy, xy) with its eigenvalues clamped to [lo, hi], eigenvectors
+// kept. CPU: brdf::clamp_eigenvalues.
+vec3 ndf_clamp_eigen(vec3 m, float lo, float hi) {
     float mean = 0.5 * (m.x + m.y);
     float r = sqrt(0.25 * (m.x - m.y) * (m.x - m.y) + m.z * m.z);
-    float l1 = max(mean + r, 0.0);
-    float l2 = max(mean - r, 0.0);
+    float l1 = min(max(mean + r, lo), hi);
+    float l2 = min(max(mean - r, lo), hi);
     if (r < 1e-30) return vec3(l1, l1, 0.0);
     vec2 e = abs(mean + r - m.x) > abs(mean + r - m.y) ? vec2(m.z, mean + r - m.x)
                                                        : vec2(mean + r - m.y, m.z);
@@ -68,6 +68,12 @@ vec3 ndf_psd(vec3 m) {
     return vec3(l1 * c.x * c.x + l2 * c.y * c.y,
                 l1 * c.y * c.y + l2 * c.x * c.x,
                 (l1 - l2) * c.x * c.y);
+}
+
+// A symmetric 2x2 matrix projected onto the positive semi-definite cone (eigenvalues clamped at
+// 0). CPU: brdf::psd.
+vec3 ndf_psd(vec3 m) {
+    return ndf_clamp_eigen(m, 0.0, 1e30);
 }
 
 // Anisotropic Blinn-Phong lobe widened by an NDF covariance sigma = (xx, yy, xy):
@@ -172,7 +178,7 @@ float ndf_iso_lobe(vec3 mu, float var, vec3 h) {
     ndf_tangent_frame(mu, t1, t2);
     return ndf_ts_lobe(dot(mu, h), vec2(dot(h, t1), dot(h, t2)), ndf_sigma, vec3(var, var, 0.0));
 #elif defined(NDF_BRDF_GGX)
-    return ndf_ggx(mu, h, sqrt(ndf_alpha * ndf_alpha + ndf_ggx_c * max(var, 0.0)));
+    return ndf_ggx(mu, h, min(sqrt(ndf_alpha * ndf_alpha + ndf_ggx_c * max(var, 0.0)), 1.0));
 #elif defined(NDF_BRDF_TABULATED)
     float kappa = var > 0.0 ? 1.0 / var : 1e30;
     return ndf_tab_lobe(atan(length(cross(mu, h)), dot(mu, h)), kappa);

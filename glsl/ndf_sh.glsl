@@ -6,15 +6,17 @@
 // twin: sh::shade, harmonics::eval_into):
 //   diffuse   clamp(sum_l rhoL_l/Lambda_l sum_m c_lm Y_lm(w_i), 0, 1)  Lambert's rho (the generated
 //             NDF_SH_LAMBERT): the cosine is Lambert's f itself, exact up to the band limit;
-//   specular  max(sum_l rho_l/Lambda_l sum_m c_lm Y_lm(w_h), 0) * max(w_i . nbar, 0), rho_l the
+//   specular  clamp(sum_l rho_l/Lambda_l sum_m c_lm Y_lm(w_h), 0, peak) * max(w_i . nbar, 0), rho_l the
 //             BRDF's (eq 11, uniform ndf_sh_rho, from Brdf::sh_coefficients) and nbar the
 //             MIP-mapped normal normalize(c_11, c_1-1, c_10) (Sec 4.3).
-// Ringing of truncated sharp lobes is clamped at 0, the diffuse term also at 1 (its exact value
-// lies in [0, 1]; the truncated clamped cosine overshoots by up to 1/16 at l* = 2). The g factor
-// is applied by ndf_fragment.glsl.
+// Ringing of truncated sharp lobes is clamped at 0, and from above where the exact footprint
+// average cannot go: the diffuse term at 1 (the truncated clamped cosine overshoots by up to 1/16
+// at l* = 2), the specular one at the lobe's peak ndf_sh_peak (Gibbs' overshoot of a lobe with a
+// jump). The g factor is applied by ndf_fragment.glsl.
 
 #ifndef NDF_BRDF_LAMBERT
 uniform float ndf_sh_rho[NDF_SH_LMAX + 1];  // the BRDF's rho_l, l = 0 .. NDF_SH_LMAX
+uniform float ndf_sh_peak;                  // the lobe's largest value (Brdf::peak)
 #endif
 
 const int NDF_SH_COUNT = (NDF_SH_LMAX + 1) * (NDF_SH_LMAX + 1);
@@ -84,7 +86,7 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     float spec = 0.0;
 #ifndef NDF_BRDF_LAMBERT
     ndf_sh_eval(h, y);
-    float f = max(ndf_sh_series(t, y, ndf_sh_rho), 0.0);
+    float f = clamp(ndf_sh_series(t, y, ndf_sh_rho), 0.0, ndf_sh_peak);
 #if NDF_SH_LMAX >= 1
     vec3 nbar = ndf_normalize_or_z(vec3(t[0].w, t[0].y, t[0].z));
 #else

@@ -1236,6 +1236,15 @@ ndf_status ndf_material_sh_coefficients(const struct ndf_material *brdf,
                                         size_t capacity);
 
 /**
+ * The lobe's largest value (0 for Lambert): the SH shader's uniform `ndf_sh_peak`, where it
+ * clamps the ringing of a truncated lobe.
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; `peak_out` is NULL or writable.
+ */
+ndf_status ndf_material_lobe_peak(const struct ndf_material *brdf, double *peak_out);
+
+/**
  * The band limit the SH method needs for this BRDF (Sec 5.1): 2 for Lambert, `⌈√(4s)⌉` of
  * the equivalent Blinn-Phong exponent otherwise, at most 16.
  *

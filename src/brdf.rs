@@ -97,10 +97,17 @@ pub fn widened_lobe(cos_h: f64, d: DVec2, sigma: [f64; 3], s: f64) -> f64 {
 /// Projects a symmetric 2×2 matrix `(xx, yy, xy)` onto the positive semi-definite cone by
 /// clamping its eigenvalues at 0 (rounding can make a filtered covariance slightly indefinite).
 pub fn psd(m: [f64; 3]) -> [f64; 3] {
+    clamp_eigenvalues(m, 0.0, f64::INFINITY)
+}
+
+/// A symmetric 2×2 matrix `(xx, yy, xy)` with its eigenvalues clamped to `[lo, hi]` (NaN ones
+/// become `lo`), eigenvectors kept: [`psd`] is `lo = 0, hi = ∞`; GGX's widened slope matrix
+/// is held to `hi = 1` ([`Ggx::widened`]).
+pub fn clamp_eigenvalues(m: [f64; 3], lo: f64, hi: f64) -> [f64; 3] {
     let (xx, yy, xy) = (m[0], m[1], m[2]);
     let mean = 0.5 * (xx + yy);
     let r = (0.25 * (xx - yy) * (xx - yy) + xy * xy).sqrt();
-    let (l1, l2) = ((mean + r).max(0.0), (mean - r).max(0.0));
+    let (l1, l2) = ((mean + r).max(lo).min(hi), (mean - r).max(lo).min(hi));
     if r < 1e-300 {
         return [l1, l1, 0.0];
     }
@@ -185,7 +192,7 @@ pub const GGX_WIDENING_C: f64 = 2.0;
 /// A GGX / Trowbridge–Reitz specular lobe ([`ggx`]) and its g factor.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Ggx {
-    /// Roughness α > 0 (slope-space width; glTF's perceptual roughness squared).
+    /// Roughness α in (0, 1] (slope-space width; glTF's perceptual roughness squared).
     pub alpha: f64,
     /// Multiply by the g factor `F(ω_i·ω_h) · V(ω_i, ω_o)`: Schlick's Fresnel ([`schlick`])
     /// and Smith's height-correlated visibility against the geometric normal
@@ -220,9 +227,13 @@ impl Ggx {
     }
 
     /// The roughness widened by an NDF lobe of per-axis angular variance `var` (1/κ for a vMF
-    /// lobe): `sqrt(α² + c·var)`.
+    /// lobe): `sqrt(α² + c·var)`, at most 1 — GGX with α > 1 peaks at grazing angles, above
+    /// the unfiltered lobe's peak, and no NDF widens a lobe into that (at α = 1 it is already
+    /// uniform over the hemisphere).
     pub fn widened(&self, var: f64) -> f64 {
-        (self.alpha * self.alpha + self.widening * var.max(0.0)).sqrt()
+        (self.alpha * self.alpha + self.widening * var.max(0.0))
+            .sqrt()
+            .min(1.0)
     }
 }
 
@@ -289,7 +300,12 @@ impl Brdf {
             Brdf::TorranceSparrow { sigma } if !(sigma.is_finite() && sigma > 0.0) => {
                 bad("Torrance-Sparrow sigma", sigma)
             }
-            Brdf::Ggx(g) if !(g.alpha.is_finite() && g.alpha > 0.0) => bad("GGX alpha", g.alpha),
+            Brdf::Ggx(g) if !(g.alpha > 0.0 && g.alpha <= 1.0) => {
+                Err(crate::error::Error::InvalidOption(format!(
+                    "GGX alpha {} (must be in (0, 1])",
+                    g.alpha
+                )))
+            }
             Brdf::Ggx(g) if !((0.0..=1.0).contains(&g.f0) && g.widening >= 0.0) => {
                 Err(crate::error::Error::InvalidOption(format!(
                     "GGX F0 {} / widening {} (expected F0 in [0, 1], widening >= 0)",

@@ -16,7 +16,8 @@
 //! (lobes first, then colours); the BRDF's uniforms ([`uniforms`]): `ndf_s` (Blinn-Phong),
 //! `ndf_sigma` (Torrance–Sparrow), `ndf_alpha`, `ndf_ggx_c` and with the g factor `ndf_f0`
 //! (GGX), sampler `ndf_brdf_table` (tabulated: an R32F texture of
-//! [`crate::brdf::Tabulated::table`]), and for SH `ndf_sh_rho[l* + 1]` (the BRDF's `ρ̂_l`);
+//! [`crate::brdf::Tabulated::table`]), and for SH `ndf_sh_rho[l* + 1]` (the BRDF's `ρ̂_l`) and
+//! `ndf_sh_peak` (its lobe's peak);
 //! mesh mode: attributes 0–3 (position, normal, tangent, uv), uniforms `ndf_model`,
 //! `ndf_view_proj`, `ndf_camera_pos`, `ndf_light`, `ndf_light_color`, `ndf_kd`, `ndf_ks`;
 //! probe mode ([`ShaderOptions::probe`]): `ndf_probe_size`, `ndf_probe_lod` (or, anisotropic,
@@ -124,7 +125,7 @@ pub const MAX_SAMPLERS: usize = 32;
 /// The uniforms of `brdf` a shader specialized for it reads, with their values (f32; arrays
 /// as several values): `ndf_s`, `ndf_sigma`, `ndf_alpha` + `ndf_ggx_c` (+ `ndf_f0` with the g
 /// factor), and for an SH shader of band limit `sh_lmax` also `ndf_sh_rho` (`ρ̂_0 … ρ̂_l*`,
-/// [`Brdf::sh_coefficients`]). A tabulated BRDF's table is a texture
+/// [`Brdf::sh_coefficients`]) and `ndf_sh_peak` ([`Brdf::peak`]). A tabulated BRDF's table is a texture
 /// ([`crate::brdf::Tabulated::table`], sampler `ndf_brdf_table`), not listed here.
 pub fn uniforms(brdf: &Brdf, sh_lmax: Option<usize>) -> Vec<(&'static str, Vec<f32>)> {
     let mut out = Vec::new();
@@ -145,6 +146,7 @@ pub fn uniforms(brdf: &Brdf, sh_lmax: Option<usize>) -> Vec<(&'static str, Vec<f
     {
         let rho = brdf.sh_coefficients(lmax);
         out.push(("ndf_sh_rho", rho.iter().map(|&r| r as f32).collect()));
+        out.push(("ndf_sh_peak", vec![brdf.peak() as f32]));
     }
     out
 }

@@ -24,8 +24,10 @@
 //!   `f(ω_h·n) max(ω_i·n, 0)`), for measurement on the CPU.
 //!
 //! Ringing of a truncated sharp lobe can make either sum negative; both are clamped at 0
-//! (the cost is measured in `docs/sh-brdf.md`), and the diffuse sum at 1 (the truncated
-//! clamped cosine overshoots it by up to 1/16 at l* = 2, where the exact average cannot).
+//! (the cost is measured in `docs/sh-brdf.md`), and from above at what the exact footprint
+//! average cannot exceed: the diffuse sum at 1 (the truncated clamped cosine overshoots it by
+//! up to 1/16 at l* = 2), the specular one at the lobe's peak (Gibbs' overshoot of a lobe with
+//! a jump).
 
 use crate::bake::{Bake, Method, Progress, Texture};
 use crate::brdf::{Brdf, Shading, lambert_coefficient};
@@ -261,11 +263,13 @@ fn with_basis<T>(slot: usize, lmax: usize, d: DVec3, f: impl FnOnce(&[f64]) -> T
 /// diffuse `Σ ρ̂^Lambert_l/Λ_l Σ_m c_lm Y_lm(ω_i)` clamped to [0, 1] (the footprint average of
 /// `max(ω_i·n, 0)` lies there; the truncated clamped cosine overshoots it by up to 1/16 at
 /// l* = 2),
-/// specular `max(Σ ρ̂_l/Λ_l Σ_m c_lm Y_lm(ω_h), 0) · max(ω_i·n̄, 0)`.
+/// specular `Σ ρ̂_l/Λ_l Σ_m c_lm Y_lm(ω_h)` clamped to [0, the lobe's peak] (Gibbs' overshoot
+/// of a lobe with a jump, 25 % at l* = 2 for GGX α = 1's hemisphere step) times
+/// `max(ω_i·n̄, 0)`.
 pub fn shade(texels: &[[f32; 4]], lmax: usize, l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
     let (diffuse, f) = shade_series(texels, lmax, l, h, brdf);
     let specular = if brdf.has_specular() {
-        f.max(0.0) * mean_normal(texels, lmax).dot(l).max(0.0)
+        f.clamp(0.0, brdf.peak()) * mean_normal(texels, lmax).dot(l).max(0.0)
     } else {
         0.0
     };

@@ -18,8 +18,8 @@
 use crate::bake::{Bake, Method};
 use crate::brdf::tabulated::lookup;
 use crate::brdf::{
-    Brdf, Ggx, Shading, blinn_phong, ggx, ggx_aniso, psd, reference, tangent_frame,
-    torrance_sparrow_lobe, widened_lobe,
+    Brdf, Ggx, Shading, blinn_phong, clamp_eigenvalues, ggx, ggx_aniso, psd, reference,
+    tangent_frame, torrance_sparrow_lobe, widened_lobe,
 };
 use glam::{DVec2, DVec3};
 
@@ -292,14 +292,16 @@ fn baseline(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf
     }
 }
 
-/// GGX's slope matrix widened by an NDF covariance: `α² I + c Σ` ([`ggx_aniso`]).
+/// GGX's slope matrix widened by an NDF covariance: `α² I + c Σ` ([`ggx_aniso`]), its
+/// eigenvalues held to at most 1 as [`Ggx::widened`] holds α'.
 fn ggx_covariance(g: &Ggx, cov: [f64; 3]) -> [f64; 3] {
     let a2 = g.alpha * g.alpha;
-    [
+    let s = [
         a2 + g.widening * cov[0],
         a2 + g.widening * cov[1],
         g.widening * cov[2],
-    ]
+    ];
+    clamp_eigenvalues(s, 0.0, 1.0)
 }
 
 /// Shading per colour channel: the Lambert and specular terms as RGB.

@@ -198,6 +198,25 @@ pub unsafe extern "C" fn ndf_material_sh_coefficients(
     })
 }
 
+/// The lobe's largest value (0 for Lambert): the SH shader's uniform `ndf_sh_peak`, where it
+/// clamps the ringing of a truncated lobe.
+///
+/// # Safety
+/// `brdf` is NULL or a live BRDF; `peak_out` is NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_material_lobe_peak(
+    brdf: *const ndf_material,
+    peak_out: *mut f64,
+) -> ndf_status {
+    guard("ndf_material_lobe_peak", || {
+        // SAFETY (both blocks): NULL or valid (the caller's contract).
+        let b = unsafe { arg(brdf, "brdf") }?;
+        let out = Out::new(peak_out, "peak_out")?;
+        unsafe { out.write(b.brdf.peak()) };
+        Ok(())
+    })
+}
+
 /// The band limit the SH method needs for this BRDF (Sec 5.1): 2 for Lambert, `⌈√(4s)⌉` of
 /// the equivalent Blinn-Phong exponent otherwise, at most 16.
 ///

@@ -1017,6 +1017,10 @@ fn every_entry_point<'a>(
             Box::new(move || unsafe { ndf_material_suggested_lmax(mat, &mut 0) }),
         ),
         (
+            "ndf_material_lobe_peak",
+            Box::new(move || unsafe { ndf_material_lobe_peak(mat, &mut 0.0) }),
+        ),
+        (
             "ndf_material_table_size",
             Box::new(move || unsafe { ndf_material_table_size(mat, &mut 0, &mut 0) }),
         ),
@@ -1230,6 +1234,9 @@ fn sh_bakes_and_materials_through_the_c_api() {
         check!(ndf_material_sh_coefficients(m, 2, rho.as_mut_ptr(), 5) => Ok, "");
         let want = crate::brdf::Brdf::ggx(0.1).sh_coefficients(2);
         assert_eq!(&rho[..3], &want[..]);
+        let mut peak = 0.0;
+        check!(ndf_material_lobe_peak(m, &mut peak) => Ok, "");
+        assert!((peak - 1.0 / (std::f64::consts::PI * 0.01)).abs() < 1e-9);
         ndf_material_free(m);
         // A tabulated BRDF from JSON text: its table; bad JSON and parameters are refused.
         let json = c"{\"name\": \"t\", \"f\": [3.0, 1.0, 0.0], \"g\": [1.0, 0.5]}";

@@ -27,10 +27,6 @@ use std::f64::consts::PI;
 /// Peak bound: filtered Lambert ≤ 1 × this, specular ≤ the BRDF's peak × this.
 pub const PEAK_BOUND: f64 = 1.02;
 
-/// SH's specular peak bound: a band-limited series of a lobe with a jump (the "zero band"
-/// tabulated BRDF) overshoots it by Gibbs' 8.95 % of the jump, whatever the band limit.
-pub const SH_PEAK_BOUND: f64 = 1.10;
-
 /// Energy bound at the coarsest level: integrated radiance ≤ exact × (1 + this).
 pub const ENERGY_BOUND: f64 = 0.15;
 
@@ -437,16 +433,10 @@ fn check(case: &str, config: &str, exact: Option<&Exact>, bake: &Bake) -> Outcom
                     continue;
                 }
                 let p = peak(brdf);
-                // SH's specular term is held to Gibbs' bound instead ([`SH_PEAK_BOUND`]).
-                let ps = if sh {
-                    p * SH_PEAK_BOUND / PEAK_BOUND
-                } else {
-                    p
-                };
                 for &(l, _, hv) in &dirs {
                     let s = shade_brdf(bake, &texel, l, hv, brdf);
                     o.checked += 1;
-                    for (v, top) in [(s.diffuse, 1.0), (s.specular, ps)] {
+                    for (v, top) in [(s.diffuse, 1.0), (s.specular, p)] {
                         if !v.is_finite() {
                             o.nonfinite += 1;
                         } else if v < 0.0 {
