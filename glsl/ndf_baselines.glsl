@@ -7,10 +7,12 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     // The normalized mean normal shaded with the unchanged BRDF.
     vec3 mu = ndf_normalize_or_z(t[0].xyz);
     float d = max(dot(mu, l), 0.0);
-#ifdef NDF_BRDF_TORRANCE_SPARROW
+#if defined(NDF_BRDF_TORRANCE_SPARROW)
     float spec = ndf_ts_lobe(dot(mu, h), vec2(1.0, 0.0), ndf_sigma, vec3(0.0)) * d;
-#else
+#elif defined(NDF_BRDF_BLINN_PHONG)
     float spec = ndf_blinn_phong(dot(mu, h), ndf_s) * d;
+#else
+    float spec = ndf_iso_lobe(mu, 0.0, h) * d;
 #endif
 
 #elif defined(NDF_METHOD_TOKSVIG)
@@ -21,13 +23,13 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     vec3 mu = len > 1e-12 ? m / len : vec3(0.0, 0.0, 1.0);
     float ft = min(len, 1.0);
     float d = max(dot(m, l), 0.0);
-#ifdef NDF_BRDF_TORRANCE_SPARROW
-    float var = ft > 0.0 ? (1.0 - ft) / ft : 1e6;
-    float spec = ndf_ts_iso(1.0, mu, var, l, h, ndf_sigma);
-#else
+#ifdef NDF_BRDF_BLINN_PHONG
     float den = ft + ndf_s * (1.0 - ft);
     float s_t = den > 0.0 ? ft * ndf_s / den : 0.0;
     float spec = ndf_blinn_phong(dot(mu, h), s_t) * max(dot(mu, l), 0.0);
+#else
+    float var = ft > 0.0 ? (1.0 - ft) / ft : 1e6;
+    float spec = ndf_iso_lobe(mu, var, h) * max(dot(mu, l), 0.0);
 #endif
 
 #elif defined(NDF_METHOD_LEAN)
@@ -38,10 +40,22 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     vec3 mu = normalize(vec3(b, 1.0));
     float d = max(dot(mu, l), 0.0);
     vec2 dir = h.z > 1e-9 ? h.xy / h.z - b : vec2(0.0);
-#ifdef NDF_BRDF_TORRANCE_SPARROW
+#if defined(NDF_BRDF_TORRANCE_SPARROW)
     float spec = ndf_ts_lobe(dot(mu, h), dir, ndf_sigma, cov) * d;
-#else
+#elif defined(NDF_BRDF_BLINN_PHONG)
     float spec = h.z > 1e-9 ? ndf_widened_lobe(dot(mu, h), dir, cov, ndf_s) * d : 0.0;
+#elif defined(NDF_BRDF_GGX)
+    // S = alpha^2 I + c Sigma in slope space (the GGX form of LEAN's rule), the slope offset
+    // along dir with the length tan(theta) of the angle between mu and h: GGX about mu at Sigma = 0.
+    vec3 sm = ndf_clamp_eigen(vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov,
+                              0.0, 1.0);
+    float c = dot(mu, h);
+    float len = length(dir);
+    vec2 slope = (len > 1e-30 && c > 0.0) ? dir * (length(cross(mu, h)) / c / len) : vec2(0.0);
+    float spec = ndf_ggx_aniso(c, slope, sm) * d;
+#else
+    // The closest isotropic lobe: the mean per-axis variance.
+    float spec = ndf_iso_lobe(mu, 0.5 * (cov.x + cov.y), h) * d;
 #endif
 
 #elif defined(NDF_METHOD_OLANO)
@@ -57,10 +71,18 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     vec3 cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
     vec2 dir = vec2(dot(h, t1), dot(h, t2));
     float d = max(dot(m, l), 0.0);
-#ifdef NDF_BRDF_TORRANCE_SPARROW
+#if defined(NDF_BRDF_TORRANCE_SPARROW)
     float spec = ndf_ts_lobe(dot(mu, h), dir, ndf_sigma, cov) * max(dot(mu, l), 0.0);
-#else
+#elif defined(NDF_BRDF_BLINN_PHONG)
     float spec = ndf_widened_lobe(dot(mu, h), dir, cov, ndf_s) * max(dot(mu, l), 0.0);
+#elif defined(NDF_BRDF_GGX)
+    // S = alpha^2 I + c Sigma with the slope of h in mu's frame.
+    float c = dot(mu, h);
+    vec3 sm = ndf_clamp_eigen(vec3(ndf_alpha * ndf_alpha) * vec3(1.0, 1.0, 0.0) + ndf_ggx_c * cov,
+                              0.0, 1.0);
+    float spec = c > 0.0 ? ndf_ggx_aniso(c, dir / c, sm) * max(dot(mu, l), 0.0) : 0.0;
+#else
+    float spec = ndf_iso_lobe(mu, 0.5 * (cov.x + cov.y), h) * max(dot(mu, l), 0.0);
 #endif
 #endif
     diffuse = vec3(d);

@@ -7,10 +7,28 @@
 
 const float NDF_PI = 3.14159265358979;
 
-// The BRDF's parameter, set by the application (it may change every frame: Sec 7.2).
-#ifdef NDF_BRDF_TORRANCE_SPARROW
+// The BRDF (src/brdf.rs): one NDF_BRDF_* define picks the specular lobe, Blinn-Phong when none
+// does. Its parameters are uniforms set by the application (they may change every frame:
+// Sec 7.2).
+#if !defined(NDF_BRDF_TORRANCE_SPARROW) && !defined(NDF_BRDF_GGX) && !defined(NDF_BRDF_TABULATED)
+#ifndef NDF_BRDF_LAMBERT
+#define NDF_BRDF_BLINN_PHONG 1
+#endif
+#endif
+#if defined(NDF_BRDF_TORRANCE_SPARROW)
 uniform float ndf_sigma;  // eq 18 roughness sigma > 0
-#else
+#elif defined(NDF_BRDF_GGX)
+uniform float ndf_alpha;  // GGX roughness alpha in (0, 1]
+uniform float ndf_ggx_c;  // widening alpha'^2 = alpha^2 + c var (brdf::GGX_WIDENING_C)
+#ifdef NDF_BRDF_G
+uniform float ndf_f0;     // Schlick's F0
+#endif
+#elif defined(NDF_BRDF_TABULATED)
+// The tabulated BRDF's table (Tabulated::table): NDF_TAB_GRID angles theta = pi x^2 per row,
+// rows k < NDF_TAB_ROWS of the lobe convolved with a vMF lobe of concentration 2^(k/2) - 1
+// (eq 14; the last is the lobe itself), then one row of g(theta_d), theta_d = (pi/2) i/(GRID-1).
+uniform sampler2D ndf_brdf_table;
+#elif defined(NDF_BRDF_BLINN_PHONG)
 uniform float ndf_s;      // Blinn-Phong exponent s > 0 (eq 20)
 #endif
 
@@ -36,13 +54,13 @@ void ndf_tangent_frame(vec3 n, out vec3 t1, out vec3 t2) {
     t2 = vec3(b, sgn + n.y * n.y * a, -n.y);
 }
 
-// A symmetric 2x2 matrix (xx, yy, xy) projected onto the positive semi-definite cone by clamping
-// its eigenvalues at 0. CPU: shade::psd.
-vec3 ndf_psd(vec3 m) {
+// A symmetric 2x2 matrix (xx, yy, xy) with its eigenvalues clamped to [lo, hi], eigenvectors
+// kept. CPU: brdf::clamp_eigenvalues.
+vec3 ndf_clamp_eigen(vec3 m, float lo, float hi) {
     float mean = 0.5 * (m.x + m.y);
     float r = sqrt(0.25 * (m.x - m.y) * (m.x - m.y) + m.z * m.z);
-    float l1 = max(mean + r, 0.0);
-    float l2 = max(mean - r, 0.0);
+    float l1 = min(max(mean + r, lo), hi);
+    float l2 = min(max(mean - r, lo), hi);
     if (r < 1e-30) return vec3(l1, l1, 0.0);
     vec2 e = abs(mean + r - m.x) > abs(mean + r - m.y) ? vec2(m.z, mean + r - m.x)
                                                        : vec2(mean + r - m.y, m.z);
@@ -50,6 +68,12 @@ vec3 ndf_psd(vec3 m) {
     return vec3(l1 * c.x * c.x + l2 * c.y * c.y,
                 l1 * c.y * c.y + l2 * c.x * c.x,
                 (l1 - l2) * c.x * c.y);
+}
+
+// A symmetric 2x2 matrix projected onto the positive semi-definite cone (eigenvalues clamped at
+// 0). CPU: brdf::psd.
+vec3 ndf_psd(vec3 m) {
+    return ndf_clamp_eigen(m, 0.0, 1e30);
 }
 
 // Anisotropic Blinn-Phong lobe widened by an NDF covariance sigma = (xx, yy, xy):
@@ -94,14 +118,101 @@ float ndf_ts_lobe(float cos_h, vec2 dir, float sigma, vec3 cov) {
     return exp(-0.5 * q) / (2.0 * NDF_PI * sqrt(det));
 }
 
-// One isotropic lobe of weight alpha around mu with per-axis angular variance var under the
-// eq 18 BRDF, times the cosine (the Torrance-Sparrow path of every method).
-float ndf_ts_iso(float alpha, vec3 mu, float var, vec3 l, vec3 h, float sigma) {
+// GGX / Trowbridge-Reitz D = a^2 / (pi (sin^2 + cos^2 a^2)^2) of the angle between mu and h,
+// with sin^2 from the cross product (precise for sharp lobes in f32); zero for cos <= 0.
+// CPU: brdf::ggx.
+float ndf_ggx(vec3 mu, vec3 h, float a) {
+    float c = dot(mu, h);
+    if (!(c > 0.0)) return 0.0;
+    vec3 x = cross(mu, h);
+    float d = dot(x, x) + c * c * a * a;
+    return d > 0.0 ? a * a / (NDF_PI * d * d) : 0.0;
+}
+
+// Anisotropic GGX in slope space: 1 / (pi sqrt(det S) c^4 (1 + d^T S^-1 d)^2) for the slope
+// offset d and the matrix S = (xx, yy, xy); zero for c <= 0. CPU: brdf::ggx_aniso.
+float ndf_ggx_aniso(float c, vec2 d, vec3 s) {
+    if (!(c > 0.0)) return 0.0;
+    float det = max(s.x * s.y - s.z * s.z, 1e-30);
+    float q = (s.y * d.x * d.x - 2.0 * s.z * d.x * d.y + s.x * d.y * d.y) / det;
+    float c1 = min(c, 1.0);
+    float t = 1.0 + max(q, 0.0);
+    return 1.0 / (NDF_PI * sqrt(det) * c1 * c1 * c1 * c1 * t * t);
+}
+
+#ifdef NDF_BRDF_TABULATED
+const int NDF_TAB_GRID = 256;
+const int NDF_TAB_ROWS = 45;
+
+// One row of the table at fractional index x (linear). CPU: tabulated::lookup.
+float ndf_tab_row(int row, float x) {
+    int i = min(int(floor(x)), NDF_TAB_GRID - 2);
+    float fx = x - float(i);
+    float a = texelFetch(ndf_brdf_table, ivec2(i, row), 0).r;
+    float b = texelFetch(ndf_brdf_table, ivec2(i + 1, row), 0).r;
+    return a + fx * (b - a);
+}
+
+// The tabulated lobe at angle theta from the lobe's centre under a vMF lobe of concentration
+// kappa: bilinear in x = sqrt(theta/pi)(GRID-1) and t = min(2 log2(1 + kappa), ROWS-1).
+// CPU: brdf::tabulated::lookup.
+float ndf_tab_lobe(float theta, float kappa) {
+    float x = sqrt(clamp(theta / NDF_PI, 0.0, 1.0)) * float(NDF_TAB_GRID - 1);
+    float t = min(2.0 * log2(1.0 + max(kappa, 0.0)), float(NDF_TAB_ROWS - 1));
+    int j = min(int(floor(t)), NDF_TAB_ROWS - 2);
+    float ft = t - float(j);
+    float a = ndf_tab_row(j, x);
+    float b = ndf_tab_row(j + 1, x);
+    return a + ft * (b - a);
+}
+#endif
+
+// The specular lobe of an isotropic NDF estimate around mu with per-axis angular variance var
+// (1/kappa for a vMF lobe), without the cosine and g: eq 21 (Torrance-Sparrow),
+// alpha'^2 = alpha^2 + c var (GGX), eq 14 from the table at kappa = 1/var (tabulated), 0 for
+// Lambert. Blinn-Phong is handled by each method (eq 20 and its relatives). CPU: shade::iso_lobe.
+float ndf_iso_lobe(vec3 mu, float var, vec3 h) {
+#if defined(NDF_BRDF_TORRANCE_SPARROW)
     vec3 t1;
     vec3 t2;
     ndf_tangent_frame(mu, t1, t2);
-    vec2 dir = vec2(dot(h, t1), dot(h, t2));
-    return alpha * ndf_ts_lobe(dot(mu, h), dir, sigma, vec3(var, var, 0.0)) * max(dot(mu, l), 0.0);
+    return ndf_ts_lobe(dot(mu, h), vec2(dot(h, t1), dot(h, t2)), ndf_sigma, vec3(var, var, 0.0));
+#elif defined(NDF_BRDF_GGX)
+    return ndf_ggx(mu, h, min(sqrt(ndf_alpha * ndf_alpha + ndf_ggx_c * max(var, 0.0)), 1.0));
+#elif defined(NDF_BRDF_TABULATED)
+    float kappa = var > 0.0 ? 1.0 / var : 1e30;
+    return ndf_tab_lobe(atan(length(cross(mu, h)), dot(mu, h)), kappa);
+#elif defined(NDF_BRDF_BLINN_PHONG)
+    return ndf_blinn_phong(dot(mu, h), ndf_s / (1.0 + ndf_s * var));
+#else
+    return 0.0;
+#endif
+}
+
+// The BRDF's g factor for light l and half vector h (tangent space; footnote 4: it does not
+// depend on the normal, so it multiplies every method's specular term once): GGX with
+// NDF_BRDF_G: Schlick's Fresnel times Smith's height-correlated visibility against +Z, the view
+// being v = 2 (l.h) h - l; tabulated: g(theta_d) from the table's last row; else 1.
+// CPU: Brdf::g.
+float ndf_g(vec3 l, vec3 h) {
+#if defined(NDF_BRDF_GGX) && defined(NDF_BRDF_G)
+    float cd = clamp(dot(l, h), 0.0, 1.0);
+    vec3 v = 2.0 * cd * h - l;
+    float m = 1.0 - cd;
+    float fresnel = ndf_f0 + (1.0 - ndf_f0) * (m * m * m * m * m);
+    if (!(l.z > 0.0 && v.z > 0.0)) return 0.0;
+    float a2 = ndf_alpha * ndf_alpha;
+    float vi = v.z * sqrt(l.z * l.z * (1.0 - a2) + a2);
+    float vo = l.z * sqrt(v.z * v.z * (1.0 - a2) + a2);
+    float den = vi + vo;
+    return den > 0.0 ? fresnel * 0.5 / den : 0.0;
+#elif defined(NDF_BRDF_TABULATED)
+    float td = acos(clamp(dot(l, h), -1.0, 1.0));
+    float x = clamp(td / (0.5 * NDF_PI), 0.0, 1.0) * float(NDF_TAB_GRID - 1);
+    return ndf_tab_row(NDF_TAB_ROWS, x);
+#else
+    return 1.0;
+#endif
 }
 
 // normalize(v), or +Z for a zero or non-finite v (the CPU's try_normalize fallback).
@@ -111,12 +222,12 @@ vec3 ndf_normalize_or_z(vec3 v) {
 }
 
 // The MIP level of detail of the GL specification (3.3 core, eq 3.18-3.21) from the screen
-// derivatives of uv on a texture of base size `size`: lambda = log2(max(|d(uv*size)/dx|,
-// |d(uv*size)/dy|)). Computed here rather than left to texture() so that hardware and manual
-// sampling, and the CPU twin (src/sample.rs), use one LOD.
-float ndf_lod(vec2 uv, vec2 size) {
-    vec2 dx = dFdx(uv) * size;
-    vec2 dy = dFdy(uv) * size;
-    float rho2 = max(dot(dx, dx), dot(dy, dy));
+// derivatives dx = dFdx(uv), dy = dFdy(uv) on a texture of base size `size`:
+// lambda = log2(max(|dx*size|, |dy*size|)). Computed here rather than left to texture() so that
+// hardware and manual sampling, and the CPU twin (src/sample.rs), use one LOD.
+float ndf_lod(vec2 dx, vec2 dy, vec2 size) {
+    vec2 ex = dx * size;
+    vec2 ey = dy * size;
+    float rho2 = max(dot(ex, ex), dot(ey, ey));
     return 0.5 * log2(max(rho2, 1e-30));
 }

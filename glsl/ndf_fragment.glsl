@@ -7,8 +7,13 @@
 //     lobes and for the baselines' linear moments;
 //   NDF_MANUAL: shade the 4 texels around uv on each of the two nearest levels and blend the
 //     results with the trilinear weights - what unaligned lobes need.
-// Both use the LOD of ndf_lod() (GL's formula) and GL's LINEAR_MIPMAP_LINEAR rules, so the CPU
-// twin (src/sample.rs) can reproduce either bit for bit up to f32 rounding.
+//   NDF_ANISO (= the most probes): the anisotropic footprint of GL_EXT_texture_filter_anisotropic's
+//     reference rule, done in the shader: N = min(ceil(Pmax/Pmin), NDF_ANISO) trilinear probes at
+//     LOD log2(Pmax/N) along the major axis of the pixel's footprint, averaged, then one shading
+//     (exact for parameters that filter linearly: SH, aligned lobes, the baselines' moments).
+// All use the LOD of ndf_lod() (GL's formula) and GL's LINEAR_MIPMAP_LINEAR rules, so the CPU
+// twin (src/sample.rs) can reproduce each bit for bit up to f32 rounding. The BRDF's g factor
+// (ndf_g) multiplies the specular term after filtering (it does not depend on the texel).
 //
 // NDF_PROBE replaces the mesh inputs by uniforms (uv from gl_FragCoord, given LOD, light and half
 // vector in tangent space) and writes (diffuse, specular) of one colour channel: what the
@@ -56,8 +61,31 @@ void ndf_shade_level(vec2 uv, int level, vec3 l, vec3 h, out vec3 diffuse, out v
 }
 #endif
 
+#ifdef NDF_ANISO
+// The anisotropic sample (module docs; CPU: sample::anisotropic, sample::aniso_probes).
+void ndf_fetch_aniso(vec2 uv, vec2 dx, vec2 dy, out vec4 t[NDF_TEXTURES]) {
+    vec2 size = vec2(textureSize(ndf_tex0, 0));
+    float px = length(dx * size);
+    float py = length(dy * size);
+    float pmax = max(px, py);
+    float pmin = min(px, py);
+    float ratio = pmin > 0.0 ? min(pmax / pmin, float(NDF_ANISO)) : float(NDF_ANISO);
+    int n = clamp(int(ceil(ratio)), 1, NDF_ANISO);
+    float lod = log2(max(pmax / float(n), 1e-15));
+    vec2 major = px >= py ? dx : dy;
+    for (int k = 0; k < NDF_TEXTURES; ++k) t[k] = vec4(0.0);
+    for (int i = 1; i <= NDF_ANISO; ++i) {
+        if (i > n) break;
+        vec4 p[NDF_TEXTURES];
+        ndf_fetch_lod(uv + major * (float(i) / float(n + 1) - 0.5), lod, p);
+        for (int k = 0; k < NDF_TEXTURES; ++k) t[k] += p[k];
+    }
+    for (int k = 0; k < NDF_TEXTURES; ++k) t[k] /= float(n);
+}
+#endif
+
 // Filtered shading at uv and level of detail lod, for light l and half vector h in tangent
-// space: the diffuse (Lambert) and specular terms, per colour channel.
+// space: the diffuse (Lambert) and specular terms, per colour channel, without the g factor.
 void ndf_shade(vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
 #ifdef NDF_MANUAL
     float lambda = clamp(lod, 0.0, float(ndf_max_level()));
@@ -78,9 +106,28 @@ void ndf_shade(vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse, out vec3 sp
 #endif
 }
 
+// Filtered shading at uv with the screen derivatives dx, dy of uv (the pixel's footprint),
+// times the g factor: the anisotropic sample with NDF_ANISO, else ndf_shade at GL's LOD.
+void ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, out vec3 diffuse,
+                         out vec3 specular) {
+#ifdef NDF_ANISO
+    vec4 t[NDF_TEXTURES];
+    ndf_fetch_aniso(uv, dx, dy, t);
+    ndf_shade_texel(t, l, h, diffuse, specular);
+#else
+    ndf_shade(uv, ndf_lod(dx, dy, vec2(textureSize(ndf_tex0, 0))), l, h, diffuse, specular);
+#endif
+    specular *= ndf_g(l, h);
+}
+
 #ifdef NDF_PROBE
 uniform vec2 ndf_probe_size;   // framebuffer size in pixels: uv = gl_FragCoord.xy / size
+#ifdef NDF_ANISO
+uniform vec2 ndf_probe_dx;     // screen derivatives of uv (the footprint), anisotropic sampling
+uniform vec2 ndf_probe_dy;
+#else
 uniform float ndf_probe_lod;   // level of detail
+#endif
 uniform vec3 ndf_probe_l;      // light direction, tangent space, unit
 uniform vec3 ndf_probe_h;      // half vector, tangent space, unit
 uniform int ndf_probe_channel; // colour channel written (0, 1, 2)
@@ -88,7 +135,13 @@ uniform int ndf_probe_channel; // colour channel written (0, 1, 2)
 void main() {
     vec3 d;
     vec3 s;
-    ndf_shade(gl_FragCoord.xy / ndf_probe_size, ndf_probe_lod, ndf_probe_l, ndf_probe_h, d, s);
+    vec2 uv = gl_FragCoord.xy / ndf_probe_size;
+#ifdef NDF_ANISO
+    ndf_shade_footprint(uv, ndf_probe_dx, ndf_probe_dy, ndf_probe_l, ndf_probe_h, d, s);
+#else
+    ndf_shade(uv, ndf_probe_lod, ndf_probe_l, ndf_probe_h, d, s);
+    s *= ndf_g(ndf_probe_l, ndf_probe_h);
+#endif
     int c = ndf_probe_channel;
     ndf_out = vec4(c == 0 ? d.x : (c == 1 ? d.y : d.z), c == 0 ? s.x : (c == 1 ? s.y : s.z),
                    0.0, 1.0);
@@ -116,10 +169,9 @@ void main() {
     vec3 l = vec3(dot(lw, tg), dot(lw, bt), dot(lw, n));
     vec3 v = vec3(dot(vw, tg), dot(vw, bt), dot(vw, n));
     vec3 h = ndf_normalize_or_z(l + v);
-    float lod = ndf_lod(ndf_v_uv, vec2(textureSize(ndf_tex0, 0)));
     vec3 d;
     vec3 s;
-    ndf_shade(ndf_v_uv, lod, l, h, d, s);
+    ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), l, h, d, s);
     ndf_out = vec4(ndf_light_color * falloff * (ndf_kd * d + ndf_ks * s), 1.0);
 }
 #endif

@@ -5,7 +5,7 @@
 // holds alpha*y. Per component (CPU twin: tan2005::shade_gaussian):
 //   mu = (a*mu)/a, sigma^2 = max(0, a*(sigma^2 + |mu|^2)/a - |mu|^2),
 //   lifted to the sphere mu3 = (mu, sqrt(1 - |mu|^2)) with mu clamped to the unit disk;
-//   Blinn-Phong: s' = s/(1 + s sigma^2); Torrance-Sparrow adds sigma^2 to the lobe's variance.
+//   Blinn-Phong: s' = s/(1 + s sigma^2); the other BRDFs widen by var = sigma^2 (ndf_iso_lobe).
 // alpha <= 0 contributes nothing.
 
 vec3 ndf_tan_lift(vec2 m) {
@@ -34,11 +34,7 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         vec3 weight = vec3(alpha);
 #endif
         float cos_i = max(dot(mu, l), 0.0);
-#ifdef NDF_BRDF_TORRANCE_SPARROW
-        float lobe = ndf_ts_iso(1.0, mu, var, l, h, ndf_sigma);
-#else
-        float lobe = ndf_blinn_phong(dot(mu, h), ndf_s / (1.0 + ndf_s * var)) * cos_i;
-#endif
+        float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
         diffuse += weight * cos_i;
         specular += weight * lobe;
     }

@@ -134,11 +134,18 @@ typedef uint32_t ndf_status;
 
 /**
  * A baked set of filtered textures (opaque): per texture an RGBA MIP chain, finest level
- * first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf` or `ndf_bake_tan2005`;
+ * first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf`, `ndf_bake_tan2005` or
+ * `ndf_bake_sh`;
  * released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
  * and write it at once.
  */
 typedef struct ndf_bake ndf_bake;
+
+/**
+ * A BRDF (opaque): made by `ndf_material_new`, released by `ndf_material_free`. It never changes;
+ * any number of threads may use it at once.
+ */
+typedef struct ndf_material ndf_material;
 
 /**
  * A decoded normal map (opaque): unit tangent-space normals, optionally a feature image.
@@ -235,6 +242,36 @@ typedef uint32_t ndf_sample_type;
  * not call back into the bake being made.
  */
 typedef int (*ndf_progress_fn)(float fraction, void *user_data);
+
+/**
+ * Options of the spherical-harmonic bake (`NDF_METHOD_SH`). Initialize with
+ * `ndf_sh_options_default()`.
+ */
+typedef struct ndf_sh_options {
+  /**
+   * `sizeof(ndf_sh_options)`, set by `ndf_sh_options_default()`.
+   */
+  size_t struct_size;
+  /**
+   * Band limit l*, 0 to 16. Default 4 (25 coefficients in 7 textures). Lambert needs 2;
+   * Blinn-Phong about `√(4s)` (`ndf_material_suggested_lmax`). A GLSL shader samples at most 32
+   * textures: l* ≤ 10.
+   */
+  uint32_t lmax;
+  /**
+   * Progress callback, or NULL (default) for none.
+   */
+  ndf_progress_fn progress;
+  /**
+   * Passed to `progress` unchanged. Default NULL.
+   */
+  void *progress_user_data;
+  /**
+   * Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+   * machine's memory.
+   */
+  uint64_t memory_limit;
+} ndf_sh_options;
 
 /**
  * Options of the baselines (`NDF_METHOD_PLAIN`, `_TOKSVIG`, `_LEAN`, `_OLANO`). Initialize
@@ -410,6 +447,11 @@ typedef uint32_t ndf_brdf;
 typedef uint32_t ndf_sampling;
 
 /**
+ * The vMF lobes' diffuse term: one of the `NDF_VMF_DIFFUSE_*` values.
+ */
+typedef uint32_t ndf_vmf_diffuse;
+
+/**
  * Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
  */
 typedef struct ndf_shader_options {
@@ -422,9 +464,23 @@ typedef struct ndf_shader_options {
    */
   ndf_brdf brdf;
   /**
-   * Hardware or manual filtering, `NDF_SAMPLING_*`. Default `NDF_SAMPLING_AUTO`.
+   * `NDF_BRDF_GGX` only: nonzero multiplies by the g factor (Smith, Schlick). Default 0.
+   */
+  uint32_t ggx_g;
+  /**
+   * Hardware, manual or anisotropic filtering, `NDF_SAMPLING_*`. Default
+   * `NDF_SAMPLING_AUTO`.
    */
   ndf_sampling sampling;
+  /**
+   * `NDF_SAMPLING_ANISOTROPIC` only: the most probes, 2 to 16. Default 16.
+   */
+  uint32_t max_anisotropy;
+  /**
+   * vMF bakes: the lobes' diffuse term, `NDF_VMF_DIFFUSE_*`. Default
+   * `NDF_VMF_DIFFUSE_MEAN_VECTOR`.
+   */
+  ndf_vmf_diffuse vmf_diffuse;
   /**
    * The format the textures are uploaded in (`NDF_FORMAT_*`, as given to `ndf_bake_pack`):
    * decides the unorm decoding and the vMF |r| clamp. Default `NDF_FORMAT_RGBA_F32`.
@@ -446,6 +502,58 @@ typedef struct ndf_shader_options {
  * A shader stage: one of the `NDF_SHADER_STAGE_*` values.
  */
 typedef uint32_t ndf_shader_stage;
+
+/**
+ * A BRDF description. Initialize with `ndf_material_options_default()`, set `model` and the
+ * fields it reads, and make the BRDF with `ndf_material_new`.
+ */
+typedef struct ndf_material_options {
+  /**
+   * `sizeof(ndf_material_options)`, set by `ndf_material_options_default()`.
+   */
+  size_t struct_size;
+  /**
+   * The model, `NDF_BRDF_*`. Default `NDF_BRDF_GGX`.
+   */
+  ndf_brdf model;
+  /**
+   * `NDF_BRDF_BLINN_PHONG`: exponent s, finite and > 0. Default 64.
+   */
+  double s;
+  /**
+   * `NDF_BRDF_TORRANCE_SPARROW`: roughness σ of eq 18, finite and > 0. Default 0.1.
+   */
+  double sigma;
+  /**
+   * `NDF_BRDF_GGX`: roughness α (glTF's perceptual roughness squared), finite and > 0.
+   * Default 0.1.
+   */
+  double alpha;
+  /**
+   * `NDF_BRDF_GGX`: nonzero multiplies by the g factor, Smith's height-correlated masking
+   * (against the geometric normal) and Schlick's Fresnel. Default 0: the lobe D alone.
+   */
+  uint32_t g;
+  /**
+   * `NDF_BRDF_GGX` with `g`: Schlick's F0 in [0, 1]. Default 0.04.
+   */
+  double f0;
+  /**
+   * `NDF_BRDF_GGX`: the widening constant c of `α'² = α² + c/κ` under a vMF lobe, ≥ 0.
+   * Default the library's measured choice (`ndf_material_default_widening()`).
+   */
+  double widening;
+  /**
+   * `NDF_BRDF_TABULATED`: NUL-terminated JSON text of the tabulated BRDF (format in
+   * `docs/sh-brdf.md`), or NULL to read `tabulated_path`. Default NULL.
+   */
+  const char *tabulated_json;
+  /**
+   * `NDF_BRDF_TABULATED`: path of a tabulated BRDF file, used when `tabulated_json` is NULL.
+   * Default NULL.
+   */
+  const char *tabulated_path;
+} ndf_material_options;
 
 /**
  * +Y up (OpenGL, Blender, most CC0 libraries): green is the bitangent as stored. Default.
@@ -565,6 +673,12 @@ typedef uint32_t ndf_shader_stage;
 #define NDF_METHOD_VMF 5
 
 /**
+ * The spherical-harmonic NDF (Han et al. 2007, Sec 5): `(l*+1)²` coefficients in
+ * `⌈(l*+1)²/4⌉` textures; any BRDF at shading time (`ndf_material_sh_coefficients`).
+ */
+#define NDF_METHOD_SH 6
+
+/**
  * 32-bit float per channel, 16 bytes per texel (`GL_RGBA32F`, `GL_FLOAT`).
  */
 #define NDF_FORMAT_RGBA_F32 0
@@ -666,6 +780,24 @@ typedef uint32_t ndf_shader_stage;
 #define NDF_SAMPLING_MANUAL 2
 
 /**
+ * The anisotropic footprint (`GL_EXT_texture_filter_anisotropic`'s reference rule, done in
+ * the shader): up to `max_anisotropy` trilinear probes along the pixel's major axis,
+ * averaged, then shading. For bakes whose parameters filter linearly (SH, aligned lobes, the
+ * baselines).
+ */
+#define NDF_SAMPLING_ANISOTROPIC 3
+
+/**
+ * `max(ω_i·αr, 0)` per lobe (the mean normal of the lobe; lower Lambert error). Default.
+ */
+#define NDF_VMF_DIFFUSE_MEAN_VECTOR 0
+
+/**
+ * Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
+ */
+#define NDF_VMF_DIFFUSE_ALGORITHM2 1
+
+/**
  * Normalized Blinn-Phong, exponent in uniform `ndf_s` (eq 20). Default.
  */
 #define NDF_BRDF_BLINN_PHONG 0
@@ -674,6 +806,23 @@ typedef uint32_t ndf_shader_stage;
  * The Torrance–Sparrow-like Gaussian of eq 18, roughness in uniform `ndf_sigma` (eq 21).
  */
 #define NDF_BRDF_TORRANCE_SPARROW 1
+
+/**
+ * No specular lobe: the Lambert term alone (the specular output is 0).
+ */
+#define NDF_BRDF_LAMBERT 2
+
+/**
+ * GGX / Trowbridge–Reitz, uniforms `ndf_alpha` and `ndf_ggx_c` (and `ndf_f0` with the g
+ * factor: Smith's masking and Schlick's Fresnel).
+ */
+#define NDF_BRDF_GGX 3
+
+/**
+ * A tabulated `f(θ_h)·g(θ_d)`: sampler `ndf_brdf_table`, an R32F texture of
+ * `ndf_material_table()`.
+ */
+#define NDF_BRDF_TABULATED 4
 
 #ifdef __cplusplus
 extern "C" {
@@ -850,6 +999,11 @@ ndf_status ndf_normal_map_bad_normal_count(const struct ndf_normal_map *map, uin
 void ndf_normal_map_free(struct ndf_normal_map *map);
 
 /**
+ * The default SH options: l* = 4, no progress callback, the default memory budget.
+ */
+struct ndf_sh_options ndf_sh_options_default(void);
+
+/**
  * The default baseline options: no progress callback.
  */
 struct ndf_baseline_options ndf_baseline_options_default(void);
@@ -896,6 +1050,21 @@ ndf_status ndf_bake_baseline(const struct ndf_normal_map *map,
 ndf_status ndf_bake_vmf(const struct ndf_normal_map *map,
                         const struct ndf_vmf_options *options,
                         struct ndf_bake **bake_out);
+
+/**
+ * Bakes the spherical-harmonic NDF of `map` (Sec 5): per texel the coefficients
+ * `sqrt(4π/(2l+1))·γ_lm` for l ≤ l*, each in [−1, 1], four per texture in (l, m) order (the
+ * bake's channel names say which: `c<l>,<m>`).
+ * - `options`: from `ndf_sh_options_default()`; `lmax` above 16 gives
+ *   `NDF_STATUS_INVALID_ARGUMENT`.
+ * - `bake_out`, cancellation: as for `ndf_bake_vmf`.
+ *
+ * # Safety
+ * As for `ndf_bake_baseline`.
+ */
+ndf_status ndf_bake_sh(const struct ndf_normal_map *map,
+                       const struct ndf_sh_options *options,
+                       struct ndf_bake **bake_out);
 
 /**
  * Bakes Tan et al. 2005's planar Gaussian mixture of `map`.
@@ -1043,8 +1212,8 @@ ndf_status ndf_bake_write(const struct ndf_bake *bake, const char *directory, nd
 void ndf_bake_free(struct ndf_bake *bake);
 
 /**
- * The default shader options: Blinn-Phong, automatic sampling, f32 textures, no colour, the
- * mesh variant.
+ * The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
+ * textures, no colour, the mean-vector vMF diffuse term, the mesh variant.
  */
 struct ndf_shader_options ndf_shader_options_default(void);
 
@@ -1084,6 +1253,94 @@ ndf_status ndf_bake_shader_source(const struct ndf_bake *bake,
                                   char *buffer,
                                   size_t capacity,
                                   size_t *length_out);
+
+/**
+ * The default BRDF description: GGX α = 0.1 without the g factor (F0 0.04 if turned on),
+ * Blinn-Phong s = 64 and σ = 0.1 for the other models, no table.
+ */
+struct ndf_material_options ndf_material_options_default(void);
+
+/**
+ * The library's GGX widening constant c (`α'² = α² + c/κ`), chosen by measurement.
+ */
+double ndf_material_default_widening(void);
+
+/**
+ * Makes a BRDF from `options` (checked: parameters in range; a tabulated BRDF's JSON parsed
+ * and validated).
+ * - `NDF_STATUS_INVALID_ARGUMENT` for an unknown model, a parameter out of range or a
+ *   malformed tabulated BRDF; `NDF_STATUS_READ` when `tabulated_path` cannot be read.
+ * - `brdf_out`: receives the BRDF, to be released with `ndf_material_free`.
+ *
+ * # Safety
+ * `options` is NULL or initialized by `ndf_material_options_default()`, its strings NULL or
+ * NUL-terminated; `brdf_out` is NULL or writable.
+ */
+ndf_status ndf_material_new(const struct ndf_material_options *options,
+                            struct ndf_material **brdf_out);
+
+/**
+ * Releases a BRDF. NULL is fine. Must not be called twice with the same BRDF.
+ *
+ * # Safety
+ * `brdf` is NULL or a BRDF from `ndf_material_new` not yet freed.
+ */
+void ndf_material_free(struct ndf_material *brdf);
+
+/**
+ * The BRDF's `ρ̂_0 … ρ̂_lmax` (eq 11, Gauss–Legendre quadrature): the values of the SH
+ * shader's uniform array `ndf_sh_rho` (Lambert: its closed forms π, 2π/3, π/4, …).
+ * - `lmax`: 0 to 16. `out`: room for `capacity` doubles, at least `lmax + 1`
+ *   (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise).
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; `out` is NULL or writable for `capacity` doubles.
+ */
+ndf_status ndf_material_sh_coefficients(const struct ndf_material *brdf,
+                                        uint32_t lmax,
+                                        double *out,
+                                        size_t capacity);
+
+/**
+ * The lobe's largest value (0 for Lambert): the SH shader's uniform `ndf_sh_peak`, where it
+ * clamps the ringing of a truncated lobe.
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; `peak_out` is NULL or writable.
+ */
+ndf_status ndf_material_lobe_peak(const struct ndf_material *brdf, double *peak_out);
+
+/**
+ * The band limit the SH method needs for this BRDF (Sec 5.1): 2 for Lambert, `⌈√(4s)⌉` of
+ * the equivalent Blinn-Phong exponent otherwise, at most 16.
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; `lmax_out` is NULL or writable.
+ */
+ndf_status ndf_material_suggested_lmax(const struct ndf_material *brdf, uint32_t *lmax_out);
+
+/**
+ * The size of a tabulated BRDF's table, in texels: `width` angles × `height` rows (the
+ * `ndf_brdf_table` texture). `NDF_STATUS_INVALID_ARGUMENT` for other models.
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; the out-pointers NULL or writable.
+ */
+ndf_status ndf_material_table_size(const struct ndf_material *brdf,
+                                   uint32_t *width_out,
+                                   uint32_t *height_out);
+
+/**
+ * Writes a tabulated BRDF's table (`width × height` floats, row-major, rows bottom to top
+ * as `glTexImage2D` takes them with `GL_R32F`/`GL_RED`/`GL_FLOAT`): the texture the shader
+ * samples as `ndf_brdf_table` with `texelFetch`. Computed on first use (about half a second).
+ * - `out`: room for `capacity` floats, at least `width × height`
+ *   (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise).
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; `out` is NULL or writable for `capacity` floats.
+ */
+ndf_status ndf_material_table(const struct ndf_material *brdf, float *out, size_t capacity);
 
 #ifdef __cplusplus
 }  // extern "C"

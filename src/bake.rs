@@ -40,17 +40,22 @@ pub enum Method {
     /// The paper's method (Sec 7): a mixture of J von Mises–Fisher lobes per texel fitted by
     /// spherical EM (Algorithm 1), one `(α, α·r)` texture per lobe, shaded by Algorithm 2.
     Vmf,
+    /// The paper's spherical-harmonic NDF (Sec 5): the coefficients `γ_lm` of the normals for
+    /// bands `l ≤ l*`, linear in the normals (no fitting), shaded by eq 12 under any BRDF.
+    Sh,
 }
 
 impl Method {
-    /// Every method, in the order tables list them.
-    pub const ALL: [Method; 6] = [
+    /// Every method, in the order tables list them (and the C API numbers them: new methods
+    /// are appended).
+    pub const ALL: [Method; 7] = [
         Method::Plain,
         Method::Toksvig,
         Method::Lean,
         Method::Olano,
         Method::Tan2005,
         Method::Vmf,
+        Method::Sh,
     ];
 
     /// The baselines (no options, closed-form moments).
@@ -66,6 +71,7 @@ impl Method {
             Method::Olano => "olano",
             Method::Tan2005 => "tan2005",
             Method::Vmf => "vmf",
+            Method::Sh => "sh",
         }
     }
 }
@@ -128,10 +134,14 @@ pub struct Bake {
 impl Bake {
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
     /// for mixtures, and for vMF `f` for the fast mode and `x` for the exact one (`vmf6`,
-    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), and the format when it is not f32
+    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), the band limit for SH (`sh4`), and the format
+    /// when it is not f32
     /// (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
+        if self.method == Method::Sh {
+            l += &self.parameters["lmax"].to_string();
+        }
         if self.lobes > 0 {
             if l.ends_with(|c: char| c.is_ascii_digit()) {
                 l.push('-');
@@ -190,9 +200,9 @@ pub const MAX_EM_TOLERANCE: f64 = 1.0;
 /// useful values (eq 29: about 1, eq 23: about 0.1, Tan 2005's prior: 1).
 pub const MAX_ALIGN_STRENGTH: f64 = 1000.0;
 
-/// Options of a bake: the mixture methods' parameters (ignored by the baselines) and the
-/// memory budget (every method). Every value has a documented range, checked before any work
-/// ([`Error::InvalidOption`] otherwise).
+/// Options of a bake: the mixture methods' and SH's parameters (ignored by the baselines) and
+/// the memory budget (every method). Every value has a documented range, checked before any
+/// work ([`Error::InvalidOption`] otherwise).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeOptions {
     /// Lobes per texel, J, 1 to [`crate::em::MAX_LOBES`] (default 6, the paper's choice).
@@ -218,6 +228,9 @@ pub struct BakeOptions {
     /// with [`Error::MemoryBudget`] before it starts. `None` (default): the machine's default
     /// ([`crate::budget::default_memory_limit`]).
     pub memory_limit: Option<u64>,
+    /// SH: the band limit l* (0 to `sh::MAX_LMAX` = 16, default 4: 25 coefficients in 7
+    /// textures); [`crate::brdf::Brdf::suggested_lmax`] gives the paper's choice for a BRDF.
+    pub lmax: usize,
 }
 
 /// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
@@ -316,6 +329,7 @@ impl Default for BakeOptions {
             mode: FitMode::default(),
             em: crate::em::EmOptions::default(),
             memory_limit: None,
+            lmax: 4,
         }
     }
 }

@@ -29,7 +29,9 @@ pub(crate) fn moment_count(method: Method) -> usize {
         Method::Plain | Method::Toksvig => 3,
         Method::Lean => 5,
         Method::Olano => 9,
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
     }
 }
 
@@ -44,7 +46,9 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
             out.copy_from_slice(&[bx, by, bx * bx, by * by, bx * by]);
         }
         Method::Olano => out.copy_from_slice(&[x, y, z, x * x, y * y, z * z, x * y, x * z, y * z]),
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
     }
 }
 
@@ -52,7 +56,9 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
 pub(crate) fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
     use ValueRange::{Any, Signed as S, Unit as U};
     match method {
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
         Method::Plain => vec![("normal", ["n_x", "n_y", "n_z", "unused"], [S, S, S, U])],
         Method::Toksvig => vec![(
             "mean",
@@ -111,7 +117,9 @@ fn finalize(method: Method, m: &[f64], out: &mut [[f32; 4]]) {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), f(m[3])];
             out[1] = [f(m[4]), 0.0, 0.0, 0.0];
         }
-        Method::Vmf | Method::Tan2005 => unreachable!("mixtures are baked by module mixture"),
+        Method::Vmf | Method::Tan2005 | Method::Sh => {
+            unreachable!("baked by modules mixture and sh")
+        }
         Method::Olano => {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), 0.0];
             out[1] = [f(m[3]), f(m[4]), f(m[5]), 0.0];
@@ -175,13 +183,13 @@ pub(crate) fn bake(map: &NormalMap, method: Method, progress: &mut Progress) -> 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::ingest::{Addressing, BadNormals};
     use glam::DVec3;
 
-    /// A small deterministic bumpy map of odd size.
-    fn test_map(w: u32, h: u32) -> NormalMap {
+    /// A small deterministic bumpy map of any size (also the SH bake's tests).
+    pub(crate) fn test_map(w: u32, h: u32) -> NormalMap {
         let v = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f32, (i / w) as f32);
@@ -250,7 +258,9 @@ mod tests {
                             }
                             close(t[1][0], m[4]);
                         }
-                        Method::Vmf | Method::Tan2005 => unreachable!("not a baseline"),
+                        Method::Vmf | Method::Tan2005 | Method::Sh => {
+                            unreachable!("not a baseline")
+                        }
                         Method::Olano => {
                             let m = direct(&map, level, x, y, |n| {
                                 [

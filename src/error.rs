@@ -98,6 +98,15 @@ pub enum Error {
         /// The reason.
         message: String,
     },
+    /// A tabulated BRDF (file or arrays) is malformed: not JSON of the documented form, too
+    /// few or too many samples, negative or non-finite values, angles out of order.
+    #[error("{what}: invalid tabulated BRDF: {message}")]
+    Brdf {
+        /// The file or buffer.
+        what: String,
+        /// What is wrong.
+        message: String,
+    },
     /// A long operation was cancelled by its progress callback.
     #[error("cancelled")]
     Cancelled,

@@ -2,7 +2,8 @@
 //! answer is the footprint average of the unfiltered shading of every finest normal t covers
 //! (eq 4's effective BRDF); the filtered answer is what the method's shading computes from t's
 //! baked values. The error is the relative RMS over texels and light/view pairs,
-//! `sqrt(Σ (F − G)² / Σ G²)`, per level and per shading term (Lambert, Blinn-Phong).
+//! `sqrt(Σ (F − G)² / Σ G²)`, per level and per shading term (Lambert, and the specular lobe of
+//! each [`Brdf`] with its g factor).
 //!
 //! The exact answers of every level come from one image of per-normal shading per light/view
 //! pair, box-filtered over the exact footprints ([`crate::pyramid::reduce`]), so they are exact
@@ -13,7 +14,7 @@ use crate::brdf::{Brdf, half_vector, reference_brdf};
 use crate::format::Format;
 use crate::ingest::NormalMap;
 use crate::pyramid::{LevelFootprints, pyramid, reduce};
-use crate::shade::shade_brdf;
+use crate::shade::{ShadeOptions, shade_with};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -101,7 +102,7 @@ fn exact_levels(
         .for_each(|(o, n)| {
             let n = n.as_dvec3();
             o[0] = n.dot(l).max(0.0);
-            for (si, &brdf) in brdfs.iter().enumerate() {
+            for (si, brdf) in brdfs.iter().enumerate() {
                 o[1 + si] = reference_brdf(n, l, h, brdf).specular;
             }
         });
@@ -127,6 +128,7 @@ fn level_sums(
     exact: &[f64],
     k: usize,
     (l, v): LightView,
+    options: &ShadeOptions,
 ) -> Vec<[f64; 4]> {
     let h = half_vector(l, v);
     let ns = brdfs.len();
@@ -136,8 +138,8 @@ fn level_sums(
         let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
         for (i, g) in exact.chunks_exact(ch).enumerate() {
             bake.texel_into(k, i, &mut texel);
-            for (si, &brdf) in brdfs.iter().enumerate() {
-                let f = shade_brdf(bake, &texel, l, h, brdf);
+            for (si, brdf) in brdfs.iter().enumerate() {
+                let f = shade_with(bake, &texel, l, h, brdf, options);
                 let e = &mut sums[b * ns + si];
                 e[0] += (f.diffuse - g[0]).powi(2);
                 e[1] += g[0] * g[0];
@@ -173,6 +175,25 @@ pub fn evaluate_from(
     directions: &[LightView],
     first_level: usize,
 ) -> Vec<MethodError> {
+    evaluate_with(
+        map,
+        bakes,
+        brdfs,
+        directions,
+        first_level,
+        &ShadeOptions::default(),
+    )
+}
+
+/// [`evaluate_from`] with the shading choices of `options` (the vMF lobes' diffuse term).
+pub fn evaluate_with(
+    map: &NormalMap,
+    bakes: &[&Bake],
+    brdfs: &[Brdf],
+    directions: &[LightView],
+    first_level: usize,
+    options: &ShadeOptions,
+) -> Vec<MethodError> {
     let levels = pyramid(map.width(), map.height());
     // Per direction, per level: the sums of level_sums.
     let per_direction: Vec<Vec<Vec<[f64; 4]>>> = directions
@@ -184,7 +205,7 @@ pub fn evaluate_from(
                     if k < first_level {
                         vec![[0.0; 4]; bakes.len() * brdfs.len()]
                     } else {
-                        level_sums(bakes, brdfs, &exact[k], k, lv)
+                        level_sums(bakes, brdfs, &exact[k], k, lv, options)
                     }
                 })
                 .collect()
@@ -215,7 +236,7 @@ fn errors(
     let rel = relative_rms;
     let mut out = Vec::new();
     for (b, bake) in bakes.iter().enumerate() {
-        for (si, &brdf) in brdfs.iter().enumerate() {
+        for (si, brdf) in brdfs.iter().enumerate() {
             let levels_err: Vec<LevelError> = levels
                 .iter()
                 .enumerate()
@@ -242,7 +263,7 @@ fn errors(
                 method: bake.method,
                 label: bake.label(),
                 format: bake.format,
-                brdf,
+                brdf: brdf.clone(),
                 overall_diffuse: rms(|e| e.diffuse),
                 overall_specular: rms(|e| e.specular),
                 levels: levels_err,
@@ -322,6 +343,7 @@ impl Reference {
                     &self.exact[d][k],
                     k,
                     self.directions[d],
+                    &ShadeOptions::default(),
                 )
             })
             .collect();
@@ -355,7 +377,7 @@ pub fn format_table(errors: &[MethodError]) -> String {
     let mut brdfs: Vec<Brdf> = Vec::new();
     for e in errors {
         if !brdfs.contains(&e.brdf) {
-            brdfs.push(e.brdf);
+            brdfs.push(e.brdf.clone());
         }
     }
     for brdf in brdfs {
@@ -373,14 +395,23 @@ pub fn format_table(errors: &[MethodError]) -> String {
             let _ = write!(out, " | {:>8} {:>8}", "diffuse", "specular");
         }
         out.push('\n');
+        // Lambert has no specular term: its column shows a dash.
+        let spec = |v: f64| {
+            if brdf.has_specular() {
+                format!("{v:>8.5}")
+            } else {
+                format!("{:>8}", "-")
+            }
+        };
         for k in 0..rows[0].levels.len() {
             let l = &rows[0].levels[k];
             let _ = write!(out, "{:>5} {:>11}", k, format!("{}x{}", l.width, l.height));
             for r in &rows {
                 let _ = write!(
                     out,
-                    " | {:>8.5} {:>8.5}",
-                    r.levels[k].diffuse, r.levels[k].specular
+                    " | {:>8.5} {}",
+                    r.levels[k].diffuse,
+                    spec(r.levels[k].specular)
                 );
             }
             out.push('\n');
@@ -395,8 +426,9 @@ pub fn format_table(errors: &[MethodError]) -> String {
         for r in &rows {
             let _ = write!(
                 out,
-                " | {:>8.5} {:>8.5}",
-                r.overall_diffuse, r.overall_specular
+                " | {:>8.5} {}",
+                r.overall_diffuse,
+                spec(r.overall_specular)
             );
         }
         out.push_str("\n\n");
@@ -414,6 +446,16 @@ mod tests {
     fn map(w: u32, h: u32, f: impl Fn(u32, u32) -> Vec3) -> NormalMap {
         let v = (0..w * h).map(|i| f(i % w, i / w)).collect();
         NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
+    }
+
+    /// The Lambert error vMF's mean-vector diffuse term has on identical normals: `1 − |r|`
+    /// with |r| capped at `vmf::R_MAX` (2.4e-7).
+    fn vmf_diffuse_cap(method: Method) -> f64 {
+        if method == Method::Vmf {
+            1.0 - crate::vmf::R_MAX
+        } else {
+            0.0
+        }
     }
 
     /// The relative error the mixtures' sharpness cap allows at level 0 (`2 s / KAPPA_MAX`:
@@ -458,6 +500,27 @@ mod tests {
     }
 
     #[test]
+    fn sh_error_at_level_zero_is_the_truncation_of_the_lobe() {
+        // Identical normals: the NDF is a delta and eq 12 gives the truncated SH series of the
+        // BRDF; l* = 16 makes Blinn-Phong s = 8 (√(4s) ≈ 6) and Lambert (1/l decay) small.
+        let m = map(4, 4, |_, _| Vec3::new(0.2, -0.1, 1.0));
+        let o = crate::bake::BakeOptions {
+            lmax: 16,
+            ..Default::default()
+        };
+        let b = crate::methods::bake_with(&m, Method::Sh, &o).unwrap();
+        let e = &evaluate(
+            &m,
+            &[&b],
+            &[Brdf::BlinnPhong { s: 8.0 }],
+            &default_directions(),
+        )[0];
+        for l in &e.levels {
+            assert!(l.diffuse < 0.006 && l.specular < 0.01, "{l:?}");
+        }
+    }
+
+    #[test]
     fn error_is_zero_at_level_zero_for_every_method() {
         let m = map(9, 7, |x, y| {
             Vec3::new(
@@ -466,7 +529,12 @@ mod tests {
                 1.0,
             )
         });
-        let bakes: Vec<Bake> = Method::ALL.iter().map(|&me| bake(&m, me)).collect();
+        // SH is exact only up to its band limit (sh_error_at_level_zero_is_the_truncation…).
+        let bakes: Vec<Bake> = Method::ALL
+            .iter()
+            .filter(|&&me| me != Method::Sh)
+            .map(|&me| bake(&m, me))
+            .collect();
         let refs: Vec<&Bake> = bakes.iter().collect();
         for e in evaluate(
             &m,
@@ -476,6 +544,8 @@ mod tests {
                 vec![
                     Brdf::TorranceSparrow { sigma: 0.05 },
                     Brdf::TorranceSparrow { sigma: 0.3 },
+                    Brdf::ggx(0.05),
+                    Brdf::ggx(0.5),
                 ],
             ]
             .concat(),
@@ -507,14 +577,18 @@ mod tests {
     fn error_is_zero_at_every_level_for_a_flat_map() {
         for (w, h) in [(8, 8), (5, 3), (1, 1)] {
             let m = map(w, h, |_, _| Vec3::Z);
-            let bakes: Vec<Bake> = Method::ALL.iter().map(|&me| bake(&m, me)).collect();
+            let bakes: Vec<Bake> = Method::ALL
+                .iter()
+                .filter(|&&me| me != Method::Sh)
+                .map(|&me| bake(&m, me))
+                .collect();
             let refs: Vec<&Bake> = bakes.iter().collect();
             for e in evaluate(
                 &m,
                 &refs,
                 &[
                     Brdf::blinn_phong(&[1.0, 256.0]),
-                    vec![Brdf::TorranceSparrow { sigma: 0.1 }],
+                    vec![Brdf::TorranceSparrow { sigma: 0.1 }, Brdf::ggx(0.2)],
                 ]
                 .concat(),
                 &default_directions(),
@@ -522,7 +596,7 @@ mod tests {
                 // Zero up to the f64 rounding of the footprint sums (~1e-16), and the κ cap.
                 for l in &e.levels {
                     assert!(
-                        l.diffuse < 1e-12
+                        l.diffuse < 1e-12 + vmf_diffuse_cap(e.method)
                             && l.specular < 1e-12 + vmf_cap(e.method, e.brdf.equivalent_exponent()),
                         "{} level {}: {l:?}",
                         e.method,

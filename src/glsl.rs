@@ -6,19 +6,26 @@
 //! generated block declaring exactly the samplers the method reads (no dead samplers) with their
 //! fetch functions (which undo the bias of unsigned-normalized storage, DESIGN.md "Texture
 //! layouts"), the method's file (`ndf_vmf.glsl` = Algorithm 2, `ndf_tan2005.glsl`,
-//! `ndf_baselines.glsl`), and `ndf_fragment.glsl`. The vertex stage is `ndf_vertex.glsl`.
+//! `ndf_sh.glsl` = eq 12, `ndf_baselines.glsl`), and `ndf_fragment.glsl`. The vertex stage is
+//! `ndf_vertex.glsl`.
 //!
 //! The CPU twin of every fragment shader is [`crate::shade`] (one texel) and
 //! [`crate::sample`] (sampling at uv and LOD); the GL tests in `samples/gl` compare them.
 //!
 //! Interface (both stages): samplers `ndf_tex0 … ndf_tex{N−1}` are texture `i` of the bake
-//! (lobes first, then colours); uniform `ndf_s` (Blinn-Phong) or `ndf_sigma` (Torrance–Sparrow);
+//! (lobes first, then colours); the BRDF's uniforms ([`uniforms`]): `ndf_s` (Blinn-Phong),
+//! `ndf_sigma` (Torrance–Sparrow), `ndf_alpha`, `ndf_ggx_c` and with the g factor `ndf_f0`
+//! (GGX), sampler `ndf_brdf_table` (tabulated: an R32F texture of
+//! [`crate::brdf::Tabulated::table`]), and for SH `ndf_sh_rho[l* + 1]` (the BRDF's `ρ̂_l`) and
+//! `ndf_sh_peak` (its lobe's peak);
 //! mesh mode: attributes 0–3 (position, normal, tangent, uv), uniforms `ndf_model`,
 //! `ndf_view_proj`, `ndf_camera_pos`, `ndf_light`, `ndf_light_color`, `ndf_kd`, `ndf_ks`;
-//! probe mode ([`ShaderOptions::probe`]): `ndf_probe_size`, `ndf_probe_lod`, `ndf_probe_l`,
-//! `ndf_probe_h`, `ndf_probe_channel`. Output: `layout(location = 0) out vec4 ndf_out`.
+//! probe mode ([`ShaderOptions::probe`]): `ndf_probe_size`, `ndf_probe_lod` (or, anisotropic,
+//! `ndf_probe_dx`, `ndf_probe_dy`), `ndf_probe_l`, `ndf_probe_h`, `ndf_probe_channel`. Output:
+//! `layout(location = 0) out vec4 ndf_out`.
 
 use crate::bake::{Bake, Method};
+use crate::brdf::Brdf;
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use crate::ingest::Addressing;
@@ -30,6 +37,8 @@ pub const COMMON: &str = include_str!("../glsl/ndf_common.glsl");
 pub const VMF: &str = include_str!("../glsl/ndf_vmf.glsl");
 /// `glsl/ndf_tan2005.glsl`: Tan et al. 2005's planar Gaussians.
 pub const TAN2005: &str = include_str!("../glsl/ndf_tan2005.glsl");
+/// `glsl/ndf_sh.glsl`: the spherical-harmonic NDF, eq 12.
+pub const SH: &str = include_str!("../glsl/ndf_sh.glsl");
 /// `glsl/ndf_baselines.glsl`: plain, Toksvig, LEAN and Olano–North.
 pub const BASELINES: &str = include_str!("../glsl/ndf_baselines.glsl");
 /// `glsl/ndf_fragment.glsl`: sampling and the fragment entry point.
@@ -52,20 +61,46 @@ pub enum Sampling {
     /// The bake's natural mode: manual for unaligned mixtures, hardware otherwise.
     #[default]
     Auto,
-    /// One hardware trilinear fetch per texture, then shading (aligned lobes, baselines).
+    /// One hardware trilinear fetch per texture, then shading (aligned lobes, baselines, SH).
     Hardware,
     /// Shade the 8 texels of the two nearest levels, blend with trilinear weights (unaligned).
     Manual,
+    /// The anisotropic footprint with at most this many trilinear probes (2 to 16), averaged,
+    /// then shading ([`crate::sample::aniso_probes`]; for parameters that filter linearly: SH,
+    /// aligned lobes, the baselines).
+    Anisotropic(u32),
 }
 
-/// The specular BRDF the shader evaluates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// The BRDF the shader evaluates (its parameters are uniforms, [`uniforms`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum ShaderBrdf {
     /// Normalized Blinn-Phong, uniform `ndf_s` (eq 20).
     #[default]
     BlinnPhong,
     /// The Torrance–Sparrow-like Gaussian of eq 18, uniform `ndf_sigma` (eq 21).
     TorranceSparrow,
+    /// No specular lobe (the specular output is 0).
+    Lambert,
+    /// GGX, uniforms `ndf_alpha`, `ndf_ggx_c`; with `g` also `ndf_f0` (Smith and Schlick).
+    Ggx {
+        /// The g factor is on.
+        g: bool,
+    },
+    /// A tabulated BRDF, sampler `ndf_brdf_table`.
+    Tabulated,
+}
+
+impl ShaderBrdf {
+    /// The specialization a [`Brdf`] needs.
+    pub fn of(brdf: &Brdf) -> ShaderBrdf {
+        match brdf {
+            Brdf::Lambert => ShaderBrdf::Lambert,
+            Brdf::BlinnPhong { .. } => ShaderBrdf::BlinnPhong,
+            Brdf::TorranceSparrow { .. } => ShaderBrdf::TorranceSparrow,
+            Brdf::Ggx(g) => ShaderBrdf::Ggx { g: g.g },
+            Brdf::Tabulated(_) => ShaderBrdf::Tabulated,
+        }
+    }
 }
 
 /// Options of a specialized shader.
@@ -73,12 +108,47 @@ pub enum ShaderBrdf {
 pub struct ShaderOptions {
     /// The specular BRDF.
     pub brdf: ShaderBrdf,
-    /// Hardware or manual filtering.
+    /// Hardware, manual or anisotropic filtering.
     pub sampling: Sampling,
     /// Multiply each lobe by its colour texture `α·y` (eq 22; mixtures baked with colour).
     pub color: bool,
     /// The probe variant used by tests: full-screen, uniforms for uv/LOD/light/half vector.
     pub probe: bool,
+    /// The vMF lobes' diffuse term (`NDF_VMF_DIFFUSE_ALG2` for Algorithm 2 as written).
+    pub vmf_diffuse: crate::shade::VmfDiffuse,
+}
+
+/// The most textures one shader samples (a sampler each): what llvmpipe and the desktop GPUs
+/// offer (`GL_MAX_TEXTURE_IMAGE_UNITS` = 32; GL 3.3 guarantees 16). SH with l* ≤ 10 fits.
+pub const MAX_SAMPLERS: usize = 32;
+
+/// The uniforms of `brdf` a shader specialized for it reads, with their values (f32; arrays
+/// as several values): `ndf_s`, `ndf_sigma`, `ndf_alpha` + `ndf_ggx_c` (+ `ndf_f0` with the g
+/// factor), and for an SH shader of band limit `sh_lmax` also `ndf_sh_rho` (`ρ̂_0 … ρ̂_l*`,
+/// [`Brdf::sh_coefficients`]) and `ndf_sh_peak` ([`Brdf::peak`]). A tabulated BRDF's table is a texture
+/// ([`crate::brdf::Tabulated::table`], sampler `ndf_brdf_table`), not listed here.
+pub fn uniforms(brdf: &Brdf, sh_lmax: Option<usize>) -> Vec<(&'static str, Vec<f32>)> {
+    let mut out = Vec::new();
+    match brdf {
+        Brdf::Lambert | Brdf::Tabulated(_) => {}
+        Brdf::BlinnPhong { s } => out.push(("ndf_s", vec![*s as f32])),
+        Brdf::TorranceSparrow { sigma } => out.push(("ndf_sigma", vec![*sigma as f32])),
+        Brdf::Ggx(g) => {
+            out.push(("ndf_alpha", vec![g.alpha as f32]));
+            out.push(("ndf_ggx_c", vec![g.widening as f32]));
+            if g.g {
+                out.push(("ndf_f0", vec![g.f0 as f32]));
+            }
+        }
+    }
+    if let Some(lmax) = sh_lmax
+        && brdf.has_specular()
+    {
+        let rho = brdf.sh_coefficients(lmax);
+        out.push(("ndf_sh_rho", rho.iter().map(|&r| r as f32).collect()));
+        out.push(("ndf_sh_peak", vec![brdf.peak() as f32]));
+    }
+    out
 }
 
 /// What a shader is specialized for: everything about a bake that changes the GLSL.
@@ -96,6 +166,8 @@ pub struct ShaderSpec {
     pub aligned: bool,
     /// The bake's addressing (wrap or clamp).
     pub addressing: Addressing,
+    /// SH: the band limit l* (0 for the other methods).
+    pub lmax: usize,
 }
 
 impl ShaderSpec {
@@ -108,6 +180,11 @@ impl ShaderSpec {
             format: bake.format,
             aligned: bake.parameters["aligned"] == serde_json::Value::Bool(true),
             addressing: bake.addressing,
+            lmax: if bake.method == Method::Sh {
+                crate::sh::lmax_of(bake)
+            } else {
+                0
+            },
         }
     }
 }
@@ -121,6 +198,7 @@ fn method_define(method: Method) -> &'static str {
         Method::Olano => "NDF_METHOD_OLANO",
         Method::Tan2005 => "NDF_METHOD_TAN2005",
         Method::Vmf => "NDF_METHOD_VMF",
+        Method::Sh => "NDF_METHOD_SH",
     }
 }
 
@@ -143,7 +221,7 @@ pub fn source(bake: &Bake, stage: Stage, options: &ShaderOptions) -> Result<Stri
 pub fn manual_sampling(spec: &ShaderSpec, options: &ShaderOptions) -> bool {
     match options.sampling {
         Sampling::Manual => true,
-        Sampling::Hardware => false,
+        Sampling::Hardware | Sampling::Anisotropic(_) => false,
         Sampling::Auto => spec.lobes > 0 && !spec.aligned,
     }
 }
@@ -181,6 +259,26 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
             spec.ranges.len()
         )));
     }
+    if textures > MAX_SAMPLERS {
+        return Err(Error::InvalidOption(format!(
+            "the shader would sample {textures} textures, more than the {MAX_SAMPLERS} texture \
+             units GPUs offer (SH: use l* <= 10)"
+        )));
+    }
+    if let Sampling::Anisotropic(n) = options.sampling
+        && !(2..=16).contains(&n)
+    {
+        return Err(Error::InvalidOption(format!(
+            "anisotropic sampling with {n} probes (expected 2 to 16)"
+        )));
+    }
+    if spec.method == Method::Sh && manual_sampling(spec, options) {
+        return Err(Error::InvalidOption(
+            "SH coefficients filter linearly: sample them with hardware or anisotropic \
+             filtering, not manually"
+                .into(),
+        ));
+    }
     let mut out = String::from("#version 330 core\n");
     out += &format!(
         "// ndfmap {} - {} shader for {}\n",
@@ -207,8 +305,26 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         d("NDF_LOBES", &spec.lobes.to_string());
     }
     d("NDF_TEXTURES", &textures.to_string());
-    if options.brdf == ShaderBrdf::TorranceSparrow {
-        d("NDF_BRDF_TORRANCE_SPARROW", "1");
+    match options.brdf {
+        ShaderBrdf::BlinnPhong => {}
+        ShaderBrdf::TorranceSparrow => d("NDF_BRDF_TORRANCE_SPARROW", "1"),
+        ShaderBrdf::Lambert => d("NDF_BRDF_LAMBERT", "1"),
+        ShaderBrdf::Ggx { g } => {
+            d("NDF_BRDF_GGX", "1");
+            if g {
+                d("NDF_BRDF_G", "1");
+            }
+        }
+        ShaderBrdf::Tabulated => d("NDF_BRDF_TABULATED", "1"),
+    }
+    if spec.method == Method::Sh {
+        d("NDF_SH_LMAX", &spec.lmax.to_string());
+    }
+    if let Sampling::Anisotropic(n) = options.sampling {
+        d("NDF_ANISO", &n.to_string());
+    }
+    if spec.method == Method::Vmf && options.vmf_diffuse == crate::shade::VmfDiffuse::Algorithm2 {
+        d("NDF_VMF_DIFFUSE_ALG2", "1");
     }
     if options.color {
         d("NDF_COLOR", "1");
@@ -230,6 +346,7 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     out += match spec.method {
         Method::Vmf => VMF,
         Method::Tan2005 => TAN2005,
+        Method::Sh => SH,
         _ => BASELINES,
     };
     out += FRAGMENT;
@@ -270,6 +387,18 @@ fn bindings(spec: &ShaderSpec, textures: usize, manual: bool) -> String {
         }
     }
     s += "}\n\n";
+    if spec.method == Method::Sh {
+        // Lambert's ρ̂_l (closed forms, brdf::lambert_coefficient): the diffuse term's weights.
+        let rho: Vec<String> = (0..=spec.lmax)
+            .map(|l| float_literal(crate::brdf::lambert_coefficient(l) as f32))
+            .collect();
+        let _ = writeln!(
+            s,
+            "const float NDF_SH_LAMBERT[{}] = float[]({});\n",
+            spec.lmax + 1,
+            rho.join(", ")
+        );
+    }
     s
 }
 
@@ -303,7 +432,12 @@ mod tests {
                 };
                 let m = if color { &colored } else { &sample.map };
                 let b = bake_with(m, method, &opts).unwrap();
-                let want = crate::methods::texture_ranges(method, b.lobes, color);
+                let size = if method == Method::Sh {
+                    crate::sh::lmax_of(&b)
+                } else {
+                    b.lobes
+                };
+                let want = crate::methods::texture_ranges(method, size, color);
                 assert_eq!(ShaderSpec::of(&b).ranges, want, "{method} color={color}");
             }
         }

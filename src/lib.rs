@@ -4,11 +4,13 @@
 //! and the baselines it compares with. Data flows forward through one module per stage, and no
 //! module imports one above it:
 //!
-//! - data: [`budget`] (the memory budget), [`format`] (storage formats, value ranges) → [`bake`] (the textures every method
-//!   produces, options, progress); [`brdf`] (the BRDFs and the exact unfiltered shading);
+//! - data: [`budget`] (the memory budget), [`format`] (storage formats, value ranges) →
+//!   [`bake`] (the textures every method produces, options, progress); [`harmonics`] (the
+//!   real SH basis, quadratures) → [`brdf`] (the one BRDF library: lobes, g factors, `ρ̂_l`,
+//!   widening rules, the exact unfiltered shading);
 //! - input: [`ingest`] → [`pyramid`] (exact footprints);
-//! - methods: [`baseline`]; [`vmf`], [`em`] and [`tan2005`] driven per level by [`mixture`];
-//!   [`methods`] is the one dispatch over them;
+//! - methods: [`baseline`]; [`sh`] (the spherical-harmonic NDF); [`vmf`], [`em`] and
+//!   [`tan2005`] driven per level by [`mixture`]; [`methods`] is the one dispatch over them;
 //! - consumers: [`shade`] (the shaders' CPU twin) → [`sample`] / [`eval`] / [`render`];
 //!   [`pack`] / [`output`] (storage, files), [`glsl`] (the shaders), `report` (feature
 //!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`).
@@ -23,6 +25,7 @@ pub mod eval;
 pub mod ffi;
 pub mod format;
 pub mod glsl;
+pub mod harmonics;
 pub mod ingest;
 pub mod methods;
 pub mod mixture;
@@ -36,6 +39,7 @@ pub mod render;
 pub mod report;
 mod rng;
 pub mod sample;
+pub mod sh;
 pub mod shade;
 pub mod tan2005;
 pub mod vmf;

@@ -1,5 +1,5 @@
 //! The one place every method is dispatched: bake a [`NormalMap`] with any [`Method`], and the
-//! texture layout each method produces. Above the methods ([`crate::baseline`],
+//! texture layout each method produces. Above the methods ([`crate::baseline`], [`crate::sh`],
 //! [`crate::mixture`]), below the consumers (CLI, C API, eval, report).
 
 use crate::bake::{Bake, BakeOptions, Method, run_with_progress};
@@ -9,12 +9,20 @@ use crate::ingest::NormalMap;
 
 /// The value ranges of each texture a bake of `method` has, in texture order — what a shader
 /// needs to decode unsigned-normalized storage without a bake at hand: the baseline's textures,
-/// or `lobes` lobe textures followed, with `color`, by `lobes` colour textures (`α·y`, unit).
-pub fn texture_ranges(method: Method, lobes: usize, color: bool) -> Vec<[ValueRange; 4]> {
+/// SH's textures for band limit `lobes_or_lmax`, or `lobes_or_lmax` lobe textures followed,
+/// with `color`, by as many colour textures (`α·y`, unit).
+pub fn texture_ranges(method: Method, lobes_or_lmax: usize, color: bool) -> Vec<[ValueRange; 4]> {
     use crate::mixture::{Model, TanModel, VmfModel};
+    let lobes = lobes_or_lmax;
     let lobe = match method {
         Method::Vmf => VmfModel::RANGES,
         Method::Tan2005 => TanModel::RANGES,
+        Method::Sh => {
+            return crate::sh::layout(lobes_or_lmax)
+                .into_iter()
+                .map(|(_, _, ranges)| ranges)
+                .collect();
+        }
         _ => {
             return crate::baseline::layout(method)
                 .into_iter()
@@ -42,11 +50,14 @@ pub fn check_options(
     if matches!(method, Method::Vmf | Method::Tan2005) {
         crate::mixture::check(options)?;
     }
+    if method == Method::Sh {
+        crate::sh::check(options.lmax)?;
+    }
     if let Some(f) = format {
-        let lobes = if matches!(method, Method::Vmf | Method::Tan2005) {
-            options.lobes
-        } else {
-            0
+        let lobes = match method {
+            Method::Vmf | Method::Tan2005 => options.lobes,
+            Method::Sh => options.lmax,
+            _ => 0,
         };
         crate::pack::check_ranges(method, &texture_ranges(method, lobes, color), f)?;
     }
@@ -129,6 +140,21 @@ pub const BASELINE_PEAK_PER_MOMENT: u64 = 24;
 /// The baselines' peak memory per texel whatever their moments.
 pub const BASELINE_PEAK_BASE: u64 = 16;
 
+/// The SH bake's peak memory per texel whatever its band limit (the decoded map, the
+/// program): `SH_PEAK_BASE + SH_PEAK_PER_BATCH_COEFFICIENT × min(c, 32) +
+/// SH_PEAK_PER_COEFFICIENT × c` for `c` coefficients rounded up to whole RGBA textures.
+/// Measured peaks of `ndfmap bake rock.jpg -m sh` (1024²) against the estimate, MiB: l* = 0
+/// 101 (168), 2 261 (344), 4 581 (696), 8 836 (1096), 16 2043 (2344).
+pub const SH_PEAK_BASE: u64 = 80;
+
+/// The SH bake's peak memory per texel per coefficient of a batch (at most 32 are computed
+/// at once): the f64 image of the finest level, its copy as level 0 and the first reduction.
+pub const SH_PEAK_PER_BATCH_COEFFICIENT: u64 = 16;
+
+/// The SH bake's peak memory per texel per coefficient: the f32 MIP chain (4 × 4/3 bytes)
+/// and the writer's slack.
+pub const SH_PEAK_PER_COEFFICIENT: u64 = 6;
+
 /// Memory every bake command needs whatever the map's size (the program, its threads, the
 /// allocator's slack): 64 MiB.
 pub const PEAK_FIXED_BYTES: u64 = 64 << 20;
@@ -149,6 +175,12 @@ pub fn estimate_peak_bytes(
     let per_texel = match method {
         Method::Vmf => VMF_PEAK_PER_TEXEL.bytes(lobes, color),
         Method::Tan2005 => TAN2005_PEAK_PER_TEXEL.bytes(lobes, color),
+        Method::Sh => {
+            let coefficients = crate::harmonics::count(options.lmax).next_multiple_of(4) as u64;
+            SH_PEAK_BASE
+                + SH_PEAK_PER_BATCH_COEFFICIENT * coefficients.min(32)
+                + SH_PEAK_PER_COEFFICIENT * coefficients
+        }
         _ => {
             BASELINE_PEAK_BASE
                 + BASELINE_PEAK_PER_MOMENT * crate::baseline::moment_count(method) as u64
@@ -214,6 +246,7 @@ pub fn bake_with_progress(
         let bake = match method {
             Method::Vmf => crate::mixture::bake_vmf(map, options, progress),
             Method::Tan2005 => crate::mixture::bake_tan2005(map, options, progress),
+            Method::Sh => crate::sh::bake(map, options.lmax, progress),
             _ => crate::baseline::bake(map, method, progress),
         }?;
         progress.report(1.0)?;
@@ -255,7 +288,11 @@ mod tests {
             align,
             ..BakeOptions::default()
         };
-        let measured: [(u32, Method, BakeOptions, bool, u64); 13] = [
+        let sh = |lmax| BakeOptions {
+            lmax,
+            ..BakeOptions::default()
+        };
+        let measured: [(u32, Method, BakeOptions, bool, u64); 18] = [
             (1024, Method::Vmf, o(1, Some(1.0)), true, 161),
             (1024, Method::Vmf, o(6, None), false, 315),
             (1024, Method::Vmf, o(6, None), true, 473),
@@ -269,6 +306,11 @@ mod tests {
             (2048, Method::Plain, o(6, None), false, 320),
             (1024, Method::Olano, o(6, None), false, 214),
             (2048, Method::Olano, o(6, None), false, 831),
+            (1024, Method::Sh, sh(0), false, 101),
+            (1024, Method::Sh, sh(2), false, 261),
+            (1024, Method::Sh, sh(4), false, 581),
+            (1024, Method::Sh, sh(8), false, 836),
+            (1024, Method::Sh, sh(16), false, 2043),
         ];
         for (size, method, options, color, mib) in measured {
             let estimate = estimate_peak_bytes(size, size, method, &options, color);

@@ -11,7 +11,7 @@
 use crate::bake::Bake;
 use crate::brdf::Brdf;
 use crate::pyramid::bilinear_taps;
-use crate::shade::{ShadingRgb, shade_rgb};
+use crate::shade::{ShadeOptions, ShadingRgb, shade_rgb_with};
 use glam::{DVec2, DVec3};
 
 /// GL's level of detail for screen derivatives of uv on a texture of base `size`:
@@ -83,21 +83,35 @@ pub fn trilinear(bake: &Bake, uv: DVec2, lod: f64) -> Vec<[f32; 4]> {
 }
 
 /// How [`shade_at`] filters and shades: the shader's specialization.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Filtering {
     /// The BRDF.
     pub brdf: Brdf,
     /// Manual sampling (shade each texel, then blend) instead of hardware trilinear sampling.
     pub manual: bool,
-    /// Weight mixture lobes by their colour textures ([`shade_rgb`]).
+    /// Weight mixture lobes by their colour textures ([`crate::shade::shade_rgb`]).
     pub color: bool,
+    /// Shading choices that are not part of the BRDF.
+    pub shading: ShadeOptions,
+}
+
+impl Filtering {
+    /// Hardware trilinear sampling, no colour, default shading options.
+    pub fn new(brdf: Brdf) -> Filtering {
+        Filtering {
+            brdf,
+            manual: false,
+            color: false,
+            shading: ShadeOptions::default(),
+        }
+    }
 }
 
 /// Filtered shading of `bake` at `uv` and level of detail `lod` for light `l` and half vector
 /// `h` (tangent space): with `f.manual`, every texel of the trilinear footprint is shaded and the
 /// results blended with the trilinear weights (unaligned lobes); otherwise the textures are
 /// sampled trilinearly and shaded once (aligned lobes, baselines).
-pub fn shade_at(bake: &Bake, uv: DVec2, lod: f64, l: DVec3, h: DVec3, f: Filtering) -> ShadingRgb {
+pub fn shade_at(bake: &Bake, uv: DVec2, lod: f64, l: DVec3, h: DVec3, f: &Filtering) -> ShadingRgb {
     let mut out = [ShadingRgb::default()];
     shade_at_lights(bake, uv, lod, &[(l, h)], f, &mut out);
     out[0]
@@ -111,18 +125,20 @@ pub fn shade_at_lights(
     uv: DVec2,
     lod: f64,
     lights: &[(DVec3, DVec3)],
-    f: Filtering,
+    f: &Filtering,
     out: &mut [ShadingRgb],
 ) {
     let Filtering {
         brdf,
         manual,
         color,
+        shading,
     } = f;
+    let (manual, color) = (*manual, *color);
     if !manual {
         let sample = trilinear(bake, uv, lod);
         for (o, &(l, h)) in out.iter_mut().zip(lights) {
-            *o = shade_rgb(bake, &sample, l, h, brdf, color);
+            *o = shade_rgb_with(bake, &sample, l, h, brdf, color, shading);
         }
         return;
     }
@@ -134,11 +150,86 @@ pub fn shade_at_lights(
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut texel);
             for (sum, &(l, h)) in out.iter_mut().zip(lights) {
-                let s = shade_rgb(bake, &texel, l, h, brdf, color);
+                let s = shade_rgb_with(bake, &texel, l, h, brdf, color, shading);
                 sum.diffuse += lw * bw * s.diffuse;
                 sum.specular += lw * bw * s.specular;
             }
         }
+    }
+}
+
+/// The anisotropic footprint, as `GL_EXT_texture_filter_anisotropic` specifies its reference
+/// implementation (the shaders' `NDF_ANISO` sampling, `glsl/ndf_fragment.glsl`): with the
+/// screen derivatives of the texel coordinates `P_x = |∂(uv·size)/∂x|`, `P_y = |∂(uv·size)/∂y|`,
+/// `P_max = max`, `P_min = min`, take `N = min(⌈P_max/P_min⌉, max_aniso)` trilinear probes at
+/// level of detail `λ' = log2(P_max/N)`, at `uv + (i/(N+1) − ½)·∂uv/∂(major axis)` for
+/// i = 1 … N, and average them with equal weights. `P_min = 0` counts as `P_max/max_aniso`.
+/// Returns `λ'` and the probes' uv offsets.
+pub fn aniso_probes(
+    duv_dx: DVec2,
+    duv_dy: DVec2,
+    size: (u32, u32),
+    max_aniso: u32,
+) -> (f64, Vec<DVec2>) {
+    let sz = DVec2::new(size.0 as f64, size.1 as f64);
+    let (px, py) = ((duv_dx * sz).length(), (duv_dy * sz).length());
+    let (pmax, pmin) = (px.max(py), px.min(py));
+    let max_aniso = max_aniso.max(1);
+    let ratio = if pmin > 0.0 {
+        pmax / pmin
+    } else {
+        max_aniso as f64
+    };
+    let n = if ratio.is_finite() {
+        (ratio.ceil() as u32).clamp(1, max_aniso)
+    } else {
+        max_aniso
+    };
+    let lod = (pmax / n as f64).max(1e-15).log2();
+    let major = if px >= py { duv_dx } else { duv_dy };
+    let offsets = (1..=n)
+        .map(|i| major * (i as f64 / (n + 1) as f64 - 0.5))
+        .collect();
+    (lod, offsets)
+}
+
+/// The anisotropic sample of every texture of `bake` ([`aniso_probes`]): the mean of the
+/// probes' trilinear samples, accumulated in f64 and rounded to f32.
+pub fn anisotropic(
+    bake: &Bake,
+    uv: DVec2,
+    duv_dx: DVec2,
+    duv_dy: DVec2,
+    max_aniso: u32,
+) -> Vec<[f32; 4]> {
+    let (lod, offsets) = aniso_probes(duv_dx, duv_dy, bake.sizes[0], max_aniso);
+    let mut acc = vec![[0.0f64; 4]; bake.textures.len()];
+    for o in &offsets {
+        for (a, t) in acc.iter_mut().zip(trilinear(bake, uv + *o, lod)) {
+            for c in 0..4 {
+                a[c] += t[c] as f64;
+            }
+        }
+    }
+    let n = offsets.len() as f64;
+    acc.iter().map(|a| a.map(|v| (v / n) as f32)).collect()
+}
+
+/// Shading under the anisotropic footprint (the shaders' `NDF_ANISO`): the textures sampled
+/// by [`anisotropic`], then shaded once per light, as hardware filtering does — valid where
+/// the parameters filter linearly (SH coefficients, aligned vMF lobes, the baselines' moments).
+pub fn shade_aniso_lights(
+    bake: &Bake,
+    uv: DVec2,
+    (duv_dx, duv_dy): (DVec2, DVec2),
+    max_aniso: u32,
+    lights: &[(DVec3, DVec3)],
+    f: &Filtering,
+    out: &mut [ShadingRgb],
+) {
+    let sample = anisotropic(bake, uv, duv_dx, duv_dy, max_aniso);
+    for (o, &(l, h)) in out.iter_mut().zip(lights) {
+        *o = shade_rgb_with(bake, &sample, l, h, &f.brdf, f.color, &f.shading);
     }
 }
 
@@ -147,6 +238,40 @@ mod tests {
     use super::*;
     use crate::bake::Method;
     use crate::methods::bake;
+
+    #[test]
+    fn anisotropic_footprint_follows_the_extension_rule() {
+        // 8 texels along x, 2 along y: N = 4 probes at λ' = log2(8/4) = 1, spread over the
+        // major axis at i/5 − 1/2.
+        let (dx, dy) = (DVec2::new(8.0 / 256.0, 0.0), DVec2::new(0.0, 2.0 / 256.0));
+        let (lod, off) = aniso_probes(dx, dy, (256, 256), 16);
+        assert!((lod - 1.0).abs() < 1e-12);
+        assert_eq!(off.len(), 4);
+        for (i, o) in off.iter().enumerate() {
+            let t = (i + 1) as f64 / 5.0 - 0.5;
+            assert!((o.x - t * 8.0 / 256.0).abs() < 1e-15 && o.y == 0.0);
+        }
+        // Capped at max_aniso, and isotropic footprints are one trilinear probe.
+        assert_eq!(aniso_probes(dx, dy, (256, 256), 2).1.len(), 2);
+        let (lod, off) = aniso_probes(dy, dy, (256, 256), 16);
+        assert_eq!(off, vec![DVec2::ZERO]);
+        assert!((lod - 1.0).abs() < 1e-12);
+        // The anisotropic sample of a linear bake is the mean of its probes' trilinear samples.
+        let map = crate::procedural::generate(16, 2).map;
+        let b = bake(&map, Method::Toksvig);
+        let uv = DVec2::new(0.3, 0.6);
+        let (dx, dy) = (DVec2::new(0.2, 0.05), DVec2::new(0.0, 0.02));
+        let got = anisotropic(&b, uv, dx, dy, 16);
+        let (lod, off) = aniso_probes(dx, dy, (16, 16), 16);
+        for (c, g) in got[0].iter().enumerate() {
+            let want: f64 = off
+                .iter()
+                .map(|o| trilinear(&b, uv + *o, lod)[0][c] as f64)
+                .sum::<f64>()
+                / off.len() as f64;
+            assert!((*g as f64 - want).abs() < 1e-6);
+        }
+    }
 
     #[test]
     fn lod_is_log2_of_the_texel_footprint() {
@@ -196,12 +321,11 @@ mod tests {
         let brdf = Brdf::BlinnPhong { s: 32.0 };
         let uv = DVec2::new(0.37, 0.81);
         let f = |manual| Filtering {
-            brdf,
             manual,
-            color: false,
+            ..Filtering::new(brdf.clone())
         };
-        let a = shade_at(&b, uv, 0.6, l, h, f(true));
-        let c = shade_at(&b, uv, 0.6, l, h, f(false));
+        let a = shade_at(&b, uv, 0.6, l, h, &f(true));
+        let c = shade_at(&b, uv, 0.6, l, h, &f(false));
         assert!((a.specular - c.specular).abs().max_element() < 1e-12);
         assert!((a.diffuse - DVec3::splat(l.z)).abs().max_element() < 1e-6);
     }
@@ -230,15 +354,14 @@ mod tests {
             let b = crate::methods::bake_with(&map, method, &options).unwrap();
             for manual in [false, true] {
                 let f = Filtering {
-                    brdf: Brdf::BlinnPhong { s: 64.0 },
                     manual,
-                    color: false,
+                    ..Filtering::new(Brdf::BlinnPhong { s: 64.0 })
                 };
                 for (uv, lod) in [(DVec2::new(0.37, 0.81), 0.6), (DVec2::new(0.9, 0.02), 2.3)] {
                     let mut out = [ShadingRgb::default(); 2];
-                    shade_at_lights(&b, uv, lod, &lights, f, &mut out);
+                    shade_at_lights(&b, uv, lod, &lights, &f, &mut out);
                     for (o, &(l, h)) in out.iter().zip(&lights) {
-                        assert_eq!(*o, shade_at(&b, uv, lod, l, h, f), "{method} {manual}");
+                        assert_eq!(*o, shade_at(&b, uv, lod, l, h, &f), "{method} {manual}");
                     }
                 }
             }

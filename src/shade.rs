@@ -16,9 +16,10 @@
 //!   Blinn-Phong by O(1/s) even unfiltered.
 
 use crate::bake::{Bake, Method};
+use crate::brdf::tabulated::lookup;
 use crate::brdf::{
-    Brdf, Shading, blinn_phong, psd, reference, reference_brdf, tangent_frame,
-    torrance_sparrow_lobe, widened_lobe,
+    Brdf, Ggx, Shading, blinn_phong, clamp_eigenvalues, ggx, ggx_aniso, psd, reference,
+    tangent_frame, torrance_sparrow_lobe, widened_lobe,
 };
 use glam::{DVec2, DVec3};
 
@@ -103,138 +104,204 @@ fn olano_moments(texels: &[[f32; 4]]) -> (DVec3, DVec3, (DVec3, DVec3), [f64; 3]
     (m, mu, (t1, t2), psd([e(t1, t1), e(t2, t2), e(t1, t2)]))
 }
 
+/// Which diffuse term a vMF lobe contributes (Algorithm 2 line 14's cosine).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VmfDiffuse {
+    /// Algorithm 2 as written: `α max(ω_i·μ, 0)` — the lobe's whole weight at its centre's
+    /// cosine, dropping `|r|`.
+    Algorithm2,
+    /// `max(ω_i·αr, 0) = α|r| max(ω_i·μ, 0)`: the footprint average of `ω_i·n` over the lobe's
+    /// normals, exact where none of them faces away from the light. The default: lower Lambert
+    /// error at every level measured (`docs/sh-brdf.md`).
+    #[default]
+    MeanVector,
+}
+
+/// Shading choices that are not part of the BRDF (the shaders' matching `#define`s are in
+/// `glsl::ShaderOptions`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ShadeOptions {
+    /// The vMF lobes' diffuse term.
+    pub vmf_diffuse: VmfDiffuse,
+}
+
 /// Filtered shading of `bake`'s method from one texel's values (`texels[i]` from texture i of
 /// the bake, as [`crate::bake::Bake::texel`] returns), for light `l`, half vector `h` and
-/// Blinn-Phong exponent `s` (> 0). This is the CPU twin of the method's shader; it applies the
-/// clamps of the format the bake was read in ([`Bake::format`]).
+/// Blinn-Phong exponent `s` (> 0): [`shade_brdf`] with `Brdf::BlinnPhong { s }`.
 pub fn shade(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, s: f64) -> Shading {
-    match bake.method {
-        Method::Tan2005 => crate::tan2005::shade(&texels[..bake.lobes], l, h, s),
-        Method::Vmf => {
-            let r_max = crate::vmf::r_max(bake.format);
+    shade_brdf(bake, texels, l, h, &Brdf::BlinnPhong { s })
+}
+
+/// [`shade_with`] with the default [`ShadeOptions`].
+pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
+    shade_with(bake, texels, l, h, brdf, &ShadeOptions::default())
+}
+
+/// Filtered shading of `bake`'s method from one texel's values under any [`Brdf`]: the CPU
+/// twin of the method's shader, with the clamps of the format the bake was read in
+/// ([`Bake::format`]). Each method's NDF estimate widens the BRDF's lobe by that BRDF's rule:
+/// - Blinn-Phong: eq 20 for vMF lobes (`s' = κs/(κ+s)`), Toksvig's and Tan's `s' = s/(1+sσ²)`,
+///   LEAN's and Olano–North's covariance ([`widened_lobe`]);
+/// - eq 18: eq 21 for vMF lobes (`σ'² = σ² + 1/(2κ)`), the variance or covariance added to the
+///   lobe's ([`torrance_sparrow_lobe`]);
+/// - GGX: `α'² = α² + c·v` for a per-axis angular variance v (1/κ for vMF lobes, Toksvig's
+///   `(1 − |n̄|)/|n̄|`, Tan's σ²), and `S = α²I + cΣ` with LEAN's slope covariance and
+///   Olano–North's tangent-plane covariance ([`ggx_aniso`]);
+/// - tabulated: eq 14 from the BRDF's per-κ table ([`crate::brdf::tabulated::lookup`]) at the
+///   lobe's κ (`1/v` for the single-lobe baselines, `2/tr Σ` for LEAN and Olano–North: the
+///   closest isotropic lobe);
+/// - SH: eq 12 ([`crate::sh::shade`]), any BRDF through its `ρ̂_l`.
+///
+/// The specular term is then multiplied by the BRDF's g factor ([`Brdf::g`]).
+pub fn shade_with(
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    l: DVec3,
+    h: DVec3,
+    brdf: &Brdf,
+    options: &ShadeOptions,
+) -> Shading {
+    let mut out = match bake.method {
+        Method::Sh => crate::sh::shade(texels, crate::sh::lmax_of(bake), l, h, brdf),
+        Method::Vmf | Method::Tan2005 => {
             let mut sum = Shading::default();
-            for &theta in &texels[..bake.lobes] {
-                let one = vmf_lobe(theta, l, h, s, r_max);
-                sum.diffuse += one.diffuse;
-                sum.specular += one.specular;
+            for &t in &texels[..bake.lobes] {
+                if let Some(c) = mixture_component(bake, t, l, h, brdf, options) {
+                    sum.diffuse += c.alpha * c.diffuse;
+                    sum.specular += c.alpha * c.specular;
+                }
             }
             sum
         }
+        method => baseline(method, texels, l, h, brdf),
+    };
+    if brdf.has_specular() {
+        out.specular *= brdf.g(l, h);
+    }
+    out
+}
+
+/// The specular lobe of an isotropic NDF estimate around μ with per-axis angular variance
+/// `var` under `brdf` (without the cosine and g): the widening rules of [`shade_with`] for one
+/// lobe. Blinn-Phong: `s' = s/(1 + s·var)`.
+fn iso_lobe(brdf: &Brdf, mu: DVec3, var: f64, h: DVec3) -> f64 {
+    let c = mu.dot(h);
+    match brdf {
+        Brdf::Lambert => 0.0,
+        Brdf::BlinnPhong { s } => blinn_phong(c, s / (1.0 + s * var)),
+        Brdf::TorranceSparrow { sigma } => {
+            let (t1, t2) = tangent_frame(mu);
+            let dir = DVec2::new(h.dot(t1), h.dot(t2));
+            torrance_sparrow_lobe(c, dir, *sigma, [var, var, 0.0])
+        }
+        Brdf::Ggx(g) => ggx(c, g.widened(var)),
+        Brdf::Tabulated(t) => {
+            let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+            lookup(t.table(), mu.cross(h).length().atan2(c), kappa)
+        }
+    }
+}
+
+/// The single-lobe baselines (module docs) under any BRDF, without the g factor.
+fn baseline(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
+    match method {
         Method::Plain => {
             let mu = v3(texels[0]).try_normalize().unwrap_or(DVec3::Z);
-            reference(mu, l, h, s)
-        }
-        Method::Toksvig => {
-            let (m, mu, ft) = toksvig_mean(texels);
-            let den = ft + s * (1.0 - ft);
-            let s_t = if den > 0.0 { ft * s / den } else { 0.0 };
-            Shading {
-                diffuse: m.dot(l).max(0.0),
-                specular: blinn_phong(mu.dot(h), s_t) * mu.dot(l).max(0.0),
-            }
-        }
-        Method::Lean => {
-            let (b, sigma) = lean_moments(texels);
-            let mu = DVec3::new(b.x, b.y, 1.0).normalize();
             let cos_i = mu.dot(l).max(0.0);
-            let specular = if h.z > 1e-9 {
-                let d = DVec2::new(h.x / h.z, h.y / h.z) - b;
-                widened_lobe(mu.dot(h), d, sigma, s) * cos_i
-            } else {
-                0.0
+            let specular = match brdf {
+                Brdf::BlinnPhong { s } => return reference(mu, l, h, *s),
+                Brdf::TorranceSparrow { sigma } => {
+                    torrance_sparrow_lobe(mu.dot(h), DVec2::X, *sigma, [0.0; 3]) * cos_i
+                }
+                other => iso_lobe(other, mu, 0.0, h) * cos_i,
             };
             Shading {
                 diffuse: cos_i,
                 specular,
             }
         }
-        Method::Olano => {
-            let (m, mu, (t1, t2), sigma) = olano_moments(texels);
-            let offset = DVec2::new(h.dot(t1), h.dot(t2));
-            Shading {
-                diffuse: m.dot(l).max(0.0),
-                specular: widened_lobe(mu.dot(h), offset, sigma, s) * mu.dot(l).max(0.0),
-            }
-        }
-    }
-}
-
-/// [`shade`] for any [`Brdf`]: Blinn-Phong as there; Torrance–Sparrow with each method's NDF
-/// spread added to the lobe's (eq 21 for vMF lobes: `σ'² = σ² + 1/(2κ)`; Toksvig's variance
-/// `(1 − |n̄|)/|n̄|`; Tan's σ²; LEAN's and Olano–North's covariances), the lobe of
-/// [`torrance_sparrow_lobe`].
-pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: Brdf) -> Shading {
-    let sigma = match brdf {
-        Brdf::BlinnPhong { s } => return shade(bake, texels, l, h, s),
-        Brdf::TorranceSparrow { sigma } => sigma,
-    };
-    // One isotropic lobe around μ with per-axis angular variance `var`, weight `alpha`.
-    let iso = |alpha: f64, mu: DVec3, var: f64| -> f64 {
-        let (t1, t2) = tangent_frame(mu);
-        let dir = DVec2::new(h.dot(t1), h.dot(t2));
-        alpha * torrance_sparrow_lobe(mu.dot(h), dir, sigma, [var, var, 0.0]) * mu.dot(l).max(0.0)
-    };
-    match bake.method {
-        Method::Vmf => {
-            let r_max = crate::vmf::r_max(bake.format);
-            let mut sum = Shading::default();
-            for &theta in &texels[..bake.lobes] {
-                if let Some((alpha, mu, kappa)) = vmf_decode(theta, r_max) {
-                    let var = if kappa > 0.0 { 1.0 / kappa } else { 1e6 };
-                    sum.diffuse += alpha * mu.dot(l).max(0.0);
-                    sum.specular += iso(alpha, mu, var);
-                }
-            }
-            sum
-        }
-        Method::Tan2005 => {
-            let mut sum = Shading::default();
-            for &t in &texels[..bake.lobes] {
-                let g = crate::tan2005::Gaussian::from_texel(t);
-                if g.is_empty() {
-                    continue;
-                }
-                let mu = crate::tan2005::lift(g.mean);
-                sum.diffuse += g.alpha * mu.dot(l).max(0.0);
-                sum.specular += iso(g.alpha, mu, g.variance.max(0.0));
-            }
-            sum
-        }
-        Method::Plain => {
-            let mu = v3(texels[0]).try_normalize().unwrap_or(DVec3::Z);
-            reference_brdf(mu, l, h, brdf)
-        }
         Method::Toksvig => {
             let (m, mu, ft) = toksvig_mean(texels);
-            let var = if ft > 0.0 { (1.0 - ft) / ft } else { 1e6 };
+            let specular = match brdf {
+                Brdf::BlinnPhong { s } => {
+                    let den = ft + s * (1.0 - ft);
+                    let s_t = if den > 0.0 { ft * s / den } else { 0.0 };
+                    blinn_phong(mu.dot(h), s_t)
+                }
+                b => {
+                    let var = if ft > 0.0 { (1.0 - ft) / ft } else { 1e6 };
+                    iso_lobe(b, mu, var, h)
+                }
+            };
             Shading {
                 diffuse: m.dot(l).max(0.0),
-                specular: iso(1.0, mu, var),
+                specular: specular * mu.dot(l).max(0.0),
             }
         }
         Method::Lean => {
             let (b, cov) = lean_moments(texels);
             let mu = DVec3::new(b.x, b.y, 1.0).normalize();
             let cos_i = mu.dot(l).max(0.0);
-            let dir = if h.z > 1e-9 {
+            let d = if h.z > 1e-9 {
                 DVec2::new(h.x / h.z, h.y / h.z) - b
             } else {
                 DVec2::ZERO
             };
+            let lobe = match brdf {
+                Brdf::BlinnPhong { s } if h.z > 1e-9 => widened_lobe(mu.dot(h), d, cov, *s),
+                Brdf::BlinnPhong { .. } => 0.0,
+                Brdf::TorranceSparrow { sigma } => torrance_sparrow_lobe(mu.dot(h), d, *sigma, cov),
+                Brdf::Ggx(g) => {
+                    // The slope offset's direction d with the length tan θ of the angle between
+                    // μ and h (as the other BRDFs take only d's direction): at Σ = 0 this is
+                    // GGX about μ exactly.
+                    let c = mu.dot(h);
+                    let len = d.length();
+                    let slope = if len > 1e-300 && c > 0.0 {
+                        d * (mu.cross(h).length() / c / len)
+                    } else {
+                        DVec2::ZERO
+                    };
+                    ggx_aniso(c, slope, ggx_covariance(g, cov))
+                }
+                other => iso_lobe(other, mu, 0.5 * (cov[0] + cov[1]), h),
+            };
             Shading {
                 diffuse: cos_i,
-                specular: torrance_sparrow_lobe(mu.dot(h), dir, sigma, cov) * cos_i,
+                specular: lobe * cos_i,
             }
         }
         Method::Olano => {
             let (m, mu, (t1, t2), cov) = olano_moments(texels);
             let dir = DVec2::new(h.dot(t1), h.dot(t2));
+            let c = mu.dot(h);
+            let lobe = match brdf {
+                Brdf::BlinnPhong { s } => widened_lobe(c, dir, cov, *s),
+                Brdf::TorranceSparrow { sigma } => torrance_sparrow_lobe(c, dir, *sigma, cov),
+                Brdf::Ggx(g) if c > 0.0 => ggx_aniso(c, dir / c, ggx_covariance(g, cov)),
+                Brdf::Ggx(_) => 0.0,
+                other => iso_lobe(other, mu, 0.5 * (cov[0] + cov[1]), h),
+            };
             Shading {
                 diffuse: m.dot(l).max(0.0),
-                specular: torrance_sparrow_lobe(mu.dot(h), dir, sigma, cov) * mu.dot(l).max(0.0),
+                specular: lobe * mu.dot(l).max(0.0),
             }
         }
+        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("not a single-lobe baseline"),
     }
+}
+
+/// GGX's slope matrix widened by an NDF covariance: `α² I + c Σ` ([`ggx_aniso`]), its
+/// eigenvalues held to at most 1 as [`Ggx::widened`] holds α'.
+fn ggx_covariance(g: &Ggx, cov: [f64; 3]) -> [f64; 3] {
+    let a2 = g.alpha * g.alpha;
+    let s = [
+        a2 + g.widening * cov[0],
+        a2 + g.widening * cov[1],
+        g.widening * cov[2],
+    ];
+    clamp_eigenvalues(s, 0.0, 1.0)
 }
 
 /// Shading per colour channel: the Lambert and specular terms as RGB.
@@ -246,17 +313,29 @@ pub struct ShadingRgb {
     pub specular: DVec3,
 }
 
-/// One mixture component of a texel, decoded and shaded with unit weight under `brdf`:
-/// `(α, max(ω_i·μ, 0), lobe · max(ω_i·μ, 0))`, or `None` for an empty component. The terms of
-/// [`shade_brdf`]'s vMF and Tan 2005 arms before they are weighted by α.
+/// One mixture component of a texel, decoded and shaded with unit weight.
+struct Component {
+    /// Its weight α.
+    alpha: f64,
+    /// Diffuse term per unit weight: `max(ω_i·μ, 0)` (Algorithm 2) or `|r| max(ω_i·μ, 0)`.
+    diffuse: f64,
+    /// Specular lobe times `max(ω_i·μ, 0)`, without the g factor.
+    specular: f64,
+}
+
+/// One mixture component of a texel (vMF lobe or Tan 2005 Gaussian), decoded and shaded with
+/// unit weight under `brdf`, or `None` for an empty component: the terms of [`shade_with`]'s
+/// mixture arm before they are weighted by α (or by the colour `α·y`).
+/// vMF, Blinn-Phong: Algorithm 2 lines 7–14 (`s' = κs/(κ+s)`, eq 20); see [`vmf_lobe`].
 fn mixture_component(
     bake: &Bake,
     texel: [f32; 4],
     l: DVec3,
     h: DVec3,
-    brdf: Brdf,
-) -> Option<(f64, f64, f64)> {
-    let (alpha, mu, var, s_eff) = match bake.method {
+    brdf: &Brdf,
+    options: &ShadeOptions,
+) -> Option<Component> {
+    let (alpha, mu, var, s_eff, r_len) = match bake.method {
         Method::Vmf => {
             let (alpha, mu, kappa) = vmf_decode(texel, crate::vmf::r_max(bake.format))?;
             let var = if kappa > 0.0 { 1.0 / kappa } else { 1e6 };
@@ -266,7 +345,8 @@ fn mixture_component(
             } else {
                 0.0
             };
-            (alpha, mu, var, s_eff)
+            let r = DVec3::new(texel[1] as f64, texel[2] as f64, texel[3] as f64) / alpha;
+            (alpha, mu, var, s_eff, r.length())
         }
         Method::Tan2005 => {
             let g = crate::tan2005::Gaussian::from_texel(texel);
@@ -280,6 +360,7 @@ fn mixture_component(
                 crate::tan2005::lift(g.mean),
                 var,
                 s / (1.0 + s * var),
+                1.0,
             )
         }
         _ => return None,
@@ -287,30 +368,47 @@ fn mixture_component(
     let cos_i = mu.dot(l).max(0.0);
     let lobe = match brdf {
         Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
-        Brdf::TorranceSparrow { sigma } => {
-            let (t1, t2) = tangent_frame(mu);
-            let dir = DVec2::new(h.dot(t1), h.dot(t2));
-            torrance_sparrow_lobe(mu.dot(h), dir, sigma, [var, var, 0.0])
-        }
+        b => iso_lobe(b, mu, var, h),
     };
-    Some((alpha, cos_i, lobe * cos_i))
+    let diffuse = match (bake.method, options.vmf_diffuse) {
+        (Method::Vmf, VmfDiffuse::MeanVector) => r_len.min(1.0) * cos_i,
+        _ => cos_i,
+    };
+    Some(Component {
+        alpha,
+        diffuse,
+        specular: lobe * cos_i,
+    })
 }
 
-/// [`shade_brdf`] per colour channel. With `color`, a mixture bake's lobe j is weighted by its
-/// colour texture `α·y` (texture `lobes + j`) instead of α — Algorithm 2 line 14,
-/// `ρ += αy (K_s B + K_d)(ω_i·μ)` with the two terms apart; otherwise every channel is the
-/// scalar result. The CPU twin of the shaders' `NDF_COLOR` variant. `color` on a bake without
-/// colour textures is a programming error and panics.
+/// [`shade_rgb_with`] with the default [`ShadeOptions`].
 pub fn shade_rgb(
     bake: &Bake,
     texels: &[[f32; 4]],
     l: DVec3,
     h: DVec3,
-    brdf: Brdf,
+    brdf: &Brdf,
     color: bool,
 ) -> ShadingRgb {
+    shade_rgb_with(bake, texels, l, h, brdf, color, &ShadeOptions::default())
+}
+
+/// [`shade_with`] per colour channel. With `color`, a mixture bake's lobe j is weighted by its
+/// colour texture `α·y` (texture `lobes + j`) instead of α — Algorithm 2 line 14,
+/// `ρ += αy (K_s B + K_d)(ω_i·μ)` with the two terms apart; otherwise every channel is the
+/// scalar result. The CPU twin of the shaders' `NDF_COLOR` variant. `color` on a bake without
+/// colour textures is a programming error and panics.
+pub fn shade_rgb_with(
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    l: DVec3,
+    h: DVec3,
+    brdf: &Brdf,
+    color: bool,
+    options: &ShadeOptions,
+) -> ShadingRgb {
     if !color {
-        let s = shade_brdf(bake, texels, l, h, brdf);
+        let s = shade_with(bake, texels, l, h, brdf, options);
         return ShadingRgb {
             diffuse: DVec3::splat(s.diffuse),
             specular: DVec3::splat(s.specular),
@@ -322,11 +420,14 @@ pub fn shade_rgb(
     );
     let mut sum = ShadingRgb::default();
     for j in 0..bake.lobes {
-        if let Some((_, cos_i, spec)) = mixture_component(bake, texels[j], l, h, brdf) {
+        if let Some(c) = mixture_component(bake, texels[j], l, h, brdf, options) {
             let y = v3(texels[bake.lobes + j]);
-            sum.diffuse += y * cos_i;
-            sum.specular += y * spec;
+            sum.diffuse += y * c.diffuse;
+            sum.specular += y * c.specular;
         }
+    }
+    if brdf.has_specular() {
+        sum.specular *= brdf.g(l, h);
     }
     sum
 }
@@ -355,11 +456,15 @@ mod tests {
             for brdf in [
                 Brdf::BlinnPhong { s: 50.0 },
                 Brdf::TorranceSparrow { sigma: 0.2 },
+                Brdf::Ggx(Ggx {
+                    g: true,
+                    ..Ggx::new(0.2)
+                }),
             ] {
                 for level in [0, 2] {
                     let t = b.texel(level, 1, 1);
-                    let c = shade_rgb(&b, &t, l, h, brdf, true);
-                    let g = shade_brdf(&b, &t, l, h, brdf);
+                    let c = shade_rgb(&b, &t, l, h, &brdf, true);
+                    let g = shade_brdf(&b, &t, l, h, &brdf);
                     for k in 0..3 {
                         assert!((c.diffuse[k] - g.diffuse).abs() < 1e-6, "{method} {brdf}");
                         let tol = 1e-6 * g.specular.max(1.0);

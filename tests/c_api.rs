@@ -235,7 +235,10 @@ fn expected_c_output() -> String {
             }
         }
     }
-    let vmf = bakes().pop().unwrap();
+    let vmf = bakes()
+        .into_iter()
+        .find(|b| b.method == Method::Vmf)
+        .unwrap();
     let spec = ShaderSpec {
         format: Format::F16,
         ..ShaderSpec::of(&vmf)
@@ -257,7 +260,10 @@ fn expected_c_output() -> String {
 
 /// What consumer.cpp prints: the vMF bake's levels packed as f16.
 fn expected_cpp_output() -> String {
-    let vmf = bakes().pop().unwrap();
+    let vmf = bakes()
+        .into_iter()
+        .find(|b| b.method == Method::Vmf)
+        .unwrap();
     let mut out = String::new();
     for t in 0..vmf.textures.len() {
         for k in 0..vmf.level_count() {

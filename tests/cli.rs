@@ -141,6 +141,7 @@ fn demo_writes_sample_bakes_and_table() {
         "eval.txt",
         "plain/manifest.json",
         "olano/manifest.json",
+        "sh/manifest.json",
     ] {
         assert!(dir.path().join(f).is_file(), "{f}");
     }
@@ -225,4 +226,117 @@ fn bad_inputs_fail_with_one_line_and_leave_no_manifest() {
             "{args:?} left a manifest"
         );
     }
+}
+
+#[test]
+fn sh_bakes_choose_their_band_limit_from_the_brdf_and_eval_takes_every_brdf() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 12, 5);
+    let i = input.to_str().unwrap();
+    // No --lmax: Lambert (the default --brdf) → l* = 2, and the command says so.
+    let o = dir.path().join("sh");
+    let run = ndfmap(&["bake", i, "--method", "sh", "-o", o.to_str().unwrap()]);
+    assert!(run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("no --lmax: l* = 2 chosen for Lambert"),
+        "{err}"
+    );
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(o.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["method"], "sh");
+    assert_eq!(manifest["parameters"]["lmax"], 2);
+    let textures = manifest["textures"].as_array().unwrap();
+    assert_eq!(textures.len(), 3, "9 coefficients, four per texture");
+    assert_eq!(textures[0]["channels"][1], "c1,-1");
+    assert_eq!(textures[0]["ranges"][1], "signed");
+    // Blinn-Phong s = 16 → ⌈√64⌉ = 8; an explicit --lmax wins; every format holds SH.
+    let m = bake_manifest(
+        &[i, "-m", "sh", "--brdf", "blinn-phong", "-s", "16"],
+        &dir.path().join("s16"),
+    );
+    assert_eq!(m["parameters"]["lmax"], 8);
+    let m = bake_manifest(
+        &[i, "-m", "sh", "--lmax", "3", "--format", "unorm8"],
+        &dir.path().join("u8"),
+    );
+    assert_eq!(m["parameters"]["lmax"], 3);
+    assert_eq!(m["texel_format"], "unorm8");
+    // eval: SH rows per band limit, every BRDF, a tabulated file among them.
+    let table = dir.path().join("lobe.json");
+    std::fs::write(&table, r#"{"name": "lobe", "f": [2.0, 1.5, 0.5, 0.0]}"#).unwrap();
+    let run = ndfmap(&[
+        "eval",
+        i,
+        "--methods",
+        "toksvig,vmf,sh",
+        "--lobes",
+        "2",
+        "--lmax",
+        "2,4",
+        "--brdf",
+        &format!("lambert,ggx,{}", table.display()),
+        "--alpha",
+        "0.2",
+        "--ggx-g",
+        "--json",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let errors = v["errors"].as_array().unwrap();
+    // toksvig, vmf2, sh2, sh4 × Lambert, GGX, tabulated.
+    assert_eq!(errors.len(), 4 * 3);
+    for e in errors {
+        assert!(e["overall_diffuse"].as_f64().unwrap().is_finite(), "{e}");
+        assert!(e["overall_specular"].as_f64().unwrap().is_finite(), "{e}");
+    }
+    assert!(
+        errors
+            .iter()
+            .any(|e| e["label"] == "sh4" && e["brdf"]["model"] == "tabulated")
+    );
+    assert!(
+        errors
+            .iter()
+            .any(|e| e["brdf"]["model"] == "ggx" && e["brdf"]["g"] == true)
+    );
+    // The SH shader for a band limit and GGX with its g factor.
+    let run = ndfmap(&[
+        "shader", "--method", "sh", "--lmax", "6", "--brdf", "ggx", "--ggx-g",
+    ]);
+    assert!(run.status.success());
+    let src = String::from_utf8_lossy(&run.stdout);
+    for d in [
+        "#define NDF_METHOD_SH 1",
+        "#define NDF_SH_LMAX 6",
+        "#define NDF_BRDF_G 1",
+    ] {
+        assert!(src.contains(d), "{d}");
+    }
+    // Bad BRDFs: one line each.
+    let bad = dir.path().join("bad.json");
+    std::fs::write(&bad, r#"{"f": [1.0, -2.0]}"#).unwrap();
+    let out = ndfmap(&["eval", i, "--brdf", bad.to_str().unwrap()]);
+    assert_one_line_error(&out, &["bad.json", "invalid tabulated BRDF", "f[1]"]);
+    let out = ndfmap(&["eval", i, "--brdf", "phong"]);
+    assert_one_line_error(&out, &["--brdf 'phong'"]);
+    let out = ndfmap(&["eval", i, "--brdf", "ggx", "--alpha=-1"]);
+    assert_one_line_error(&out, &["GGX alpha -1"]);
+    let out = ndfmap(&[
+        "bake",
+        i,
+        "-m",
+        "sh",
+        "--lmax",
+        "17",
+        "-o",
+        dir.path().join("x").to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, &["band limit 17"]);
+    assert!(!dir.path().join("x/manifest.json").exists());
 }

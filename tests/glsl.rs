@@ -1,7 +1,9 @@
 //! Every specialization of the shipped shaders compiles as GLSL 3.30 core: each method, lobe
-//! counts 1, 3 and 8, both BRDFs, colour on and off, hardware and manual sampling, mesh and probe
-//! variants, float and unsigned-normalized formats, wrap and clamp — checked offline by Khronos'
-//! reference compiler (`glslangValidator`, Debian `glslang-tools`, installed by scripts/test).
+//! counts 1, 3 and 8 (SH: l* = 0, 2, 8), every BRDF of the library (Blinn-Phong, eq 18,
+//! Lambert, GGX with and without its g factor, tabulated), colour on and off, hardware, manual
+//! and anisotropic sampling, both vMF diffuse terms, mesh and probe variants, float and
+//! unsigned-normalized formats, wrap and clamp — checked offline by Khronos' reference compiler
+//! (`glslangValidator`, Debian `glslang-tools`, installed by scripts/test).
 //! The GL tests in `samples/gl` then run them on Mesa and compare with the CPU twin.
 
 use ndfmap::bake::Method;
@@ -9,6 +11,7 @@ use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage, source_for};
 use ndfmap::ingest::Addressing;
 use ndfmap::methods::texture_ranges;
+use ndfmap::shade::VmfDiffuse;
 use std::process::Command;
 
 fn validator() -> Option<&'static str> {
@@ -31,21 +34,55 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
     let mut out = Vec::new();
     for method in Method::ALL {
         let mixture = matches!(method, Method::Vmf | Method::Tan2005);
-        let lobe_counts: &[usize] = if mixture { &[1, 3, 8] } else { &[0] };
+        let sh = method == Method::Sh;
+        let lobe_counts: &[usize] = if mixture {
+            &[1, 3, 8]
+        } else if sh {
+            &[0, 2, 8]
+        } else {
+            &[0]
+        };
         for &lobes in lobe_counts {
             for color in [false, true] {
                 if color && !mixture {
                     continue;
                 }
-                for brdf in [ShaderBrdf::BlinnPhong, ShaderBrdf::TorranceSparrow] {
-                    for sampling in [Sampling::Hardware, Sampling::Manual] {
+                for brdf in [
+                    ShaderBrdf::BlinnPhong,
+                    ShaderBrdf::TorranceSparrow,
+                    ShaderBrdf::Lambert,
+                    ShaderBrdf::Ggx { g: false },
+                    ShaderBrdf::Ggx { g: true },
+                    ShaderBrdf::Tabulated,
+                ] {
+                    let classic =
+                        matches!(brdf, ShaderBrdf::BlinnPhong | ShaderBrdf::TorranceSparrow);
+                    for sampling in [
+                        Sampling::Hardware,
+                        Sampling::Manual,
+                        Sampling::Anisotropic(8),
+                    ] {
+                        // SH is never sampled manually; the new BRDFs and anisotropic sampling
+                        // once per method and size (probe variant, f32).
+                        if (sh && sampling == Sampling::Manual)
+                            || (matches!(sampling, Sampling::Anisotropic(_))
+                                && brdf != ShaderBrdf::BlinnPhong)
+                        {
+                            continue;
+                        }
                         for probe in [false, true] {
+                            if (!classic || matches!(sampling, Sampling::Anisotropic(_))) && !probe
+                            {
+                                continue;
+                            }
                             // Formats change the decode lines and NDF_R_MAX only: vary them with
                             // the addressing on one BRDF to keep the count down.
                             let formats: &[Format] = if brdf == ShaderBrdf::BlinnPhong {
                                 &[Format::F32, Format::Unorm8]
-                            } else {
+                            } else if classic {
                                 &[Format::F16]
+                            } else {
+                                &[Format::F32]
                             };
                             for &format in formats {
                                 let clamp = format == Format::Unorm8;
@@ -60,12 +97,19 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                     } else {
                                         Addressing::Wrap
                                     },
+                                    lmax: lobes,
                                 };
                                 let opts = ShaderOptions {
                                     brdf,
                                     sampling,
                                     color,
                                     probe,
+                                    // Algorithm 2's diffuse term on every other vMF variant.
+                                    vmf_diffuse: if lobes == 3 && probe {
+                                        VmfDiffuse::Algorithm2
+                                    } else {
+                                        VmfDiffuse::MeanVector
+                                    },
                                 };
                                 let name = format!(
                                     "{method}{lobes}-c{}-{brdf:?}-{sampling:?}-p{}-{format}",
@@ -103,6 +147,7 @@ fn every_specialization_compiles_as_glsl_330_core() {
             format: Format::F32,
             aligned: true,
             addressing: Addressing::Wrap,
+            lmax: 0,
         };
         let opts = ShaderOptions {
             probe,

@@ -70,6 +70,10 @@ fn report_writes_markdown_json_plots_and_images() {
             "none,0.1",
             "--tan-lobes",
             "1",
+            "--sh-lmax",
+            "2",
+            "--anisotropy",
+            "4",
             "--no-stability",
             "--frame-times",
         ])
@@ -85,13 +89,15 @@ fn report_writes_markdown_json_plots_and_images() {
         md.contains("## sample") && md.contains("## Targets"),
         "{md}"
     );
-    assert!(md.contains("SH: not implemented yet"));
+    assert!(md.contains("`shL` = spherical harmonics"));
+    // Anisotropic filtering: its floor per view and the linearly filtering configurations.
+    assert!(md.contains("Anisotropic filtering (up to 4 probes"), "{md}");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let rows = json["rows"].as_array().unwrap();
-    // 4 baselines + tan2005-1 + vMF 2 lobe counts × 2 alignments, in 3 formats (LEAN and Tan
-    // refuse unorm8).
-    assert_eq!(rows.len(), 9 * 3 - 2);
+    // 4 baselines + sh2 + tan2005-1 + vMF 2 lobe counts × 2 alignments, in 3 formats (LEAN and
+    // Tan refuse unorm8).
+    assert_eq!(rows.len(), 10 * 3 - 2);
     for r in rows {
         assert!(r["texel_specular"].as_f64().unwrap().is_finite(), "{r}");
         for v in r["views"].as_array().unwrap() {
@@ -99,7 +105,25 @@ fn report_writes_markdown_json_plots_and_images() {
             assert_eq!(v["nonfinite"], 0);
         }
         assert!(r["cost"]["fetches"].as_u64().unwrap() >= 1);
+        // Anisotropic renders for the f32 rows that filter linearly (not unaligned mixtures).
+        let linear =
+            !(r["config"] == "vmf1" || r["config"] == "vmf2" || r["config"] == "tan2005-1");
+        let aniso = r["aniso_views"].as_array().unwrap();
+        assert_eq!(
+            aniso.is_empty(),
+            !(linear && r["format"] == "f32"),
+            "{}",
+            r["label"]
+        );
+        for v in aniso {
+            assert!(v["rel_rmse"].as_f64().unwrap().is_finite(), "{v}");
+        }
     }
+    assert!(
+        json["maps"][0]["views"][0]["aniso_floor"]["rel_rmse"]
+            .as_f64()
+            .is_some()
+    );
     assert!(json["maps"][0]["ground_truth_error"][1].as_f64().unwrap() > 0.0);
     // Frame times: (far + grazing) / 2, and over plain's (2 + 10) / 2 = 6 ms.
     let frame = |config: &str, format: &str| {

@@ -5,7 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use ndfmap::bake::{Bake, BakeOptions, FitMode, Method};
 use ndfmap::brdf::Brdf;
 use ndfmap::em::AlignmentForm;
-use ndfmap::eval::{default_directions, evaluate, format_table};
+use ndfmap::eval::{default_directions, evaluate, evaluate_with, format_table};
 use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, Stage};
 use ndfmap::ingest::{Addressing, BadNormals, Channels, Encoding, FeatureEncoding, GreenChannel};
@@ -34,18 +34,21 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Time the vMF bake (and Toksvig's, for scale) on the built-in sample at several sizes and
-    /// lobe counts: wall seconds, CPU seconds, peak memory and the memory budget's estimate
-    /// per run. With `--quality`, measure instead how well each vMF bake fits its normals
-    /// (`ndfmap::quality`): per level, the log-likelihood gap to a multi-start reference fit
-    /// and the dead / near-empty lobe shares.
+    /// Time the vMF and SH bakes (and Toksvig's, for scale) on the built-in sample at several
+    /// sizes, lobe counts and band limits: wall seconds, CPU seconds, peak memory, the memory
+    /// budget's estimate and texture bytes per run. With `--quality`, measure instead how well
+    /// each vMF bake fits its normals (`ndfmap::quality`): per level, the log-likelihood gap to
+    /// a multi-start reference fit and the dead / near-empty lobe shares.
     Bench {
         /// Map sizes (square), comma-separated.
         #[arg(long, default_value = "256,512,1024", value_delimiter = ',')]
         sizes: Vec<u32>,
-        /// Lobe counts, comma-separated.
+        /// Lobe counts, comma-separated (0: no vMF bake).
         #[arg(long, default_value = "6", value_delimiter = ',')]
         lobes: Vec<usize>,
+        /// SH band limits l*, comma-separated.
+        #[arg(long, default_value = "2,4,8", value_delimiter = ',')]
+        lmax: Vec<usize>,
         /// Alignments, comma-separated: `none` or a strength C.
         #[arg(long, default_value = "none,1", value_delimiter = ',')]
         align: Vec<String>,
@@ -111,6 +114,12 @@ enum Command {
         /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
         #[arg(long, default_value = "balanced")]
         mode: String,
+        /// sh: band limit l* (0 to 16; (l*+1)² coefficients, four per texture). Without it,
+        /// chosen from --brdf: 2 for Lambert, about √(4s) for Blinn-Phong (Sec 5.1).
+        #[arg(long)]
+        lmax: Option<usize>,
+        #[command(flatten)]
+        brdf: BrdfArgs,
         /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
         #[arg(long, default_value = "f32")]
         format: String,
@@ -120,12 +129,15 @@ enum Command {
     /// Print a method's GLSL 3.30 shader, specialized by #defines, for an engine to compile or
     /// a tool to validate (e.g. `| glslangValidator --stdin -S frag`).
     Shader {
-        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf.
+        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh.
         #[arg(short, long)]
         method: String,
         /// vmf, tan2005: lobes per texel, 1 to 8.
         #[arg(long, default_value_t = 6)]
         lobes: usize,
+        /// sh: the bake's band limit l* (0 to 10 in GLSL: 32 textures at most).
+        #[arg(long, default_value_t = 4)]
+        lmax: usize,
         /// vmf, tan2005: the lobes were baked aligned (`bake --align`): sample them with one
         /// hardware trilinear fetch. Unaligned lobes are shaded per texel and blended.
         #[arg(long)]
@@ -136,12 +148,23 @@ enum Command {
         /// vmf, tan2005: weight each lobe by its colour texture (a bake with --color).
         #[arg(long)]
         color: bool,
-        /// Specular BRDF: blinn-phong (uniform ndf_s) or torrance-sparrow (uniform ndf_sigma).
+        /// BRDF: blinn-phong (uniform ndf_s), torrance-sparrow (ndf_sigma), lambert, ggx
+        /// (ndf_alpha, ndf_ggx_c), tabulated (sampler ndf_brdf_table).
         #[arg(long, default_value = "blinn-phong")]
         brdf: String,
-        /// Sampling: auto (the bake's natural mode), hardware, or manual.
+        /// ggx: multiply by the g factor (Smith masking, Schlick Fresnel; uniform ndf_f0).
+        #[arg(long)]
+        ggx_g: bool,
+        /// Sampling: auto (the bake's natural mode), hardware, manual, or anisotropic.
         #[arg(long, default_value = "auto")]
         sampling: String,
+        /// anisotropic sampling: the most probes, 2 to 16.
+        #[arg(long, default_value_t = 16)]
+        max_anisotropy: u32,
+        /// vmf: the lobes' diffuse term, mean-vector (max(ω_i·αr, 0), the default) or
+        /// algorithm2 (α max(ω_i·μ, 0)).
+        #[arg(long, default_value = "mean-vector")]
+        vmf_diffuse: String,
         /// The texture addressing of the bake: wrap or clamp.
         #[arg(long, default_value = "wrap")]
         addressing: String,
@@ -162,13 +185,16 @@ enum Command {
     Eval {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
         input: PathBuf,
-        /// Methods to compare, comma-separated.
+        /// Methods to compare, comma-separated (plain, toksvig, lean, olano, tan2005, vmf, sh).
         #[arg(
             long,
             default_value = "plain,toksvig,lean,olano,vmf",
             value_delimiter = ','
         )]
         methods: Vec<String>,
+        /// SH band limits l* to compare, comma-separated (0 to 16).
+        #[arg(long, default_value = "2,4,8", value_delimiter = ',')]
+        lmax: Vec<usize>,
         /// vMF lobe counts to compare, comma-separated.
         #[arg(long, default_value = "6", value_delimiter = ',')]
         lobes: Vec<usize>,
@@ -194,6 +220,29 @@ enum Command {
         /// lobes are shaded with eq 21, σ'² = σ² + 1/(2κ)).
         #[arg(long, value_delimiter = ',')]
         sigma: Vec<f64>,
+        /// BRDFs, comma-separated: lambert, blinn-phong (each -s), torrance-sparrow (each
+        /// --sigma, default 0.1), ggx (each --alpha, default 0.1), or a tabulated BRDF file
+        /// (JSON). Without it: Blinn-Phong for each -s, eq 18 for each --sigma, GGX for each
+        /// --alpha.
+        #[arg(long, value_delimiter = ',')]
+        brdf: Vec<String>,
+        /// GGX roughness values α, comma-separated.
+        #[arg(long, value_delimiter = ',')]
+        alpha: Vec<f64>,
+        /// GGX: multiply by the g factor (Smith masking, Schlick Fresnel F0 = 0.04).
+        #[arg(long)]
+        ggx_g: bool,
+        /// GGX widening constants c (α'² = α² + c/κ) to compare, comma-separated (default: the
+        /// library's choice).
+        #[arg(long, value_delimiter = ',')]
+        ggx_c: Vec<f64>,
+        /// vMF diffuse term: mean-vector (default) or algorithm2.
+        #[arg(long, default_value = "mean-vector")]
+        vmf_diffuse: String,
+        /// Measure levels from this one on (finer ones are reported as 0; the overall error is
+        /// over levels 1 and coarser either way, and level 0 is three quarters of the work).
+        #[arg(long, default_value_t = 0)]
+        first_level: usize,
         /// Storage formats to measure, comma-separated (f32, f16, unorm16, unorm8): each bake
         /// is rounded through the format before shading, so the format's own error shows.
         #[arg(long, default_value = "f32", value_delimiter = ',')]
@@ -234,6 +283,47 @@ struct IngestArgs {
     /// before it starts. Default: half the machine's memory.
     #[arg(long)]
     memory: Option<String>,
+}
+
+/// The BRDF of `bake` (it picks SH's band limit when --lmax is not given).
+#[derive(Args)]
+struct BrdfArgs {
+    /// The BRDF the bake is meant for: lambert, blinn-phong, torrance-sparrow, ggx, or a
+    /// tabulated BRDF file (JSON).
+    #[arg(long, default_value = "lambert")]
+    brdf: String,
+    /// Blinn-Phong exponent.
+    #[arg(short, long = "exponent", default_value_t = 64.0)]
+    s: f64,
+    /// Torrance–Sparrow roughness σ (eq 18).
+    #[arg(long, default_value_t = 0.1)]
+    sigma: f64,
+    /// GGX roughness α.
+    #[arg(long, default_value_t = 0.1)]
+    alpha: f64,
+}
+
+/// One BRDF from its name or file: `lambert`, `blinn-phong` (exponent `s`),
+/// `torrance-sparrow` (`sigma`), `ggx` (`alpha`), or the path of a tabulated BRDF (JSON).
+fn parse_brdf(name: &str, s: f64, sigma: f64, alpha: f64) -> Result<Brdf> {
+    let b = match name.trim() {
+        "lambert" => Brdf::Lambert,
+        "blinn-phong" => Brdf::BlinnPhong { s },
+        "torrance-sparrow" => Brdf::TorranceSparrow { sigma },
+        "ggx" => Brdf::ggx(alpha),
+        path => {
+            let p = Path::new(path);
+            if !p.exists() {
+                return Err(Error::InvalidOption(format!(
+                    "--brdf '{path}' (expected lambert, blinn-phong, torrance-sparrow, ggx or a \
+                     tabulated BRDF file)"
+                )));
+            }
+            Brdf::Tabulated(std::sync::Arc::new(ndfmap::brdf::Tabulated::load(p)?))
+        }
+    };
+    b.validate()?;
+    Ok(b)
 }
 
 /// Parses a lower-case option value into one of the library's serde enums.
@@ -301,6 +391,59 @@ fn check_exponents(s: &[f64]) -> Result<()> {
     }
 }
 
+/// The BRDFs `eval` measures (see its `--brdf`): each model of `names` with each of its
+/// parameters, or without `names` Blinn-Phong for each `s`, eq 18 for each `sigma` and GGX for
+/// each `alpha`; GGX once per widening constant of `ggx_c` (the library's when empty).
+fn eval_brdfs(
+    names: &[String],
+    s: &[f64],
+    sigma: &[f64],
+    alpha: &[f64],
+    ggx_g: bool,
+    ggx_c: &[f64],
+) -> Result<Vec<Brdf>> {
+    let or = |v: &[f64], d: f64| if v.is_empty() { vec![d] } else { v.to_vec() };
+    let mut out = Vec::new();
+    let ggx = |alphas: &[f64], out: &mut Vec<Brdf>| {
+        let cs = or(ggx_c, ndfmap::brdf::GGX_WIDENING_C);
+        for &a in alphas {
+            for &c in &cs {
+                out.push(Brdf::Ggx(ndfmap::brdf::Ggx {
+                    g: ggx_g,
+                    widening: c,
+                    ..ndfmap::brdf::Ggx::new(a)
+                }));
+            }
+        }
+    };
+    if names.is_empty() {
+        out.extend(s.iter().map(|&s| Brdf::BlinnPhong { s }));
+        out.extend(sigma.iter().map(|&sigma| Brdf::TorranceSparrow { sigma }));
+        ggx(alpha, &mut out);
+    } else {
+        for name in names {
+            match name.trim() {
+                "lambert" => out.push(Brdf::Lambert),
+                "blinn-phong" => out.extend(s.iter().map(|&s| Brdf::BlinnPhong { s })),
+                "torrance-sparrow" => out.extend(
+                    or(sigma, 0.1)
+                        .into_iter()
+                        .map(|sigma| Brdf::TorranceSparrow { sigma }),
+                ),
+                "ggx" => ggx(&or(alpha, 0.1), &mut out),
+                file => out.push(parse_brdf(file, 1.0, 1.0, 1.0)?),
+            }
+        }
+    }
+    for b in &out {
+        b.validate()?;
+    }
+    if out.is_empty() {
+        return Err(Error::InvalidOption("no BRDF to measure".into()));
+    }
+    Ok(out)
+}
+
 fn print_info(map: &NormalMap) {
     let s = map.stats();
     println!(
@@ -350,7 +493,8 @@ fn parse_align(values: &[String]) -> Result<Vec<Option<f64>>> {
         .collect()
 }
 
-/// The mixture variants to bake: every combination of lobe count, alignment and fitting mode.
+/// The mixture variants to bake: every combination of lobe count, alignment and fitting mode;
+/// and SH's band limits.
 struct MixtureGrid {
     lobes: Vec<usize>,
     align: Vec<Option<f64>>,
@@ -359,6 +503,8 @@ struct MixtureGrid {
     modes: Vec<FitMode>,
     /// The memory budget of every bake (`--memory`).
     memory_limit: Option<u64>,
+    /// SH band limits.
+    lmax: Vec<usize>,
 }
 
 impl MixtureGrid {
@@ -373,6 +519,7 @@ impl MixtureGrid {
             align_form: form.parse()?,
             modes,
             memory_limit: None,
+            lmax: vec![BakeOptions::default().lmax],
         })
     }
 
@@ -412,6 +559,16 @@ fn bake_all(
         if matches!(m, Method::Vmf | Method::Tan2005) {
             for o in mixtures.options(m) {
                 jobs.push((m, o));
+            }
+        } else if m == Method::Sh {
+            for &lmax in &mixtures.lmax {
+                jobs.push((
+                    m,
+                    BakeOptions {
+                        lmax,
+                        ..BakeOptions::default()
+                    },
+                ));
             }
         } else {
             jobs.push((
@@ -453,6 +610,8 @@ fn run(cli: Cli) -> Result<()> {
             align,
             align_form,
             mode,
+            lmax,
+            brdf,
             format,
             ingest,
         } => {
@@ -460,12 +619,30 @@ fn run(cli: Cli) -> Result<()> {
             // method, the input's header and the bake's memory estimate, then the decoding.
             let method: Method = method.parse()?;
             let format: Format = format.parse()?;
+            let lmax = match (method, lmax) {
+                (_, Some(l)) => l,
+                (Method::Sh, None) => {
+                    let b = parse_brdf(&brdf.brdf, brdf.s, brdf.sigma, brdf.alpha)?;
+                    let l = b.suggested_lmax();
+                    eprintln!(
+                        "no --lmax: l* = {l} chosen for {b} ({})",
+                        if b.has_specular() {
+                            "about √(4s) of the equivalent Blinn-Phong exponent, Sec 5.1"
+                        } else {
+                            "Lambert: nine coefficients, Ramamoorthi & Hanrahan"
+                        }
+                    );
+                    l
+                }
+                (_, None) => BakeOptions::default().lmax,
+            };
             let options = BakeOptions {
                 lobes,
                 align,
                 align_form: align_form.parse()?,
                 mode: mode.parse()?,
                 memory_limit: ingest.memory_limit()?,
+                lmax,
                 ..BakeOptions::default()
             };
             let color = ingest.feature.is_some();
@@ -499,8 +676,15 @@ fn run(cli: Cli) -> Result<()> {
             align,
             align_form,
             modes,
+            lmax,
             s,
             sigma,
+            brdf,
+            alpha,
+            ggx_g,
+            ggx_c,
+            vmf_diffuse,
+            first_level,
             formats,
             json,
             ingest,
@@ -508,12 +692,17 @@ fn run(cli: Cli) -> Result<()> {
             // Everything is checked before any work.
             let mut mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
             mixtures.memory_limit = ingest.memory_limit()?;
+            mixtures.lmax = lmax;
             check_exponents(&s)?;
             if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
                 return Err(Error::InvalidOption(format!(
                     "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
                 )));
             }
+            let shading = ndfmap::shade::ShadeOptions {
+                vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
+            };
+            let brdfs = eval_brdfs(&brdf, &s, &sigma, &alpha, ggx_g, &ggx_c)?;
             let methods = parse_methods(&methods)?;
             let formats = formats
                 .iter()
@@ -537,12 +726,14 @@ fn run(cli: Cli) -> Result<()> {
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
-            let brdfs: Vec<Brdf> = s
-                .iter()
-                .map(|&s| Brdf::BlinnPhong { s })
-                .chain(sigma.iter().map(|&sigma| Brdf::TorranceSparrow { sigma }))
-                .collect();
-            let errors = evaluate(&map, &refs, &brdfs, &default_directions());
+            let errors = evaluate_with(
+                &map,
+                &refs,
+                &brdfs,
+                &default_directions(),
+                first_level,
+                &shading,
+            );
             // How well lobe j lines up across neighbouring texels (Sec 7.3), per vMF bake.
             let coherence: Vec<(String, Vec<Option<f64>>)> = bakes
                 .iter()
@@ -585,11 +776,15 @@ fn run(cli: Cli) -> Result<()> {
         Command::Shader {
             method,
             lobes,
+            lmax,
             aligned,
             format,
             color,
             brdf,
+            ggx_g,
             sampling,
+            max_anisotropy,
+            vmf_diffuse,
             addressing,
             stage,
             probe,
@@ -603,6 +798,13 @@ fn run(cli: Cli) -> Result<()> {
                 )));
             }
             let lobes = if mixture { lobes } else { 0 };
+            if method == Method::Sh && lmax > ndfmap::sh::MAX_LMAX {
+                return Err(Error::InvalidOption(format!(
+                    "--lmax {lmax} (expected 0 to {})",
+                    ndfmap::sh::MAX_LMAX
+                )));
+            }
+            let size = if method == Method::Sh { lmax } else { lobes };
             let pick = |what: &str, value: &str, names: &[&str]| -> Result<usize> {
                 names.iter().position(|n| *n == value).ok_or_else(|| {
                     Error::InvalidOption(format!(
@@ -614,19 +816,40 @@ fn run(cli: Cli) -> Result<()> {
             let spec = ndfmap::glsl::ShaderSpec {
                 method,
                 lobes,
-                ranges: ndfmap::methods::texture_ranges(method, lobes, color && mixture),
+                ranges: ndfmap::methods::texture_ranges(method, size, color && mixture),
                 format: format.parse()?,
                 aligned,
                 addressing: [Addressing::Wrap, Addressing::Clamp]
                     [pick("addressing", &addressing, &["wrap", "clamp"])?],
+                lmax: if method == Method::Sh { lmax } else { 0 },
             };
+            let brdfs = [
+                ShaderBrdf::BlinnPhong,
+                ShaderBrdf::TorranceSparrow,
+                ShaderBrdf::Lambert,
+                ShaderBrdf::Ggx { g: ggx_g },
+                ShaderBrdf::Tabulated,
+            ];
+            let brdf_names = [
+                "blinn-phong",
+                "torrance-sparrow",
+                "lambert",
+                "ggx",
+                "tabulated",
+            ];
+            let samplings = [
+                Sampling::Auto,
+                Sampling::Hardware,
+                Sampling::Manual,
+                Sampling::Anisotropic(max_anisotropy),
+            ];
+            let sampling_names = ["auto", "hardware", "manual", "anisotropic"];
             let options = ndfmap::glsl::ShaderOptions {
-                brdf: [ShaderBrdf::BlinnPhong, ShaderBrdf::TorranceSparrow]
-                    [pick("brdf", &brdf, &["blinn-phong", "torrance-sparrow"])?],
-                sampling: [Sampling::Auto, Sampling::Hardware, Sampling::Manual]
-                    [pick("sampling", &sampling, &["auto", "hardware", "manual"])?],
+                brdf: brdfs[pick("brdf", &brdf, &brdf_names)?],
+                sampling: samplings[pick("sampling", &sampling, &sampling_names)?],
                 color,
                 probe,
+                vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
             };
             let stage =
                 [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];
@@ -638,6 +861,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench {
             sizes,
             lobes,
+            lmax,
             align,
             modes,
             json,
@@ -646,7 +870,8 @@ fn run(cli: Cli) -> Result<()> {
             samples,
             levels,
         } => {
-            let grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
+            let mut grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
+            grid.lmax = lmax;
             if quality {
                 bench_quality(&sizes, &maps, &grid, samples, &levels, json)?
             } else {
@@ -700,6 +925,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         align_form: AlignmentForm::default(),
         modes: vec![FitMode::default()],
         memory_limit: None,
+        lmax: vec![BakeOptions::default().lmax],
     };
     let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
     for b in &bakes {
@@ -751,7 +977,7 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>10} {:>8} {:>12} {:>14}",
+            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>10} {:>8} {:>12} {:>14} {:>10}",
             "size",
             "method",
             "lobes",
@@ -760,7 +986,8 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             "seconds",
             "CPU s",
             "peak MiB",
-            "estimate MiB"
+            "estimate MiB",
+            "f32 MiB"
         );
     }
     for &size in sizes {
@@ -772,6 +999,15 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
         let sample = ndfmap::procedural::generate(size, 2007);
         let map = sample.map.with_feature(sample.albedo)?;
         let mut jobs = vec![(Method::Toksvig, BakeOptions::default())];
+        for &l in &grid.lmax {
+            jobs.push((
+                Method::Sh,
+                BakeOptions {
+                    lmax: l,
+                    ..BakeOptions::default()
+                },
+            ));
+        }
         jobs.extend(
             grid.options(Method::Vmf)
                 .into_iter()
@@ -786,33 +1022,38 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             let seconds = t.elapsed().as_secs_f64();
             let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
             let peak = peak_memory();
+            let texture_bytes: u64 = (0..b.textures.len())
+                .flat_map(|_| 0..b.level_count())
+                .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
+                .sum();
             drop(b);
             // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
             let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
-            let lobes = if method == Method::Vmf {
-                options.lobes
-            } else {
-                0
+            let lobes = match method {
+                Method::Vmf => options.lobes,
+                Method::Sh => options.lmax,
+                _ => 0,
             };
             let row = serde_json::json!({
                 "size": size, "method": method, "lobes": lobes,
                 "align": options.align, "mode": options.mode, "seconds": seconds,
                 "cpu_seconds": cpu,
                 "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
-                "threads": threads,
+                "threads": threads, "texture_bytes_f32": texture_bytes,
             });
             if !json {
                 let mib = |b: Option<u64>| {
                     b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
                 };
                 println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12} {:>14}",
+                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12} {:>14} {:>10.1}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
                     options.mode.name(),
                     cpu.map_or("?".into(), |c| format!("{c:.2}")),
                     mib(peak),
-                    mib(Some(estimate))
+                    mib(Some(estimate)),
+                    texture_bytes as f64 / 1048576.0
                 );
             }
             rows.push(row);
@@ -953,6 +1194,23 @@ struct ReportArgs {
     /// Blinn-Phong exponent of the material.
     #[arg(short, long = "exponent", default_value_t = 128.0)]
     s: f64,
+    /// The material's specular BRDF instead of Blinn-Phong -s: lambert, torrance-sparrow
+    /// (--sigma), ggx (--alpha), or a tabulated BRDF file (JSON).
+    #[arg(long)]
+    brdf: Option<String>,
+    /// Torrance–Sparrow roughness σ of --brdf torrance-sparrow.
+    #[arg(long, default_value_t = 0.1)]
+    sigma: f64,
+    /// GGX roughness α of --brdf ggx.
+    #[arg(long, default_value_t = 0.1)]
+    alpha: f64,
+    /// SH band limits l*, comma-separated (one row each; empty: none).
+    #[arg(long, default_value = "2,4,6,8", value_delimiter = ',')]
+    sh_lmax: Vec<String>,
+    /// Also measure anisotropic filtering with up to this many probes (its floor per view, and
+    /// the configurations that filter linearly under it); 0: off.
+    #[arg(long, default_value_t = 0)]
+    anisotropy: u32,
     /// Images to write: none, some (ground truth and a few methods), all.
     #[arg(long, default_value = "some")]
     images: String,
@@ -1119,6 +1377,29 @@ fn report(a: ReportArgs) -> Result<()> {
         )));
     }
     check_exponents(&[a.s])?;
+    let brdf = a
+        .brdf
+        .as_deref()
+        .map(|b| parse_brdf(b, a.s, a.sigma, a.alpha))
+        .transpose()?;
+    let sh_lmax: Vec<usize> = a
+        .sh_lmax
+        .iter()
+        .map(|s| s.trim())
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse()
+                .ok()
+                .filter(|l| *l <= ndfmap::sh::MAX_LMAX)
+                .ok_or_else(|| Error::InvalidOption(format!("--sh-lmax {s} (expected 0 to 16)")))
+        })
+        .collect::<Result<_>>()?;
+    if a.anisotropy == 1 || a.anisotropy > 16 {
+        return Err(Error::InvalidOption(format!(
+            "--anisotropy {} (expected 0, or 2 to 16)",
+            a.anisotropy
+        )));
+    }
     let given_frame_times = load_frame_times(&a)?;
     let options = ReportOptions {
         image_size: a.size,
@@ -1131,6 +1412,9 @@ fn report(a: ReportArgs) -> Result<()> {
         formats: formats(&a.formats)?,
         image_formats: formats(&a.image_formats)?,
         images: choice::<ImageSet>("images", &a.images, "none, some, all")?,
+        brdf,
+        sh_lmax,
+        anisotropy: a.anisotropy,
         ..ReportOptions::default()
     };
     let mut maps = a.maps.clone();

@@ -31,9 +31,12 @@ pub const NDF_METHOD_TAN2005: ndf_method = 4;
 /// The paper's von Mises–Fisher lobes (Han et al. 2007, Sec 7): textures `lobe0` ... holding
 /// `(α, α·r)`, then `color0` ... holding `α·y` when the map has a feature image.
 pub const NDF_METHOD_VMF: ndf_method = 5;
+/// The spherical-harmonic NDF (Han et al. 2007, Sec 5): `(l*+1)²` coefficients in
+/// `⌈(l*+1)²/4⌉` textures; any BRDF at shading time (`ndf_material_sh_coefficients`).
+pub const NDF_METHOD_SH: ndf_method = 6;
 
 /// The `NDF_METHOD_*` values, in order: [`Method::ALL`] (a test checks they agree).
-const METHODS: [Method; 6] = Method::ALL;
+const METHODS: [Method; 7] = Method::ALL;
 
 /// A texel storage format for packing and writing: one of the `NDF_FORMAT_*` values. Every
 /// format has four channels (RGBA) per texel, in the host's byte order, rows top to bottom.
@@ -181,6 +184,39 @@ pub struct ndf_tan2005_options {
     pub memory_limit: u64,
 }
 
+/// Options of the spherical-harmonic bake (`NDF_METHOD_SH`). Initialize with
+/// `ndf_sh_options_default()`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct ndf_sh_options {
+    /// `sizeof(ndf_sh_options)`, set by `ndf_sh_options_default()`.
+    pub struct_size: usize,
+    /// Band limit l*, 0 to 16. Default 4 (25 coefficients in 7 textures). Lambert needs 2;
+    /// Blinn-Phong about `√(4s)` (`ndf_material_suggested_lmax`). A GLSL shader samples at most 32
+    /// textures: l* ≤ 10.
+    pub lmax: u32,
+    /// Progress callback, or NULL (default) for none.
+    pub progress: ndf_progress_fn,
+    /// Passed to `progress` unchanged. Default NULL.
+    pub progress_user_data: *mut c_void,
+    /// Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+    /// machine's memory.
+    pub memory_limit: u64,
+}
+
+/// The default SH options: l* = 4, no progress callback, the default memory budget.
+#[unsafe(no_mangle)]
+pub extern "C" fn ndf_sh_options_default() -> ndf_sh_options {
+    let o = ndf_sh_options {
+        struct_size: size_of::<ndf_sh_options>(),
+        lmax: BakeOptions::default().lmax as u32,
+        progress: None,
+        progress_user_data: std::ptr::null_mut(),
+        memory_limit: 0,
+    };
+    guard_value(o, || o)
+}
+
 /// The default baseline options: no progress callback.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_baseline_options_default() -> ndf_baseline_options {
@@ -235,7 +271,8 @@ pub extern "C" fn ndf_tan2005_options_default() -> ndf_tan2005_options {
 }
 
 /// A baked set of filtered textures (opaque): per texture an RGBA MIP chain, finest level
-/// first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf` or `ndf_bake_tan2005`;
+/// first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf`, `ndf_bake_tan2005` or
+/// `ndf_bake_sh`;
 /// released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
 /// and write it at once.
 pub struct ndf_bake {
@@ -361,11 +398,50 @@ pub unsafe extern "C" fn ndf_bake_vmf(
                 ..EmOptions::default()
             },
             memory_limit: super::memory_limit(o.memory_limit),
+            ..BakeOptions::default()
         };
         unsafe {
             run(
                 map,
                 Method::Vmf,
+                &bake_options,
+                o.progress,
+                o.progress_user_data,
+                out,
+            )
+        }
+    })
+}
+
+/// Bakes the spherical-harmonic NDF of `map` (Sec 5): per texel the coefficients
+/// `sqrt(4π/(2l+1))·γ_lm` for l ≤ l*, each in [−1, 1], four per texture in (l, m) order (the
+/// bake's channel names say which: `c<l>,<m>`).
+/// - `options`: from `ndf_sh_options_default()`; `lmax` above 16 gives
+///   `NDF_STATUS_INVALID_ARGUMENT`.
+/// - `bake_out`, cancellation: as for `ndf_bake_vmf`.
+///
+/// # Safety
+/// As for `ndf_bake_baseline`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_sh(
+    map: *const ndf_normal_map,
+    options: *const ndf_sh_options,
+    bake_out: *mut *mut ndf_bake,
+) -> ndf_status {
+    guard("ndf_bake_sh", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let map = unsafe { arg(map, "map") }?;
+        let o = unsafe { read_options(options, "options", "ndf_sh_options_default") }?;
+        let out = Out::new(bake_out, "bake_out")?;
+        let bake_options = BakeOptions {
+            lmax: o.lmax as usize,
+            memory_limit: super::memory_limit(o.memory_limit),
+            ..BakeOptions::default()
+        };
+        unsafe {
+            run(
+                map,
+                Method::Sh,
                 &bake_options,
                 o.progress,
                 o.progress_user_data,
@@ -404,6 +480,7 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
                 ..EmOptions::default()
             },
             memory_limit: super::memory_limit(o.memory_limit),
+            ..BakeOptions::default()
         };
         unsafe {
             run(

@@ -1,7 +1,8 @@
 //! The C ABI: what `include/ndfmap.h` declares (generated from these files by cbindgen, see
 //! `tests/header.rs`). C and C++ engines load a normal map ([`map`]), bake it with one of the
-//! methods and pack, query or write the result ([`bake`]), and get the GLSL source that reads
-//! it ([`shader`]). This file holds what every entry point shares: [`ndf_status`], the
+//! methods and pack, query or write the result ([`bake`]), get the GLSL source that reads it
+//! ([`shader`]), and describe the material it is shaded with ([`brdf`]: SH coefficients,
+//! tabulated BRDF tables). This file holds what every entry point shares: [`ndf_status`], the
 //! thread-local error message, the panic guard, argument checks and the version.
 //!
 //! Conventions (DESIGN.md "C API conventions"):
@@ -24,6 +25,8 @@ pub mod map;
 pub mod bake;
 
 pub mod shader;
+
+pub mod brdf;
 #[cfg(test)]
 mod tests;
 
@@ -216,7 +219,7 @@ impl From<Error> for Failure {
             Error::ShortBuffer { .. } => ndf_status::ShortPixels,
             Error::FeatureSize { .. } => ndf_status::FeatureSize,
             Error::BadNormals { .. } => ndf_status::BadNormals,
-            Error::InvalidOption(_) => ndf_status::InvalidArgument,
+            Error::InvalidOption(_) | Error::Brdf { .. } => ndf_status::InvalidArgument,
             Error::Write { .. } => ndf_status::Write,
             Error::Cancelled => ndf_status::Cancelled,
             Error::MemoryBudget { .. } => ndf_status::MemoryBudget,

@@ -4,6 +4,7 @@
 use super::bake::{FORMATS, ndf_bake, ndf_format};
 use super::{Out, Outcome, arg, choose, fail, guard, guard_value, ndf_status, read_options};
 use crate::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage};
+use crate::shade::VmfDiffuse;
 use std::ffi::c_char;
 
 /// A shader stage: one of the `NDF_SHADER_STAGE_*` values.
@@ -21,6 +22,18 @@ pub const NDF_SAMPLING_AUTO: ndf_sampling = 0;
 pub const NDF_SAMPLING_HARDWARE: ndf_sampling = 1;
 /// Shade the 8 texels of the two nearest levels and blend (unaligned lobes, Sec 7.3).
 pub const NDF_SAMPLING_MANUAL: ndf_sampling = 2;
+/// The anisotropic footprint (`GL_EXT_texture_filter_anisotropic`'s reference rule, done in
+/// the shader): up to `max_anisotropy` trilinear probes along the pixel's major axis,
+/// averaged, then shading. For bakes whose parameters filter linearly (SH, aligned lobes, the
+/// baselines).
+pub const NDF_SAMPLING_ANISOTROPIC: ndf_sampling = 3;
+
+/// The vMF lobes' diffuse term: one of the `NDF_VMF_DIFFUSE_*` values.
+pub type ndf_vmf_diffuse = u32;
+/// `max(ω_i·αr, 0)` per lobe (the mean normal of the lobe; lower Lambert error). Default.
+pub const NDF_VMF_DIFFUSE_MEAN_VECTOR: ndf_vmf_diffuse = 0;
+/// Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
+pub const NDF_VMF_DIFFUSE_ALGORITHM2: ndf_vmf_diffuse = 1;
 
 /// The specular BRDF a shader evaluates: one of the `NDF_BRDF_*` values.
 pub type ndf_brdf = u32;
@@ -28,6 +41,14 @@ pub type ndf_brdf = u32;
 pub const NDF_BRDF_BLINN_PHONG: ndf_brdf = 0;
 /// The Torrance–Sparrow-like Gaussian of eq 18, roughness in uniform `ndf_sigma` (eq 21).
 pub const NDF_BRDF_TORRANCE_SPARROW: ndf_brdf = 1;
+/// No specular lobe: the Lambert term alone (the specular output is 0).
+pub const NDF_BRDF_LAMBERT: ndf_brdf = 2;
+/// GGX / Trowbridge–Reitz, uniforms `ndf_alpha` and `ndf_ggx_c` (and `ndf_f0` with the g
+/// factor: Smith's masking and Schlick's Fresnel).
+pub const NDF_BRDF_GGX: ndf_brdf = 3;
+/// A tabulated `f(θ_h)·g(θ_d)`: sampler `ndf_brdf_table`, an R32F texture of
+/// `ndf_material_table()`.
+pub const NDF_BRDF_TABULATED: ndf_brdf = 4;
 
 /// Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
 #[repr(C)]
@@ -37,8 +58,16 @@ pub struct ndf_shader_options {
     pub struct_size: usize,
     /// The specular BRDF, `NDF_BRDF_*`. Default `NDF_BRDF_BLINN_PHONG`.
     pub brdf: ndf_brdf,
-    /// Hardware or manual filtering, `NDF_SAMPLING_*`. Default `NDF_SAMPLING_AUTO`.
+    /// `NDF_BRDF_GGX` only: nonzero multiplies by the g factor (Smith, Schlick). Default 0.
+    pub ggx_g: u32,
+    /// Hardware, manual or anisotropic filtering, `NDF_SAMPLING_*`. Default
+    /// `NDF_SAMPLING_AUTO`.
     pub sampling: ndf_sampling,
+    /// `NDF_SAMPLING_ANISOTROPIC` only: the most probes, 2 to 16. Default 16.
+    pub max_anisotropy: u32,
+    /// vMF bakes: the lobes' diffuse term, `NDF_VMF_DIFFUSE_*`. Default
+    /// `NDF_VMF_DIFFUSE_MEAN_VECTOR`.
+    pub vmf_diffuse: ndf_vmf_diffuse,
     /// The format the textures are uploaded in (`NDF_FORMAT_*`, as given to `ndf_bake_pack`):
     /// decides the unorm decoding and the vMF |r| clamp. Default `NDF_FORMAT_RGBA_F32`.
     pub format: ndf_format,
@@ -50,14 +79,17 @@ pub struct ndf_shader_options {
     pub probe: u32,
 }
 
-/// The default shader options: Blinn-Phong, automatic sampling, f32 textures, no colour, the
-/// mesh variant.
+/// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
+/// textures, no colour, the mean-vector vMF diffuse term, the mesh variant.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
     let o = ndf_shader_options {
         struct_size: size_of::<ndf_shader_options>(),
         brdf: NDF_BRDF_BLINN_PHONG,
+        ggx_g: 0,
         sampling: NDF_SAMPLING_AUTO,
+        max_anisotropy: 16,
+        vmf_diffuse: NDF_VMF_DIFFUSE_MEAN_VECTOR,
         format: super::bake::NDF_FORMAT_RGBA_F32,
         color: 0,
         probe: 0,
@@ -79,13 +111,26 @@ unsafe fn shader(
     let b = unsafe { arg(bake, "bake") }?;
     let o = unsafe { read_options(options, "options", "ndf_shader_options_default") }?;
     let stage = choose("stage", stage, &[Stage::Vertex, Stage::Fragment])?;
-    let sampling = [Sampling::Auto, Sampling::Hardware, Sampling::Manual];
-    let brdf = [ShaderBrdf::BlinnPhong, ShaderBrdf::TorranceSparrow];
+    let sampling = [
+        Sampling::Auto,
+        Sampling::Hardware,
+        Sampling::Manual,
+        Sampling::Anisotropic(o.max_anisotropy),
+    ];
+    let brdf = [
+        ShaderBrdf::BlinnPhong,
+        ShaderBrdf::TorranceSparrow,
+        ShaderBrdf::Lambert,
+        ShaderBrdf::Ggx { g: o.ggx_g != 0 },
+        ShaderBrdf::Tabulated,
+    ];
+    let diffuse = [VmfDiffuse::MeanVector, VmfDiffuse::Algorithm2];
     let shader_options = ShaderOptions {
         brdf: choose("brdf", o.brdf, &brdf)?,
         sampling: choose("sampling", o.sampling, &sampling)?,
         color: o.color != 0,
         probe: o.probe != 0,
+        vmf_diffuse: choose("vmf_diffuse", o.vmf_diffuse, &diffuse)?,
     };
     let format = choose("format", o.format, &FORMATS)?;
     for t in 0..b.bake.textures.len() {

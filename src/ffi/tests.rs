@@ -15,6 +15,7 @@ pub(super) fn maybe_inject_panic() {
 }
 
 use super::bake::*;
+use super::brdf::*;
 use super::map::*;
 use super::shader::*;
 use super::*;
@@ -125,6 +126,13 @@ fn c_bake(map: *const ndf_normal_map, method: ndf_method) -> *mut ndf_bake {
                 };
                 ndf_bake_tan2005(map, &o, &mut bake)
             }
+            NDF_METHOD_SH => {
+                let o = ndf_sh_options {
+                    lmax: 3,
+                    ..ndf_sh_options_default()
+                };
+                ndf_bake_sh(map, &o, &mut bake)
+            }
             m => ndf_bake_baseline(map, m, &ndf_baseline_options_default(), &mut bake),
         }
     };
@@ -163,6 +171,7 @@ fn enumeration_values_name_the_rust_variants() {
         (NDF_METHOD_OLANO, Method::Olano),
         (NDF_METHOD_TAN2005, Method::Tan2005),
         (NDF_METHOD_VMF, Method::Vmf),
+        (NDF_METHOD_SH, Method::Sh),
     ] {
         let bake = c_bake(map, value);
         let mut got = u32::MAX;
@@ -639,7 +648,8 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
         check!(ndf_bake_baseline(null(), 0, &base, &mut out) => NullArgument, "map");
         check!(ndf_bake_baseline(map, 0, null(), &mut out) => NullArgument, "options");
         check!(ndf_bake_baseline(map, 0, &base, null_mut()) => NullArgument, "bake_out");
-        check!(ndf_bake_baseline(map, 6, &base, &mut out) => InvalidArgument, "unknown method value 6");
+        check!(ndf_bake_baseline(map, 7, &base, &mut out) => InvalidArgument, "unknown method value 7");
+        check!(ndf_bake_baseline(map, NDF_METHOD_SH, &base, &mut out) => InvalidArgument, "use ndf_bake_sh");
         check!(ndf_bake_baseline(map, NDF_METHOD_VMF, &base, &mut out) => InvalidArgument, "use ndf_bake_vmf");
         // Cancelled at the first report, and half-way.
         for stop_after in [0, 3] {
@@ -892,6 +902,7 @@ type Call<'a> = (&'static str, Box<dyn Fn() -> ndf_status + 'a>);
 fn every_entry_point<'a>(
     map: *mut ndf_normal_map,
     bake: *mut ndf_bake,
+    mat: *mut ndf_material,
     px: &'a [u8],
     png: &'a [u8],
     dir: &'a CStr,
@@ -908,6 +919,8 @@ fn every_entry_point<'a>(
         ..ndf_tan2005_options_default()
     };
     let so = ndf_shader_options_default();
+    let sh = ndf_sh_options_default();
+    let mo = ndf_material_options_default();
     let (pxp, pngp) = (px.as_ptr().cast::<c_void>(), png.as_ptr().cast::<c_void>());
     let name = c"n.png".as_ptr();
     let missing = c"/no/such/file.png".as_ptr();
@@ -987,6 +1000,40 @@ fn every_entry_point<'a>(
             Box::new(move || unsafe { made(|b| ndf_bake_tan2005(map, &tan, b), bf) }),
         ),
         (
+            "ndf_bake_sh",
+            Box::new(move || unsafe { made(|b| ndf_bake_sh(map, &sh, b), bf) }),
+        ),
+        (
+            "ndf_material_new",
+            Box::new(move || unsafe { made(|m| ndf_material_new(&mo, m), ndf_material_free) }),
+        ),
+        (
+            "ndf_material_sh_coefficients",
+            Box::new(move || unsafe {
+                let mut out = [0.0; 5];
+                ndf_material_sh_coefficients(mat, 4, out.as_mut_ptr(), out.len())
+            }),
+        ),
+        (
+            "ndf_material_suggested_lmax",
+            Box::new(move || unsafe { ndf_material_suggested_lmax(mat, &mut 0) }),
+        ),
+        (
+            "ndf_material_lobe_peak",
+            Box::new(move || unsafe { ndf_material_lobe_peak(mat, &mut 0.0) }),
+        ),
+        (
+            "ndf_material_table_size",
+            Box::new(move || unsafe { ndf_material_table_size(mat, &mut 0, &mut 0) }),
+        ),
+        (
+            "ndf_material_table",
+            Box::new(move || unsafe {
+                let mut out = vec![0.0f32; 1 << 15];
+                ndf_material_table(mat, out.as_mut_ptr(), out.len())
+            }),
+        ),
+        (
             "ndf_bake_method",
             Box::new(move || unsafe { ndf_bake_method(bake, &mut 0) }),
         ),
@@ -1051,7 +1098,18 @@ fn a_panic_inside_any_entry_point_is_a_status_not_an_unwind() {
     let png = png();
     let tmp = tempfile::tempdir().unwrap();
     let dir = CString::new(tmp.path().join("out").to_str().unwrap()).unwrap();
-    for (name, call) in every_entry_point(map, bake, &px, &png, &dir) {
+    let mut mat = null_mut();
+    let table = ndf_material_options {
+        model: NDF_BRDF_TABULATED,
+        tabulated_json: c"{\"f\": [2.0, 1.0]}".as_ptr(),
+        ..ndf_material_options_default()
+    };
+    // SAFETY: valid options and out-pointer; freed below.
+    assert_eq!(
+        unsafe { ndf_material_new(&table, &mut mat) },
+        ndf_status::Ok
+    );
+    for (name, call) in every_entry_point(map, bake, mat, &px, &png, &dir) {
         INJECT_PANIC.with(|p| p.set(true));
         let status = call();
         expect(
@@ -1088,6 +1146,142 @@ fn a_panic_inside_any_entry_point_is_a_status_not_an_unwind() {
     // SAFETY: live handles, freed once.
     unsafe {
         ndf_bake_free(bake);
+        ndf_normal_map_free(map);
+        ndf_material_free(mat);
+    }
+}
+
+#[test]
+fn sh_bakes_and_materials_through_the_c_api() {
+    let map = c_map();
+    let bake = c_bake(map, NDF_METHOD_SH);
+    // SAFETY: every pointer is NULL or valid for what it claims; handles freed once.
+    unsafe {
+        let want = bake_with(
+            &rust_map(),
+            Method::Sh,
+            &crate::bake::BakeOptions {
+                lmax: 3,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!((*bake).bake, want);
+        let mut n = 0;
+        check!(ndf_bake_texture_count(bake, &mut n) => Ok, "");
+        assert_eq!(n, 4);
+        let mut out = null_mut();
+        let o = ndf_sh_options {
+            lmax: 17,
+            ..ndf_sh_options_default()
+        };
+        check!(ndf_bake_sh(map, &o, &mut out) => InvalidArgument, "band limit 17");
+        assert!(out.is_null());
+        // The SH shader for GGX with the g factor, anisotropic sampling.
+        let so = ndf_shader_options {
+            brdf: NDF_BRDF_GGX,
+            ggx_g: 1,
+            sampling: NDF_SAMPLING_ANISOTROPIC,
+            max_anisotropy: 8,
+            ..ndf_shader_options_default()
+        };
+        let mut size = 0;
+        check!(ndf_bake_shader_source_size(bake, 1, &so, &mut size) => Ok, "");
+        let mut buf = vec![0 as c_char; size];
+        let mut len = 0;
+        check!(ndf_bake_shader_source(bake, 1, &so, buf.as_mut_ptr(), size, &mut len) => Ok, "");
+        let src = CStr::from_ptr(buf.as_ptr()).to_str().unwrap();
+        for d in [
+            "#define NDF_METHOD_SH 1",
+            "#define NDF_SH_LMAX 3",
+            "#define NDF_BRDF_GGX 1",
+            "#define NDF_BRDF_G 1",
+            "#define NDF_ANISO 8",
+        ] {
+            assert!(src.contains(d), "{d}");
+        }
+        let manual = ndf_shader_options {
+            sampling: NDF_SAMPLING_MANUAL,
+            ..ndf_shader_options_default()
+        };
+        check!(ndf_bake_shader_source_size(bake, 1, &manual, &mut size) => InvalidArgument,
+            "filter linearly");
+        ndf_bake_free(bake);
+
+        // Materials: Lambert's coefficients are the closed forms; GGX's are the library's.
+        let mut m = null_mut();
+        let lo = ndf_material_options {
+            model: NDF_BRDF_LAMBERT,
+            ..ndf_material_options_default()
+        };
+        check!(ndf_material_new(&lo, &mut m) => Ok, "");
+        let mut rho = [0.0; 5];
+        check!(ndf_material_sh_coefficients(m, 4, rho.as_mut_ptr(), 5) => Ok, "");
+        let pi = std::f64::consts::PI;
+        for (got, want) in rho
+            .iter()
+            .zip([pi, 2.0 * pi / 3.0, pi / 4.0, 0.0, -pi / 24.0])
+        {
+            assert!((got - want).abs() < 1e-15, "{got} vs {want}");
+        }
+        check!(ndf_material_sh_coefficients(m, 4, rho.as_mut_ptr(), 4) => BufferTooSmall, "4 doubles");
+        let mut l = 0;
+        check!(ndf_material_suggested_lmax(m, &mut l) => Ok, "");
+        assert_eq!(l, 2);
+        check!(ndf_material_table_size(m, &mut 0, &mut 0) => InvalidArgument, "no table");
+        ndf_material_free(m);
+        let mut m = null_mut();
+        check!(ndf_material_new(&ndf_material_options_default(), &mut m) => Ok, "");
+        assert_eq!((*m).brdf, crate::brdf::Brdf::ggx(0.1));
+        check!(ndf_material_sh_coefficients(m, 2, rho.as_mut_ptr(), 5) => Ok, "");
+        let want = crate::brdf::Brdf::ggx(0.1).sh_coefficients(2);
+        assert_eq!(&rho[..3], &want[..]);
+        let mut peak = 0.0;
+        check!(ndf_material_lobe_peak(m, &mut peak) => Ok, "");
+        assert!((peak - 1.0 / (std::f64::consts::PI * 0.01)).abs() < 1e-9);
+        ndf_material_free(m);
+        // A tabulated BRDF from JSON text: its table; bad JSON and parameters are refused.
+        let json = c"{\"name\": \"t\", \"f\": [3.0, 1.0, 0.0], \"g\": [1.0, 0.5]}";
+        let to = ndf_material_options {
+            model: NDF_BRDF_TABULATED,
+            tabulated_json: json.as_ptr(),
+            ..ndf_material_options_default()
+        };
+        let mut m = null_mut();
+        check!(ndf_material_new(&to, &mut m) => Ok, "");
+        let (mut w, mut h) = (0, 0);
+        check!(ndf_material_table_size(m, &mut w, &mut h) => Ok, "");
+        let mut table = vec![0.0f32; (w * h) as usize];
+        check!(ndf_material_table(m, table.as_mut_ptr(), table.len()) => Ok, "");
+        let crate::brdf::Brdf::Tabulated(t) = &(*m).brdf else {
+            panic!("tabulated")
+        };
+        assert_eq!(&table[..], t.table());
+        check!(ndf_material_table(m, table.as_mut_ptr(), 3) => BufferTooSmall, "floats");
+        ndf_material_free(m);
+        let bad = ndf_material_options {
+            tabulated_json: c"{\"f\": [1.0]}".as_ptr(),
+            ..to
+        };
+        let mut m = null_mut();
+        check!(ndf_material_new(&bad, &mut m) => InvalidArgument, "2 to");
+        assert!(m.is_null());
+        let none = ndf_material_options {
+            tabulated_json: null(),
+            ..to
+        };
+        check!(ndf_material_new(&none, &mut m) => NullArgument, "tabulated_json");
+        let nan = ndf_material_options {
+            alpha: f64::NAN,
+            ..ndf_material_options_default()
+        };
+        check!(ndf_material_new(&nan, &mut m) => InvalidArgument, "GGX alpha");
+        let unknown = ndf_material_options {
+            model: 9,
+            ..ndf_material_options_default()
+        };
+        check!(ndf_material_new(&unknown, &mut m) => InvalidArgument, "model");
+        ndf_material_free(null_mut());
         ndf_normal_map_free(map);
     }
 }
@@ -1157,10 +1351,25 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
         check!(ndf_bake_shader_source_size(vmf, 1, &o, null_mut()) => NullArgument, "size_out is NULL");
         check!(ndf_bake_shader_source_size(vmf, 2, &o, &mut n) => InvalidArgument, "unknown stage value 2");
         for (bad, words) in [
-            (ndf_shader_options { brdf: 2, ..o }, "unknown brdf value 2"),
+            (ndf_shader_options { brdf: 5, ..o }, "unknown brdf value 5"),
             (
-                ndf_shader_options { sampling: 3, ..o },
-                "unknown sampling value 3",
+                ndf_shader_options { sampling: 4, ..o },
+                "unknown sampling value 4",
+            ),
+            (
+                ndf_shader_options {
+                    sampling: NDF_SAMPLING_ANISOTROPIC,
+                    max_anisotropy: 17,
+                    ..o
+                },
+                "anisotropic sampling with 17 probes",
+            ),
+            (
+                ndf_shader_options {
+                    vmf_diffuse: 2,
+                    ..o
+                },
+                "unknown vmf_diffuse value 2",
             ),
             (
                 ndf_shader_options { format: 4, ..o },

@@ -21,9 +21,9 @@ use crate::format::Format;
 use crate::ingest::NormalMap;
 use crate::methods::bake_with;
 use crate::render::{
-    Camera, Image, Light, Material, Scene, Surface, ViewGeometry, common_mask, distance_for_lod,
-    exposure, lod_image, mean_radiance, relative_rmse, render_filtered_prepared,
-    render_ground_truth, tonemap,
+    Camera, Footprint, Image, Light, Material, Scene, Surface, ViewGeometry, common_mask,
+    distance_for_lod, exposure, lod_image, mean_radiance, relative_rmse, render_filtered_prepared,
+    render_footprint, render_ground_truth, tonemap,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -90,6 +90,32 @@ pub struct ReportOptions {
     pub directions_step: usize,
     /// Images to write.
     pub images: ImageSet,
+    /// The material's specular BRDF instead of Blinn-Phong `exponent` (GGX, eq 18, Lambert,
+    /// tabulated).
+    #[serde(default)]
+    pub brdf: Option<Brdf>,
+    /// SH band limits l* (one row each).
+    #[serde(default = "default_sh_lmax")]
+    pub sh_lmax: Vec<usize>,
+    /// Anisotropic filtering with at most this many probes ([`crate::sample::aniso_probes`]):
+    /// the floor of its footprint per view, and the image error of the configurations whose
+    /// parameters filter linearly (baselines, SH, aligned vMF) under it, f32. 0: off.
+    #[serde(default)]
+    pub anisotropy: u32,
+}
+
+fn default_sh_lmax() -> Vec<usize> {
+    vec![2, 4, 6, 8]
+}
+
+impl ReportOptions {
+    /// The material's specular BRDF: [`ReportOptions::brdf`], else Blinn-Phong with
+    /// [`ReportOptions::exponent`].
+    pub fn material_brdf(&self) -> Brdf {
+        self.brdf
+            .clone()
+            .unwrap_or(Brdf::BlinnPhong { s: self.exponent })
+    }
 }
 
 impl Default for ReportOptions {
@@ -111,6 +137,9 @@ impl Default for ReportOptions {
             zoom_lods: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
             directions_step: 3,
             images: ImageSet::Some,
+            brdf: None,
+            sh_lmax: default_sh_lmax(),
+            anisotropy: 0,
         }
     }
 }
@@ -128,6 +157,7 @@ impl Config {
     /// The label its bake will have ([`Bake::label`] in f32).
     pub fn label(&self) -> String {
         match self.method {
+            Method::Sh => format!("sh{}", self.options.lmax),
             Method::Vmf | Method::Tan2005 => {
                 let mut l = self.method.name().to_string();
                 if l.ends_with(|c: char| c.is_ascii_digit()) {
@@ -142,10 +172,19 @@ impl Config {
             m => m.name().to_string(),
         }
     }
+
+    /// Whether its parameters filter linearly, so hardware (and anisotropic) filtering is
+    /// exact: the baselines, SH, aligned vMF lobes.
+    pub fn filters_linearly(&self) -> bool {
+        match self.method {
+            Method::Vmf | Method::Tan2005 => self.options.align.is_some(),
+            _ => true,
+        }
+    }
 }
 
-/// The configurations of `options`: the four baselines, Tan 2005 per lobe count, vMF per lobe
-/// count and alignment. (SH joins here when it lands.)
+/// The configurations of `options`: the four baselines, SH per band limit, Tan 2005 per lobe
+/// count, vMF per lobe count and alignment.
 pub fn configs(options: &ReportOptions) -> Vec<Config> {
     let mut out: Vec<Config> = Method::BASELINES
         .iter()
@@ -154,6 +193,15 @@ pub fn configs(options: &ReportOptions) -> Vec<Config> {
             options: BakeOptions::default(),
         })
         .collect();
+    for &lmax in &options.sh_lmax {
+        out.push(Config {
+            method: Method::Sh,
+            options: BakeOptions {
+                lmax,
+                ..BakeOptions::default()
+            },
+        });
+    }
     for &lobes in &options.tan_lobes {
         out.push(Config {
             method: Method::Tan2005,
@@ -190,6 +238,10 @@ pub struct View {
     pub floor: Option<ViewError>,
     /// Whether it counts as a far view (median λ ≥ 3) in the headline numbers.
     pub far: bool,
+    /// The ideal NDF under the anisotropic footprint ([`ReportOptions::anisotropy`]) against
+    /// the ground truth, when measured.
+    #[serde(default)]
+    pub aniso_floor: Option<ViewError>,
 }
 
 /// The report's views of a map of `texels` texels across: the zoom sequence on a plane tilted
@@ -201,9 +253,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
     let material = Material {
         kd: options.kd,
         ks: options.ks,
-        brdf: Brdf::BlinnPhong {
-            s: options.exponent,
-        },
+        brdf: options.material_brdf(),
     };
     let fov = 30.0;
     let tile = 1.0;
@@ -235,7 +285,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
                     radiance: 0.5,
                 },
             ],
-            material,
+            material: material.clone(),
         });
     }
     // Grazing: 12° above the horizon, λ ≈ 4 at the centre, the horizon near the top.
@@ -259,7 +309,7 @@ pub fn views(options: &ReportOptions, texels: u32) -> Vec<Scene> {
                 intensity: 0.25 * d * d,
             },
         ],
-        material,
+        material: material.clone(),
     });
     out.push(Scene {
         name: "sphere".into(),
@@ -348,6 +398,10 @@ pub struct Row {
     pub texel_levels: Vec<f64>,
     /// Image-space errors per view (empty when this format is not rendered).
     pub views: Vec<ViewError>,
+    /// Image-space errors per view under anisotropic filtering ([`ReportOptions::anisotropy`];
+    /// f32 configurations that filter linearly).
+    #[serde(default)]
+    pub aniso_views: Vec<ViewError>,
 }
 
 impl Row {
@@ -734,9 +788,7 @@ pub fn run(
         .into_iter()
         .step_by(options.directions_step.max(1))
         .collect();
-    let brdf = Brdf::BlinnPhong {
-        s: options.exponent,
-    };
+    let brdf = options.material_brdf();
     let mut costs: std::collections::HashMap<String, ShaderCost> = Default::default();
     let mut ph = PhaseSeconds::default();
     let mut summaries = Vec::new();
@@ -791,11 +843,29 @@ pub fn run(
             } else {
                 None
             };
+            let aniso_floor = if options.oracle_samples > 0 && options.anisotropy > 0 {
+                let oracle = timed(&mut ph.oracle, || {
+                    crate::render::render_oracle_footprint(
+                        scene,
+                        map,
+                        options.oracle_samples,
+                        options.seed + 3000 + i as u64,
+                        Footprint::Anisotropic(options.anisotropy),
+                    )
+                });
+                let (e, _, _) = timed(&mut ph.compare, || {
+                    compare(metric, scene, &gt, &oracle, exp)
+                });
+                Some(e)
+            } else {
+                None
+            };
             views_info.push(View {
                 scene: scene.clone(),
                 median_lod,
                 far: median_lod >= 3.0,
                 floor,
+                aniso_floor,
             });
             truths.push((gt, exp));
         }
@@ -843,7 +913,7 @@ pub fn run(
             <= REFERENCE_BUDGET;
         let reference = fits.then(|| {
             timed(&mut ph.texel_eval, || {
-                Reference::new(map, &[brdf], &directions, first)
+                Reference::new(map, std::slice::from_ref(&brdf), &directions, first)
             })
         });
         let mut skipped = Vec::new();
@@ -882,7 +952,7 @@ pub fn run(
             let refs: Vec<&Bake> = variants.iter().collect();
             let errors = timed(&mut ph.texel_eval, || match &reference {
                 Some(r) => r.evaluate(&refs),
-                None => evaluate_from(map, &refs, &[brdf], &directions, first),
+                None => evaluate_from(map, &refs, std::slice::from_ref(&brdf), &directions, first),
             });
             // Shader costs not known yet (the first map's), one `glslangValidator` per core.
             timed(&mut ph.shader_cost, || {
@@ -963,6 +1033,28 @@ pub fn run(
                         view_errors.push(view_error);
                     }
                 }
+                let mut aniso_views = Vec::new();
+                if options.anisotropy > 0 && b.format == Format::F32 && config.filters_linearly() {
+                    let a = Footprint::Anisotropic(options.anisotropy);
+                    let images: Vec<Image> = timed(&mut ph.filtered_render, || {
+                        scenes
+                            .iter()
+                            .zip(&geometry)
+                            .map(|(scene, g)| render_footprint(scene, g, b, a))
+                            .collect()
+                    });
+                    aniso_views = timed(&mut ph.compare, || {
+                        use rayon::prelude::*;
+                        scenes
+                            .par_iter()
+                            .zip(&truths)
+                            .zip(&images)
+                            .map(|((scene, (gt, exp)), img)| {
+                                compare(metric, scene, gt, img, *exp).0
+                            })
+                            .collect()
+                    });
+                }
                 rows.push(Row {
                     map: input.name.clone(),
                     config: label.clone(),
@@ -981,6 +1073,7 @@ pub fn run(
                     texel_diffuse: err.overall_diffuse,
                     texel_levels: err.levels.iter().map(|l| l.specular).collect(),
                     views: view_errors,
+                    aniso_views,
                 });
             }
             progress(Progress::Done);
@@ -1088,7 +1181,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
     }
     let _ = writeln!(
         s,
-        "**How it is measured.** Material: `{} · Lambert + {} · normalized Blinn-Phong`, s = {}. \
+        "**How it is measured.** Material: `{} · Lambert + {} · {}`. \
          *Texel space*: relative RMS error of the specular term against the exact footprint \
          average, levels ≥ 1, {} light/view pairs (one in {} of `eval`'s 27). *Image space*: \
          {}×{} views (a zoom sequence on a plane tilted 30° with the centre at λ = {}, a grazing \
@@ -1104,11 +1197,11 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
          and ALU = arithmetic SPIR-V instructions of the specialized shader (`glslangValidator \
          -G`; loops weighted by trip count, every branch counted). Labels: `vmfJ` = J vMF \
          lobes fitted per texel (manual sampling), `vmfJa` = aligned lobes (hardware \
-         sampling; eq 29, C = {}). Frame time: {} SH: not implemented yet (rows join the \
-         tables when it lands).\n",
+         sampling; eq 29, C = {}), `shL` = spherical harmonics to band l* = L (eq 12; hardware \
+         sampling). Frame time: {}\n",
         o.kd,
         o.ks,
-        o.exponent,
+        o.material_brdf(),
         27usize.div_ceil(o.directions_step.max(1)),
         o.directions_step,
         o.image_size,
@@ -1275,6 +1368,7 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
             }
             let _ = writeln!(s);
         }
+        s += &aniso_table(report, m);
         if !m.skipped.is_empty() {
             let _ = writeln!(s, "Skipped: {}.\n", m.skipped.join("; "));
         }
@@ -1291,6 +1385,55 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
         }
     }
     s
+}
+
+/// The anisotropic-filtering table of map `m` (empty when not measured): per view, the floor
+/// of GL's trilinear footprint and of the anisotropic one, and each linearly filtering
+/// configuration's relative RMSE under both.
+fn aniso_table(report: &Report, m: &MapSummary) -> String {
+    use std::fmt::Write;
+    let rows: Vec<&Row> = report
+        .rows
+        .iter()
+        .filter(|r| r.map == m.name && r.format == Format::F32 && !r.aniso_views.is_empty())
+        .collect();
+    if rows.is_empty() {
+        return String::new();
+    }
+    let mut s = format!(
+        "Anisotropic filtering (up to {} probes, `GL_EXT_texture_filter_anisotropic`'s reference \
+         rule, done in the shader; relative RMSE %, trilinear → anisotropic):\n\n| view | λ | \
+         ideal NDF (floor) |",
+        report.options.anisotropy
+    );
+    for r in &rows {
+        let _ = write!(s, " {} |", r.label);
+    }
+    let _ = write!(s, "\n|---|---:|---:|");
+    for _ in &rows {
+        s += "---:|";
+    }
+    s += "\n";
+    for v in &m.views {
+        let name = &v.scene.name;
+        let cell = |t: Option<f64>, a: Option<f64>| format!("{} → {}", opt_pct(t), opt_pct(a));
+        let _ = write!(
+            s,
+            "| {name} | {:.1} | {} |",
+            v.median_lod,
+            cell(
+                v.floor.as_ref().map(|f| f.rel_rmse),
+                v.aniso_floor.as_ref().map(|f| f.rel_rmse)
+            )
+        );
+        for r in &rows {
+            let find =
+                |list: &[ViewError]| list.iter().find(|e| &e.view == name).map(|e| e.rel_rmse);
+            let _ = write!(s, " {} |", cell(find(&r.views), find(&r.aniso_views)));
+        }
+        s += "\n";
+    }
+    s + "\n"
 }
 
 /// A row's frame time as the table shows it: `12.3 (3.41×)`, or `n/a`.

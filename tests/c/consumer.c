@@ -2,8 +2,9 @@
  * C consumer of include/ndfmap.h, run by tests/c_api.rs (linked once against libndfmap.so and
  * once against libndfmap.a, and under valgrind when it is installed).
  *
- * It builds a 16x16 normal map from pixels in memory, bakes every method, packs every level of
- * every texture in every format, gets the vMF shader sources, and prints one line per query,
+ * It builds a 16x16 normal map from pixels in memory, bakes every method (SH at the default
+ * band limit), packs every level of every texture in every format, gets the vMF shader sources,
+ * checks materials (Lambert's SH coefficients, a tabulated BRDF's table), and prints one line per query,
  * per packed level and per shader (a 64-bit FNV-1a hash of the bytes); the Rust test computes the same lines with the Rust API and
  * compares. It also exercises bad input from C (NULLs, a buffer one byte short, unknown enum
  * values, indices out of range, a cancelled bake, free(NULL)) and exits non-zero at the first
@@ -57,7 +58,7 @@ static void make_pixels(unsigned char *rgb) {
     }
 }
 
-static const char *method_names[] = {"plain", "toksvig", "lean", "olano", "tan2005", "vmf"};
+static const char *method_names[] = {"plain", "toksvig", "lean", "olano", "tan2005", "vmf", "sh"};
 static const char *format_names[] = {"f32", "f16", "unorm16", "unorm8"};
 
 /* Prints the bake's description and every packed level in every format. */
@@ -150,6 +151,55 @@ static int stop_at_third_call(float fraction, void *user_data) {
     return ++calls < 3;
 }
 
+/* Materials: Lambert's SH coefficients are the closed forms, a tabulated BRDF gives its table,
+ * and a malformed one is refused with nothing written. */
+static void materials(void) {
+    ndf_material_options mo = ndf_material_options_default();
+    ndf_material *mat = NULL, *none = NULL;
+    double rho[3] = {0, 0, 0};
+    uint32_t lmax = 0, tw = 0, th = 0;
+    float *table;
+    const double pi = 3.14159265358979323846;
+
+    mo.model = NDF_BRDF_LAMBERT;
+    expect(ndf_material_new(&mo, &mat), NDF_STATUS_OK, "material lambert");
+    expect(ndf_material_sh_coefficients(mat, 2, rho, 3), NDF_STATUS_OK, "lambert rho");
+    if (rho[0] - pi > 1e-12 || pi - rho[0] > 1e-12 || rho[2] - pi / 4 > 1e-12 ||
+        pi / 4 - rho[2] > 1e-12) {
+        fprintf(stderr, "FAIL lambert rho %g %g %g\n", rho[0], rho[1], rho[2]);
+        failures++;
+    }
+    expect(ndf_material_suggested_lmax(mat, &lmax), NDF_STATUS_OK, "suggested lmax");
+    if (lmax != 2) {
+        fprintf(stderr, "FAIL lambert lmax %u\n", (unsigned)lmax);
+        failures++;
+    }
+    expect(ndf_material_sh_coefficients(mat, 2, rho, 2), NDF_STATUS_BUFFER_TOO_SMALL,
+           "rho buffer short");
+    ndf_material_free(mat);
+    mat = NULL;
+    mo = ndf_material_options_default();
+    mo.model = NDF_BRDF_TABULATED;
+    mo.tabulated_json = "{\"f\": [4.0, 2.0, 0.0], \"g\": [1.0, 0.8]}";
+    expect(ndf_material_new(&mo, &mat), NDF_STATUS_OK, "material tabulated");
+    expect(ndf_material_table_size(mat, &tw, &th), NDF_STATUS_OK, "table size");
+    table = malloc(sizeof(float) * tw * th);
+    expect(ndf_material_table(mat, table, (size_t)tw * th), NDF_STATUS_OK, "table");
+    if (table[(size_t)tw * (th - 2)] != 4.0f) {
+        fprintf(stderr, "FAIL table row of the lobe starts at %g\n", table[(size_t)tw * (th - 2)]);
+        failures++;
+    }
+    free(table);
+    ndf_material_free(mat);
+    mo.tabulated_json = "{\"f\": [1.0, -1.0]}";
+    expect(ndf_material_new(&mo, &none), NDF_STATUS_INVALID_ARGUMENT, "negative table");
+    if (none != NULL) {
+        fprintf(stderr, "FAIL material written on failure\n");
+        failures++;
+    }
+    ndf_material_free(NULL);
+}
+
 static void bad_input(ndf_normal_map *map, ndf_bake *bake, const unsigned char *rgb) {
     ndf_ingest_options io = ndf_ingest_options_default();
     ndf_vmf_options vo = ndf_vmf_options_default();
@@ -230,8 +280,9 @@ int main(int argc, char **argv) {
     ndf_baseline_options bo = ndf_baseline_options_default();
     ndf_vmf_options vo = ndf_vmf_options_default();
     ndf_tan2005_options to = ndf_tan2005_options_default();
+    ndf_sh_options so = ndf_sh_options_default();
     ndf_normal_map *map = NULL, *from_file = NULL;
-    ndf_bake *bakes[6] = {NULL, NULL, NULL, NULL, NULL, NULL};
+    ndf_bake *bakes[7] = {NULL, NULL, NULL, NULL, NULL, NULL, NULL};
     ndf_method m;
     uint32_t w = 0, h = 0;
 
@@ -257,10 +308,12 @@ int main(int argc, char **argv) {
     vo.lobes = 2;
     vo.aligned = 1;
     to.lobes = 2;
-    for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_VMF; m++) {
+    for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_SH; m++) {
         /* The file and the pixels are the same map: the vMF bake comes from the file. */
         if (m == NDF_METHOD_VMF) {
             expect(ndf_bake_vmf(from_file, &vo, &bakes[m]), NDF_STATUS_OK, "bake vmf");
+        } else if (m == NDF_METHOD_SH) {
+            expect(ndf_bake_sh(map, &so, &bakes[m]), NDF_STATUS_OK, "bake sh");
         } else if (m == NDF_METHOD_TAN2005) {
             expect(ndf_bake_tan2005(map, &to, &bakes[m]), NDF_STATUS_OK, "bake tan2005");
         } else {
@@ -274,8 +327,9 @@ int main(int argc, char **argv) {
            "write");
     shaders(bakes[NDF_METHOD_VMF]);
     bad_input(map, bakes[NDF_METHOD_PLAIN], rgb);
+    materials();
 
-    for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_VMF; m++) {
+    for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_SH; m++) {
         ndf_bake_free(bakes[m]);
     }
     ndf_normal_map_free(map);

@@ -104,9 +104,9 @@ pub use glow;
 pub use mesh::{Mesh, MeshData, Vertex, draw_mesh};
 pub use present::{Accumulator, Destination, Layer, Presenter, tone_map};
 pub use program::{FULLSCREEN_VERTEX_SHADER, Program};
-pub use render::{BakeRenderer, Lighting, Scene, Shape};
+pub use render::{BakeRenderer, BrdfBinding, Lighting, Scene, Shape};
 pub use target::{RenderTarget, draw_fullscreen, read_rgba_f32};
-pub use texture::BakeTextures;
+pub use texture::{BakeTextures, TableTexture};
 #[cfg(feature = "window")]
 pub use winit;
 

@@ -155,6 +155,12 @@ impl Program {
         });
     }
 
+    /// Sets `float name[N]` from `v` (N ≤ `v.len()` values are read by GL); ignored when absent.
+    pub fn set_f32_array(&self, name: &str, v: &[f32]) {
+        // SAFETY: as in `set_f32`; the location is the array's first element.
+        self.with_uniform(name, |g, l| unsafe { g.uniform_1_f32_slice(Some(l), v) });
+    }
+
     /// Sets `int name` (or a sampler's texture unit); ignored when absent.
     pub fn set_i32(&self, name: &str, v: i32) {
         // SAFETY: as in `set_f32`.

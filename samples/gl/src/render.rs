@@ -3,14 +3,62 @@
 //! by one [`Lighting`]; [`Scene`] bundles a mesh, a camera and lighting, as the regression renders,
 //! the frame-time benchmark and the viewer use them.
 
+use crate::texture::TableTexture;
 use crate::{BakeTextures, Camera, Error, Gl, Mesh, Program, RenderTarget, Result, draw_mesh};
 use glam::{Mat4, Vec3, Vec4};
-use ndfmap::bake::Bake;
+use ndfmap::bake::{Bake, Method};
 use ndfmap::brdf::Brdf;
-use ndfmap::glsl::{ShaderBrdf, ShaderOptions, Stage, source};
+use ndfmap::glsl::{ShaderBrdf, ShaderOptions, Stage, source, uniforms};
+use std::cell::RefCell;
+
+/// The BRDF's side of a program: its uniforms ([`ndfmap::glsl::uniforms`]: parameters and, for
+/// SH, `ρ̂_l`) and a tabulated BRDF's table texture, kept between draws.
+#[derive(Default)]
+pub struct BrdfBinding {
+    table: RefCell<Option<(Brdf, TableTexture)>>,
+}
+
+impl BrdfBinding {
+    /// Sets `brdf`'s uniforms on `program` (an SH shader of band limit `sh_lmax` also gets
+    /// `ndf_sh_rho`) and binds a tabulated BRDF's table to texture unit `unit` (uploaded on
+    /// first use, again when the BRDF changes). Fails when `brdf` is not the BRDF `compiled`
+    /// specializes.
+    pub fn apply(
+        &self,
+        gl: &Gl,
+        program: &Program,
+        brdf: &Brdf,
+        compiled: ShaderBrdf,
+        sh_lmax: Option<usize>,
+        unit: u32,
+    ) -> Result<()> {
+        if ShaderBrdf::of(brdf) != compiled {
+            return Err(Error::Usage(format!(
+                "{brdf} given to a shader compiled for {compiled:?}"
+            )));
+        }
+        for (name, values) in uniforms(brdf, sh_lmax) {
+            if values.len() == 1 {
+                program.set_f32(name, values[0]);
+            } else {
+                program.set_f32_array(name, &values);
+            }
+        }
+        if let Brdf::Tabulated(t) = brdf {
+            let mut slot = self.table.borrow_mut();
+            if slot.as_ref().is_none_or(|(b, _)| b != brdf) {
+                *slot = Some((brdf.clone(), TableTexture::upload(gl, t)?));
+            }
+            if let Some((_, texture)) = slot.as_ref() {
+                texture.bind(program, unit);
+            }
+        }
+        Ok(())
+    }
+}
 
 /// One light and the material: the uniforms of `glsl/ndf_fragment.glsl`'s mesh entry point.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Lighting {
     /// `w = 0`: direction towards the light (world space); `w = 1`: point light position.
     pub light: Vec4,
@@ -40,9 +88,12 @@ impl Default for Lighting {
 
 /// A bake on the GPU with its compiled shader, ready to draw meshes.
 pub struct BakeRenderer {
+    gl: Gl,
     program: Program,
     textures: BakeTextures,
     brdf: ShaderBrdf,
+    binding: BrdfBinding,
+    sh_lmax: Option<usize>,
     label: String,
 }
 
@@ -60,9 +111,12 @@ impl BakeRenderer {
         let program = Program::new(gl, &vertex, &fragment)?;
         let textures = BakeTextures::upload(gl, bake, bake.format)?;
         Ok(BakeRenderer {
+            gl: gl.clone(),
             program,
             textures,
             brdf: options.brdf,
+            binding: BrdfBinding::default(),
+            sh_lmax: (bake.method == Method::Sh).then(|| ndfmap::sh::lmax_of(bake)),
             label: bake.label(),
         })
     }
@@ -89,17 +143,9 @@ impl BakeRenderer {
         target: &RenderTarget,
     ) -> Result<()> {
         let p = &self.program;
-        match (lighting.brdf, self.brdf) {
-            (Brdf::BlinnPhong { s }, ShaderBrdf::BlinnPhong) => p.set_f32("ndf_s", s as f32),
-            (Brdf::TorranceSparrow { sigma }, ShaderBrdf::TorranceSparrow) => {
-                p.set_f32("ndf_sigma", sigma as f32)
-            }
-            (brdf, compiled) => {
-                return Err(Error::Usage(format!(
-                    "{brdf} given to a shader compiled for {compiled:?}"
-                )));
-            }
-        }
+        let unit = self.textures.len() as u32;
+        self.binding
+            .apply(&self.gl, p, &lighting.brdf, self.brdf, self.sh_lmax, unit)?;
         self.textures.bind(p);
         camera.set_uniforms(p, model);
         p.set_vec4("ndf_light", lighting.light);
@@ -135,7 +181,7 @@ impl Shape {
 }
 
 /// A view to render: a shape at the origin, a camera and the lighting.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
     /// Short name, used in file names.
     pub name: &'static str,

@@ -159,3 +159,74 @@ impl Drop for BakeTextures {
         }
     }
 }
+
+/// A tabulated BRDF's table on the GPU ([`ndfmap::brdf::Tabulated::table`]): one `R32F`
+/// texture, `GRID` texels wide and `KAPPA_ROWS + 1` high, sampled by the shaders with
+/// `texelFetch` (filtering `NEAREST`, no MIP levels) through the sampler `ndf_brdf_table`.
+pub struct TableTexture {
+    gl: Gl,
+    texture: glow::Texture,
+}
+
+impl TableTexture {
+    /// Uploads `table`'s rows (computing them on first use).
+    pub fn upload(gl: &Gl, table: &ndfmap::brdf::Tabulated) -> Result<TableTexture> {
+        use ndfmap::brdf::tabulated::{GRID, KAPPA_ROWS};
+        let data = table.table();
+        let g = gl.glow();
+        // SAFETY: the context is current on this thread while `gl` lives.
+        let texture =
+            unsafe { g.create_texture() }.map_err(|e| Gl::creation_error("glCreateTexture", e))?;
+        let out = TableTexture {
+            gl: gl.clone(),
+            texture,
+        };
+        let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
+        gl.with_texture_2d(texture, || {
+            // SAFETY: as above with `texture` bound; `bytes` holds GRID × (KAPPA_ROWS + 1)
+            // tightly packed f32 (unpack alignment 1).
+            unsafe {
+                g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
+                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
+                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, 0);
+                let nearest = glow::NEAREST as i32;
+                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, nearest);
+                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, nearest);
+                g.tex_image_2d(
+                    glow::TEXTURE_2D,
+                    0,
+                    glow::R32F as i32,
+                    GRID as i32,
+                    KAPPA_ROWS as i32 + 1,
+                    0,
+                    glow::RED,
+                    glow::FLOAT,
+                    PixelUnpackData::Slice(Some(&bytes)),
+                );
+            }
+            Ok::<_, Error>(())
+        })?;
+        gl.check_error("BRDF table upload")?;
+        Ok(out)
+    }
+
+    /// Binds the table to texture unit `unit` and sets `program`'s `ndf_brdf_table` to it.
+    pub fn bind(&self, program: &Program, unit: u32) {
+        let g = self.gl.glow();
+        // SAFETY: the context is current while `self.gl` lives; the texture is alive while
+        // `self` is.
+        unsafe {
+            g.active_texture(glow::TEXTURE0 + unit);
+            g.bind_texture(glow::TEXTURE_2D, Some(self.texture));
+            g.active_texture(glow::TEXTURE0);
+        }
+        program.set_i32("ndf_brdf_table", unit as i32);
+    }
+}
+
+impl Drop for TableTexture {
+    fn drop(&mut self) {
+        // SAFETY: the context is current while `self.gl` lives; deleted once.
+        unsafe { self.gl.glow().delete_texture(self.texture) };
+    }
+}

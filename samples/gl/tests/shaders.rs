@@ -1,8 +1,11 @@
 //! GL = CPU, texel for texel: the product shaders (`ndfmap::glsl`, probe variant) rendered on Mesa
 //! through each headless route, against their CPU twin (`ndfmap::sample::shade_at`, which calls
-//! `ndfmap::shade`), for every method, lobe counts 1–8, every storage format a method's textures
-//! fit, both BRDFs, hardware and manual sampling, colour on and off — at the texel centres of
-//! every level (integer LOD) and at fractional LODs (trilinear between levels).
+//! `ndfmap::shade`), for every method (SH at l* = 2, 4, 6), lobe counts 1–8, every storage
+//! format a method's textures fit, Blinn-Phong and eq 18 everywhere and Lambert, GGX (with its
+//! g factor) and a tabulated BRDF on one bake per method, hardware and manual sampling, colour
+//! on and off, both vMF diffuse terms — at the texel centres of every level (integer LOD) and at
+//! fractional LODs (trilinear between levels) — and the anisotropic footprint
+//! (`ndfmap::sample::anisotropic`) for SH, aligned vMF lobes and Toksvig.
 //!
 //! Error measure: `|gl − cpu| / (|cpu| + floor)`, with `floor = 1e-3 ·` the BRDF's peak
 //! `(s+1)/(2π)` (or `1/(4πσ²)`) for the specular term and 1e-3 for the diffuse term: relative
@@ -18,25 +21,38 @@
 
 use glam::DVec2;
 use ndfmap::bake::{Bake, BakeOptions, Method};
-use ndfmap::brdf::{Brdf, half_vector};
+use ndfmap::brdf::{Brdf, Ggx, Tabulated, half_vector};
 use ndfmap::eval::default_directions;
 use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, Stage, source};
 use ndfmap::methods::{bake, bake_with};
-use ndfmap::sample::{Filtering, shade_at};
-use ndfmap_gl::{BakeTextures, Gl, Program, RenderTarget, Route, draw_fullscreen, read_rgba_f32};
+use ndfmap::sample::{Filtering, anisotropic, shade_at};
+use ndfmap::shade::{ShadeOptions, VmfDiffuse, shade_rgb_with};
+use ndfmap_gl::{
+    BakeTextures, BrdfBinding, Gl, Program, RenderTarget, Route, draw_fullscreen, glow,
+    read_rgba_f32,
+};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
-/// Largest accepted error (measure above) for a BRDF of Blinn-Phong exponent `s`: f32 rounding
-/// of `cos_h` is amplified `s`-fold by `cos_h^s`. Measured on llvmpipe (both routes): ≤ 4.5e-5
-/// at s = 64 (all formats, texel centres and trilinear), ≤ 8e-4 at s = 1024.
+/// Largest accepted error (measure above) for a BRDF. Blinn-Phong of exponent `s`: f32
+/// rounding of `cos_h` is amplified `s`-fold by `cos_h^s`. Measured on llvmpipe (both routes):
+/// ≤ 4.5e-5 at s = 64 (all formats, texel centres and trilinear), ≤ 8e-4 at s = 1024.
 /// Torrance–Sparrow (σ = 0.1): ≤ 8e-4, dominated by GLSL's `acos` for the half-angle β, which
 /// Mesa evaluates by a polynomial approximation (GLSL specifies no precision for it); the lobe's
-/// relative error is `β δβ / (2σ²)`.
-fn tolerance(brdf: Brdf) -> f64 {
+/// relative error is `β δβ / (2σ²)`. GGX (α = 0.2, g on): f32 rounding of the widened α and of
+/// the Smith term. Tabulated (GGX α = 0.2 tabulated): the table's bilinear lookup at an angle
+/// from GLSL's `atan` (Mesa's polynomial approximation again) on the `sqrt(θ/π)` grid, whose
+/// cells are narrowest at the peak. Lambert: the SH sums in f32 (≤ 3.2e-5 measured: the
+/// diffuse term of an SH bake is a sum of up to 81 terms). Measured: GGX ≤ 3.2e-5, tabulated
+/// ≤ 2.5e-4 (Tan 2005, whose lifted means put some lobes' peaks between grid cells).
+fn tolerance(brdf: &Brdf) -> f64 {
     match brdf {
         Brdf::BlinnPhong { s } => 3e-5 + 2e-6 * s,
         Brdf::TorranceSparrow { .. } => 1.5e-3,
+        Brdf::Lambert => 6e-5,
+        Brdf::Ggx(_) => 1e-4,
+        Brdf::Tabulated(_) => 1e-3,
     }
 }
 
@@ -45,67 +61,97 @@ struct Case {
     brdf: Brdf,
     sampling: Sampling,
     color: bool,
+    diffuse: VmfDiffuse,
 }
 
 fn label(c: &Case) -> String {
-    let brdf = match c.brdf {
-        Brdf::BlinnPhong { .. } => "bp",
-        Brdf::TorranceSparrow { .. } => "ts",
-    };
     format!(
-        "{} {brdf} {:?}{}",
+        "{} {} {:?}{}{}",
         c.bake.label(),
+        c.brdf.model(),
         c.sampling,
-        if c.color { " colour" } else { "" }
+        if c.color { " colour" } else { "" },
+        if c.diffuse == VmfDiffuse::Algorithm2 {
+            " alg2"
+        } else {
+            ""
+        }
     )
 }
 
-/// Renders `case` at every level (and at fractional LODs) for a few light/view pairs and returns
-/// the largest error at texel centres and at fractional LODs.
+/// The screen derivatives of uv the anisotropic probe uses at `level` of a `size` map: a
+/// footprint about 2^level texels long along a diagonal and 3.4 times narrower across, so
+/// 4 probes of LOD ≈ level − 2 (non-integer ratios keep f32 and f64 on the same probe count).
+fn aniso_derivatives(level: usize, size: (u32, u32)) -> (DVec2, DVec2) {
+    let t = 2f64.powi(level as i32) * 1.3;
+    let (w, h) = (size.0 as f64, size.1 as f64);
+    let major = DVec2::new(0.8 * t / w, 0.6 * t / h);
+    let minor = DVec2::new(-0.6 * t / (3.4 * w), 0.8 * t / (3.4 * h));
+    (major, minor)
+}
+
+/// Renders `case` at every level (and at fractional LODs, or with an anisotropic footprint)
+/// for a few light/view pairs and returns the largest error at texel centres and at
+/// fractional LODs (anisotropic: all in the second).
 fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
     let bake = &case.bake;
     let options = ShaderOptions {
-        brdf: match case.brdf {
-            Brdf::BlinnPhong { .. } => ShaderBrdf::BlinnPhong,
-            Brdf::TorranceSparrow { .. } => ShaderBrdf::TorranceSparrow,
-        },
+        brdf: ShaderBrdf::of(&case.brdf),
         sampling: case.sampling,
         color: case.color,
         probe: true,
+        vmf_diffuse: case.diffuse,
     };
     let vertex = source(bake, Stage::Vertex, &options).unwrap();
     let fragment = source(bake, Stage::Fragment, &options).unwrap();
     let program = Program::new(gl, &vertex, &fragment).unwrap_or_else(|e| panic!("{e}"));
     let textures = BakeTextures::upload(gl, bake, bake.format).unwrap();
     textures.bind(&program);
+    let sh_lmax = (bake.method == Method::Sh).then(|| ndfmap::sh::lmax_of(bake));
+    let binding = BrdfBinding::default();
+    binding
+        .apply(
+            gl,
+            &program,
+            &case.brdf,
+            options.brdf,
+            sh_lmax,
+            textures.len() as u32,
+        )
+        .unwrap();
     let manual = ndfmap::glsl::manual_sampling(&ndfmap::glsl::ShaderSpec::of(bake), &options);
-    let (peak, param) = match case.brdf {
-        Brdf::BlinnPhong { s } => ((s + 1.0) / (2.0 * std::f64::consts::PI), ("ndf_s", s)),
-        Brdf::TorranceSparrow { sigma } => (
-            1.0 / (4.0 * std::f64::consts::PI * sigma * sigma),
-            ("ndf_sigma", sigma),
-        ),
-    };
-    program.set_f32(param.0, param.1 as f32);
+    let aniso = matches!(case.sampling, Sampling::Anisotropic(_));
+    let peak = case.brdf.peak().max(1.0);
     let filtering = Filtering {
-        brdf: case.brdf,
         manual,
         color: case.color,
+        shading: ShadeOptions {
+            vmf_diffuse: case.diffuse,
+        },
+        ..Filtering::new(case.brdf.clone())
     };
     let directions = default_directions();
     let (mut worst, mut worst_trilinear) = (0.0f64, 0.0f64);
     let channels = if case.color { 3 } else { 1 };
     for &(l, v) in [directions[0], directions[6], directions[13], directions[22]].iter() {
         let h = half_vector(l, v);
+        let floor_s = 1e-3 * peak * case.brdf.g(l, h).max(1.0);
         program.set_vec3("ndf_probe_l", l.as_vec3());
         program.set_vec3("ndf_probe_h", h.as_vec3());
         for level in 0..bake.level_count() {
             let (w, hgt) = bake.sizes[level];
             let target = RenderTarget::new(gl, w, hgt).unwrap();
             program.set_vec2("ndf_probe_size", [w as f32, hgt as f32]);
-            for frac in [0.0, 0.375] {
+            let fracs: &[f64] = if aniso { &[0.0] } else { &[0.0, 0.375] };
+            for &frac in fracs {
                 let lod = level as f64 + frac;
-                program.set_f32("ndf_probe_lod", lod as f32);
+                let (dx, dy) = aniso_derivatives(level, bake.sizes[0]);
+                if aniso {
+                    program.set_vec2("ndf_probe_dx", dx.as_vec2());
+                    program.set_vec2("ndf_probe_dy", dy.as_vec2());
+                } else {
+                    program.set_f32("ndf_probe_lod", lod as f32);
+                }
                 for channel in 0..channels {
                     program.set_i32("ndf_probe_channel", channel as i32);
                     draw_fullscreen(&program, &target).unwrap();
@@ -114,17 +160,23 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
                         let (x, y) = (i as u32 % w, i as u32 / w);
                         let uv =
                             DVec2::new((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / hgt as f64);
-                        let cpu = shade_at(bake, uv, lod, l, h, filtering);
+                        let cpu = if let Sampling::Anisotropic(n) = case.sampling {
+                            let t = anisotropic(bake, uv, dx, dy, n);
+                            let sh = &filtering.shading;
+                            shade_rgb_with(bake, &t, l, h, &case.brdf, case.color, sh)
+                        } else {
+                            shade_at(bake, uv, lod, l, h, &filtering)
+                        };
                         let e_d = (p[0] as f64 - cpu.diffuse[channel]).abs()
                             / (cpu.diffuse[channel].abs() + 1e-3);
                         let e_s = (p[1] as f64 - cpu.specular[channel]).abs()
-                            / (cpu.specular[channel].abs() + 1e-3 * peak);
+                            / (cpu.specular[channel].abs() + floor_s);
                         assert!(p[0].is_finite() && p[1].is_finite(), "{}", label(case));
                         let e = e_d.max(e_s);
-                        if frac > 0.0 && !manual && bake.format == Format::Unorm8 {
+                        if (frac > 0.0 || aniso) && !manual && bake.format == Format::Unorm8 {
                             continue; // 8-bit fixed-point filtering (module docs)
                         }
-                        let slot = if frac == 0.0 || manual {
+                        let slot = if (frac == 0.0 && !aniso) || manual {
                             &mut worst
                         } else {
                             &mut worst_trilinear
@@ -140,7 +192,26 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
     (worst, worst_trilinear)
 }
 
-/// Every case: methods × lobe counts × formats × BRDFs × sampling × colour.
+/// GGX α = 0.2 with its g factor (Smith, Schlick).
+fn ggx() -> Brdf {
+    Brdf::Ggx(Ggx {
+        g: true,
+        ..Ggx::new(0.2)
+    })
+}
+
+/// GGX α = 0.2 tabulated (90 MERL-spaced samples) with a Schlick-like g.
+fn tabulated() -> Brdf {
+    let f = |t: f64| ndfmap::brdf::ggx(t.cos(), 0.2);
+    let g = |t: f64| ndfmap::brdf::schlick(t.cos(), 0.04) * 10.0;
+    Brdf::Tabulated(Arc::new(
+        Tabulated::sample("ggx0.2", 90, &f, Some(&g)).unwrap(),
+    ))
+}
+
+/// Every case: methods × lobe counts × formats × BRDFs × sampling × colour, SH at l* = 2 and
+/// 6, every BRDF of the library on one bake per method, anisotropic sampling of the bakes
+/// that filter linearly, and Algorithm 2's vMF diffuse term.
 fn cases() -> Vec<Case> {
     let sample = ndfmap::procedural::generate(16, 11);
     let colored = sample
@@ -163,13 +234,17 @@ fn cases() -> Vec<Case> {
             } else {
                 &[Brdf::BlinnPhong { s: 64.0 }]
             };
-            for &brdf in brdfs {
+            for brdf in brdfs {
                 for sampling in [Sampling::Hardware, Sampling::Manual] {
+                    if q.method == Method::Sh && sampling == Sampling::Manual {
+                        continue;
+                    }
                     out.push(Case {
                         bake: q.clone(),
-                        brdf,
+                        brdf: brdf.clone(),
                         sampling,
                         color,
+                        diffuse: VmfDiffuse::default(),
                     });
                 }
             }
@@ -177,6 +252,13 @@ fn cases() -> Vec<Case> {
     };
     for method in Method::BASELINES {
         push(&bake(&sample.map, method), false);
+    }
+    for lmax in [2, 6] {
+        let o = BakeOptions {
+            lmax,
+            ..Default::default()
+        };
+        push(&bake_with(&sample.map, Method::Sh, &o).unwrap(), false);
     }
     for method in [Method::Vmf, Method::Tan2005] {
         for lobes in 1..=8 {
@@ -190,6 +272,56 @@ fn cases() -> Vec<Case> {
             push(&bake_with(map, method, &options).unwrap(), color);
         }
     }
+    // The other BRDFs on one bake per method (f32), in the bake's natural sampling.
+    let three = |align| BakeOptions {
+        lobes: 3,
+        align,
+        lmax: 4,
+        ..Default::default()
+    };
+    let mut bakes: Vec<Bake> = Method::BASELINES
+        .iter()
+        .map(|&m| bake(&sample.map, m))
+        .collect();
+    for method in [Method::Vmf, Method::Tan2005, Method::Sh] {
+        bakes.push(bake_with(&colored, method, &three(None)).unwrap());
+    }
+    let aligned = bake_with(&sample.map, Method::Vmf, &three(Some(1.0))).unwrap();
+    for b in &bakes {
+        for brdf in [Brdf::Lambert, ggx(), tabulated()] {
+            out.push(Case {
+                bake: b.clone(),
+                color: b.lobes > 0 && brdf == Brdf::Lambert,
+                brdf,
+                sampling: Sampling::Auto,
+                diffuse: VmfDiffuse::default(),
+            });
+        }
+    }
+    // Anisotropic sampling: SH, aligned vMF lobes, Toksvig; f32 and f16.
+    for b in [&bakes[1], &bakes[6], &aligned] {
+        for format in [Format::F32, Format::F16] {
+            out.push(Case {
+                bake: ndfmap::pack::quantize(b, format).unwrap(),
+                brdf: Brdf::BlinnPhong { s: 64.0 },
+                sampling: Sampling::Anisotropic(8),
+                color: false,
+                diffuse: VmfDiffuse::default(),
+            });
+        }
+    }
+    // Algorithm 2's diffuse term (the alternative to the default).
+    for b in [&bakes[4], &aligned] {
+        for sampling in [Sampling::Hardware, Sampling::Manual] {
+            out.push(Case {
+                bake: b.clone(),
+                brdf: Brdf::BlinnPhong { s: 64.0 },
+                sampling,
+                color: false,
+                diffuse: VmfDiffuse::Algorithm2,
+            });
+        }
+    }
     out
 }
 
@@ -199,15 +331,21 @@ fn run(route: Route) {
         return;
     }
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    report_hardware_anisotropy(&gl);
     let mut table: BTreeMap<String, (f64, f64)> = BTreeMap::new();
     let mut failures = Vec::new();
     for case in cases() {
         let (e, et) = measure(&gl, &case);
-        let key = format!("{} {}", case.bake.method, case.bake.format);
+        let key = format!(
+            "{} {} {}",
+            case.bake.method,
+            case.bake.format,
+            case.brdf.model()
+        );
         let entry = table.entry(key).or_default();
         entry.0 = entry.0.max(e);
         entry.1 = entry.1.max(et);
-        if e.max(et) > tolerance(case.brdf) {
+        if e.max(et) > tolerance(&case.brdf) {
             failures.push(format!("{}: {e:.2e} / trilinear {et:.2e}", label(&case)));
         }
     }
@@ -219,6 +357,33 @@ fn run(route: Route) {
         println!("  {k:<16} {e:.2e} / {et:.2e}");
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Whether the driver offers `GL_EXT_texture_filter_anisotropic` (or GL 4.6's ARB version) and
+/// its largest ratio. Mesa's llvmpipe does (16): an elliptical weighted average (Heckbert's EWA,
+/// a Gaussian weight table) over the texels of one MIP level — a different footprint from the
+/// shaders' `NDF_ANISO` probes, which is why the shaders do their own (module docs of
+/// `ndfmap::sample::aniso_probes`). Both are linear filters of the texel values.
+fn report_hardware_anisotropy(gl: &Gl) {
+    use glow::HasContext;
+    let ext = gl.glow().supported_extensions();
+    let has = ext.contains("GL_EXT_texture_filter_anisotropic")
+        || ext.contains("GL_ARB_texture_filter_anisotropic");
+    // SAFETY: the context is current on this thread; a valid enum of the extension.
+    let max = if has {
+        unsafe {
+            gl.glow()
+                .get_parameter_f32(glow::MAX_TEXTURE_MAX_ANISOTROPY)
+        }
+    } else {
+        0.0
+    };
+    println!(
+        "{} ({}): texture_filter_anisotropic {}, max ratio {max}",
+        gl.route(),
+        gl.renderer(),
+        if has { "offered" } else { "absent" }
+    );
 }
 
 #[test]

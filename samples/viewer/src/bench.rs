@@ -112,6 +112,7 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
         let bake_options = BakeOptions {
             lobes: spec.lobes.max(1),
             align: spec.aligned.then_some(options.align),
+            lmax: spec.lobes,
             ..BakeOptions::default()
         };
         let b = bake_with(&map, spec.method, &bake_options).map_err(|e| e.to_string())?;

@@ -85,6 +85,10 @@ struct Cli {
     /// Torrance-Sparrow (eq 18) instead of Blinn-Phong.
     #[arg(long)]
     torrance_sparrow: bool,
+    /// GGX with Smith masking and Schlick Fresnel, α = sqrt(2/(s+2)) (about the width of
+    /// Blinn-Phong s), instead of Blinn-Phong.
+    #[arg(long)]
+    ggx: bool,
     /// Ignore the map's albedo.
     #[arg(long)]
     no_color: bool,
@@ -169,6 +173,7 @@ fn settings(cli: &Cli) -> Settings {
         s.lighting.ks = Vec3::splat(ks);
     }
     s.torrance_sparrow = cli.torrance_sparrow;
+    s.ggx = cli.ggx;
     s.color = !cli.no_color;
     s.format = cli.format;
     s.supersampling = cli.ss.max(1);

@@ -1,5 +1,5 @@
 //! What the viewer draws with: [`MethodSpec`] names a method with its lobe count and alignment
-//! (`plain`, `toksvig`, `lean`, `olano`, `vmf6a`, `vmf4`, `tan2005-4`, …, the labels of
+//! (`plain`, `toksvig`, `lean`, `olano`, `vmf6a`, `vmf4`, `tan2005-4`, `sh6`, …, the labels of
 //! `ndfmap::bake::Bake::label`), and [`Bakes`] bakes them once each, on a background thread.
 
 use ndfmap::NormalMap;
@@ -16,7 +16,7 @@ use std::sync::mpsc::{Receiver, Sender, channel};
 pub struct MethodSpec {
     /// The method.
     pub method: Method,
-    /// Lobes (mixtures), 0 for the baselines.
+    /// Lobes (mixtures), the band limit l* (SH), 0 for the baselines.
     pub lobes: usize,
     /// Aligned lobes (Sec 7.3, hardware filtering); mixtures only.
     pub aligned: bool,
@@ -46,9 +46,19 @@ impl MethodSpec {
         matches!(self.method, Method::Vmf | Method::Tan2005)
     }
 
-    /// The same method with `lobes` lobes (baselines are unchanged).
+    /// The spherical-harmonic NDF with band limit `lmax`.
+    pub const fn sh(lmax: usize) -> Self {
+        MethodSpec {
+            method: Method::Sh,
+            lobes: lmax,
+            aligned: false,
+        }
+    }
+
+    /// The same method with `lobes` lobes, or SH with band limit `lobes` (baselines are
+    /// unchanged).
     pub fn with_lobes(self, lobes: usize) -> Self {
-        if self.is_mixture() {
+        if self.is_mixture() || self.method == Method::Sh {
             MethodSpec { lobes, ..self }
         } else {
             self
@@ -76,6 +86,9 @@ impl fmt::Display for MethodSpec {
             }
             write!(f, "{}{}", self.lobes, if self.aligned { "a" } else { "" })?;
         }
+        if self.method == Method::Sh {
+            write!(f, "{}", self.lobes)?;
+        }
         Ok(())
     }
 }
@@ -84,8 +97,9 @@ impl FromStr for MethodSpec {
     type Err = String;
 
     /// `plain`, `toksvig`, `lean`, `olano`; `vmf` or `tan2005` followed by a lobe count (1–8,
-    /// `-` optional) and `a` for aligned lobes: `vmf6a`, `vmf4`, `tan2005-4a`. A bare `vmf` is
-    /// `vmf6a`, a bare `tan2005` is `tan2005-4`.
+    /// `-` optional) and `a` for aligned lobes: `vmf6a`, `vmf4`, `tan2005-4a`; `sh` followed by
+    /// the band limit (0–10): `sh6`. A bare `vmf` is `vmf6a`, a bare `tan2005` is `tan2005-4`, a
+    /// bare `sh` is `sh6`.
     fn from_str(s: &str) -> Result<Self, String> {
         let s = s.trim().to_ascii_lowercase();
         let name_end = if let Some(rest) = s.strip_prefix("tan2005") {
@@ -114,6 +128,17 @@ impl FromStr for MethodSpec {
                     .filter(|j| (1..=8).contains(j))
                     .ok_or_else(|| format!("'{s}': the lobe count must be 1 to 8"))?;
                 Ok(MethodSpec::mixture(method, lobes, aligned))
+            }
+            Method::Sh => {
+                if rest.is_empty() {
+                    return Ok(MethodSpec::sh(6));
+                }
+                let lmax: usize = rest
+                    .parse()
+                    .ok()
+                    .filter(|l| *l <= 10)
+                    .ok_or_else(|| format!("'{s}': the band limit must be 0 to 10"))?;
+                Ok(MethodSpec::sh(lmax))
             }
             _ if rest.is_empty() => Ok(MethodSpec::baseline(method)),
             _ => Err(format!("'{s}': {method} takes no lobe count")),
@@ -215,6 +240,7 @@ fn bake_key(map: &NormalMap, key: BakeKey, align: f64) -> Result<Bake, String> {
     let options = BakeOptions {
         lobes: spec.lobes.max(1),
         align: spec.aligned.then_some(align),
+        lmax: spec.lobes,
         ..BakeOptions::default()
     };
     if key.color && spec.is_mixture() {
@@ -262,11 +288,13 @@ mod tests {
             ("tan20054", "tan2005-4"),
             ("tan2005", "tan2005-4"),
             ("olano", "olano"),
+            ("sh", "sh6"),
+            ("SH2", "sh2"),
         ] {
             let spec: MethodSpec = text.parse().unwrap();
             assert_eq!(spec.to_string(), want, "{text}");
         }
-        for bad in ["vmf9", "vmf0a", "plain2", "phong", "vmfx"] {
+        for bad in ["vmf9", "vmf0a", "plain2", "phong", "vmfx", "sh11", "sh2a"] {
             assert!(bad.parse::<MethodSpec>().is_err(), "{bad}");
         }
     }
@@ -274,7 +302,7 @@ mod tests {
     #[test]
     fn labels_match_the_bakes() {
         let map = ndfmap::procedural::generate(16, 1).map;
-        for spec in ["plain", "lean", "vmf2a", "vmf2", "tan2005-2"] {
+        for spec in ["plain", "lean", "vmf2a", "vmf2", "tan2005-2", "sh3"] {
             let spec: MethodSpec = spec.parse().unwrap();
             let key = BakeKey { spec, color: false };
             let b = bake_key(&map, key, 0.1).unwrap();

@@ -137,12 +137,15 @@ pub struct Settings {
     pub shape: Shape,
     /// The camera (aspect and clip distances are set per frame).
     pub camera: Camera,
-    /// Light, its colour, K_d and K_s (the BRDF comes from `exponent` and `torrance_sparrow`).
+    /// Light, its colour, K_d and K_s (the BRDF comes from `exponent`, `torrance_sparrow` and
+    /// `ggx`).
     pub lighting: Lighting,
     /// Blinn-Phong exponent s; Torrance–Sparrow uses the σ of the same width, `sqrt(1/(2s))`.
     pub exponent: f64,
     /// Torrance–Sparrow (eq 18) instead of Blinn-Phong.
     pub torrance_sparrow: bool,
+    /// GGX with Smith masking and Schlick Fresnel (`G`), ahead of `torrance_sparrow`.
+    pub ggx: bool,
     /// The map's albedo as colour (mixtures baked with colour textures, and their reference).
     pub color: bool,
     /// What the image shows.
@@ -169,6 +172,7 @@ impl Settings {
             lighting,
             exponent: 256.0,
             torrance_sparrow: false,
+            ggx: false,
             color: true,
             show: Show::Method,
             format: Format::F32,
@@ -207,9 +211,15 @@ impl Settings {
         self.methods[self.current]
     }
 
-    /// The BRDF of the current settings.
+    /// The BRDF of the current settings: GGX with Smith and Schlick (`α = sqrt(2/(s+2))`, the
+    /// roughness of about the same width), the eq 18 lobe (`σ = sqrt(1/(2s))`), or Blinn-Phong.
     pub fn brdf(&self) -> Brdf {
-        if self.torrance_sparrow {
+        if self.ggx {
+            Brdf::Ggx(ndfmap::brdf::Ggx {
+                g: true,
+                ..ndfmap::brdf::Ggx::new((2.0 / (self.exponent + 2.0)).sqrt())
+            })
+        } else if self.torrance_sparrow {
             Brdf::TorranceSparrow {
                 sigma: (0.5 / self.exponent).sqrt(),
             }
@@ -222,7 +232,7 @@ impl Settings {
     pub fn lighting(&self) -> Lighting {
         Lighting {
             brdf: self.brdf(),
-            ..self.lighting
+            ..self.lighting.clone()
         }
     }
 
@@ -269,7 +279,7 @@ impl Settings {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct RendererKey {
     bake: BakeKey,
-    torrance_sparrow: bool,
+    brdf: ShaderBrdf,
     format: Format,
     /// Cut to the finest level (the reference).
     finest: bool,
@@ -421,7 +431,7 @@ impl Viewer {
     fn renderer_key(&self, bake: BakeKey, finest: bool) -> RendererKey {
         RendererKey {
             bake,
-            torrance_sparrow: self.settings.torrance_sparrow,
+            brdf: ShaderBrdf::of(&self.settings.brdf()),
             format: self.settings.format,
             finest,
         }
@@ -444,10 +454,7 @@ impl Viewer {
         };
         let b = ndfmap::pack::quantize(b, key.format).map_err(|e| e.to_string())?;
         let options = ShaderOptions {
-            brdf: match key.torrance_sparrow {
-                true => ShaderBrdf::TorranceSparrow,
-                false => ShaderBrdf::BlinnPhong,
-            },
+            brdf: key.brdf,
             // The reference: hardware sampling of its single level (see the module docs).
             sampling: if key.finest {
                 Sampling::Hardware
@@ -456,6 +463,7 @@ impl Viewer {
             },
             color: key.bake.color,
             probe: false,
+            ..ShaderOptions::default()
         };
         let r = BakeRenderer::new(&self.gl, &b, &options).map_err(|e| e.to_string())?;
         self.renderers.insert(key, r);
@@ -552,7 +560,7 @@ impl Viewer {
             key,
             shape,
             camera,
-            lighting,
+            lighting: lighting.clone(),
             size: (width, height),
         };
         let targets = self.targets.as_mut().expect("made above");
@@ -628,10 +636,7 @@ impl Viewer {
         let mut line = format!(
             "ndfmap-viewer | {} | {} | {}",
             info.drawn.as_deref().unwrap_or("-"),
-            match s.brdf() {
-                Brdf::BlinnPhong { s } => format!("Blinn-Phong s={s}"),
-                Brdf::TorranceSparrow { sigma } => format!("Torrance-Sparrow sigma={sigma:.4}"),
-            },
+            s.brdf(),
             if self.uses_color(wanted) {
                 "albedo"
             } else {

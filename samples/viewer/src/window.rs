@@ -207,6 +207,7 @@ impl App {
                 "]" => s.scale_exponent(2.0),
                 "[" => s.scale_exponent(0.5),
                 "t" => s.torrance_sparrow = !s.torrance_sparrow,
+                "g" => s.ggx = !s.ggx,
                 "f" => {
                     s.format = match s.format {
                         Format::F32 => Format::F16,

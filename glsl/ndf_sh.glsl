@@ -1,0 +1,99 @@
+// ndf_sh.glsl - the spherical-harmonic NDF of Han et al. 2007, Sec 5 (eq 12).
+//
+// Textures hold c_lm = sqrt(4 pi/(2l+1)) gamma_lm for l <= NDF_SH_LMAX, four per RGBA texture in
+// (l, m) order (coefficient i = l*l + l + m is t[i/4][i%4]); they filter linearly, so hardware
+// trilinear and anisotropic filtering are exact (DESIGN.md "Texture layouts"). Per texel (CPU
+// twin: sh::shade, harmonics::eval_into):
+//   diffuse   clamp(sum_l rhoL_l/Lambda_l sum_m c_lm Y_lm(w_i), 0, 1)  Lambert's rho (the generated
+//             NDF_SH_LAMBERT): the cosine is Lambert's f itself, exact up to the band limit;
+//   specular  clamp(sum_l rho_l/Lambda_l sum_m c_lm Y_lm(w_h), 0, peak) * max(w_i . nbar, 0), rho_l the
+//             BRDF's (eq 11, uniform ndf_sh_rho, from Brdf::sh_coefficients) and nbar the
+//             MIP-mapped normal normalize(c_11, c_1-1, c_10) (Sec 4.3).
+// Ringing of truncated sharp lobes is clamped at 0, and from above where the exact footprint
+// average cannot go: the diffuse term at 1 (the truncated clamped cosine overshoots by up to 1/16
+// at l* = 2), the specular one at the lobe's peak ndf_sh_peak (Gibbs' overshoot of a lobe with a
+// jump). The g factor is applied by ndf_fragment.glsl.
+
+#ifndef NDF_BRDF_LAMBERT
+uniform float ndf_sh_rho[NDF_SH_LMAX + 1];  // the BRDF's rho_l, l = 0 .. NDF_SH_LMAX
+uniform float ndf_sh_peak;                  // the lobe's largest value (Brdf::peak)
+#endif
+
+const int NDF_SH_COUNT = (NDF_SH_LMAX + 1) * (NDF_SH_LMAX + 1);
+
+// Real spherical harmonics Y_lm(d), l <= NDF_SH_LMAX, in (l, m) order, by the normalized
+// Legendre recurrences in Cartesian form (no factorials; CPU: harmonics::eval_into).
+void ndf_sh_eval(vec3 d, out float y[NDF_SH_COUNT]) {
+    d = ndf_normalize_or_z(d);
+    float c = 1.0;
+    float s = 0.0;
+    float pmm = 0.28209479177387814;  // 1 / sqrt(4 pi)
+    for (int m = 0; m <= NDF_SH_LMAX; ++m) {
+        if (m > 0) {
+            pmm *= sqrt(float(2 * m + 1) / float(2 * m));
+            float cn = d.x * c - d.y * s;
+            s = d.x * s + d.y * c;
+            c = cn;
+        }
+        float mf = float(m);
+        float p0 = pmm;
+        float p1 = 0.0;
+        for (int l = m; l <= NDF_SH_LMAX; ++l) {
+            float p;
+            if (l == m) {
+                p = pmm;
+            } else if (l == m + 1) {
+                p = sqrt(2.0 * mf + 3.0) * d.z * pmm;
+                p1 = p;
+            } else {
+                float lf = float(l);
+                float a = sqrt((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf));
+                float b = sqrt(((lf - 1.0) * (lf - 1.0) - mf * mf) /
+                               (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0));
+                p = a * (d.z * p1 - b * p0);
+                p0 = p1;
+                p1 = p;
+            }
+            int centre = l * l + l;
+            if (m == 0) {
+                y[centre] = p;
+            } else {
+                y[centre + m] = 1.4142135623730951 * p * c;
+                y[centre - m] = 1.4142135623730951 * p * s;
+            }
+        }
+    }
+}
+
+// eq 12 for one direction: sum_l w_l / Lambda_l sum_m c_lm y_lm (CPU: sh::series).
+float ndf_sh_series(vec4 t[NDF_TEXTURES], float y[NDF_SH_COUNT], float w[NDF_SH_LMAX + 1]) {
+    float sum = 0.0;
+    for (int l = 0; l <= NDF_SH_LMAX; ++l) {
+        if (w[l] == 0.0) continue;
+        float band = 0.0;
+        for (int i = l * l; i < (l + 1) * (l + 1); ++i) {
+            band += t[i >> 2][i & 3] * y[i];
+        }
+        sum += w[l] / sqrt(4.0 * NDF_PI / float(2 * l + 1)) * band;
+    }
+    return sum;
+}
+
+void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+    float y[NDF_SH_COUNT];
+    ndf_sh_eval(l, y);
+    float d = clamp(ndf_sh_series(t, y, NDF_SH_LAMBERT), 0.0, 1.0);
+    float spec = 0.0;
+#ifndef NDF_BRDF_LAMBERT
+    ndf_sh_eval(h, y);
+    float f = clamp(ndf_sh_series(t, y, ndf_sh_rho), 0.0, ndf_sh_peak);
+#if NDF_SH_LMAX >= 1
+    vec3 nbar = ndf_normalize_or_z(vec3(t[0].w, t[0].y, t[0].z));
+#else
+    vec3 nbar = vec3(0.0, 0.0, 1.0);
+#endif
+    spec = f * max(dot(nbar, l), 0.0);
+#endif
+    diffuse = vec3(d);
+    specular = vec3(spec);
+}
