@@ -37,7 +37,7 @@ uniform float ndf_s;      // Blinn-Phong exponent s > 0 (eq 20)
 float ndf_pow(float x, float y) {
     if (y <= 0.0) return 1.0;
     if (x <= 0.0) return 0.0;
-    return pow(x, y);
+    return exp2(y * log2(x));
 }
 
 // Normalized Blinn-Phong lobe (s+1)/(2 pi) max(c, 0)^s, eq 20's form. CPU: shade::blinn_phong.

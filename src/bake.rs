@@ -268,13 +268,16 @@ impl FitMode {
         }
     }
 
-    /// The most normals a texel's EM runs on, or `None` for all of them. Texels covering more
-    /// (levels 7 and coarser of a power-of-two map, over 4096 normals) are fitted to a
-    /// stratified sample of their normals: one per square cell of the footprint, weighted by
-    /// the cell. Exact mode fits every normal.
-    pub fn sample_cap(self) -> Option<usize> {
+    /// The most normals a texel's EM runs on in a level of `texels` texels, or `None` for all
+    /// of them. Texels covering more (levels 7 and coarser of a power-of-two map, over 4096
+    /// normals) are fitted to a stratified sample of their normals: one per square cell of the
+    /// footprint, weighted by the cell. The cap is 4096 normals, raised so that a level's
+    /// texels together keep at least 2¹⁸ samples: the few texels of the coarsest levels
+    /// (4096 samples of a million normals left the 1×1 level's error up to 2× higher) cost
+    /// little more than one finer level. Exact mode fits every normal.
+    pub fn sample_cap(self, texels: usize) -> Option<usize> {
         match self {
-            FitMode::Fast | FitMode::Balanced => Some(4096),
+            FitMode::Fast | FitMode::Balanced => Some(4096.max((1 << 18) / texels.max(1))),
             FitMode::Exact => None,
         }
     }

@@ -340,6 +340,10 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
             "NDF_R_MAX",
             &float_literal(crate::vmf::r_max(spec.format) as f32),
         );
+        d(
+            "NDF_ALPHA_MIN",
+            &float_literal(crate::vmf::alpha_min(spec.format) as f32),
+        );
     }
     out += COMMON;
     out += &bindings(spec, textures, manual);

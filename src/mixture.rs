@@ -646,9 +646,10 @@ fn bottom_up<M: Model>(
         let level = LevelFootprints::new(finest, (w, h));
         let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
         let prev = &fits[k - 1];
+        let cap = options.mode.sample_cap((w * h) as usize);
         let fit_texel = |g: &mut Gather<M>, t: u32| -> TexelFit<M::C> {
             let (x, y) = (t % w, t / w);
-            g.collect(map, &level, x, y, options.mode.sample_cap());
+            g.collect(map, &level, x, y, cap);
             if g.normals.len() <= j {
                 return g.one_per_normal();
             }
@@ -808,6 +809,7 @@ fn top_down<M: Model>(
         }
         let level = LevelFootprints::new(finest, (w, h));
         let texels = (w * h) as usize;
+        let cap = options.mode.sample_cap(texels);
         let mut out = LevelFit {
             colors: map.feature().map(|_| planes(j, texels, true)),
             texels: planes(j, texels, true),
@@ -834,7 +836,7 @@ fn top_down<M: Model>(
                     let x = d - 2 * y;
                     let t = (y * w + x) as usize;
                     let parent = parent_of_texel(x, y);
-                    g.collect(map, &level, x, y, options.mode.sample_cap());
+                    g.collect(map, &level, x, y, cap);
                     if g.normals.len() <= j && M::closed_form_when_aligned(options, g.min_alpha()) {
                         let fit = g.one_per_normal();
                         let fit = match &parent {

@@ -27,44 +27,69 @@ fn v3(t: [f32; 4]) -> DVec3 {
     DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64)
 }
 
-/// Decodes a vMF lobe texel `θ = (α, α·r)` as Algorithm 2 lines 7–10 do: `(α, μ, κ)` with
-/// `|r|` clamped to `r_max`, or `None` for an empty lobe (`α ≤ 0`: line 8 would divide by 0).
-/// A zero `r` is the uniform lobe (κ = 0, μ = +Z).
-pub fn vmf_decode(theta: [f32; 4], r_max: f64) -> Option<(f64, DVec3, f64)> {
+/// A vMF lobe texel decoded as the shader decodes it ([`vmf_decode`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VmfTexel {
+    /// The lobe's weight α.
+    pub alpha: f64,
+    /// Its direction μ (+Z for a zero `r`).
+    pub mu: DVec3,
+    /// Its variance `1/κ` from the clamped `|r|` ([`crate::vmf::inverse_kappa`]; 10⁶ for a zero
+    /// `r`, the uniform lobe).
+    pub var: f64,
+    /// `|r|` before the clamp (what the mean-vector diffuse term uses).
+    pub r_len: f64,
+}
+
+/// Decodes a vMF lobe texel `θ = (α, α·r)` as Algorithm 2 lines 7–10 do, in the shader's
+/// order: `μ = θ.yzw/|θ.yzw|`, `|r| = |θ.yzw|/α` clamped to `r_max`, `1/κ` from it without
+/// cancellation ([`crate::vmf::inverse_kappa`]). `None` for a lobe to skip: `α ≤ alpha_min`
+/// (empty — line 8 would divide by 0 —, quantized away, or below the storage format's
+/// resolution, [`crate::vmf::alpha_min`]; NaN too). A zero `r` is the uniform lobe (μ = +Z).
+pub fn vmf_decode(theta: [f32; 4], r_max: f64, alpha_min: f64) -> Option<VmfTexel> {
     let alpha = theta[0] as f64;
-    if alpha.is_nan() || alpha <= 0.0 {
+    if alpha.is_nan() || alpha <= alpha_min.max(0.0) {
         return None;
     }
-    let r = DVec3::new(theta[1] as f64, theta[2] as f64, theta[3] as f64) / alpha;
-    let len = r.length();
-    if len > 0.0 && len.is_finite() {
-        let rc = len.min(r_max);
-        Some((alpha, r / len, (3.0 * rc - rc * rc * rc) / (1.0 - rc * rc)))
+    let m = DVec3::new(theta[1] as f64, theta[2] as f64, theta[3] as f64);
+    let len = m.length();
+    Some(if len > 0.0 && len.is_finite() {
+        let r_len = len / alpha;
+        VmfTexel {
+            alpha,
+            mu: m / len,
+            var: crate::vmf::inverse_kappa(r_len.min(r_max)),
+            r_len,
+        }
     } else {
-        Some((alpha, DVec3::Z, 0.0))
-    }
+        VmfTexel {
+            alpha,
+            mu: DVec3::Z,
+            var: UNIFORM_VARIANCE,
+            r_len: 0.0,
+        }
+    })
 }
+
+/// The variance a uniform lobe (κ = 0) is shaded with: large enough that every widening rule
+/// gives the flattest lobe it has (the shaders use the same constant).
+const UNIFORM_VARIANCE: f64 = 1e6;
 
 /// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
 /// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
-/// [`crate::vmf::r_max`]) before κ is computed:
-/// `r = θ.yzw/α`, `κ = (3|r| − |r|³)/(1 − |r|²)`, `μ = r/|r|`, `s' = κs/(κ+s)` (eq 20),
-/// `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`; diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
+/// [`crate::vmf::r_max`]) before κ is computed ([`vmf_decode`], every α > 0 kept):
+/// `s' = κs/(κ+s)` computed as `s/(1 + s/κ)` (eq 20), `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`;
+/// diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
 /// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
-/// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe: `s' = 0`, μ = +Z.
+/// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe.
 pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shading {
-    let Some((alpha, mu, kappa)) = vmf_decode(theta, r_max) else {
+    let Some(t) = vmf_decode(theta, r_max, 0.0) else {
         return Shading::default();
     };
-    let s_eff = if kappa + s > 0.0 {
-        kappa * s / (kappa + s)
-    } else {
-        0.0
-    };
-    let cos_i = mu.dot(l).max(0.0);
+    let cos_i = t.mu.dot(l).max(0.0);
     Shading {
-        diffuse: alpha * cos_i,
-        specular: alpha * blinn_phong(mu.dot(h), s_eff) * cos_i,
+        diffuse: t.alpha * cos_i,
+        specular: t.alpha * blinn_phong(t.mu.dot(h), s / (1.0 + s * t.var)) * cos_i,
     }
 }
 
@@ -337,16 +362,13 @@ fn mixture_component(
 ) -> Option<Component> {
     let (alpha, mu, var, s_eff, r_len) = match bake.method {
         Method::Vmf => {
-            let (alpha, mu, kappa) = vmf_decode(texel, crate::vmf::r_max(bake.format))?;
-            let var = if kappa > 0.0 { 1.0 / kappa } else { 1e6 };
+            let t = vmf_decode(
+                texel,
+                crate::vmf::r_max(bake.format),
+                crate::vmf::alpha_min(bake.format),
+            )?;
             let s = brdf.equivalent_exponent();
-            let s_eff = if kappa + s > 0.0 {
-                kappa * s / (kappa + s)
-            } else {
-                0.0
-            };
-            let r = DVec3::new(texel[1] as f64, texel[2] as f64, texel[3] as f64) / alpha;
-            (alpha, mu, var, s_eff, r.length())
+            (t.alpha, t.mu, t.var, s / (1.0 + s * t.var), t.r_len)
         }
         Method::Tan2005 => {
             let g = crate::tan2005::Gaussian::from_texel(texel);

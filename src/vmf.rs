@@ -59,6 +59,31 @@ pub fn r_max(format: Format) -> f64 {
     }
 }
 
+/// The smallest lobe weight α the shaders (and the CPU twin, `shade::vmf_decode`) shade from a
+/// texel of `format`: lobes at or below it are skipped. It is the format's resolution at the
+/// scale of a whole texel (Σα = 1), half an ulp at 1: f32 `2⁻²⁴`, f16 `2⁻¹¹`, unorm16 and
+/// unorm8 0 (every stored α > 0 is at least one step). A skipped lobe changes a texel's
+/// diffuse term by at most α and its specular term by at most α times the lobe's peak.
+pub fn alpha_min(format: Format) -> f64 {
+    match format {
+        Format::F32 => 1.0 / 16_777_216.0,
+        Format::F16 => 1.0 / 2048.0,
+        Format::Unorm16 | Format::Unorm8 => 0.0,
+    }
+}
+
+/// `1/κ` from a mean resultant length `r` by Banerjee's approximation (Algorithm 2 line 9,
+/// [`kappa_banerjee`] inverted): `(1 − r)(1 + r) / (r (3 − r²))`, with `1 − r²` factored so that
+/// r near 1 loses no digits (the shaders evaluate it in f32); 10⁶ (the uniform lobe's) for
+/// `r ≤ 0` or NaN. `r` is expected clamped (≤ [`R_MAX`] or a format's [`r_max`]).
+pub fn inverse_kappa(r: f64) -> f64 {
+    if r > 0.0 {
+        ((1.0 - r) * (1.0 + r) / (r * (3.0 - r * r))).min(1e6)
+    } else {
+        1e6
+    }
+}
+
 /// Banerjee's approximation of `A⁻¹(r)` on S² (Algorithm 1 line 12):
 /// `κ = (3r − r³)/(1 − r²)`, *without* the clamp. Valid for `r` in `[0, 1)`; infinite at 1.
 /// Use [`kappa_from_r`] unless the raw formula is what is wanted.

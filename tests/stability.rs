@@ -259,23 +259,21 @@ fn toksvig_from_a_two_channel_mean_loses_the_roughness_the_three_channel_mean_ke
 /// format's clamp, eq 20, `ndf_pow`'s conventions.
 fn vmf_lobe_f32(theta: [f32; 4], l: Vec3, h: Vec3, s: f32, r_max: f32) -> (f32, f32) {
     let alpha = theta[0];
-    let (mut mu, mut kappa) = (Vec3::Z, 0.0f32);
-    // GLSL's `!(alpha > 0.0)`: NaN and non-positive α are empty lobes.
+    let (mut mu, mut var) = (Vec3::Z, 1e6f32);
+    // GLSL's `!(alpha > NDF_ALPHA_MIN)` (0 here, as vmf_lobe): NaN and non-positive α are
+    // empty lobes.
     if alpha.is_nan() || alpha <= 0.0 {
         return (0.0, 0.0);
     }
-    let r = Vec3::new(theta[1], theta[2], theta[3]) / alpha;
-    let len = r.length();
-    if len > 0.0 && len < 1e30 {
-        let rc = len.min(r_max);
-        kappa = (3.0 * rc - rc * rc * rc) / (1.0 - rc * rc);
-        mu = r / len;
+    let m = Vec3::new(theta[1], theta[2], theta[3]);
+    let m2 = m.dot(m);
+    if m2 > 0.0 && m2 < 1e30 {
+        let inv = 1.0 / m2.sqrt(); // inversesqrt
+        mu = m * inv;
+        let rc = (m2 * inv / alpha).min(r_max);
+        var = ((1.0 - rc) * (1.0 + rc) / (rc * (3.0 - rc * rc))).min(1e6);
     }
-    let s_eff = if kappa + s > 0.0 {
-        kappa * s / (kappa + s)
-    } else {
-        0.0
-    };
+    let s_eff = s / (1.0 + s * var);
     let ndf_pow = |x: f32, y: f32| {
         if y <= 0.0 {
             1.0
