@@ -866,10 +866,11 @@ struct Decoded {
     samples: SampleBuf,
 }
 
-/// Reads a whole input file, bounded: only a regular file (a FIFO would block, a device such as
-/// `/dev/zero` never ends), and at most the memory budget's bytes.
-fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
-    use std::io::Read;
+/// Opens an input file for reading if it is a regular file (a FIFO would block, a device such
+/// as `/dev/zero` never ends, a folder is not a file): [`Error::Read`] naming the kind
+/// otherwise. Returns the open file and its metadata. Every reader of input files (images,
+/// features, tabulated BRDFs) opens through it, then bounds what it reads.
+pub(crate) fn open_regular_file(path: &Path) -> Result<(std::fs::File, std::fs::Metadata)> {
     let read_error = |source: std::io::Error| Error::Read {
         path: path.to_path_buf(),
         source,
@@ -891,6 +892,18 @@ fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
     if !meta.is_file() {
         return Err(not_regular(&meta));
     }
+    Ok((file, meta))
+}
+
+/// Reads a whole input file, bounded: only a regular file ([`open_regular_file`]), and at most
+/// the memory budget's bytes.
+fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let read_error = |source: std::io::Error| Error::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let (file, meta) = open_regular_file(path)?;
     let limit = crate::budget::resolve(limit);
     let file_budget = |len: u64| {
         crate::budget::check(

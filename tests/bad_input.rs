@@ -31,6 +31,20 @@
 //!     `tiny_float_normals_keep_their_direction`; the plot's tick labels:
 //!     `report::plot::tests::tick_labels_have_three_significant_digits_at_most` (src/).
 //!
+//! New parsers (issue 13's "Also"), tabulated BRDF files (`Tabulated::load`/`from_json`,
+//! `ndf_material_new`, `--brdf FILE`):
+//! - Malformed JSON, unknown fields, negative/NaN/infinite/unordered samples, values above
+//!   `MAX_VALUE` (10¹²; near `f64::MAX` they made `ρ̂_l` infinite, fuzz finding 2), counts
+//!   outside 2 to `MAX_SAMPLES` (1024) are errors naming the fault, Rust and C alike:
+//!   `malformed_tabulated_brdfs_are_errors_naming_the_fault` (and `src/brdf/tabulated.rs`
+//!   `json_round_trip_and_errors`).
+//! - A FIFO, a folder, `/dev/zero`, a file over `MAX_FILE_BYTES` (4 MiB) or not UTF-8 as the
+//!   BRDF file is refused without blocking (a FIFO blocked forever before):
+//!   `tabulated_brdf_paths_that_are_not_small_regular_files_are_refused_without_blocking`.
+//! - Fuzzed (fuzz/README.md): `c_material` (the parser through `ndf_material_new`, the Rust
+//!   paths, coefficients, peak, table) and `c_bake_sh` (`ndf_bake_sh` with l* of any `u32`,
+//!   tiny budgets, cancelling callbacks, tiny maps).
+//!
 //! Earlier classes (their tests live beside the code they guard):
 //! - Corrupt, truncated, empty, missing files and folders as input: `tests/ingest.rs`
 //!   `corrupt_truncated_empty_and_missing_files`; through the CLI, one line and no manifest:
@@ -59,8 +73,12 @@ use common::{assert_one_line_error, ndfmap, ndfmap_with};
 use glam::Vec3;
 use ndfmap::Error;
 use ndfmap::bake::{BakeOptions, Method};
+use ndfmap::brdf::Tabulated;
+use ndfmap::brdf::tabulated::{MAX_FILE_BYTES, MAX_SAMPLES, TabulatedFile};
 use ndfmap::ffi::bake::*;
+use ndfmap::ffi::brdf::*;
 use ndfmap::ffi::map::*;
+use ndfmap::ffi::shader::NDF_BRDF_TABULATED;
 use ndfmap::ffi::{ndf_last_error_message, ndf_status};
 use ndfmap::ingest::{BadNormals, Channels, IngestOptions, NormalMap, Samples};
 use ndfmap::methods::{bake_with, bake_with_progress};
@@ -1338,4 +1356,315 @@ fn tiny_float_normals_keep_their_direction() {
     }
     assert_eq!(map.stats().zero_length.count, 1);
     assert_eq!(map.stats().zero_length.first, Some((3, 0)));
+}
+
+// ---- Tabulated BRDF files (issue 13's "Also": new parsers) --------------------------------
+
+/// A tabulated BRDF's JSON through the Rust parser and `ndf_material_new` (`tabulated_json`):
+/// the error (`Error::Brdf`, `NDF_STATUS_INVALID_ARGUMENT`) naming the source and containing
+/// `why`, and no handle.
+fn assert_tabulated_refused(json: &[u8], why: &str) {
+    if let Ok(text) = std::str::from_utf8(json) {
+        match Tabulated::from_json(text, "bad.json") {
+            Err(e @ Error::Brdf { .. }) => {
+                let e = e.to_string();
+                assert!(e.contains("bad.json") && e.contains(why), "{text}: {e}");
+            }
+            other => panic!("{text}: expected a BRDF error, got {other:?}"),
+        }
+    }
+    let c = std::ffi::CString::new(json).unwrap();
+    let o = ndf_material_options {
+        model: NDF_BRDF_TABULATED,
+        tabulated_json: c.as_ptr(),
+        ..ndf_material_options_default()
+    };
+    let mut m = std::ptr::null_mut();
+    // SAFETY: options valid, string NUL-terminated; out-pointer valid.
+    let status = unsafe { ndf_material_new(&o, &mut m) };
+    assert_eq!(status, ndf_status::InvalidArgument, "{json:?}");
+    assert!(m.is_null());
+    assert!(last_error().contains(why), "{json:?}: {}", last_error());
+}
+
+/// `[v, v, …]` with `n` samples, as JSON.
+fn json_array(n: usize, v: f64) -> String {
+    format!("[{}]", vec![v.to_string(); n].join(","))
+}
+
+/// New parser (tabulated BRDF JSON, `ndf_material_new`, `--brdf FILE`): malformed JSON, unknown
+/// fields, negative, NaN, infinite, out-of-range and unordered samples, counts outside 2 to
+/// `MAX_SAMPLES` are errors naming the file and the fault, through Rust and the C API alike;
+/// exactly `MAX_SAMPLES` samples are accepted. (`src/brdf/tabulated.rs`
+/// `json_round_trip_and_errors` covers a few of these on the Rust side.)
+#[test]
+fn malformed_tabulated_brdfs_are_errors_naming_the_fault() {
+    let many = json_array(MAX_SAMPLES + 1, 1.0);
+    let cases: Vec<(String, &str)> = vec![
+        // Malformed JSON.
+        (String::new(), "EOF"),
+        (r#"{"f": [1.0, 2.0"#.into(), "EOF"),
+        (r#"{"f": [1.0, 2.0],}"#.into(), "trailing comma"),
+        (r#"[1.0, 2.0]"#.into(), "invalid type"),
+        (r#"null"#.into(), "invalid type"),
+        (r#"{"f": "1, 2"}"#.into(), "invalid type"),
+        (
+            r#"{"f": [1.0, 2.0]} {"f": [1.0, 2.0]}"#.into(),
+            "trailing characters",
+        ),
+        (r#"{"f": [1.0, NaN]}"#.into(), "expected value"),
+        (r#"{"f": [1.0, 1e999]}"#.into(), "out of range"),
+        (
+            r#"{"f": [1.0, 2.0], "f": [1.0, 2.0]}"#.into(),
+            "duplicate field",
+        ),
+        // Unknown field.
+        (
+            r#"{"f": [1.0, 2.0], "theta_h": [0, 90]}"#.into(),
+            "unknown field",
+        ),
+        // Negative and unordered samples, angles out of range or of the wrong count.
+        (r#"{"f": [1.0, -0.5]}"#.into(), "f[1] = -0.5"),
+        (r#"{"f": [1.0, 0.5], "g": [1.0, -1e-9]}"#.into(), "g[1]"),
+        // Fuzz finding 2 (fuzz/README.md): finite values near f64::MAX made ρ̂_l infinite.
+        (
+            r#"{"f": [1.7e308, 1.7e308]}"#.into(),
+            "f[0] = 1.7e308 (expected 0 to 1e12)",
+        ),
+        (
+            r#"{"f": [1, 0], "g": [1, 1.0000001e12]}"#.into(),
+            "g[1] = 1000000100000.0",
+        ),
+        (
+            r#"{"f": [1, 2, 3], "theta_h_deg": [0, 40, 20]}"#.into(),
+            "not ascending at sample 2",
+        ),
+        (
+            r#"{"f": [1, 2], "theta_h_deg": [10, 10]}"#.into(),
+            "not ascending",
+        ),
+        (
+            r#"{"f": [1, 2], "theta_h_deg": [-1, 10]}"#.into(),
+            "outside [0, 90]",
+        ),
+        (
+            r#"{"f": [1, 2], "g": [1, 1], "theta_d_deg": [0, 91]}"#.into(),
+            "outside [0, 90]",
+        ),
+        (
+            r#"{"f": [1, 2], "theta_h_deg": [0, 10, 20]}"#.into(),
+            "3 angles for 2 f samples",
+        ),
+        (
+            r#"{"f": [1, 2], "theta_d_deg": [0, 90]}"#.into(),
+            "without g",
+        ),
+        // Counts outside 2 to MAX_SAMPLES.
+        (r#"{"f": [1.0]}"#.into(), "expected 2 to 1024"),
+        (r#"{"f": []}"#.into(), "f has 0 samples"),
+        (format!(r#"{{"f": {many}}}"#), "f has 1025 samples"),
+        (
+            format!(r#"{{"f": [1, 0], "g": {many}}}"#),
+            "g has 1025 samples",
+        ),
+    ];
+    for (json, why) in &cases {
+        assert_tabulated_refused(json.as_bytes(), why);
+    }
+    // Not UTF-8 (the C API's text).
+    assert_tabulated_refused(b"{\"name\": \"\xff\", \"f\": [1, 2]}", "UTF-8");
+    // NaN and infinities cannot be written in JSON; a file built in Rust is checked alike.
+    for (f, angles, why) in [
+        (vec![1.0, f64::NAN], None, "f[1] = NaN"),
+        (vec![f64::INFINITY, 1.0], None, "f[0] = inf"),
+        (vec![1.0, 0.5], Some(vec![0.0, f64::NAN]), "angle NaN"),
+    ] {
+        let file = TabulatedFile {
+            name: String::new(),
+            theta_h_deg: angles,
+            f,
+            theta_d_deg: None,
+            g: None,
+        };
+        let e = Tabulated::new(file, "built").unwrap_err().to_string();
+        assert!(e.contains("built") && e.contains(why), "{e}");
+    }
+    // Fuzz finding 2: the largest values accepted give finite coefficients, peak and table.
+    let c = std::ffi::CString::new(r#"{"f": [1e12, 1e12, 0], "g": [1e12, 0]}"#).unwrap();
+    let o = ndf_material_options {
+        model: NDF_BRDF_TABULATED,
+        tabulated_json: c.as_ptr(),
+        ..ndf_material_options_default()
+    };
+    let mut m = std::ptr::null_mut();
+    // SAFETY: options valid, string NUL-terminated; buffers sized; the handle freed once.
+    unsafe {
+        assert_eq!(ndf_material_new(&o, &mut m), ndf_status::Ok);
+        let mut rho = [0.0; 17];
+        assert_eq!(
+            ndf_material_sh_coefficients(m, 16, rho.as_mut_ptr(), 17),
+            ndf_status::Ok
+        );
+        assert!(rho.iter().all(|v| v.is_finite()), "{rho:?}");
+        let mut peak = 0.0;
+        assert_eq!(ndf_material_lobe_peak(m, &mut peak), ndf_status::Ok);
+        assert_eq!(peak, 1e12);
+        let (mut w, mut h) = (0, 0);
+        assert_eq!(ndf_material_table_size(m, &mut w, &mut h), ndf_status::Ok);
+        let mut table = vec![0.0f32; (w * h) as usize];
+        assert_eq!(
+            ndf_material_table(m, table.as_mut_ptr(), table.len()),
+            ndf_status::Ok
+        );
+        assert!(table.iter().all(|v| v.is_finite()));
+        ndf_material_free(m);
+    }
+    // The limit itself is accepted, through C too.
+    let most = format!(r#"{{"f": {}}}"#, json_array(MAX_SAMPLES, 0.5));
+    assert!(Tabulated::from_json(&most, "most.json").is_ok());
+    let c = std::ffi::CString::new(most).unwrap();
+    let o = ndf_material_options {
+        model: NDF_BRDF_TABULATED,
+        tabulated_json: c.as_ptr(),
+        ..ndf_material_options_default()
+    };
+    let mut m = std::ptr::null_mut();
+    // SAFETY: as above; the handle is freed once.
+    unsafe {
+        assert_eq!(ndf_material_new(&o, &mut m), ndf_status::Ok);
+        ndf_material_free(m);
+    }
+}
+
+/// `f` runs on another thread; panics naming `what` if it has not returned within 30 s (then
+/// `unblock` is run so that the thread can end).
+fn within_30_s<T: Send + 'static>(
+    what: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+    unblock: impl FnOnce(),
+) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || tx.send(f()).unwrap());
+    match rx.recv_timeout(Duration::from_secs(30)) {
+        Ok(v) => v,
+        Err(_) => {
+            unblock();
+            panic!("{what} blocks");
+        }
+    }
+}
+
+/// New parser, class 7 again: a tabulated BRDF path that is a FIFO blocked `Tabulated::load`,
+/// `ndf_material_new` (`tabulated_path`) and `ndfmap bake --brdf` forever (it was read with
+/// `read_to_string`); `/dev/zero` was read until memory ran out. Only regular files are read
+/// (`ingest::open_regular_file`, the one policy of the image inputs), of at most
+/// `MAX_FILE_BYTES`; a folder, a device, an oversized file and a file that is not UTF-8 are
+/// errors naming the path, `NDF_STATUS_READ` or `NDF_STATUS_INVALID_ARGUMENT` in C.
+#[test]
+fn tabulated_brdf_paths_that_are_not_small_regular_files_are_refused_without_blocking() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("brdf.json");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let big = dir.path().join("big.json");
+    let mut text = r#"{"f": [1, 0]}"#.to_string();
+    text.push_str(&" ".repeat(MAX_FILE_BYTES as usize));
+    std::fs::write(&big, text).unwrap();
+    let latin1 = dir.path().join("latin1.json");
+    std::fs::write(&latin1, b"{\"name\": \"caf\xe9\", \"f\": [1, 0]}").unwrap();
+    let unblock = |p: PathBuf| {
+        move || {
+            let _ = std::fs::OpenOptions::new().write(true).open(p);
+        }
+    };
+    let cases: [(PathBuf, &str, ndf_status); 5] = [
+        (
+            fifo.clone(),
+            "not a regular file (a FIFO)",
+            ndf_status::Read,
+        ),
+        (
+            dir.path().into(),
+            "not a regular file (a folder)",
+            ndf_status::Read,
+        ),
+        (
+            "/dev/zero".into(),
+            "not a regular file (a device)",
+            ndf_status::Read,
+        ),
+        (
+            big.clone(),
+            "more than the 4194304 bytes (4 MiB)",
+            ndf_status::InvalidArgument,
+        ),
+        (latin1.clone(), "not UTF-8", ndf_status::InvalidArgument),
+    ];
+    for (path, why, status) in cases {
+        let p = path.clone();
+        let e = within_30_s(
+            "Tabulated::load",
+            move || Tabulated::load(&p),
+            unblock(path.clone()),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains(s(&path)) && e.contains(why), "{e}");
+        let p = path.clone();
+        let (got, message) = within_30_s(
+            "ndf_material_new",
+            move || {
+                let c = std::ffi::CString::new(s(&p)).unwrap();
+                let o = ndf_material_options {
+                    model: NDF_BRDF_TABULATED,
+                    tabulated_path: c.as_ptr(),
+                    ..ndf_material_options_default()
+                };
+                let mut m = std::ptr::null_mut();
+                // SAFETY: options valid, string NUL-terminated; out-pointer valid.
+                let status = unsafe { ndf_material_new(&o, &mut m) };
+                assert!(m.is_null());
+                (status, last_error())
+            },
+            unblock(path.clone()),
+        );
+        assert_eq!(got, status, "{message}");
+        assert!(message.contains(why), "{message}");
+    }
+    // The command line: one line, no blocking.
+    let input = dir.path().join("n.png");
+    write_png(&input, 8, 8);
+    let out = dir.path().join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
+        .args([
+            "bake",
+            s(&input),
+            "-m",
+            "sh",
+            "-o",
+            s(&out),
+            "--brdf",
+            s(&fifo),
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t.elapsed() > Duration::from_secs(30) {
+            let _ = child.kill();
+            unblock(fifo.clone())();
+            panic!("ndfmap bake --brdf FIFO blocks");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let run = child.wait_with_output().unwrap();
+    assert_one_line_error(&run, &["not a regular file", "a FIFO"]);
+    assert!(!out.exists());
 }

@@ -12,17 +12,20 @@
 //!   "g": [1.0, 1.0, 0.99, …]
 //! }
 //! ```
-//! - `f` (required): the lobe `f(θ_h)` at the half-angle samples `theta_h_deg`, non-negative and
-//!   finite, in the units the renderer wants (the library never renormalizes it; a lobe that
+//! - `f` (required): the lobe `f(θ_h)` at the half-angle samples `theta_h_deg`, from 0 to
+//!   [`MAX_VALUE`] (10¹²), in the units the renderer wants (the library never renormalizes it; a lobe that
 //!   integrates to 1 over the hemisphere, like the analytic ones, has `ρ̂_0 = 1`). 2 to
 //!   [`MAX_SAMPLES`] samples; factored MERL materials have 90.
 //! - `theta_h_deg` (optional): ascending angles in [0, 90] degrees, one per `f` sample;
 //!   default: equally spaced from 0 to 90 inclusive. MERL's half-angle bins are at
 //!   `θ_h = 90°·(i/90)²`.
 //! - `g` (optional, default 1): the factor `g(θ_d)` of the difference angle
-//!   `θ_d = acos(ω_i·ω_h)`, non-negative and finite; `theta_d_deg` likewise (default: equally
+//!   `θ_d = acos(ω_i·ω_h)`, from 0 to [`MAX_VALUE`]; `theta_d_deg` likewise (default: equally
 //!   spaced over [0, 90]).
 //! - `name` (optional): shown in tables.
+//!
+//! Unknown fields are errors. A file is read only if it is a regular file of at most
+//! [`MAX_FILE_BYTES`] ([`Tabulated::load`]).
 //!
 //! Both functions are piecewise linear between samples and constant beyond the first and last;
 //! f is zero past θ_h = 90°.
@@ -55,6 +58,15 @@ pub const KAPPA_ROWS: usize = 45;
 
 /// Most samples accepted for f or g.
 pub const MAX_SAMPLES: usize = 1024;
+
+/// Largest value accepted for f or g: 10¹². Far above any measured or analytic lobe (GGX
+/// α = 10⁻⁴ peaks at 3·10⁷), and low enough that the SH coefficients, the convolved table and
+/// its f32 texels stay finite (values near `f64::MAX` made `ρ̂_l` infinite: a fuzz finding).
+pub const MAX_VALUE: f64 = 1e12;
+
+/// Largest tabulated BRDF file [`Tabulated::load`] reads: 4 MiB, some thirty times a file of
+/// [`MAX_SAMPLES`] samples in each of its four arrays written one number to a line.
+pub const MAX_FILE_BYTES: u64 = 4 << 20;
 
 /// The JSON file's contents (module docs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -148,9 +160,9 @@ fn samples(what: &str, name: &str, v: &[f64], angles: Option<&Vec<f64>>) -> Resu
             v.len()
         )));
     }
-    if let Some(i) = v.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+    if let Some(i) = v.iter().position(|x| !(0.0..=MAX_VALUE).contains(x)) {
         return Err(bad(format!(
-            "{name}[{i}] = {} (expected finite and >= 0)",
+            "{name}[{i}] = {:?} (expected 0 to {MAX_VALUE:e})",
             v[i]
         )));
     }
@@ -236,13 +248,37 @@ impl Tabulated {
         Tabulated::new(file, what)
     }
 
-    /// Reads a tabulated BRDF file (module docs).
+    /// Reads a tabulated BRDF file (module docs): a regular file (a FIFO, a device or a folder
+    /// is [`Error::Read`], without blocking) of at most [`MAX_FILE_BYTES`] of UTF-8 text.
     pub fn load(path: &Path) -> Result<Tabulated> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
-            path: path.to_path_buf(),
-            source,
+        use std::io::Read;
+        let what = path.display().to_string();
+        let (file, meta) = crate::ingest::open_regular_file(path)?;
+        let too_big = |len: u64| Error::Brdf {
+            what: what.clone(),
+            message: format!(
+                "a file of {len} bytes, more than the {MAX_FILE_BYTES} bytes (4 MiB) a tabulated \
+                 BRDF file may hold"
+            ),
+        };
+        if meta.len() > MAX_FILE_BYTES {
+            return Err(too_big(meta.len()));
+        }
+        let mut bytes = Vec::with_capacity(meta.len() as usize);
+        file.take(MAX_FILE_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|source| Error::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        if bytes.len() as u64 > MAX_FILE_BYTES {
+            return Err(too_big(bytes.len() as u64)); // it grew while being read
+        }
+        let text = String::from_utf8(bytes).map_err(|e| Error::Brdf {
+            what: what.clone(),
+            message: format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
         })?;
-        Tabulated::from_json(&text, &path.display().to_string())
+        Tabulated::from_json(&text, &what)
     }
 
     /// Tabulates `f(θ_h)` and `g(θ_d)` (angles in radians) at `n` half angles

@@ -281,13 +281,17 @@ pub unsafe extern "C" fn ndf_material_table(
         if out.is_null() {
             return Err(super::null("out"));
         }
-        let table = tabulated(&b.brdf)?.table();
-        if capacity < table.len() {
+        let t = tabulated(&b.brdf)?;
+        // A short buffer is refused before the table is computed (half a second).
+        let len = crate::brdf::tabulated::GRID * (crate::brdf::tabulated::KAPPA_ROWS + 1);
+        if capacity < len {
             return Err(fail(
                 ndf_status::BufferTooSmall,
-                format!("{capacity} floats for a table of {}", table.len()),
+                format!("{capacity} floats for a table of {len}"),
             ));
         }
+        let table = t.table();
+        debug_assert_eq!(table.len(), len);
         // SAFETY: writable for capacity ≥ table.len() floats (the caller's contract).
         unsafe { std::ptr::copy_nonoverlapping(table.as_ptr(), out, table.len()) };
         Ok(())
