@@ -120,9 +120,9 @@ pub(crate) fn bake(map: &NormalMap, lmax: usize, progress: &mut Progress) -> Res
         .collect();
     const BATCH: usize = 8;
     let batches = textures.len().div_ceil(BATCH);
-    // Working buffers kept across batches (refilled with zeros rather than allocated anew:
-    // fresh pages cost a fault each).
-    let (mut rows, mut avg) = (Vec::new(), Vec::new());
+    // The x-reduced rows are kept across batches (refilled with zeros rather than allocated
+    // anew: fresh pages cost a fault each); the y pass's buffer across one batch's levels.
+    let mut rows = Vec::new();
     for b in 0..batches {
         let (t0, t1) = (b * BATCH, ((b + 1) * BATCH).min(textures.len()));
         let ch = 4 * (t1 - t0);
@@ -188,6 +188,7 @@ pub(crate) fn bake(map: &NormalMap, lmax: usize, progress: &mut Progress) -> Res
             t.levels[0] = l0;
         }
         progress.report((b * levels.len() + 1) as f64 / (batches * levels.len()) as f64)?;
+        let mut avg = Vec::new();
         for (k, lf) in coarse.iter().enumerate() {
             let (cw, chh) = (lf.size.0 as usize, lf.size.1 as usize);
             avg.clear();
