@@ -84,6 +84,99 @@ pub fn eval_into(lmax: usize, d: DVec3, out: &mut [f64]) {
     }
 }
 
+/// [`eval_into`] for a fixed band limit with the recurrences' constants (`sqrt((2m+1)/(2m))`,
+/// `sqrt(2m+3)`, `a_lm`, `b_lm`) computed once, for evaluating the basis at many directions
+/// (the SH bake evaluates it per finest texel). The constants are the same expressions as
+/// [`eval_into`]'s, so [`Basis::eval_into`] is bit for bit what [`eval_into`] gives.
+#[derive(Debug, Clone)]
+pub struct Basis {
+    lmax: usize,
+    /// `sqrt((2m+1)/(2m))` for m = 1 … lmax (index m; entry 0 unused).
+    pmm: Vec<f64>,
+    /// `sqrt(2m+3)` for m = 0 … lmax.
+    p1: Vec<f64>,
+    /// `(a_lm, b_lm)` for m = 0 … lmax, l = m+2 … lmax, m-major.
+    ab: Vec<(f64, f64)>,
+}
+
+impl Basis {
+    /// The constants for every `l ≤ lmax`.
+    pub fn new(lmax: usize) -> Self {
+        let pmm = (0..=lmax)
+            .map(|m| {
+                if m == 0 {
+                    0.0
+                } else {
+                    ((2 * m + 1) as f64 / (2 * m) as f64).sqrt()
+                }
+            })
+            .collect();
+        let p1 = (0..=lmax).map(|m| (2.0 * m as f64 + 3.0).sqrt()).collect();
+        let mut ab = Vec::new();
+        for m in 0..=lmax {
+            let mf = m as f64;
+            for l in m + 2..=lmax {
+                let lf = l as f64;
+                let a = ((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf)).sqrt();
+                let b = (((lf - 1.0) * (lf - 1.0) - mf * mf)
+                    / (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0))
+                    .sqrt();
+                ab.push((a, b));
+            }
+        }
+        Self { lmax, pmm, p1, ab }
+    }
+
+    /// The band limit these constants are for.
+    pub fn lmax(&self) -> usize {
+        self.lmax
+    }
+
+    /// Writes `Y_lm(d)` for every `l ≤` [`Basis::lmax`] into `out[index(l, m)]`, bit for bit
+    /// as [`eval_into`] does (`out` holds at least [`count`]`(lmax)` values).
+    pub fn eval_into(&self, d: DVec3, out: &mut [f64]) {
+        let lmax = self.lmax;
+        let out = &mut out[..count(lmax)];
+        let d = d.try_normalize().unwrap_or(DVec3::Z);
+        let (x, y, z) = (d.x, d.y, d.z);
+        let (mut c, mut s) = (1.0f64, 0.0f64);
+        let mut pmm = 0.5 / PI.sqrt();
+        let mut ab = self.ab.iter();
+        for m in 0..=lmax {
+            if m > 0 {
+                pmm *= self.pmm[m];
+                let cn = x * c - y * s;
+                s = x * s + y * c;
+                c = cn;
+            }
+            // Y_lm for m = 0 at index l² + l; for m > 0 the cos at l² + l + m, the sin at
+            // l² + l − m.
+            let mut write = |l: usize, p: f64| {
+                let centre = l * l + l;
+                if m == 0 {
+                    out[centre] = p;
+                } else {
+                    out[centre + m] = std::f64::consts::SQRT_2 * p * c;
+                    out[centre - m] = std::f64::consts::SQRT_2 * p * s;
+                }
+            };
+            write(m, pmm);
+            if m == lmax {
+                break;
+            }
+            let mut p1 = self.p1[m] * z * pmm;
+            write(m + 1, p1);
+            let mut p0 = pmm;
+            for (l, &(a, b)) in (m + 2..=lmax).zip(&mut ab) {
+                let p = a * (z * p1 - b * p0);
+                write(l, p);
+                p0 = p1;
+                p1 = p;
+            }
+        }
+    }
+}
+
 /// `Y_lm(d)` for every `l ≤ lmax`, in (l, m) order ([`eval_into`]).
 pub fn eval(lmax: usize, d: DVec3) -> Vec<f64> {
     let mut out = vec![0.0; count(lmax)];
@@ -193,6 +286,34 @@ pub fn zonal_coefficients(f: &dyn Fn(f64) -> f64, lmax: usize, width: f64) -> Ve
 mod tests {
     use super::*;
     use crate::rng::Rng;
+
+    #[test]
+    fn the_precomputed_basis_is_bit_for_bit_eval_into() {
+        // Directions of every kind: random, the poles, the equator, unnormalized and zero.
+        let mut rng = Rng(19);
+        let mut dirs: Vec<DVec3> = (0..200).map(|_| rng.direction()).collect();
+        dirs.extend([
+            DVec3::Z,
+            -DVec3::Z,
+            DVec3::X,
+            DVec3::new(0.0, -1.0, 0.0),
+            DVec3::new(3.0, -4.0, 12.0),
+            DVec3::ZERO,
+        ]);
+        for lmax in [0, 1, 2, 5, 16, 32] {
+            let basis = Basis::new(lmax);
+            assert_eq!(basis.lmax(), lmax);
+            let mut got = vec![f64::NAN; count(lmax) + 3];
+            for &d in &dirs {
+                basis.eval_into(d, &mut got);
+                let want = eval(lmax, d);
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(g.to_bits(), w.to_bits(), "lmax {lmax} index {i} at {d}");
+                }
+                assert!(got[count(lmax)..].iter().all(|v| v.is_nan()));
+            }
+        }
+    }
 
     /// A product rule exact for polynomials of degree 2·lmax on the sphere: Gauss–Legendre in z
     /// (lmax + 1 nodes) times 2·lmax + 2 equally spaced azimuths.

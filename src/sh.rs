@@ -33,9 +33,9 @@ use crate::bake::{Bake, Method, Progress, Texture};
 use crate::brdf::{Brdf, Shading, lambert_coefficient};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
-use crate::harmonics::{count, eval_into, lambda};
+use crate::harmonics::{Basis, count, eval_into, lambda};
 use crate::ingest::NormalMap;
-use crate::pyramid::{pyramid, reduce};
+use crate::pyramid::pyramid;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;
@@ -91,16 +91,24 @@ pub(crate) fn check(lmax: usize) -> Result<()> {
 
 /// Bakes the SH NDF with band limit `lmax` (0 to [`MAX_LMAX`]): `Λ_l Y_lm(n)` per finest texel,
 /// averaged over every level's exact footprints in f64, stored as f32. Coefficients are computed
-/// in batches of up to 32 (eight textures) so the f64 image of the finest level stays within
-/// 256 bytes per texel; progress is reported per batch and level, and
-/// cancellation polled per row.
+/// in batches of up to 32 (eight textures). Per batch, each finest row's coefficients are
+/// evaluated once (the basis's constants precomputed, [`Basis`]) and reduced along x into
+/// every coarser level at once while the row is in cache; the y pass then reads those row
+/// sums level by level. The arithmetic is [`crate::pyramid::reduce`]'s, term for term in the
+/// same order, so the result is bit for bit the two-pass reduction of the finest image — which
+/// is never formed: the f64 working set is the x-reduced rows, about 8 bytes per texel per
+/// coefficient of the batch. Progress is reported per batch and level, and cancellation polled
+/// per row.
 pub(crate) fn bake(map: &NormalMap, lmax: usize, progress: &mut Progress) -> Result<Bake> {
     check(lmax)?;
     let cancel = progress.cancel_flag();
     let (w, h) = (map.width(), map.height());
+    let (fw, fh) = (w as usize, h as usize);
     let n = count(lmax);
     let layout = layout(lmax);
     let levels = pyramid(w, h);
+    debug_assert_eq!(levels[0].size, (w, h));
+    let coarse = &levels[1..];
     let mut textures: Vec<Texture> = layout
         .iter()
         .map(|&(name, channels, ranges)| Texture {
@@ -112,38 +120,94 @@ pub(crate) fn bake(map: &NormalMap, lmax: usize, progress: &mut Progress) -> Res
         .collect();
     const BATCH: usize = 8;
     let batches = textures.len().div_ceil(BATCH);
+    // The x-reduced rows are kept across batches (refilled with zeros rather than allocated
+    // anew: fresh pages cost a fault each); the y pass's buffer across one batch's levels.
+    let mut rows = Vec::new();
     for b in 0..batches {
         let (t0, t1) = (b * BATCH, ((b + 1) * BATCH).min(textures.len()));
         let ch = 4 * (t1 - t0);
         let (first, last) = (4 * t0, (4 * t1).min(n));
         let l_hi = (last as f64).sqrt().ceil() as usize - 1;
-        let mut finest = vec![0.0f64; w as usize * h as usize * ch];
-        finest
-            .par_chunks_mut(ch * w as usize)
-            .zip(map.normals().par_chunks(w as usize))
-            .for_each(|(row, normals)| {
-                // A large map takes a while: rows are skipped once the bake is cancelled.
-                if cancel.is_cancelled() {
-                    return;
-                }
-                let mut y = vec![0.0f64; count(l_hi)];
-                for (o, nrm) in row.chunks_exact_mut(ch).zip(normals) {
-                    eval_into(l_hi, nrm.as_dvec3(), &mut y);
-                    for (k, i) in (first..last).enumerate() {
-                        o[k] = lambda(band(i)) * y[i];
+        let basis = Basis::new(l_hi);
+        let scale: Vec<f64> = (first..last).map(|i| lambda(band(i))).collect();
+        // Per finest row: the x-reduced sums of every coarse level, level after level.
+        let mut offsets = vec![0usize];
+        for lf in coarse {
+            offsets.push(offsets.last().unwrap() + lf.size.0 as usize * ch);
+        }
+        let stride = *offsets.last().unwrap();
+        // (A map of one level has no coarse level: rows of one unused value keep the zip below.)
+        rows.clear();
+        rows.resize(fh * stride.max(1), 0.0f64);
+        // Level 0 is the coefficients themselves, written straight into the textures.
+        let mut level0: Vec<Vec<[f32; 4]>> = (t0..t1).map(|_| vec![[0.0; 4]; fw * fh]).collect();
+        let mut level0_rows: Vec<Vec<&mut [[f32; 4]]>> =
+            (0..fh).map(|_| Vec::with_capacity(t1 - t0)).collect();
+        for t in level0.iter_mut() {
+            for (r, chunk) in level0_rows.iter_mut().zip(t.chunks_mut(fw)) {
+                r.push(chunk);
+            }
+        }
+        level0_rows
+            .into_par_iter()
+            .zip(rows.par_chunks_mut(stride.max(1)))
+            .zip(map.normals().par_chunks(fw))
+            .for_each_init(
+                || (vec![0.0f64; count(l_hi)], vec![0.0f64; fw * ch]),
+                |(y, finest), ((mut tex_rows, row), normals)| {
+                    // A large map takes a while: rows are skipped once the bake is cancelled.
+                    if cancel.is_cancelled() {
+                        return;
+                    }
+                    for (o, nrm) in finest.chunks_exact_mut(ch).zip(normals) {
+                        basis.eval_into(nrm.as_dvec3(), y);
+                        for (k, (i, s)) in (first..last).zip(&scale).enumerate() {
+                            o[k] = s * y[i];
+                        }
+                    }
+                    for (j, t) in tex_rows.iter_mut().enumerate() {
+                        for (texel, o) in t.iter_mut().zip(finest.chunks_exact(ch)) {
+                            *texel = std::array::from_fn(|c| o[4 * j + c] as f32);
+                        }
+                    }
+                    for (k, lf) in coarse.iter().enumerate() {
+                        let out = &mut row[offsets[k]..offsets[k + 1]];
+                        for (cx, o) in out.chunks_exact_mut(ch).enumerate() {
+                            for (fx, wt) in lf.x.taps(cx) {
+                                let s = &finest[fx as usize * ch..(fx as usize + 1) * ch];
+                                for (a, v) in o.iter_mut().zip(s) {
+                                    *a += wt * v;
+                                }
+                            }
+                        }
+                    }
+                },
+            );
+        cancel.check()?;
+        for (t, l0) in textures[t0..t1].iter_mut().zip(level0) {
+            t.levels[0] = l0;
+        }
+        progress.report((b * levels.len() + 1) as f64 / (batches * levels.len()) as f64)?;
+        let mut avg = Vec::new();
+        for (k, lf) in coarse.iter().enumerate() {
+            let (cw, chh) = (lf.size.0 as usize, lf.size.1 as usize);
+            avg.clear();
+            avg.resize(chh * cw * ch, 0.0f64);
+            avg.par_chunks_mut(cw * ch).enumerate().for_each(|(cy, o)| {
+                for (fy, wt) in lf.y.taps(cy) {
+                    let start = fy as usize * stride + offsets[k];
+                    for (a, v) in o.iter_mut().zip(&rows[start..start + cw * ch]) {
+                        *a += wt * v;
                     }
                 }
             });
-        cancel.check()?;
-        for (k, lf) in levels.iter().enumerate() {
-            let avg = reduce(&finest, ch, w, lf);
-            let texels = (lf.size.0 * lf.size.1) as usize;
             for (j, t) in textures[t0..t1].iter_mut().enumerate() {
-                t.levels[k] = (0..texels)
-                    .map(|i| std::array::from_fn(|c| avg[i * ch + 4 * j + c] as f32))
+                t.levels[k + 1] = avg
+                    .chunks_exact(ch)
+                    .map(|o| std::array::from_fn(|c| o[4 * j + c] as f32))
                     .collect();
             }
-            let done = (b * levels.len() + k + 1) as f64 / (batches * levels.len()) as f64;
+            let done = (b * levels.len() + k + 2) as f64 / (batches * levels.len()) as f64;
             progress.report(done)?;
         }
     }
@@ -437,6 +501,49 @@ mod tests {
                     assert!(got.abs() <= 1.0 + 1e-6);
                 }
                 assert!((coefficient(&t, 0) - 1.0).abs() < 1e-6);
+            }
+        }
+    }
+
+    /// The reference the bake must reproduce bit for bit: the finest image of every
+    /// coefficient and [`crate::pyramid::reduce`] onto each level.
+    fn reference_levels(map: &NormalMap, lmax: usize) -> Vec<Vec<f32>> {
+        let (w, h) = (map.width(), map.height());
+        let n = count(lmax);
+        let mut finest = Vec::with_capacity(w as usize * h as usize * n);
+        for y in 0..h {
+            for x in 0..w {
+                let v = crate::harmonics::eval(lmax, map.normal(x, y).as_dvec3());
+                finest.extend(v.iter().enumerate().map(|(i, c)| lambda(band(i)) * c));
+            }
+        }
+        pyramid(w, h)
+            .iter()
+            .map(|lf| {
+                let avg = crate::pyramid::reduce(&finest, n, w, lf);
+                avg.iter().map(|&v| v as f32).collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_bake_is_bit_for_bit_the_two_pass_reduction() {
+        // Odd, thin and one-texel maps; l* = 9 spans four batches of 32 coefficients.
+        for (w, h, lmax) in [(13, 6, 9), (1, 8, 2), (8, 1, 3), (1, 1, 4), (16, 16, 1)] {
+            let map = test_map(w, h);
+            let b = sh_bake(&map, lmax);
+            let want = reference_levels(&map, lmax);
+            let n = count(lmax);
+            assert_eq!(b.sizes.len(), want.len());
+            for (level, lw) in want.iter().enumerate() {
+                let (sw, sh) = b.sizes[level];
+                for t in 0..(sw * sh) as usize {
+                    for i in 0..texture_count(lmax) * 4 {
+                        let got = b.textures[i / 4].levels[level][t][i % 4];
+                        let w = if i < n { lw[t * n + i] } else { 0.0 };
+                        assert_eq!(got.to_bits(), w.to_bits(), "{w}x{h} level {level} c{i}");
+                    }
+                }
             }
         }
     }
