@@ -1008,9 +1008,11 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                 },
             ));
         }
+        // `--lobes 0`: no vMF bake (SH and Toksvig only).
         jobs.extend(
             grid.options(Method::Vmf)
                 .into_iter()
+                .filter(|o| o.lobes > 0)
                 .map(|o| (Method::Vmf, o)),
         );
         for (method, options) in jobs {
@@ -1049,7 +1051,11 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                     "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12} {:>14} {:>10.1}",
                     method.name(),
                     options.align.map_or("no".into(), |c| format!("C={c}")),
-                    options.mode.name(),
+                    if method == Method::Vmf {
+                        options.mode.name()
+                    } else {
+                        "-"
+                    },
                     cpu.map_or("?".into(), |c| format!("{c:.2}")),
                     mib(peak),
                     mib(Some(estimate)),
