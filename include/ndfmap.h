@@ -452,6 +452,11 @@ typedef uint32_t ndf_sampling;
 typedef uint32_t ndf_vmf_diffuse;
 
 /**
+ * The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
+ */
+typedef uint32_t ndf_sh_diffuse;
+
+/**
  * Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
  */
 typedef struct ndf_shader_options {
@@ -496,6 +501,10 @@ typedef struct ndf_shader_options {
    * vector) that ndfmap's tests render. Default 0: the mesh variant.
    */
   uint32_t probe;
+  /**
+   * SH bakes: the diffuse term, `NDF_SH_DIFFUSE_*`. Default `NDF_SH_DIFFUSE_MOMENTS`.
+   */
+  ndf_sh_diffuse sh_diffuse;
 } ndf_shader_options;
 
 /**
@@ -796,6 +805,17 @@ typedef struct ndf_material_options {
  * Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
  */
 #define NDF_VMF_DIFFUSE_ALGORITHM2 1
+
+/**
+ * `E[max(ω_i·n, 0)]` for a Gaussian cosine with the moments bands 0–2 give (l* ≥ 2; lower
+ * Lambert error). Default.
+ */
+#define NDF_SH_DIFFUSE_MOMENTS 0
+
+/**
+ * eq 12 with Lambert's truncated clamped cosine.
+ */
+#define NDF_SH_DIFFUSE_SERIES 1
 
 /**
  * Normalized Blinn-Phong, exponent in uniform `ndf_s` (eq 20). Default.
@@ -1213,7 +1233,8 @@ void ndf_bake_free(struct ndf_bake *bake);
 
 /**
  * The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
- * textures, no colour, the mean-vector vMF diffuse term, the mesh variant.
+ * textures, no colour, the mean-vector vMF diffuse term, the moments SH diffuse term, the mesh
+ * variant.
  */
 struct ndf_shader_options ndf_shader_options_default(void);
 

@@ -116,6 +116,8 @@ pub struct ShaderOptions {
     pub probe: bool,
     /// The vMF lobes' diffuse term (`NDF_VMF_DIFFUSE_ALG2` for Algorithm 2 as written).
     pub vmf_diffuse: crate::shade::VmfDiffuse,
+    /// The SH texels' diffuse term (`NDF_SH_DIFFUSE_SERIES` for eq 12's series).
+    pub sh_diffuse: crate::sh::ShDiffuse,
 }
 
 /// The most textures one shader samples (a sampler each): what llvmpipe and the desktop GPUs
@@ -326,6 +328,9 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     if spec.method == Method::Vmf && options.vmf_diffuse == crate::shade::VmfDiffuse::Algorithm2 {
         d("NDF_VMF_DIFFUSE_ALG2", "1");
     }
+    if spec.method == Method::Sh && options.sh_diffuse == crate::sh::ShDiffuse::Series {
+        d("NDF_SH_DIFFUSE_SERIES", "1");
+    }
     if options.color {
         d("NDF_COLOR", "1");
     }
@@ -490,6 +495,36 @@ mod tests {
         let src = source(&toksvig, Stage::Fragment, &ShaderOptions::default()).unwrap();
         assert!(
             src.contains("#define NDF_METHOD_TOKSVIG 1") && !src.contains("#define NDF_MANUAL")
+        );
+        // The SH diffuse term: moments unless the series is asked for (SH bakes only).
+        let sh = bake_with(
+            &map(),
+            Method::Sh,
+            &BakeOptions {
+                lmax: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let series = ShaderOptions {
+            sh_diffuse: crate::sh::ShDiffuse::Series,
+            ..Default::default()
+        };
+        let define = "#define NDF_SH_DIFFUSE_SERIES 1";
+        assert!(
+            !source(&sh, Stage::Fragment, &ShaderOptions::default())
+                .unwrap()
+                .contains(define)
+        );
+        assert!(
+            source(&sh, Stage::Fragment, &series)
+                .unwrap()
+                .contains(define)
+        );
+        assert!(
+            !source(&toksvig, Stage::Fragment, &series)
+                .unwrap()
+                .contains(define)
         );
     }
 

@@ -16,8 +16,14 @@
 //! **Shading** (eq 12, the shaders' `ndf_sh.glsl`, CPU twin [`shade`]): with the BRDF's
 //! `ρ̂_l` (eq 11, [`crate::brdf::Brdf::sh_coefficients`]),
 //! `ρ^eff(ω) = Σ_{l ≤ l*} ρ̂_l Σ_m γ_lm Y_lm(ω) = Σ_l ρ̂_l/Λ_l Σ_m c_lm Y_lm(ω)`:
-//! - diffuse: Lambert's `f(u) = max(u, 0)` *is* the cosine, so the diffuse term is eq 12 at
-//!   `ω = ω_i` with Lambert's `ρ̂_l` — exact up to the band limit;
+//! - diffuse ([`ShDiffuse`]): Lambert's `f(u) = max(u, 0)` *is* the cosine, so eq 12 at
+//!   `ω = ω_i` with Lambert's `ρ̂_l` is the diffuse term exactly up to the band limit
+//!   ([`ShDiffuse::Series`]). The truncated clamped cosine is a poor kernel at low l* (at
+//!   l* = 2 it is `3/32 + u/2 + 15u²/32`: 1/16 too high facing the light, 3/32 at the
+//!   terminator), so the default reads the same coefficients differently
+//!   ([`ShDiffuse::Moments`]): bands 0–2 give the first two moments of `u = ω_i·n` over the
+//!   texel's normals exactly, and the diffuse term is `E[max(u, 0)]` for a Gaussian `u` with
+//!   those moments;
 //! - specular: eq 12 at `ω = ω_h` times the cosine `max(ω_i·n̄, 0)` of the MIP-mapped normal
 //!   `n̄ = normalize(E[n])` (the paper's choice, Sec 4.3), times the BRDF's g factor.
 //!   [`product_coefficients`] computes the exact alternative (the SH projection of
@@ -337,14 +343,28 @@ fn with_basis<T>(slot: usize, lmax: usize, d: DVec3, f: impl FnOnce(&[f64]) -> T
 
 /// Filtered shading of one SH texel (band limit `lmax`) for light `l`, half vector `h` and
 /// `brdf`, without the g factor (module docs; the CPU twin of `ndf_sh.glsl`):
-/// diffuse `Σ ρ̂^Lambert_l/Λ_l Σ_m c_lm Y_lm(ω_i)` clamped to [0, 1] (the footprint average of
+/// diffuse by `diffuse_term` — [`diffuse_moments`] (l* ≥ 2) or the series
+/// `Σ ρ̂^Lambert_l/Λ_l Σ_m c_lm Y_lm(ω_i)` — clamped to [0, 1] (the footprint average of
 /// `max(ω_i·n, 0)` lies there; the truncated clamped cosine overshoots it by up to 1/16 at
 /// l* = 2),
 /// specular `Σ ρ̂_l/Λ_l Σ_m c_lm Y_lm(ω_h)` clamped to [0, the lobe's peak] (Gibbs' overshoot
 /// of a lobe with a jump, 25 % at l* = 2 for GGX α = 1's hemisphere step) times
 /// `max(ω_i·n̄, 0)`.
-pub fn shade(texels: &[[f32; 4]], lmax: usize, l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
-    let (diffuse, f) = shade_series(texels, lmax, l, h, brdf);
+pub fn shade(
+    texels: &[[f32; 4]],
+    lmax: usize,
+    l: DVec3,
+    h: DVec3,
+    brdf: &Brdf,
+    diffuse_term: ShDiffuse,
+) -> Shading {
+    let lmax = lmax.min(MAX_LMAX);
+    let diffuse = if diffuse_term == ShDiffuse::Moments && lmax >= 2 {
+        diffuse_moments(texels, lmax, l)
+    } else {
+        with_basis(0, lmax, l, |y| series(texels, lmax, &lambert_rho(), y))
+    };
+    let f = specular_series(texels, lmax, h, brdf);
     let specular = if brdf.has_specular() {
         f.clamp(0.0, brdf.peak()) * mean_normal(texels, lmax).dot(l).max(0.0)
     } else {
@@ -354,6 +374,80 @@ pub fn shade(texels: &[[f32; 4]], lmax: usize, l: DVec3, h: DVec3, brdf: &Brdf) 
         diffuse: diffuse.clamp(0.0, 1.0),
         specular,
     }
+}
+
+/// Which diffuse term an SH texel gives (module docs; the shaders' `NDF_SH_DIFFUSE_SERIES`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ShDiffuse {
+    /// eq 12 with Lambert's `ρ̂_l`: the footprint average of the clamped cosine truncated to
+    /// l* bands (exact up to the band limit, the paper's reading).
+    Series,
+    /// [`diffuse_moments`]: `E[max(u, 0)]` for a Gaussian `u = ω_i·n` with the mean and
+    /// variance that bands 0–2 give exactly. The default for l* ≥ 2 (lower than the series up
+    /// to l* = 6 on every shared map, `docs/sh-brdf.md`); l* < 2 has no variance and uses the
+    /// series.
+    #[default]
+    Moments,
+}
+
+/// The diffuse term of [`ShDiffuse::Moments`] for light `l`, from bands 0–2 of an SH texel
+/// (`lmax ≥ 2`): with `u = ω_i·n` over the texel's normals, `E[u] = (c_1,1, c_1,−1, c_1,0)·ω_i`
+/// and, by `u² = (1 + 2P₂(u))/3` and the addition theorem (`c_0,0 = 1`),
+/// `E[u²] = c_0,0/3 + (2/3) Λ₂ Σ_m c_2m Y_2m(ω_i)` — both linear in the coefficients, so exact
+/// under any linear filter. The result is `E[max(u, 0)]` for a Gaussian `u` of that mean and
+/// spread `σ = v/sqrt(v + ε)`, `v = max(E[u²] − E[u]², 0)`, `ε` =
+/// [`MOMENTS_VARIANCE_SOFTENING`] ([`clamped_gaussian_mean`]), clamped to [0, 1] by [`shade`].
+/// `σ ≈ √v` for spreads over 0.01 rad; below, σ falls linearly instead of as `√v`, whose
+/// infinite slope at 0 would turn f32 rounding of `E[u²] − E[u]²` (10⁻⁷) into GPU-against-CPU
+/// differences of 10⁻³ (the slope is now at most `1/√ε`; the shared maps' error changes by
+/// under 0.002 points). A single normal (variance 0) gives `max(n·ω_i, 0)` exactly.
+pub fn diffuse_moments(texels: &[[f32; 4]], lmax: usize, l: DVec3) -> f64 {
+    let l = l.try_normalize().unwrap_or(DVec3::Z);
+    let mean = DVec3::new(
+        coefficient(texels, 3),
+        coefficient(texels, 1),
+        coefficient(texels, 2),
+    )
+    .dot(l);
+    let band2 = with_basis(0, lmax, l, |y| {
+        (4..9).map(|i| coefficient(texels, i) * y[i]).sum::<f64>()
+    });
+    let second = coefficient(texels, 0) / 3.0 + 2.0 / 3.0 * lambda(2) * band2;
+    let v = (second - mean * mean).max(0.0);
+    clamped_gaussian_mean(mean, v / (v + MOMENTS_VARIANCE_SOFTENING).sqrt())
+}
+
+/// The `ε` of [`diffuse_moments`]' spread `σ = v/sqrt(v + ε)`: 10⁻⁴, a spread of 0.01 rad.
+pub const MOMENTS_VARIANCE_SOFTENING: f64 = 1e-4;
+
+/// `E[max(X, 0)] = m Φ(m/σ) + σ φ(m/σ)` for `X ~ N(m, σ²)`, `σ ≥ 0`; σ is floored at 10⁻⁶
+/// inside the ratio so σ → 0 gives `max(m, 0)`. Φ through [`erf`] (the shaders use the same
+/// approximation).
+pub fn clamped_gaussian_mean(m: f64, sigma: f64) -> f64 {
+    let sigma = sigma.max(0.0);
+    let z = m / sigma.max(1e-6);
+    let cdf = 0.5 * (1.0 + erf(z * std::f64::consts::FRAC_1_SQRT_2));
+    let pdf = (-0.5 * z * z).exp() / (2.0 * PI).sqrt();
+    m * cdf + sigma * pdf
+}
+
+/// The error function by Abramowitz & Stegun 7.1.26 (absolute error ≤ 1.5·10⁻⁷), odd
+/// extension; `ndf_erf` in `ndf_sh.glsl` is the same formula.
+pub fn erf(x: f64) -> f64 {
+    const P: f64 = 0.327_591_1;
+    const A: [f64; 5] = [
+        0.254_829_592,
+        -0.284_496_736,
+        1.421_413_741,
+        -1.453_152_027,
+        1.061_405_429,
+    ];
+    let ax = x.abs();
+    let t = 1.0 / (1.0 + P * ax);
+    let poly = t * (A[0] + t * (A[1] + t * (A[2] + t * (A[3] + t * A[4]))));
+    let y = 1.0 - poly * (-ax * ax).exp();
+    if x < 0.0 { -y } else { y }
 }
 
 /// The two sums of eq 12 before any clamp: Lambert's at `l` and the BRDF's at `h` (0 for
@@ -367,13 +461,17 @@ pub fn shade_series(
 ) -> (f64, f64) {
     let lmax = lmax.min(MAX_LMAX);
     let diffuse = with_basis(0, lmax, l, |y| series(texels, lmax, &lambert_rho(), y));
-    let f = if brdf.has_specular() {
+    (diffuse, specular_series(texels, lmax, h, brdf))
+}
+
+/// eq 12 at the half vector with the BRDF's `ρ̂_l` (0 for Lambert), before any clamp.
+fn specular_series(texels: &[[f32; 4]], lmax: usize, h: DVec3, brdf: &Brdf) -> f64 {
+    if brdf.has_specular() {
         let rho = rho(brdf);
         with_basis(1, lmax, h, |y| series(texels, lmax, &rho, y))
     } else {
         0.0
-    };
-    (diffuse, f)
+    }
 }
 
 /// The exact alternative to the MIP-mapped cosine (module docs), for measurement on the CPU:
@@ -592,7 +690,7 @@ mod tests {
         let mut rng = crate::rng::Rng(5);
         for _ in 0..400 {
             let l = rng.direction();
-            let s = shade(&t, 16, l, DVec3::Z, &Brdf::Lambert);
+            let s = shade(&t, 16, l, DVec3::Z, &Brdf::Lambert, ShDiffuse::Series);
             let e = (s.diffuse - n.dot(l).max(0.0)).abs();
             worst = worst.max(e);
             if n.dot(l).abs() > 0.3 {
@@ -601,11 +699,98 @@ mod tests {
         }
         assert!(worst < 0.0183 && far < 0.0055, "{worst} {far}");
         // At ω = n the truncated series of max(u, 0) is 1 − 0.00545 (the Legendre tail).
-        let s = shade(&t, 16, n, DVec3::Z, &Brdf::Lambert);
+        let s = shade(&t, 16, n, DVec3::Z, &Brdf::Lambert, ShDiffuse::Series);
         assert!(
             (s.diffuse - (1.0 - 0.005455017)).abs() < 1e-6,
             "{}",
             s.diffuse
         );
+    }
+
+    #[test]
+    fn erf_and_the_clamped_gaussian_mean_match_independent_values() {
+        // erf at 0.5, 1, 2 to 10 digits (Abramowitz & Stegun Table 7.1).
+        for (x, want) in [
+            (0.5, 0.520_499_877_8),
+            (1.0, 0.842_700_792_9),
+            (2.0, 0.995_322_265),
+        ] {
+            assert!((erf(x) - want).abs() < 2e-7, "{x}");
+            assert!((erf(-x) + want).abs() < 2e-7, "{x}");
+        }
+        // E[max(X, 0)] by a midpoint rule over ±12σ.
+        for (m, v) in [
+            (0.3, 0.04),
+            (-0.1, 0.01),
+            (0.0, 0.25),
+            (0.8, 1e-4),
+            (-0.5, 0.09),
+        ] {
+            let sd = f64::sqrt(v);
+            let n = 200_000;
+            let (a, b) = (m - 12.0 * sd, m + 12.0 * sd);
+            let dx = (b - a) / n as f64;
+            let want: f64 = (0..n)
+                .map(|i| {
+                    let x = a + (i as f64 + 0.5) * dx;
+                    x.max(0.0) * (-(x - m) * (x - m) / (2.0 * v)).exp()
+                })
+                .sum::<f64>()
+                * dx
+                / (2.0 * PI * v).sqrt();
+            assert!(
+                (clamped_gaussian_mean(m, sd) - want).abs() < 1e-6,
+                "{m} {v}"
+            );
+        }
+        assert_eq!(clamped_gaussian_mean(0.4, 0.0), 0.4);
+        assert_eq!(clamped_gaussian_mean(-0.4, -1e-9), 0.0);
+    }
+
+    #[test]
+    fn the_moments_diffuse_term_is_the_gaussian_of_the_footprints_own_moments() {
+        // A 4×4 map of scattered normals: the 1×1 level covers all 16. The moments the SH
+        // coefficients give must be the brute-force moments of u = ω_i·n over those normals.
+        let mut rng = crate::rng::Rng(11);
+        let normals: Vec<DVec3> = (0..16)
+            .map(|_| (DVec3::Z + 0.6 * rng.direction()).normalize())
+            .collect();
+        let map = NormalMap::from_vectors(
+            4,
+            4,
+            normals.iter().map(|n| n.as_vec3()).collect(),
+            Addressing::Wrap,
+            BadNormals::Repair,
+        )
+        .unwrap();
+        for lmax in [2, 4] {
+            let b = sh_bake(&map, lmax);
+            let coarse = b.texel(2, 0, 0);
+            for _ in 0..50 {
+                let l = rng.direction();
+                let u: Vec<f64> = normals
+                    .iter()
+                    .map(|n| n.as_vec3().as_dvec3().dot(l))
+                    .collect();
+                let mean = u.iter().sum::<f64>() / 16.0;
+                let second = u.iter().map(|u| u * u).sum::<f64>() / 16.0;
+                let v = second - mean * mean;
+                let want = clamped_gaussian_mean(mean, v / (v + 1e-4).sqrt());
+                let got = diffuse_moments(&coarse, lmax, l);
+                assert!((got - want).abs() < 2e-6, "l* {lmax}: {got} {want}");
+            }
+            // One normal (level 0): the exact cosine, where the series is off by up to 1/16.
+            let fine = b.texel(0, 1, 2);
+            let n = normals[2 * 4 + 1].as_vec3().as_dvec3();
+            for _ in 0..50 {
+                let l = rng.direction();
+                let got = shade(&fine, lmax, l, DVec3::Z, &Brdf::Lambert, ShDiffuse::Moments);
+                assert!(
+                    (got.diffuse - n.dot(l).max(0.0)).abs() < 5e-4,
+                    "{}",
+                    got.diffuse
+                );
+            }
+        }
     }
 }

@@ -138,8 +138,8 @@ pub enum VmfDiffuse {
     Algorithm2,
     /// `max(ω_i·αr, 0) = α|r| max(ω_i·μ, 0)`: the footprint average of `ω_i·n` over the lobe's
     /// normals, exact where none of them faces away from the light. The default: lower Lambert
-    /// error in issue 15's measurement at level 6 (bark 0.0009 against 0.0068, rock 0.0114
-    /// against 0.030; not re-measured since, `docs/sh-brdf.md`).
+    /// error on every shared map measured (J = 6, levels ≥ 1: rock 0.77 % against 2.44 %, bark
+    /// 0.08 % against 0.49 %, facade 0.25 % against 0.70 %; `docs/sh-brdf.md`).
     #[default]
     MeanVector,
 }
@@ -150,6 +150,8 @@ pub enum VmfDiffuse {
 pub struct ShadeOptions {
     /// The vMF lobes' diffuse term.
     pub vmf_diffuse: VmfDiffuse,
+    /// The SH texels' diffuse term.
+    pub sh_diffuse: crate::sh::ShDiffuse,
 }
 
 /// Filtered shading of `bake`'s method from one texel's values (`texels[i]` from texture i of
@@ -189,7 +191,14 @@ pub fn shade_with(
     options: &ShadeOptions,
 ) -> Shading {
     let mut out = match bake.method {
-        Method::Sh => crate::sh::shade(texels, crate::sh::lmax_of(bake), l, h, brdf),
+        Method::Sh => crate::sh::shade(
+            texels,
+            crate::sh::lmax_of(bake),
+            l,
+            h,
+            brdf,
+            options.sh_diffuse,
+        ),
         Method::Vmf | Method::Tan2005 => {
             let mut sum = Shading::default();
             for &t in &texels[..bake.lobes] {

@@ -11,6 +11,7 @@ use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage, source_for};
 use ndfmap::ingest::Addressing;
 use ndfmap::methods::texture_ranges;
+use ndfmap::sh::ShDiffuse;
 use ndfmap::shade::VmfDiffuse;
 use std::process::Command;
 
@@ -109,6 +110,12 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                         VmfDiffuse::Algorithm2
                                     } else {
                                         VmfDiffuse::MeanVector
+                                    },
+                                    // eq 12's series as the SH diffuse term at l* = 2.
+                                    sh_diffuse: if lobes == 2 && probe {
+                                        ShDiffuse::Series
+                                    } else {
+                                        ShDiffuse::Moments
                                     },
                                 };
                                 let name = format!(

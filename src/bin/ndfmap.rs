@@ -165,6 +165,10 @@ enum Command {
         /// algorithm2 (α max(ω_i·μ, 0)).
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// sh: the diffuse term, moments (a Gaussian cosine with the moments of bands 0-2, the
+        /// default) or series (eq 12 with Lambert's truncated clamped cosine).
+        #[arg(long, default_value = "moments")]
+        sh_diffuse: String,
         /// The texture addressing of the bake: wrap or clamp.
         #[arg(long, default_value = "wrap")]
         addressing: String,
@@ -239,6 +243,10 @@ enum Command {
         /// vMF diffuse term: mean-vector (default) or algorithm2.
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// SH diffuse term: moments (default) or series (eq 12 with Lambert's truncated clamped
+        /// cosine).
+        #[arg(long, default_value = "moments")]
+        sh_diffuse: String,
         /// Measure levels from this one on (finer ones are reported as 0; the overall error is
         /// over levels 1 and coarser either way, and level 0 is three quarters of the work).
         #[arg(long, default_value_t = 0)]
@@ -684,6 +692,7 @@ fn run(cli: Cli) -> Result<()> {
             ggx_g,
             ggx_c,
             vmf_diffuse,
+            sh_diffuse,
             first_level,
             formats,
             json,
@@ -701,6 +710,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             let shading = ndfmap::shade::ShadeOptions {
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
+                sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
             };
             let brdfs = eval_brdfs(&brdf, &s, &sigma, &alpha, ggx_g, &ggx_c)?;
             let methods = parse_methods(&methods)?;
@@ -785,6 +795,7 @@ fn run(cli: Cli) -> Result<()> {
             sampling,
             max_anisotropy,
             vmf_diffuse,
+            sh_diffuse,
             addressing,
             stage,
             probe,
@@ -850,6 +861,7 @@ fn run(cli: Cli) -> Result<()> {
                 color,
                 probe,
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
+                sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
             };
             let stage =
                 [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];

@@ -4,6 +4,7 @@
 use super::bake::{FORMATS, ndf_bake, ndf_format};
 use super::{Out, Outcome, arg, choose, fail, guard, guard_value, ndf_status, read_options};
 use crate::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage};
+use crate::sh::ShDiffuse;
 use crate::shade::VmfDiffuse;
 use std::ffi::c_char;
 
@@ -34,6 +35,14 @@ pub type ndf_vmf_diffuse = u32;
 pub const NDF_VMF_DIFFUSE_MEAN_VECTOR: ndf_vmf_diffuse = 0;
 /// Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
 pub const NDF_VMF_DIFFUSE_ALGORITHM2: ndf_vmf_diffuse = 1;
+
+/// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
+pub type ndf_sh_diffuse = u32;
+/// `E[max(ω_i·n, 0)]` for a Gaussian cosine with the moments bands 0–2 give (l* ≥ 2; lower
+/// Lambert error). Default.
+pub const NDF_SH_DIFFUSE_MOMENTS: ndf_sh_diffuse = 0;
+/// eq 12 with Lambert's truncated clamped cosine.
+pub const NDF_SH_DIFFUSE_SERIES: ndf_sh_diffuse = 1;
 
 /// The specular BRDF a shader evaluates: one of the `NDF_BRDF_*` values.
 pub type ndf_brdf = u32;
@@ -77,10 +86,13 @@ pub struct ndf_shader_options {
     /// Nonzero: the probe variant (full-screen triangle, uniforms for uv, LOD, light and half
     /// vector) that ndfmap's tests render. Default 0: the mesh variant.
     pub probe: u32,
+    /// SH bakes: the diffuse term, `NDF_SH_DIFFUSE_*`. Default `NDF_SH_DIFFUSE_MOMENTS`.
+    pub sh_diffuse: ndf_sh_diffuse,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
-/// textures, no colour, the mean-vector vMF diffuse term, the mesh variant.
+/// textures, no colour, the mean-vector vMF diffuse term, the moments SH diffuse term, the mesh
+/// variant.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
     let o = ndf_shader_options {
@@ -93,6 +105,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         format: super::bake::NDF_FORMAT_RGBA_F32,
         color: 0,
         probe: 0,
+        sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
     };
     guard_value(o, || o)
 }
@@ -131,6 +144,11 @@ unsafe fn shader(
         color: o.color != 0,
         probe: o.probe != 0,
         vmf_diffuse: choose("vmf_diffuse", o.vmf_diffuse, &diffuse)?,
+        sh_diffuse: choose(
+            "sh_diffuse",
+            o.sh_diffuse,
+            &[ShDiffuse::Moments, ShDiffuse::Series],
+        )?,
     };
     let format = choose("format", o.format, &FORMATS)?;
     for t in 0..b.bake.textures.len() {

@@ -1372,6 +1372,10 @@ fn shader_source_is_the_glsl_modules_for_the_upload_format() {
                 "unknown vmf_diffuse value 2",
             ),
             (
+                ndf_shader_options { sh_diffuse: 2, ..o },
+                "unknown sh_diffuse value 2",
+            ),
+            (
                 ndf_shader_options { format: 4, ..o },
                 "unknown format value 4",
             ),
