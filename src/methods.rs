@@ -73,8 +73,9 @@ pub fn check_options(
 /// with a feature (colour) image `color_base + color_per_lobe × J` more (the baselines have
 /// no lobes and no colour). Calibrated on the peak resident memory of the whole `ndfmap bake`
 /// command (`/usr/bin/time -f %M`: decoding the PNG, the bake, quantizing and writing the files)
-/// on the built-in sample at 512², 1024² and 2048², whose peaks per texel are the same at every
-/// size, then rounded up so that the estimate lies 15–25 % above every measured peak.
+/// on the built-in sample at 512², 1024² and 2048², whose peaks per texel are nearly the same
+/// at every size, then rounded up so that the estimate lies above every measured peak (by how
+/// much is stated per method).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PeakPerTexel {
     /// Bytes per texel whatever the lobe count.
@@ -101,30 +102,37 @@ impl PeakPerTexel {
 }
 
 /// The vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or fast, any
-/// storage format). Measured peaks against the estimate ([`estimate_peak_bytes`]), MiB:
+/// storage format). Measured peaks of the whole `ndfmap bake` command against the estimate
+/// ([`estimate_peak_bytes`]), MiB, after issue 14's memory reductions (the 2048² map is the
+/// 1024² sample tiled 2 × 2):
 ///
 /// | map | configuration | measured | estimate |
 /// |---|---|---|---|
-/// | 1024² | J = 1, aligned, colour | 161 | 276 |
-/// | 1024² | J = 6, unaligned | 315 | 424 |
-/// | 1024² | J = 6, unaligned, colour, f16 | 473 | 616 |
-/// | 1024² | J = 6, aligned, colour (f32, f16) | 494, 495 | 616 |
-/// | 1024² | J = 6, aligned, colour, fast, unorm8 | 504 | 616 |
-/// | 1024² | J = 8, aligned, colour, f16 | 632 | 752 |
-/// | 512² | J = 8, aligned, colour, f16 | 181 | 236 |
-/// | 2048² | J = 6, aligned, colour | 1855 | 2272 |
+/// | 1024² | J = 1, aligned, colour | 110 | 156 |
+/// | 1024² | J = 6, unaligned | 184 | 220 |
+/// | 1024² | J = 6, unaligned, colour, f16 | 325 | 436 |
+/// | 1024² | J = 6, aligned, colour (f32, f16) | 349, 354 | 436 |
+/// | 1024² | J = 6, aligned, colour, fast, unorm8 | 356 | 436 |
+/// | 1024² | J = 8, aligned, colour, f16 | 453 | 548 |
+/// | 512² | J = 8, aligned, colour, f16 | 140 | 185 |
+/// | 2048² | J = 6, unaligned | 603 | 688 |
+/// | 2048² | J = 6, aligned, colour | 1300 | 1552 |
 ///
-/// Update it when the vMF bake's memory changes (`ndfmap bench` prints the measured peak and
-/// this estimate side by side; `/usr/bin/time -f %M ndfmap bake ...` gives the whole command's).
+/// The estimate lies 14–42 % above every measured peak (the fixed 64 MiB dominates small
+/// bakes). Before issue 14 the same bakes peaked at 161–1855 MiB (J = 6 aligned colour at
+/// 1024²: 494) under constants 96 + 44 J, colour 48 + 24 J. Update it when the vMF bake's
+/// memory changes (`ndfmap bench` prints the measured peak and this estimate side by side;
+/// `/usr/bin/time -f %M ndfmap bake ...` gives the whole command's).
 pub const VMF_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
-    base: 96,
-    per_lobe: 44,
-    color_base: 48,
-    color_per_lobe: 24,
+    base: 36,
+    per_lobe: 20,
+    color_base: 0,
+    color_per_lobe: 36,
 };
 
 /// The Tan 2005 bake's peak memory per texel. Measured at 1024² against the estimate, MiB:
-/// J = 8 aligned 393 (480); J = 4 unaligned with colour 340 (448).
+/// J = 8 aligned 254 (480; 393 before issue 14's EM memory reductions); J = 4 unaligned with
+/// colour 340 (448; not re-measured). Kept conservative.
 pub const TAN2005_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
     base: 64,
     per_lobe: 44,
