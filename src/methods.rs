@@ -303,14 +303,15 @@ mod tests {
             lmax,
             ..BakeOptions::default()
         };
-        let measured: [(u32, Method, BakeOptions, bool, u64); 18] = [
-            (1024, Method::Vmf, o(1, Some(1.0)), true, 161),
-            (1024, Method::Vmf, o(6, None), false, 315),
-            (1024, Method::Vmf, o(6, None), true, 473),
-            (1024, Method::Vmf, o(6, Some(1.0)), true, 495),
-            (1024, Method::Vmf, o(8, Some(1.0)), true, 632),
-            (512, Method::Vmf, o(8, Some(1.0)), true, 181),
-            (2048, Method::Vmf, o(6, Some(1.0)), true, 1855),
+        let measured: [(u32, Method, BakeOptions, bool, u64); 19] = [
+            (1024, Method::Vmf, o(1, Some(1.0)), true, 110),
+            (1024, Method::Vmf, o(6, None), false, 184),
+            (1024, Method::Vmf, o(6, None), true, 325),
+            (1024, Method::Vmf, o(6, Some(1.0)), true, 356),
+            (1024, Method::Vmf, o(8, Some(1.0)), true, 453),
+            (512, Method::Vmf, o(8, Some(1.0)), true, 140),
+            (2048, Method::Vmf, o(6, None), false, 603),
+            (2048, Method::Vmf, o(6, Some(1.0)), true, 1300),
             (1024, Method::Tan2005, o(8, Some(1.0)), false, 393),
             (1024, Method::Tan2005, o(4, None), true, 340),
             (1024, Method::Plain, o(6, None), false, 86),
