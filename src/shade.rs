@@ -190,6 +190,7 @@ pub fn shade_with(
 ) -> Shading {
     let mut out = match bake.method {
         Method::Sh => crate::sh::shade(texels, crate::sh::lmax_of(bake), l, h, brdf),
+        Method::Pbr => crate::pbr::shade(texels, l, h, brdf),
         Method::Vmf | Method::Tan2005 => {
             let mut sum = Shading::default();
             for &t in &texels[..bake.lobes] {
@@ -314,7 +315,9 @@ fn baseline(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf
                 specular: lobe * mu.dot(l).max(0.0),
             }
         }
-        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("not a single-lobe baseline"),
+        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
+            unreachable!("not a single-lobe baseline")
+        }
     }
 }
 
