@@ -249,6 +249,8 @@ pub struct FitSet {
     pub pairs: Vec<Pair>,
     /// One weight per pair, multiplying its residual.
     pub weights: Vec<f64>,
+    /// The half vector of each pair (computed once).
+    pub halves: Vec<DVec3>,
 }
 
 impl FitSet {
@@ -266,7 +268,12 @@ impl FitSet {
             .collect();
         let mean = weights.iter().sum::<f64>() / weights.len() as f64;
         weights.iter_mut().for_each(|w| *w /= mean);
-        FitSet { pairs, weights }
+        let halves = pairs.iter().map(|&(l, v)| half_vector(l, v)).collect();
+        FitSet {
+            pairs,
+            weights,
+            halves,
+        }
     }
 
     /// `pairs` with unit weights (the report's best-possible lobe, fitted on the evaluation's
@@ -275,6 +282,7 @@ impl FitSet {
         let pairs: Vec<Pair> = pairs.iter().copied().take(MAX_PAIRS).collect();
         FitSet {
             weights: vec![1.0; pairs.len()],
+            halves: pairs.iter().map(|&(l, v)| half_vector(l, v)).collect(),
             pairs,
         }
     }
@@ -420,10 +428,11 @@ fn aniso_value(lobe: &AnisoLobe, l: DVec3, h: DVec3) -> f64 {
 fn cost(set: &FitSet, target: &[f64], f: impl Fn(DVec3, DVec3) -> f64) -> f64 {
     set.pairs
         .iter()
+        .zip(&set.halves)
         .zip(&set.weights)
         .zip(target)
-        .map(|((&(l, v), w), g)| {
-            let r = w * (f(l, half_vector(l, v)) - g);
+        .map(|(((&(l, _), &h), w), g)| {
+            let r = w * (f(l, h) - g);
             r * r
         })
         .sum()
@@ -523,12 +532,15 @@ fn offset(n0: DVec3, t1: DVec3, t2: DVec3, u: f64, v: f64) -> DVec3 {
 /// `starts` by [`cost`], refined by `iterations` Levenberg–Marquardt steps over
 /// `(u, v, ln α)` (the normal `normalize(n₀ + u t₁ + v t₂)` in the start's tangent frame)
 /// with the analytic Jacobian `∂D/∂c = 4α²c(1 − α²)/(π d³)`, `∂D/∂ln α = 2D(1 − 2c²α²/d)`
-/// for `d = 1 − c²(1 − α²)`. Returns the lobe and its cost. `α` stays in `[MIN_ALPHA, 1]`.
+/// for `d = 1 − c²(1 − α²)`. Returns the lobe and its cost. `α` stays in `[floor, 1]`
+/// (the bake's floor is the footprint's base roughness `sqrt(E[α²])`: filtering only widens,
+/// and a narrower lobe fitted to a few pairs overshoots between them).
 pub fn fit_isotropic(
     set: &FitSet,
     target: &[f64],
     starts: &[IsoLobe],
     iterations: usize,
+    floor: f64,
 ) -> (IsoLobe, f64) {
     let mut best = starts[0];
     let mut best_cost = f64::INFINITY;
@@ -544,7 +556,7 @@ pub fn fit_isotropic(
     }
     let n0 = best.n;
     let (t1, t2) = tangent_frame(n0);
-    let lo = MIN_ALPHA.ln();
+    let lo = floor.clamp(MIN_ALPHA, 1.0).ln();
     let lobe_of = |p: &[f64; 3]| IsoLobe {
         n: offset(n0, t1, t2, p[0], p[1]),
         alpha: p[2].clamp(lo, 0.0).exp(),
@@ -587,7 +599,7 @@ pub fn fit_isotropic(
         cost(set, target, |l, h| iso_value(lobe.n, lobe.alpha, l, h))
     };
     let (p, c) = levenberg_marquardt(
-        [0.0, 0.0, best.alpha.ln()],
+        [0.0, 0.0, best.alpha.ln().clamp(lo, 0.0)],
         set.pairs.len(),
         iterations,
         [0.3, 0.3, 1.0],
@@ -604,12 +616,13 @@ pub fn fit_isotropic(
 /// Fits one anisotropic lobe to one texel's `target`: the best two of `starts`, refined by
 /// `iterations` Levenberg–Marquardt steps over `(u, v, ln α_t, ln α_b, φ)` with a
 /// forward-difference Jacobian. The result has `α_t ≥ α_b` (swapped with φ turned by 90°
-/// otherwise) and `φ ∈ [0, π)`.
+/// otherwise), `φ ∈ [0, π)` and both α in `[floor, 1]`.
 pub fn fit_anisotropic(
     set: &FitSet,
     target: &[f64],
     starts: &[AnisoLobe],
     iterations: usize,
+    floor: f64,
 ) -> (AnisoLobe, f64) {
     // The two best starts are refined (an anisotropic lobe has local minima in φ).
     let mut ranked: Vec<(f64, AnisoLobe)> = starts
@@ -619,7 +632,7 @@ pub fn fit_anisotropic(
     ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut out = (canonical(ranked[0].1), ranked[0].0);
     for &(c, s) in ranked.iter().take(2) {
-        let r = refine_anisotropic(set, target, s, c, iterations);
+        let r = refine_anisotropic(set, target, s, c, iterations, floor);
         if r.1 < out.1 {
             out = r;
         }
@@ -634,10 +647,11 @@ fn refine_anisotropic(
     best: AnisoLobe,
     best_cost: f64,
     iterations: usize,
+    floor: f64,
 ) -> (AnisoLobe, f64) {
     let n0 = best.n;
     let (t1, t2) = tangent_frame(n0);
-    let lo = MIN_ALPHA.ln();
+    let lo = floor.clamp(MIN_ALPHA, 1.0).ln();
     let lobe_of = |p: &[f64; 5]| AnisoLobe {
         n: offset(n0, t1, t2, p[0], p[1]),
         alpha_t: p[2].clamp(lo, 0.0).exp(),
@@ -697,8 +711,24 @@ pub enum Search {
     Fast,
     /// The report's best-possible lobe: the fast starts plus up to 16 of the footprint's own
     /// normals at 1, 2 and 4 times the base α and the κ formula at c = 0.5, 1 and 4, each of
-    /// the best three refined by 25 steps.
-    Thorough,
+    /// the best three refined by 25 steps, at levels `from_level` and coarser (finer levels as
+    /// [`Search::Fast`]: their lobes are only the coarser levels' starts).
+    Thorough {
+        /// The finest level searched thoroughly.
+        from_level: usize,
+    },
+}
+
+/// Seconds a PBR bake spent, per stage ([`bake_with_set`]): not part of the bake, so that
+/// its bytes do not depend on the machine.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PbrTimings {
+    /// The exact targets of every level ([`targets`]) and the footprint statistics.
+    pub targets: f64,
+    /// The isotropic fit, per level (level 0: none).
+    pub fit: Vec<f64>,
+    /// The anisotropic fit, per level (empty without the option).
+    pub anisotropic: Vec<f64>,
 }
 
 /// Bakes the PBR textures of `map` for `options` and the optional per-texel `maps` (checked
@@ -716,22 +746,40 @@ pub(crate) fn bake(
         maps,
         &FitSet::standard(alpha),
         Search::Fast,
+        0,
         progress,
+        &mut PbrTimings::default(),
     )
 }
 
+/// Bakes the PBR textures of `map` with per-texel material `maps` (checked first,
+/// [`PbrMaps::check`]): what `methods::bake_with` does for [`Method::Pbr`], with maps. The
+/// memory budget is the caller's to check (`methods::check_memory`).
+pub fn bake_with_maps(
+    map: &NormalMap,
+    options: &PbrOptions,
+    maps: Option<&PbrMaps>,
+) -> Result<Bake> {
+    crate::bake::run_with_progress(&mut |_| true, |p| bake(map, options, maps, p))
+}
+
 /// [`bake`] with any pair set and search (the report's best-possible isotropic lobe: the
-/// evaluation's own pairs, [`Search::Thorough`]).
+/// evaluation's own pairs, [`Search::Thorough`]), and the seconds each stage took. Levels
+/// 1 to `fit_from − 1` are not fitted (the κ formula's lobe, c = 2, isotropic): for a report
+/// that measures only coarser levels.
 pub fn bake_with_set(
     map: &NormalMap,
     options: &PbrOptions,
     maps: Option<&PbrMaps>,
     set: &FitSet,
     search: Search,
-) -> Result<Bake> {
-    crate::bake::run_with_progress(&mut |_| true, |p| {
-        bake_fit(map, options, maps, set, search, p)
-    })
+    fit_from: usize,
+) -> Result<(Bake, PbrTimings)> {
+    let mut timings = PbrTimings::default();
+    let bake = crate::bake::run_with_progress(&mut |_| true, |p| {
+        bake_fit(map, options, maps, set, search, fit_from, p, &mut timings)
+    })?;
+    Ok((bake, timings))
 }
 
 /// α from a perceptual roughness, held to `[MIN_ALPHA, 1]`.
@@ -809,7 +857,7 @@ fn iso_starts(
         IsoLobe { n: mean, alpha },
     ];
     s.extend(children.into_iter().flatten());
-    if search == Search::Thorough {
+    if search != Search::Fast {
         for c in [0.5, 1.0, 4.0] {
             s.push(IsoLobe {
                 n: mean,
@@ -895,13 +943,19 @@ fn bake_fit(
     maps: Option<&PbrMaps>,
     set: &FitSet,
     search: Search,
+    fit_from: usize,
     progress: &mut Progress,
+    timings: &mut PbrTimings,
 ) -> Result<Bake> {
     check_options(options)?;
     if let Some(m) = maps {
         m.check(map.width(), map.height())?;
     }
-    if set.pairs.is_empty() || set.pairs.len() > MAX_PAIRS || set.weights.len() != set.pairs.len() {
+    if set.pairs.is_empty()
+        || set.pairs.len() > MAX_PAIRS
+        || set.weights.len() != set.pairs.len()
+        || set.halves.len() != set.pairs.len()
+    {
         return Err(Error::InvalidOption(format!(
             "PBR fit: {} light/view pairs with {} weights (expected 1 to {MAX_PAIRS}, one weight each)",
             set.pairs.len(),
@@ -913,21 +967,29 @@ fn bake_fit(
     let mat = material(map, options, maps);
     let alphas: Vec<f64> = mat.iter().map(|m| m[0]).collect();
     progress.report(0.0)?;
+    let clock = std::time::Instant::now();
     let target = targets(map, &alphas, &set.pairs, &levels);
     progress.report(0.3)?;
     let stats = statistics(map, &mat, &levels);
+    timings.targets = clock.elapsed().as_secs_f64();
     let p = set.pairs.len();
     let cancel = progress.cancel_flag();
-    let (iterations, keep) = match search {
-        Search::Fast => (4, 1),
-        Search::Thorough => (25, 3),
-    };
     let mut iso_levels: Vec<Vec<IsoLobe>> = Vec::new();
     let mut aniso_levels: Vec<Vec<AnisoLobe>> = Vec::new();
     for (k, lf) in levels.iter().enumerate() {
         let (lw, lh) = lf.size;
         let texels = lw as usize * lh as usize;
         let st = &stats[k];
+        let search = match search {
+            Search::Thorough { from_level } if k < from_level => Search::Fast,
+            s => s,
+        };
+        let (iterations, keep) = match search {
+            _ if k < fit_from => (0, 1),
+            Search::Fast => (4, 1),
+            Search::Thorough { .. } => (25, 3),
+        };
+        let clock = std::time::Instant::now();
         let iso: Vec<IsoLobe> = if k == 0 {
             map.normals()
                 .iter()
@@ -954,7 +1016,7 @@ fn bake_fit(
                         let (cx, cy) = ((2 * x + dx).min(pw - 1), (2 * y + dy).min(ph - 1));
                         Some(prev[cy as usize * pw as usize + cx as usize])
                     };
-                    let own = if search == Search::Thorough {
+                    let own = if search != Search::Fast {
                         footprint_normals(map, lf, x, y)
                     } else {
                         Vec::new()
@@ -966,8 +1028,11 @@ fn bake_fit(
                         &own,
                     );
                     let t = &target[k][i * p..(i + 1) * p];
-                    if keep == 1 {
-                        fit_isotropic(set, t, &starts, iterations).0
+                    let floor = st[i * STATS + 3].max(0.0).sqrt();
+                    if iterations == 0 {
+                        starts[0]
+                    } else if keep == 1 {
+                        fit_isotropic(set, t, &starts, iterations, floor).0
                     } else {
                         // The best `keep` starts, each refined; the best result.
                         let mut ranked: Vec<(f64, IsoLobe)> = starts
@@ -978,7 +1043,7 @@ fn bake_fit(
                         ranked
                             .iter()
                             .take(keep)
-                            .map(|&(_, s)| fit_isotropic(set, t, &[s], iterations))
+                            .map(|&(_, s)| fit_isotropic(set, t, &[s], iterations, floor))
                             .min_by(|a, b| a.1.total_cmp(&b.1))
                             .map(|r| r.0)
                             .unwrap_or(starts[0])
@@ -987,6 +1052,8 @@ fn bake_fit(
                 .collect()
         };
         cancel.check()?;
+        timings.fit.push(clock.elapsed().as_secs_f64());
+        let clock = std::time::Instant::now();
         if options.anisotropic {
             let aniso: Vec<AnisoLobe> = if k == 0 {
                 iso.iter()
@@ -1008,16 +1075,18 @@ fn bake_fit(
                             alpha_t: lobe.alpha,
                             alpha_b: lobe.alpha,
                         };
-                        if i % 4096 == 0 && cancel.check().is_err() {
+                        if k < fit_from || (i % 4096 == 0 && cancel.check().is_err()) {
                             return from_iso;
                         }
                         let cov = covariance_start(&st[i * STATS..(i + 1) * STATS], lobe.n);
                         let t = &target[k][i * p..(i + 1) * p];
-                        fit_anisotropic(set, t, &aniso_starts(lobe, cov), iterations).0
+                        let floor = st[i * STATS + 3].max(0.0).sqrt();
+                        fit_anisotropic(set, t, &aniso_starts(lobe, cov), iterations, floor).0
                     })
                     .collect()
             };
             cancel.check()?;
+            timings.anisotropic.push(clock.elapsed().as_secs_f64());
             aniso_levels.push(aniso);
         }
         iso_levels.push(iso);
@@ -1047,7 +1116,9 @@ fn bake_fit(
             "anisotropic": options.anisotropic,
             "fit": match search {
                 Search::Fast => "levenberg-marquardt, 4 steps from the best of 6 starts",
-                Search::Thorough => "levenberg-marquardt, 25 steps from the best 3 of many starts",
+                Search::Thorough { .. } => {
+                    "levenberg-marquardt, 25 steps from the best 3 of many starts"
+                }
             },
             "fit_pairs": set.pairs.len(),
         }),
@@ -1371,7 +1442,7 @@ mod tests {
             n: DVec3::new(0.1, -0.05, 1.0).normalize(),
             alpha: 0.25,
         };
-        let (fit, c) = fit_isotropic(&set, &target, &[start], 30);
+        let (fit, c) = fit_isotropic(&set, &target, &[start], 30, MIN_ALPHA);
         assert!(fit.n.angle_between(truth.n) < 1e-4, "{fit:?}");
         assert!((fit.alpha - truth.alpha).abs() < 1e-4, "{fit:?}");
         assert!(c < 1e-8);
@@ -1392,7 +1463,7 @@ mod tests {
             alpha: 0.2,
         };
         let starts = aniso_starts(iso, aniso_starts(iso, iso_as_aniso(iso))[1]);
-        let (fit, _) = fit_anisotropic(&set, &target, &starts, 60);
+        let (fit, _) = fit_anisotropic(&set, &target, &starts, 60, MIN_ALPHA);
         assert!(fit.n.angle_between(truth.n) < 1e-3, "{fit:?}");
         assert!((fit.alpha_t - 0.3).abs() < 1e-3 && (fit.alpha_b - 0.12).abs() < 1e-3);
         assert!((fit.phi - 0.6).abs() < 1e-2, "{fit:?}");
