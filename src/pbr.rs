@@ -18,8 +18,8 @@
 //! targets `G_p` are exact (footprint averages of the per-normal shading, [`targets`]); the
 //! fit is a local least-squares optimum on those pairs, not a global one.
 //!
-//! **Anisotropic option** ([`fit_anisotropic`]): `D = 1/(π α_t α_b ((h·t/α_t)² + (h·b/α_b)²
-//! + (h·n)²)²)` with `t` the tangent-space direction `(cos φ, sin φ, 0)` made orthogonal to `n`
+//! **Anisotropic option** ([`fit_anisotropic`]):
+//! `D = 1/(π α_t α_b ((h·t/α_t)² + (h·b/α_b)² + (h·n)²)²)` with `t` the tangent-space direction `(cos φ, sin φ, 0)` made orthogonal to `n`
 //! and `b = n × t` (glTF `KHR_materials_anisotropy`: `α_b` is the roughness texture's α,
 //! `α_t = mix(α_b, 1, strength²)`), started from the isotropic fit and from the footprint's
 //! tangent-plane covariance Σ (`α² I + 2Σ`, the LEAN/Olano moments), fitted the same way with
@@ -448,10 +448,11 @@ fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; 
         }
         a.swap(c, p);
         b.swap(c, p);
+        let pivot = a[c];
         for r in c + 1..N {
-            let f = a[r][c] / a[c][c];
-            for k in c..N {
-                a[r][k] -= f * a[c][k];
+            let f = a[r][c] / pivot[c];
+            for (x, y) in a[r][c..].iter_mut().zip(&pivot[c..]) {
+                *x -= f * y;
             }
             b[r] -= f * b[c];
         }
@@ -937,6 +938,7 @@ fn footprint_normals(map: &NormalMap, lf: &LevelFootprints, x: u32, y: u32) -> V
         .collect()
 }
 
+#[allow(clippy::too_many_arguments)] // the bake's inputs, its search, and where it reports
 fn bake_fit(
     map: &NormalMap,
     options: &PbrOptions,
