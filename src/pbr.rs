@@ -1334,17 +1334,9 @@ pub fn shade(texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf) -> Shading {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ingest::{Addressing, BadNormals};
-    use glam::Vec3;
 
     fn bumpy(w: u32, h: u32) -> NormalMap {
-        let v = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f32, (i / w) as f32);
-                Vec3::new((x * 0.9).sin() * 0.5, (y * 1.3 + x * 0.2).cos() * 0.4, 1.0)
-            })
-            .collect();
-        NormalMap::from_vectors(w, h, v, Addressing::Wrap, BadNormals::Repair).unwrap()
+        crate::baseline::tests::test_map(w, h)
     }
 
     fn run(map: &NormalMap, options: &PbrOptions, maps: Option<&PbrMaps>) -> Result<Bake> {

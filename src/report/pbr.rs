@@ -182,65 +182,44 @@ pub fn compare(
         let b = bake_formula(map, &options, None, w)?;
         bakes.push((label.into(), b, Some(t.elapsed().as_secs_f64())));
     }
-    let t = Instant::now();
-    let (fitted, timings) = bake_with_set(
-        map,
-        &options,
-        None,
-        &FitSet::standard(base_alpha(perceptual)),
-        Search::Fast,
-        first,
-    )?;
-    bakes.push((
-        "ndfmap pbr (isotropic fit)".into(),
-        fitted,
-        Some(t.elapsed().as_secs_f64()),
-    ));
-    let t = Instant::now();
-    let (aniso, aniso_timings) = bake_with_set(
-        map,
-        &PbrOptions {
-            anisotropic: true,
+    // ndfmap's fits: (label, anisotropic, fit set, search); the first two give the timings.
+    let fits = [
+        (
+            "ndfmap pbr (isotropic fit)",
+            false,
+            FitSet::standard(base_alpha(perceptual)),
+            Search::Fast,
+        ),
+        (
+            "ndfmap pbr --anisotropic",
+            true,
+            FitSet::standard(base_alpha(perceptual)),
+            Search::Fast,
+        ),
+        (
+            "ndfmap fit on the evaluation's pairs (in-sample)",
+            false,
+            FitSet::unweighted(&directions),
+            Search::Fast,
+        ),
+        (
+            "best isotropic found (fitted on the evaluation's pairs)",
+            false,
+            FitSet::unweighted(&directions),
+            Search::Thorough { from_level: first },
+        ),
+    ];
+    let mut timings = Vec::new();
+    for (label, anisotropic, set, search) in fits {
+        let t = Instant::now();
+        let o = PbrOptions {
+            anisotropic,
             ..options
-        },
-        None,
-        &FitSet::standard(base_alpha(perceptual)),
-        Search::Fast,
-        first,
-    )?;
-    bakes.push((
-        "ndfmap pbr --anisotropic".into(),
-        aniso,
-        Some(t.elapsed().as_secs_f64()),
-    ));
-    let t = Instant::now();
-    let (in_sample, _) = bake_with_set(
-        map,
-        &options,
-        None,
-        &FitSet::unweighted(&directions),
-        Search::Fast,
-        first,
-    )?;
-    bakes.push((
-        "ndfmap fit on the evaluation's pairs (in-sample)".into(),
-        in_sample,
-        Some(t.elapsed().as_secs_f64()),
-    ));
-    let t = Instant::now();
-    let (best, _) = bake_with_set(
-        map,
-        &options,
-        None,
-        &FitSet::unweighted(&directions),
-        Search::Thorough { from_level: first },
-        first,
-    )?;
-    bakes.push((
-        "best isotropic found (fitted on the evaluation's pairs)".into(),
-        best,
-        Some(t.elapsed().as_secs_f64()),
-    ));
+        };
+        let (b, timing) = bake_with_set(map, &o, None, &set, search, first)?;
+        bakes.push((label.into(), b, Some(t.elapsed().as_secs_f64())));
+        timings.push(timing);
+    }
     let reference = Reference::new(map, std::slice::from_ref(&brdf), &directions, first);
     let refs: Vec<&Bake> = bakes.iter().map(|b| &b.1).chain(vmf).collect();
     let errors = reference.evaluate(&refs);
@@ -280,9 +259,9 @@ pub fn compare(
         alpha,
         levels: (first, last),
         rows,
-        fit_seconds: timings.fit,
-        target_seconds: timings.targets,
-        aniso_seconds: aniso_timings.anisotropic,
+        fit_seconds: timings[0].fit.clone(),
+        target_seconds: timings[0].targets,
+        aniso_seconds: timings[1].anisotropic.clone(),
         filament_note,
     })
 }
