@@ -43,6 +43,12 @@ pub enum Method {
     /// The paper's spherical-harmonic NDF (Sec 5): the coefficients `γ_lm` of the normals for
     /// bands `l ≤ l*`, linear in the normals (no fitting), shaded by eq 12 under any BRDF.
     Sh,
+    /// The PBR bake for unmodified GGX engines (issue 17, module `pbr`): per level a normal
+    /// map and glTF's metallic-roughness texture (perceptual `√α′` in G), optionally an
+    /// anisotropy texture, fitted per texel to the footprint's average GGX shading. Not in
+    /// [`Method::ALL`] (the methods with an ndfmap shader, as the C API numbers them): an
+    /// engine's own GGX shader reads it.
+    Pbr,
 }
 
 impl Method {
@@ -72,6 +78,7 @@ impl Method {
             Method::Tan2005 => "tan2005",
             Method::Vmf => "vmf",
             Method::Sh => "sh",
+            Method::Pbr => "pbr",
         }
     }
 }
@@ -87,9 +94,14 @@ impl FromStr for Method {
     fn from_str(s: &str) -> Result<Self> {
         Method::ALL
             .into_iter()
+            .chain([Method::Pbr])
             .find(|m| m.name().eq_ignore_ascii_case(s))
             .ok_or_else(|| {
-                let names: Vec<_> = Method::ALL.iter().map(|m| m.name()).collect();
+                let names: Vec<_> = Method::ALL
+                    .iter()
+                    .chain(&[Method::Pbr])
+                    .map(|m| m.name())
+                    .collect();
                 Error::InvalidOption(format!(
                     "unknown method '{s}' (expected one of: {})",
                     names.join(", ")
@@ -231,6 +243,27 @@ pub struct BakeOptions {
     /// SH: the band limit l* (0 to `sh::MAX_LMAX` = 16, default 4: 25 coefficients in 7
     /// textures); [`crate::brdf::Brdf::suggested_lmax`] gives the paper's choice for a BRDF.
     pub lmax: usize,
+    /// PBR ([`Method::Pbr`]): the base roughness and the anisotropic option.
+    pub pbr: PbrOptions,
+}
+
+/// Options of the PBR bake ([`Method::Pbr`], module `pbr`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PbrOptions {
+    /// The base perceptual roughness `√α` (glTF's), 0 to 1, default 0.5, for every texel
+    /// unless a roughness map is given (module `pbr`'s `PbrMaps`).
+    pub roughness: f64,
+    /// Fit an anisotropic GGX lobe per texel and write `KHR_materials_anisotropy`'s texture.
+    pub anisotropic: bool,
+}
+
+impl Default for PbrOptions {
+    fn default() -> Self {
+        PbrOptions {
+            roughness: 0.5,
+            anisotropic: false,
+        }
+    }
 }
 
 /// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
@@ -334,6 +367,7 @@ impl Default for BakeOptions {
             em: crate::em::EmOptions::default(),
             memory_limit: None,
             lmax: 4,
+            pbr: PbrOptions::default(),
         }
     }
 }

@@ -29,8 +29,8 @@ pub(crate) fn moment_count(method: Method) -> usize {
         Method::Plain | Method::Toksvig => 3,
         Method::Lean => 5,
         Method::Olano => 9,
-        Method::Vmf | Method::Tan2005 | Method::Sh => {
-            unreachable!("baked by modules mixture and sh")
+        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
+            unreachable!("baked by modules mixture, sh and pbr")
         }
     }
 }
@@ -46,8 +46,8 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
             out.copy_from_slice(&[bx, by, bx * bx, by * by, bx * by]);
         }
         Method::Olano => out.copy_from_slice(&[x, y, z, x * x, y * y, z * z, x * y, x * z, y * z]),
-        Method::Vmf | Method::Tan2005 | Method::Sh => {
-            unreachable!("baked by modules mixture and sh")
+        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
+            unreachable!("baked by modules mixture, sh and pbr")
         }
     }
 }
@@ -56,8 +56,8 @@ fn moments(method: Method, n: Vec3, out: &mut [f64]) {
 pub(crate) fn layout(method: Method) -> Vec<(&'static str, [&'static str; 4], [ValueRange; 4])> {
     use ValueRange::{Any, Signed as S, Unit as U};
     match method {
-        Method::Vmf | Method::Tan2005 | Method::Sh => {
-            unreachable!("baked by modules mixture and sh")
+        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
+            unreachable!("baked by modules mixture, sh and pbr")
         }
         Method::Plain => vec![("normal", ["n_x", "n_y", "n_z", "unused"], [S, S, S, U])],
         Method::Toksvig => vec![(
@@ -117,8 +117,8 @@ fn finalize(method: Method, m: &[f64], out: &mut [[f32; 4]]) {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), f(m[3])];
             out[1] = [f(m[4]), 0.0, 0.0, 0.0];
         }
-        Method::Vmf | Method::Tan2005 | Method::Sh => {
-            unreachable!("baked by modules mixture and sh")
+        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
+            unreachable!("baked by modules mixture, sh and pbr")
         }
         Method::Olano => {
             out[0] = [f(m[0]), f(m[1]), f(m[2]), 0.0];
@@ -258,7 +258,7 @@ pub(crate) mod tests {
                             }
                             close(t[1][0], m[4]);
                         }
-                        Method::Vmf | Method::Tan2005 | Method::Sh => {
+                        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
                             unreachable!("not a baseline")
                         }
                         Method::Olano => {

@@ -201,6 +201,7 @@ fn method_define(method: Method) -> &'static str {
         Method::Tan2005 => "NDF_METHOD_TAN2005",
         Method::Vmf => "NDF_METHOD_VMF",
         Method::Sh => "NDF_METHOD_SH",
+        Method::Pbr => "NDF_METHOD_PBR",
     }
 }
 
@@ -253,6 +254,13 @@ pub fn sampled_textures(spec: &ShaderSpec, options: &ShaderOptions) -> Result<us
 /// and `options`, then the shader files (module docs). The vertex stage depends on
 /// [`ShaderOptions::probe`] only.
 pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> Result<String> {
+    if spec.method == Method::Pbr {
+        return Err(Error::InvalidOption(
+            "a pbr bake has no ndfmap shader: an engine's own GGX metallic-roughness shader reads \
+             its normal and roughness textures"
+                .into(),
+        ));
+    }
     let textures = sampled_textures(spec, options)?;
     if spec.ranges.len() < textures || textures == 0 {
         return Err(Error::InvalidOption(format!(

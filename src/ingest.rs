@@ -1048,6 +1048,46 @@ pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
     Ok(size)
 }
 
+/// A data image (a PBR roughness, metallic or occlusion map: linear values, never
+/// colour-decoded), as [`load_data_image`] reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DataImage {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Channels in the file (1 grey, 2 grey + alpha, 3 RGB, 4 RGBA).
+    pub channels: u32,
+    /// Bits per sample in the file (8, 16, or 32 for floats).
+    pub bits: u32,
+    /// Linear RGBA per texel, rows top to bottom: integer samples divided by their maximum,
+    /// grey replicated to RGB, a missing alpha 1 (as [`NormalMap::with_feature_samples`] with
+    /// [`FeatureEncoding::Linear`]); NaN and out-of-range values are kept for the caller to
+    /// judge.
+    pub texels: Vec<[f32; 4]>,
+}
+
+/// Reads a data image from `path` (the formats of [`NormalMap::load`]), under the memory
+/// budget of `opts`, with no sRGB decoding whatever `opts.feature_encoding` says: roughness,
+/// metallic and occlusion are linear data.
+pub fn load_data_image(path: &Path, opts: &IngestOptions) -> Result<DataImage> {
+    let bytes = read_file(path, opts.memory_limit)?;
+    let d = decode_bytes(path, &bytes, Purpose::Feature, opts)?;
+    let texels = d.width as usize * d.height as usize;
+    Ok(DataImage {
+        width: d.width,
+        height: d.height,
+        channels: d.channels,
+        bits: d.bits,
+        texels: convert_feature(
+            d.channels as usize,
+            d.samples.as_samples(),
+            texels,
+            FeatureEncoding::Linear,
+        ),
+    })
+}
+
 /// Decodes the bytes of an image file (any supported format) to interleaved samples; `path`
 /// names it in errors and gives the extension. The one bounded-decoding policy: dimensions
 /// and the memory budget are checked from the header before pixels are decoded.

@@ -10,7 +10,8 @@
 //!   widening rules, the exact unfiltered shading);
 //! - input: [`ingest`] → [`pyramid`] (exact footprints);
 //! - methods: [`baseline`]; [`sh`] (the spherical-harmonic NDF); [`vmf`], [`em`] and
-//!   [`tan2005`] driven per level by [`mixture`]; [`methods`] is the one dispatch over them;
+//!   [`tan2005`] driven per level by [`mixture`]; [`pbr`] (normal + GGX roughness MIP chains
+//!   for unmodified engines); [`methods`] is the one dispatch over them;
 //! - consumers: [`shade`] (the shaders' CPU twin) → [`sample`] / [`eval`] / [`render`];
 //!   [`pack`] / [`output`] (storage, files), [`glsl`] (the shaders), `report` (feature
 //!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`).
@@ -31,6 +32,7 @@ pub mod methods;
 pub mod mixture;
 pub mod output;
 pub mod pack;
+pub mod pbr;
 pub mod procedural;
 pub mod pyramid;
 pub mod quality;

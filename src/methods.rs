@@ -8,7 +8,8 @@ use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
 
 /// The value ranges of each texture a bake of `method` has, in texture order — what a shader
-/// needs to decode unsigned-normalized storage without a bake at hand: the baseline's textures,
+/// needs to decode unsigned-normalized storage without a bake at hand: for PBR, `color` says
+/// whether the anisotropy texture is there; the baseline's textures,
 /// SH's textures for band limit `lobes_or_lmax`, or `lobes_or_lmax` lobe textures followed,
 /// with `color`, by as many colour textures (`α·y`, unit).
 pub fn texture_ranges(method: Method, lobes_or_lmax: usize, color: bool) -> Vec<[ValueRange; 4]> {
@@ -17,6 +18,12 @@ pub fn texture_ranges(method: Method, lobes_or_lmax: usize, color: bool) -> Vec<
     let lobe = match method {
         Method::Vmf => VmfModel::RANGES,
         Method::Tan2005 => TanModel::RANGES,
+        Method::Pbr => {
+            return crate::pbr::layout(color)
+                .into_iter()
+                .map(|(_, _, ranges)| ranges)
+                .collect();
+        }
         Method::Sh => {
             return crate::sh::layout(lobes_or_lmax)
                 .into_iter()
@@ -53,12 +60,16 @@ pub fn check_options(
     if method == Method::Sh {
         crate::sh::check(options.lmax)?;
     }
+    if method == Method::Pbr {
+        crate::pbr::check_options(&options.pbr)?;
+    }
     if let Some(f) = format {
         let lobes = match method {
             Method::Vmf | Method::Tan2005 => options.lobes,
             Method::Sh => options.lmax,
             _ => 0,
         };
+        let color = color || (method == Method::Pbr && options.pbr.anisotropic);
         crate::pack::check_ranges(method, &texture_ranges(method, lobes, color), f)?;
     }
     if options.memory_limit == Some(0) {
@@ -166,6 +177,16 @@ pub const SH_PEAK_PER_BATCH_COEFFICIENT: u64 = 16;
 /// and the writer's slack.
 pub const SH_PEAK_PER_COEFFICIENT: u64 = 6;
 
+/// The PBR bake's peak memory per texel whatever its pairs: the decoded map, the material
+/// (24), the per-level statistics (12 f64 over the levels, 4/3 × 96), one batch of per-normal
+/// values (8 f64) and the lobes. One measured peak: rock 1024², 49 pairs, 752 MB (`ndfmap bake
+/// -m pbr`, `/usr/bin/time -f %M`); the estimate gives 972 MB.
+pub const PBR_PEAK_BASE: u64 = 320;
+
+/// The PBR bake's peak memory per texel per fit pair: the exact targets of every level (f64,
+/// 4/3 of the finest level's texels, plus slack).
+pub const PBR_PEAK_PER_PAIR: u64 = 12;
+
 /// Memory every bake command needs whatever the map's size (the program, its threads, the
 /// allocator's slack): 64 MiB.
 pub const PEAK_FIXED_BYTES: u64 = 64 << 20;
@@ -186,6 +207,9 @@ pub fn estimate_peak_bytes(
     let per_texel = match method {
         Method::Vmf => VMF_PEAK_PER_TEXEL.bytes(lobes, color),
         Method::Tan2005 => TAN2005_PEAK_PER_TEXEL.bytes(lobes, color),
+        Method::Pbr => {
+            PBR_PEAK_BASE + PBR_PEAK_PER_PAIR * crate::pbr::standard_pairs().len() as u64
+        }
         Method::Sh => {
             let coefficients = crate::harmonics::count(options.lmax).next_multiple_of(4) as u64;
             SH_PEAK_BASE
@@ -258,6 +282,7 @@ pub fn bake_with_progress(
             Method::Vmf => crate::mixture::bake_vmf(map, options, progress),
             Method::Tan2005 => crate::mixture::bake_tan2005(map, options, progress),
             Method::Sh => crate::sh::bake(map, options.lmax, progress),
+            Method::Pbr => crate::pbr::bake(map, &options.pbr, None, progress),
             _ => crate::baseline::bake(map, method, progress),
         }?;
         progress.report(1.0)?;

@@ -199,6 +199,7 @@ pub fn shade_with(
             brdf,
             options.sh_diffuse,
         ),
+        Method::Pbr => crate::pbr::shade(texels, l, h, brdf),
         Method::Vmf | Method::Tan2005 => {
             let mut sum = Shading::default();
             for &t in &texels[..bake.lobes] {
@@ -323,7 +324,9 @@ fn baseline(method: Method, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &Brdf
                 specular: lobe * mu.dot(l).max(0.0),
             }
         }
-        Method::Vmf | Method::Tan2005 | Method::Sh => unreachable!("not a single-lobe baseline"),
+        Method::Vmf | Method::Tan2005 | Method::Sh | Method::Pbr => {
+            unreachable!("not a single-lobe baseline")
+        }
     }
 }
 

@@ -31,6 +31,15 @@
 //!     `tiny_float_normals_keep_their_direction`; the plot's tick labels:
 //!     `report::plot::tests::tick_labels_have_three_significant_digits_at_most` (src/).
 //!
+//! Issue 17 (PBR bake, `--method pbr`):
+//! - A roughness map of another size, a metallic map without a roughness, PBR flags with
+//!   another method: one-line errors; an 8-bit PNG roughness map flagged sRGB is warned of
+//!   and read as linear: `pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned`.
+//! - Roughness, metallic or occlusion values NaN or outside [0, 1], a roughness option
+//!   outside [0, 1]: errors naming the count and the first texel:
+//!   `pbr_material_values_outside_0_1_or_nan_are_refused` (and `src/pbr.rs`
+//!   `bad_maps_are_refused`).
+//!
 //! New parsers (issue 13's "Also"), tabulated BRDF files (`Tabulated::load`/`from_json`,
 //! `ndf_material_new`, `--brdf FILE`):
 //! - Malformed JSON, unknown fields, negative/NaN/infinite/unordered samples, values above
@@ -1667,4 +1676,178 @@ fn tabulated_brdf_paths_that_are_not_small_regular_files_are_refused_without_blo
     let run = child.wait_with_output().unwrap();
     assert_one_line_error(&run, &["not a regular file", "a FIFO"]);
     assert!(!out.exists());
+}
+
+/// A PNG's bytes with an `sRGB` chunk inserted after IHDR (what an sRGB-flagged 8-bit data
+/// image, such as Filament's default output, carries).
+fn with_srgb_chunk(png: &[u8]) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &b in bytes {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    let ihdr_end = 8 + 8 + 13 + 4;
+    let mut chunk = vec![0, 0, 0, 1];
+    chunk.extend_from_slice(b"sRGB\x00");
+    let crc = crc32(&chunk[4..]);
+    chunk.extend_from_slice(&crc.to_be_bytes());
+    let mut out = png[..ihdr_end].to_vec();
+    out.extend_from_slice(&chunk);
+    out.extend_from_slice(&png[ihdr_end..]);
+    out
+}
+
+/// Issue 17: material maps of the wrong size or kind through the CLI.
+#[test]
+fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
+    let (dir, input) = folder_with_map(16, 16);
+    let out = dir.path().join("out");
+    let small = dir.path().join("small.png");
+    image::GrayImage::from_pixel(8, 16, image::Luma([128]))
+        .save(&small)
+        .unwrap();
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "pbr",
+        "-o",
+        s(&out),
+        "--roughness-map",
+        s(&small),
+    ]);
+    assert_one_line_error(&r, &["small.png", "8x16", "16x16"]);
+    assert!(!out.exists());
+    // A metallic map needs a roughness for the packed texture's G.
+    let grey = dir.path().join("grey.png");
+    image::GrayImage::from_pixel(16, 16, image::Luma([51]))
+        .save(&grey)
+        .unwrap();
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "pbr",
+        "-o",
+        s(&out),
+        "--metallic-map",
+        s(&grey),
+    ]);
+    assert_one_line_error(&r, &["--metallic-map", "--roughness"]);
+    // PBR flags with another method.
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "plain",
+        "-o",
+        s(&out),
+        "--anisotropic",
+    ]);
+    assert_one_line_error(&r, &["--method pbr"]);
+    // An sRGB-flagged 8-bit roughness map: warned of, read as stored (51/255 = 0.2 at level 0).
+    let mut png = Vec::new();
+    image::GrayImage::from_pixel(16, 16, image::Luma([51]))
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    let flagged = dir.path().join("flagged.png");
+    std::fs::write(&flagged, with_srgb_chunk(&png)).unwrap();
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "pbr",
+        "-o",
+        s(&out),
+        "--roughness-map",
+        s(&flagged),
+    ]);
+    assert_success(&r);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.contains("flagged sRGB") && err.contains("linear"),
+        "{err}"
+    );
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    let file = manifest["textures"][1]["files"][0].as_str().unwrap();
+    let (_, _, texels) = ndfmap::output::read_level(&out.join(file)).unwrap();
+    assert!(
+        texels.iter().all(|t| (t[1] - 0.2).abs() < 1e-6),
+        "{:?}",
+        texels[0]
+    );
+    // Without the flag, no warning.
+    let plain = dir.path().join("plain.png");
+    std::fs::write(&plain, &png).unwrap();
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "pbr",
+        "-o",
+        s(&out),
+        "--roughness-map",
+        s(&plain),
+    ]);
+    assert_success(&r);
+    assert!(!String::from_utf8_lossy(&r.stderr).contains("sRGB"));
+}
+
+/// Issue 17: material values NaN or outside [0, 1] (float images can hold them), and a
+/// roughness option outside [0, 1].
+#[test]
+fn pbr_material_values_outside_0_1_or_nan_are_refused() {
+    use ndfmap::bake::PbrOptions;
+    use ndfmap::pbr::{PbrMaps, bake_with_maps};
+    let map = NormalMap::from_vectors(
+        4,
+        4,
+        vec![Vec3::Z; 16],
+        Default::default(),
+        BadNormals::Repair,
+    )
+    .unwrap();
+    let o = PbrOptions::default();
+    for (field, bad, kind) in [
+        (0, f32::NAN, "NaN"),
+        (1, 1.5, "outside [0, 1]"),
+        (2, -0.25, "outside [0, 1]"),
+    ] {
+        let mut v = vec![0.5f32; 16];
+        v[6] = bad;
+        let mut maps = PbrMaps::default();
+        *[&mut maps.roughness, &mut maps.metallic, &mut maps.occlusion][field] = Some(v);
+        match bake_with_maps(&map, &o, Some(&maps)) {
+            Err(Error::BadFeatures {
+                count: 1,
+                kind: k,
+                x: 2,
+                y: 1,
+                ..
+            }) => assert_eq!(k, kind),
+            other => panic!("{field}: {other:?}"),
+        }
+    }
+    let (dir, input) = folder_with_map(8, 8);
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "pbr",
+        "-o",
+        s(&dir.path().join("o")),
+        "--roughness",
+        "1.5",
+    ]);
+    assert_one_line_error(&r, &["roughness 1.5"]);
 }

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{assert_one_line_error, ndfmap};
+use common::{assert_one_line_error, ndfmap, ndfmap_with};
 use std::path::Path;
 
 fn write_normal_png(path: &Path, w: u32, h: u32) {
@@ -339,4 +339,88 @@ fn sh_bakes_choose_their_band_limit_from_the_brdf_and_eval_takes_every_brdf() {
     ]);
     assert_one_line_error(&out, &["band limit 17"]);
     assert!(!dir.path().join("x/manifest.json").exists());
+}
+
+/// Issue 17: `bake -m pbr --anisotropic` writes the normal, glTF metallic-roughness and
+/// anisotropy chains; level 0 is the input's roughness (G) with occlusion 1 and metallic 0.
+#[test]
+fn pbr_bake_writes_normal_roughness_and_anisotropy_chains() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 16, 16);
+    let out = dir.path().join("out");
+    let m = bake_manifest(
+        &[
+            input.to_str().unwrap(),
+            "-m",
+            "pbr",
+            "--roughness",
+            "0.4",
+            "--anisotropic",
+        ],
+        &out,
+    );
+    assert_eq!(m["method"], "pbr");
+    let names: Vec<&str> = m["textures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["normal", "metallic_roughness", "anisotropy"]);
+    assert_eq!(m["textures"][1]["channels"][1], "roughness");
+    assert_eq!(m["levels"].as_array().unwrap().len(), 5);
+    let file = m["textures"][1]["files"][0].as_str().unwrap();
+    let (_, _, texels) = ndfmap::output::read_level(&out.join(file)).unwrap();
+    assert!(
+        texels
+            .iter()
+            .all(|t| t[0] == 1.0 && (t[1] - 0.4).abs() < 1e-6 && t[2] == 0.0)
+    );
+    // Coarser levels are never sharper than the base roughness (the fit's floor).
+    let file = m["textures"][1]["files"][2].as_str().unwrap();
+    let (_, _, texels) = ndfmap::output::read_level(&out.join(file)).unwrap();
+    assert!(texels.iter().all(|t| t[1] >= 0.4 - 1e-6), "{texels:?}");
+}
+
+/// Issue 17: `pbr-report` says when Filament's `roughness-prefilter` is absent and still
+/// measures every other row.
+#[test]
+fn pbr_report_without_filament_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 32, 32);
+    let run = ndfmap_with(
+        &[
+            "pbr-report",
+            input.to_str().unwrap(),
+            "--alpha",
+            "0.1",
+            "--first-level",
+            "1",
+            "--last-level",
+            "3",
+            "--no-vmf",
+        ],
+        &[("PATH", "")],
+    );
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        text.contains("roughness-prefilter is not on PATH"),
+        "{text}"
+    );
+    assert!(!text.contains("| Filament roughness-prefilter |"), "{text}");
+    for row in [
+        "plain mip",
+        "κ Godot",
+        "ndfmap pbr (isotropic fit)",
+        "best isotropic found",
+    ] {
+        assert!(text.contains(row), "{row} missing: {text}");
+    }
 }

@@ -91,7 +91,7 @@ enum Command {
     Bake {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
         input: PathBuf,
-        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf.
+        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh, pbr.
         #[arg(short, long)]
         method: String,
         /// Output folder (created if missing; written all-or-nothing).
@@ -123,6 +123,8 @@ enum Command {
         /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
         #[arg(long, default_value = "f32")]
         format: String,
+        #[command(flatten)]
+        pbr: PbrArgs,
         #[command(flatten)]
         ingest: IngestArgs,
     },
@@ -185,6 +187,31 @@ enum Command {
     /// memory, texture bytes and shading cost; write report.md, report.json, plots and images.
     #[cfg(feature = "report")]
     Report(ReportArgs),
+    /// Compare PBR roughness MIP chains for plain GGX engines (issue 17): plain mip, Filament's
+    /// roughness-prefilter (when on PATH), the κ formulas, ndfmap's fitted isotropic and
+    /// anisotropic lobes, the best isotropic lobe found, and vMF J = 6, in texel-space GGX
+    /// error; prints markdown tables.
+    #[cfg(feature = "report")]
+    PbrReport {
+        /// Normal maps (PNG, JPEG, TGA, TIFF, OpenEXR).
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Base GGX α values, comma-separated.
+        #[arg(long, default_value = "0.05,0.1,0.3", value_delimiter = ',')]
+        alpha: Vec<f64>,
+        /// First MIP level measured.
+        #[arg(long, default_value_t = 2)]
+        first_level: usize,
+        /// Last MIP level measured.
+        #[arg(long, default_value_t = 7)]
+        last_level: usize,
+        /// Leave out the vMF J = 6 row (its bake takes the longest).
+        #[arg(long)]
+        no_vmf: bool,
+        /// Also write the comparisons as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Measure each method's texel-space error against the exact footprint average.
     Eval {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
@@ -309,6 +336,89 @@ struct BrdfArgs {
     /// GGX roughness α.
     #[arg(long, default_value_t = 0.1)]
     alpha: f64,
+}
+
+/// The PBR bake's options (`--method pbr`).
+#[derive(Args)]
+struct PbrArgs {
+    /// pbr: the base perceptual roughness √α (glTF's), 0 to 1, for every texel (default 0.5).
+    #[arg(long)]
+    roughness: Option<f64>,
+    /// pbr: a roughness map (perceptual √α, linear data: the G channel of an RGB(A) image in
+    /// glTF's metallic-roughness layout, or a grey image), the normal map's size.
+    #[arg(long)]
+    roughness_map: Option<PathBuf>,
+    /// pbr: a metallic map packed into B (B of an RGB(A) image, or grey); needs --roughness
+    /// or --roughness-map given explicitly.
+    #[arg(long)]
+    metallic_map: Option<PathBuf>,
+    /// pbr: an occlusion map packed into R (R of an RGB(A) image, or grey).
+    #[arg(long)]
+    occlusion_map: Option<PathBuf>,
+    /// pbr: fit an anisotropic GGX lobe per texel and write KHR_materials_anisotropy's texture.
+    #[arg(long)]
+    anisotropic: bool,
+}
+
+impl PbrArgs {
+    /// The material maps, read and checked against a `w`×`h` map; warns (stderr) of an sRGB-
+    /// flagged PNG, which is read as linear.
+    fn maps(&self, w: u32, h: u32, opts: &ndfmap::IngestOptions) -> Result<ndfmap::pbr::PbrMaps> {
+        use ndfmap::pbr::{MapChannel, load_map};
+        let read = |p: &Option<PathBuf>, c: MapChannel| -> Result<Option<Vec<f32>>> {
+            let Some(p) = p else { return Ok(None) };
+            let m = load_map(p, opts, c)?;
+            if (m.width, m.height) != (w, h) {
+                return Err(Error::FeatureSize {
+                    what: p.display().to_string(),
+                    feature_width: m.width,
+                    feature_height: m.height,
+                    width: w,
+                    height: h,
+                });
+            }
+            if m.srgb_flagged {
+                eprintln!(
+                    "warning: {}: flagged sRGB, but roughness, metallic and occlusion are linear \
+                     data: read as stored (linear)",
+                    p.display()
+                );
+            }
+            Ok(Some(m.values))
+        };
+        let maps = ndfmap::pbr::PbrMaps {
+            roughness: read(&self.roughness_map, MapChannel::Roughness)?,
+            metallic: read(&self.metallic_map, MapChannel::Metallic)?,
+            occlusion: read(&self.occlusion_map, MapChannel::Occlusion)?,
+        };
+        let name = |p: &Option<PathBuf>| p.as_ref().map(|p| p.display().to_string());
+        // Name the file in the error, not the map's role.
+        for (p, m) in [
+            (&self.roughness_map, &maps.roughness),
+            (&self.metallic_map, &maps.metallic),
+            (&self.occlusion_map, &maps.occlusion),
+        ] {
+            if let (Some(p), Some(m)) = (name(p), m) {
+                let one = ndfmap::pbr::PbrMaps {
+                    roughness: Some(m.clone()),
+                    ..Default::default()
+                };
+                one.check(w, h).map_err(|e| match e {
+                    Error::BadFeatures {
+                        count, kind, x, y, ..
+                    } => Error::BadFeatures {
+                        what: p.clone(),
+                        count,
+                        kind,
+                        x,
+                        y,
+                    },
+                    e => e,
+                })?;
+            }
+        }
+        Ok(maps)
+    }
 }
 
 /// One BRDF from its name or file: `lambert`, `blinn-phong` (exponent `s`),
@@ -621,6 +731,7 @@ fn run(cli: Cli) -> Result<()> {
             lmax,
             brdf,
             format,
+            pbr,
             ingest,
         } => {
             // Everything is checked before any work: the options, the format against the
@@ -651,8 +762,32 @@ fn run(cli: Cli) -> Result<()> {
                 mode: mode.parse()?,
                 memory_limit: ingest.memory_limit()?,
                 lmax,
+                pbr: ndfmap::bake::PbrOptions {
+                    roughness: pbr.roughness.unwrap_or(0.5),
+                    anisotropic: pbr.anisotropic,
+                },
                 ..BakeOptions::default()
             };
+            let pbr_flags = pbr.roughness.is_some()
+                || pbr.roughness_map.is_some()
+                || pbr.metallic_map.is_some()
+                || pbr.occlusion_map.is_some()
+                || pbr.anisotropic;
+            if pbr_flags && method != Method::Pbr {
+                return Err(Error::InvalidOption(
+                    "--roughness, --roughness-map, --metallic-map, --occlusion-map and \
+                     --anisotropic are for --method pbr"
+                        .into(),
+                ));
+            }
+            if pbr.metallic_map.is_some() && pbr.roughness_map.is_none() && pbr.roughness.is_none()
+            {
+                return Err(Error::InvalidOption(
+                    "--metallic-map without a roughness: the packed texture's G channel is the \
+                     roughness; give --roughness R or --roughness-map IMG"
+                        .into(),
+                ));
+            }
             let color = ingest.feature.is_some();
             ndfmap::methods::check_options(method, &options, color, Some(format))?;
             let (w, h) = ndfmap::ingest::probe_size(&input, &ingest.options()?)?;
@@ -670,7 +805,12 @@ fn run(cli: Cli) -> Result<()> {
             })?;
             let (map, info) = ingest.load(&input)?;
             let t = Instant::now();
-            let b = bake_with(&map, method, &options)?;
+            let b = if method == Method::Pbr {
+                let maps = pbr.maps(map.width(), map.height(), &ingest.options()?)?;
+                ndfmap::pbr::bake_with_maps(&map, &options.pbr, Some(&maps))?
+            } else {
+                bake_with(&map, method, &options)?
+            };
             drop(map); // what the bake needs of it is done: less memory while writing
             let b = ndfmap::pack::quantize_into(b, format)?;
             let seconds = t.elapsed().as_secs_f64();
@@ -870,6 +1010,15 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo { output, size } => demo(&output, size)?,
         #[cfg(feature = "report")]
         Command::Report(args) => report(args)?,
+        #[cfg(feature = "report")]
+        Command::PbrReport {
+            inputs,
+            alpha,
+            first_level,
+            last_level,
+            no_vmf,
+            json,
+        } => pbr_report(&inputs, &alpha, (first_level, last_level), no_vmf, json)?,
         Command::Bench {
             sizes,
             lobes,
@@ -1511,6 +1660,76 @@ fn report(a: ReportArgs) -> Result<()> {
     );
     if let Some(p) = &rep.phases {
         println!("phases: {}", p.summary());
+    }
+    Ok(())
+}
+
+/// `ndfmap pbr-report`: every map at every α, markdown to stdout (module `report::pbr`).
+#[cfg(feature = "report")]
+fn pbr_report(
+    inputs: &[PathBuf],
+    alphas: &[f64],
+    levels: (usize, usize),
+    no_vmf: bool,
+    json: Option<PathBuf>,
+) -> Result<()> {
+    use ndfmap::report::pbr::{compare, find_filament, markdown};
+    if let Some(bad) = alphas.iter().find(|a| !(**a > 0.0 && **a <= 1.0)) {
+        return Err(Error::InvalidOption(format!(
+            "--alpha {bad} (expected 0 < α ≤ 1)"
+        )));
+    }
+    if levels.0 > levels.1 {
+        return Err(Error::InvalidOption(format!(
+            "--first-level {} is after --last-level {}",
+            levels.0, levels.1
+        )));
+    }
+    let filament = find_filament();
+    match &filament {
+        Some(p) => println!("Filament's tool: {}\n", p.display()),
+        None => println!("roughness-prefilter is not on PATH: Filament's rows are absent\n"),
+    }
+    let mut all = Vec::new();
+    for input in inputs {
+        let map = NormalMap::load(input, &ndfmap::IngestOptions::default())?;
+        let name = input
+            .file_stem()
+            .map_or("map".into(), |s| s.to_string_lossy().into_owned());
+        let vmf = if no_vmf {
+            None
+        } else {
+            let t = Instant::now();
+            let b = bake_with(
+                &map,
+                Method::Vmf,
+                &BakeOptions {
+                    lobes: 6,
+                    align: Some(1.0),
+                    ..BakeOptions::default()
+                },
+            )?;
+            eprintln!(
+                "{name}: vMF J = 6 baked in {:.1} s",
+                t.elapsed().as_secs_f64()
+            );
+            Some(b)
+        };
+        for &a in alphas {
+            let c = compare(&map, &name, a, levels, vmf.as_ref(), filament.as_deref())?;
+            print!("{}", markdown(&c));
+            all.push(c);
+        }
+    }
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&all).map_err(|e| Error::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
+        std::fs::write(&path, text).map_err(|e| Error::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
     }
     Ok(())
 }

@@ -10,6 +10,7 @@
 
 pub mod cost;
 pub mod frame;
+pub mod pbr;
 pub mod plot;
 pub mod stability;
 

@@ -1,0 +1,329 @@
+//! The PBR comparison (issue 17, `ndfmap pbr-report`): on one map and base roughness, the
+//! texel-space GGX error ([`crate::eval::Reference`]: relative RMS of the specular term
+//! `D·max(n·l, 0)` against the exact footprint average, the evaluation's 27 light/view pairs
+//! with grazing ones) of every way to give an unmodified GGX engine a normal and a roughness
+//! MIP chain, side by side with Filament's `roughness-prefilter` run on the same map when it is
+//! on PATH:
+//!
+//! - plain mip (normalized mean normal, base α);
+//! - Filament's tool as users run it (perceptual roughness in, its 8-bit PNG levels out, the
+//!   plain-mip normal beside them), and its formula `α′ = α + min(0.5/κ, 0.04)`;
+//! - the κ formula `α′² = α² + c/κ` with Unity's c = 0.5, Godot's 0.75 and Karis' / ndfmap's 2;
+//! - ndfmap's fitted isotropic lobe ([`crate::pbr`]) and its anisotropic lobe;
+//! - the best isotropic lobe found per texel (multi-start Levenberg–Marquardt on the
+//!   evaluation's own pairs, [`crate::pbr::Search::Thorough`]: a lower bound for any single
+//!   isotropic lobe as far as the search finds it);
+//! - vMF J = 6 (aligned, C = 1, balanced) under GGX with c = 2: a custom shader, for scale.
+
+use crate::bake::{Bake, BakeOptions, Method, PbrOptions};
+use crate::brdf::Brdf;
+use crate::error::{Error, Result};
+use crate::eval::{Reference, default_directions};
+use crate::ingest::NormalMap;
+use crate::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set, base_alpha};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// One row of the comparison: a way to filter, and its error per level.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PbrRow {
+    /// What the row is.
+    pub label: String,
+    /// Specular relative RMS error per level, finest first (levels before the first measured
+    /// one are 0).
+    pub levels: Vec<f64>,
+    /// The RMS of the per-level errors over the measured levels.
+    pub pooled: f64,
+    /// Seconds it took to make (bake or tool run), if measured.
+    pub seconds: Option<f64>,
+}
+
+/// The comparison on one map at one base roughness.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PbrComparison {
+    /// The map's name.
+    pub map: String,
+    /// Base GGX α.
+    pub alpha: f64,
+    /// The levels measured (inclusive).
+    pub levels: (usize, usize),
+    /// The rows, in the order of the module docs (Filament's tool row absent without it).
+    pub rows: Vec<PbrRow>,
+    /// Seconds of ndfmap's isotropic fit per level (level 0: none), and of its targets.
+    pub fit_seconds: Vec<f64>,
+    /// Seconds of the exact targets and statistics of ndfmap's bake.
+    pub target_seconds: f64,
+    /// Seconds of the anisotropic fit per level.
+    pub aniso_seconds: Vec<f64>,
+    /// Why Filament's row is missing, if it is.
+    pub filament_note: Option<String>,
+}
+
+/// Finds `roughness-prefilter` on PATH.
+pub fn find_filament() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|d| d.join("roughness-prefilter"))
+        .find(|p| p.is_file())
+}
+
+/// Writes `map`'s normals as an 8-bit RGB PNG (`0.5 + 0.5 n`), the input Filament's tool reads.
+fn write_normals_png(map: &NormalMap, path: &Path) -> Result<()> {
+    let rgb: Vec<u8> = map
+        .normals()
+        .iter()
+        .flat_map(|n| {
+            [n.x, n.y, n.z].map(|c| ((0.5 + 0.5 * c).clamp(0.0, 1.0) * 255.0).round() as u8)
+        })
+        .collect();
+    image::save_buffer(
+        path,
+        &rgb,
+        map.width(),
+        map.height(),
+        image::ExtendedColorType::Rgb8,
+    )
+    .map_err(|e| Error::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Runs Filament's `tool` on `map` with constant perceptual roughness `roughness` in `dir`,
+/// reads its levels back (linear, as it stores them whatever its PNG's sRGB chunk says), and
+/// returns them with the tool's wall-clock seconds.
+pub fn run_filament(
+    tool: &Path,
+    map: &NormalMap,
+    roughness: f64,
+    dir: &Path,
+) -> Result<(Vec<Vec<f32>>, f64)> {
+    let input = dir.join("normals.png");
+    write_normals_png(map, &input)?;
+    let out = dir.join("roughness.png");
+    let t = Instant::now();
+    let status = std::process::Command::new(tool)
+        .arg(format!("--roughness={roughness}"))
+        .arg(&input)
+        .arg(&out)
+        .output()
+        .map_err(|e| Error::InvalidOption(format!("{}: cannot run: {e}", tool.display())))?;
+    let seconds = t.elapsed().as_secs_f64();
+    if !status.status.success() {
+        return Err(Error::InvalidOption(format!(
+            "{} failed: {}",
+            tool.display(),
+            String::from_utf8_lossy(&status.stderr).trim()
+        )));
+    }
+    let opts = crate::ingest::IngestOptions::default();
+    let mut levels = Vec::new();
+    for k in 0.. {
+        let p = dir.join(format!("roughness_{k}.png"));
+        if !p.exists() {
+            break;
+        }
+        let m = crate::pbr::load_map(&p, &opts, crate::pbr::MapChannel::Roughness)?;
+        levels.push(m.values);
+    }
+    Ok((levels, seconds))
+}
+
+/// Measures every row on `map` (named `name`) at base α `alpha`, levels `first..=last`;
+/// `vmf` is the map's vMF J = 6 bake (made once per map by the caller), `filament` the tool.
+pub fn compare(
+    map: &NormalMap,
+    name: &str,
+    alpha: f64,
+    (first, last): (usize, usize),
+    vmf: Option<&Bake>,
+    filament: Option<&Path>,
+) -> Result<PbrComparison> {
+    let perceptual = alpha.sqrt();
+    let options = PbrOptions {
+        roughness: perceptual,
+        anisotropic: false,
+    };
+    let brdf = Brdf::ggx(alpha);
+    let directions = default_directions();
+    let mut bakes: Vec<(String, Bake, Option<f64>)> = Vec::new();
+    let t = Instant::now();
+    let plain = crate::methods::bake_with(map, Method::Plain, &BakeOptions::default())?;
+    bakes.push(("plain mip".into(), plain, Some(t.elapsed().as_secs_f64())));
+    let mut filament_note = None;
+    match filament {
+        Some(tool) => {
+            let dir = std::env::temp_dir()
+                .join(format!("ndfmap-pbr-{}-{name}-{alpha}", std::process::id()));
+            std::fs::create_dir_all(&dir).map_err(|e| Error::Write {
+                path: dir.clone(),
+                message: e.to_string(),
+            })?;
+            let r = run_filament(tool, map, perceptual, &dir);
+            let _ = std::fs::remove_dir_all(&dir);
+            match r.and_then(|(levels, s)| {
+                crate::pbr::bake_with_roughness(map, &levels).map(|b| (b, s))
+            }) {
+                Ok((b, s)) => bakes.push(("Filament roughness-prefilter".into(), b, Some(s))),
+                Err(e) => filament_note = Some(format!("roughness-prefilter: {e}")),
+            }
+        }
+        None => {
+            filament_note = Some("roughness-prefilter is not on PATH: its row is absent".into())
+        }
+    }
+    for (label, w) in [
+        ("κ Filament: α + min(0.5/κ, 0.04)", Widening::Filament),
+        ("κ Unity: α² + 0.5/κ", Widening::Constant(0.5)),
+        ("κ Godot: α² + 0.75/κ", Widening::Constant(0.75)),
+        ("κ Karis/ndfmap: α² + 2/κ", Widening::Constant(2.0)),
+    ] {
+        let t = Instant::now();
+        let b = bake_formula(map, &options, None, w)?;
+        bakes.push((label.into(), b, Some(t.elapsed().as_secs_f64())));
+    }
+    // ndfmap's fits: (label, anisotropic, fit set, search); the first two give the timings.
+    let fits = [
+        (
+            "ndfmap pbr (isotropic fit)",
+            false,
+            FitSet::standard(base_alpha(perceptual)),
+            Search::Fast,
+        ),
+        (
+            "ndfmap pbr --anisotropic",
+            true,
+            FitSet::standard(base_alpha(perceptual)),
+            Search::Fast,
+        ),
+        (
+            "ndfmap fit on the evaluation's pairs (in-sample)",
+            false,
+            FitSet::unweighted(&directions),
+            Search::Fast,
+        ),
+        (
+            "best isotropic found (fitted on the evaluation's pairs)",
+            false,
+            FitSet::unweighted(&directions),
+            Search::Thorough { from_level: first },
+        ),
+    ];
+    let mut timings = Vec::new();
+    for (label, anisotropic, set, search) in fits {
+        let t = Instant::now();
+        let o = PbrOptions {
+            anisotropic,
+            ..options
+        };
+        let (b, timing) = bake_with_set(map, &o, None, &set, search, first)?;
+        bakes.push((label.into(), b, Some(t.elapsed().as_secs_f64())));
+        timings.push(timing);
+    }
+    let reference = Reference::new(map, std::slice::from_ref(&brdf), &directions, first);
+    let refs: Vec<&Bake> = bakes.iter().map(|b| &b.1).chain(vmf).collect();
+    let errors = reference.evaluate(&refs);
+    let labels: Vec<(String, Option<f64>)> = bakes
+        .iter()
+        .map(|b| (b.0.clone(), b.2))
+        .chain(vmf.map(|_| {
+            (
+                "vMF J = 6 aligned, GGX c = 2 (custom shader)".to_string(),
+                None,
+            )
+        }))
+        .collect();
+    let last = last.min(
+        errors
+            .first()
+            .map_or(0, |e| e.levels.len().saturating_sub(1)),
+    );
+    let rows = errors
+        .iter()
+        .zip(labels)
+        .map(|(e, (label, seconds))| {
+            let levels: Vec<f64> = e.levels.iter().map(|l| l.specular).collect();
+            let measured = &levels[first.min(last)..=last];
+            let pooled =
+                (measured.iter().map(|v| v * v).sum::<f64>() / measured.len() as f64).sqrt();
+            PbrRow {
+                label,
+                levels,
+                pooled,
+                seconds,
+            }
+        })
+        .collect();
+    Ok(PbrComparison {
+        map: name.into(),
+        alpha,
+        levels: (first, last),
+        rows,
+        fit_seconds: timings[0].fit.clone(),
+        target_seconds: timings[0].targets,
+        aniso_seconds: timings[1].anisotropic.clone(),
+        filament_note,
+    })
+}
+
+/// A markdown table of comparisons: one row per filter, one column per level and the pooled
+/// error, and the ratio of each pooled error to Filament's tool's and to the best isotropic.
+pub fn markdown(c: &PbrComparison) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let (first, last) = c.levels;
+    let _ = writeln!(
+        out,
+        "### {} — GGX α = {} (perceptual {:.4}), levels {first}–{last}\n",
+        c.map,
+        c.alpha,
+        c.alpha.sqrt()
+    );
+    if let Some(n) = &c.filament_note {
+        let _ = writeln!(out, "{n}\n");
+    }
+    let find = |p: &str| {
+        c.rows
+            .iter()
+            .find(|r| r.label.starts_with(p))
+            .map(|r| r.pooled)
+    };
+    let filament = find("Filament roughness");
+    let best = find("best isotropic");
+    let _ = write!(out, "| filter |");
+    for k in first..=last {
+        let _ = write!(out, " L{k} |");
+    }
+    let _ = writeln!(out, " pooled | ÷ Filament | ÷ best iso | seconds |");
+    let _ = write!(out, "|---|");
+    for _ in first..=last {
+        let _ = write!(out, "---:|");
+    }
+    let _ = writeln!(out, "---:|---:|---:|---:|");
+    for r in &c.rows {
+        let _ = write!(out, "| {} |", r.label);
+        for k in first..=last {
+            let _ = write!(out, " {:.3} |", r.levels[k]);
+        }
+        let ratio = |d: Option<f64>| d.map_or("–".into(), |d| format!("{:.2}", r.pooled / d));
+        let _ = writeln!(
+            out,
+            " **{:.3}** | {} | {} | {} |",
+            r.pooled,
+            ratio(filament),
+            ratio(best),
+            r.seconds.map_or("–".into(), |s| format!("{s:.2}"))
+        );
+    }
+    let fit: Vec<String> = c.fit_seconds.iter().map(|s| format!("{s:.3}")).collect();
+    let an: Vec<String> = c.aniso_seconds.iter().map(|s| format!("{s:.3}")).collect();
+    let _ = writeln!(
+        out,
+        "\nndfmap fit seconds: targets + statistics {:.3}; isotropic fit per level [{}]; \
+         anisotropic fit per level [{}]\n",
+        c.target_seconds,
+        fit.join(", "),
+        an.join(", ")
+    );
+    out
+}
