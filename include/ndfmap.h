@@ -437,6 +437,16 @@ typedef uint32_t ndf_value_range;
 typedef uint32_t ndf_format;
 
 /**
+ * A file container: one of the `NDF_CONTAINER_*` values.
+ */
+typedef uint32_t ndf_container;
+
+/**
+ * Block compression of container files: one of the `NDF_COMPRESSION_*` values.
+ */
+typedef uint32_t ndf_compression;
+
+/**
  * The specular BRDF a shader evaluates: one of the `NDF_BRDF_*` values.
  */
 typedef uint32_t ndf_brdf;
@@ -762,6 +772,41 @@ typedef struct ndf_material_options {
  * The exact maximum-likelihood κ (slower; every EM step then increases the likelihood).
  */
 #define NDF_KAPPA_ESTIMATOR_EXACT 1
+
+/**
+ * OpenEXR (float formats) or PNG (unorm formats), one file per texture per level.
+ */
+#define NDF_CONTAINER_EXR 0
+
+/**
+ * KTX 2.0, one file per texture with its whole MIP chain, linear, with `ndfmap.*` metadata.
+ */
+#define NDF_CONTAINER_KTX2 1
+
+/**
+ * DDS with the DX10 header, one file per texture with its whole MIP chain.
+ */
+#define NDF_CONTAINER_DDS 2
+
+/**
+ * None: the texels in the `ndf_format` given.
+ */
+#define NDF_COMPRESSION_NONE 0
+
+/**
+ * BC6H, unsigned half float RGB; for textures that use no alpha and no unbounded channel.
+ */
+#define NDF_COMPRESSION_BC6H 1
+
+/**
+ * BC7, unsigned-normalized RGBA; for textures without unbounded channels.
+ */
+#define NDF_COMPRESSION_BC7 2
+
+/**
+ * BC5, unsigned-normalized RG; for textures that use only R and G.
+ */
+#define NDF_COMPRESSION_BC5 3
 
 /**
  * The vertex shader (mesh or, with `probe`, full-screen triangle).
@@ -1230,6 +1275,67 @@ ndf_status ndf_bake_write(const struct ndf_bake *bake, const char *directory, nd
  * `bake` is NULL or a bake from this library not yet freed.
  */
 void ndf_bake_free(struct ndf_bake *bake);
+
+/**
+ * Writes the bake to folder `directory` (created if missing) in `container`, all-or-nothing,
+ * as `ndfmap bake --container --compress` does: `manifest.json` and, for KTX2 and DDS, one
+ * file per texture named `<texture>.ktx2` / `<texture>.dds` (for EXR, as `ndf_bake_write`).
+ * - `format`: the texel format (`NDF_FORMAT_*`); must be `NDF_FORMAT_RGBA_F32` with a
+ *   compression.
+ * - `compression`: `NDF_COMPRESSION_*`; not with `NDF_CONTAINER_EXR`.
+ * - Fails with `NDF_STATUS_UNSUPPORTED_FORMAT` when a texture does not fit the format or
+ *   compression (the message names the texture), before anything is written, and
+ *   `NDF_STATUS_WRITE` when the folder or a file cannot be written.
+ *
+ * # Safety
+ * `bake` is NULL or a live bake; `directory` is NULL or a NUL-terminated string.
+ */
+ndf_status ndf_bake_write_container(const struct ndf_bake *bake,
+                                    const char *directory,
+                                    ndf_format format,
+                                    ndf_container container,
+                                    ndf_compression compression);
+
+/**
+ * Bytes that `ndf_bake_container_file` writes for texture `texture` (the whole file; it is
+ * built to be measured, so this costs as much as the file itself).
+ * - Arguments and failures as for `ndf_bake_container_file`.
+ *
+ * # Safety
+ * `bake` is NULL or a live bake; `size_out` is NULL or writable.
+ */
+ndf_status ndf_bake_container_size(const struct ndf_bake *bake,
+                                   uint32_t texture,
+                                   ndf_format format,
+                                   ndf_container container,
+                                   ndf_compression compression,
+                                   size_t *size_out);
+
+/**
+ * The KTX2 or DDS file of texture `texture` in memory: `buffer` receives the file's bytes,
+ * exactly what `ndf_bake_write_container` writes for that texture.
+ * - `container`: `NDF_CONTAINER_KTX2` or `NDF_CONTAINER_DDS` (`NDF_STATUS_INVALID_ARGUMENT`
+ *   for EXR, a folder of files); `format` and `compression` as for
+ *   `ndf_bake_write_container`.
+ * - `buffer`, `capacity`: the destination and its size in bytes; it must hold
+ *   `ndf_bake_container_size()` bytes (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise, and nothing
+ *   is written). Any alignment.
+ * - `written_out`: receives the number of bytes written.
+ * - `NDF_STATUS_OUT_OF_RANGE` for a texture past the end, `NDF_STATUS_UNSUPPORTED_FORMAT`
+ *   when the texture does not fit the format or compression.
+ *
+ * # Safety
+ * `bake` is NULL or a live bake; `buffer` is NULL or writable for `capacity` bytes;
+ * `written_out` is NULL or writable.
+ */
+ndf_status ndf_bake_container_file(const struct ndf_bake *bake,
+                                   uint32_t texture,
+                                   ndf_format format,
+                                   ndf_container container,
+                                   ndf_compression compression,
+                                   void *buffer,
+                                   size_t capacity,
+                                   size_t *written_out);
 
 /**
  * The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32

@@ -20,6 +20,8 @@ pub mod bake;
 pub mod baseline;
 pub mod brdf;
 pub mod budget;
+pub mod compress;
+pub mod container;
 pub mod em;
 pub mod error;
 pub mod eval;

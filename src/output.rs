@@ -72,8 +72,13 @@ pub struct Manifest {
     pub storage: String,
     /// How values are encoded in the files.
     pub encoding: String,
-    /// The storage format (f32, f16, unorm16, unorm8).
+    /// The storage format (f32, f16, unorm16, unorm8); for block-compressed files the format
+    /// whose bias and clamps a shader applies to the sampled values (f16 for BC6H, unorm8 for
+    /// BC7 and BC5; module `container`).
     pub texel_format: Format,
+    /// The block compression of the files (`bc6h`, `bc7`, `bc5`), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compression: Option<String>,
     /// Texture addressing the bake assumes (`wrap` or `clamp`).
     pub addressing: crate::ingest::Addressing,
     /// Level sizes, finest first.
@@ -110,6 +115,7 @@ impl Manifest {
                 ),
             },
             texel_format: bake.format,
+            compression: None,
             addressing: bake.addressing,
             levels: bake
                 .sizes

@@ -87,7 +87,8 @@ enum Command {
         #[command(flatten)]
         ingest: IngestArgs,
     },
-    /// Bake one method's MIP chain to a folder: manifest.json plus OpenEXR (or PNG) files.
+    /// Bake one method's MIP chain to a folder: manifest.json plus OpenEXR (or PNG) files, or
+    /// one KTX2 or DDS file per texture (`--container`).
     Bake {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
         input: PathBuf,
@@ -123,6 +124,14 @@ enum Command {
         /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
         #[arg(long, default_value = "f32")]
         format: String,
+        /// Files: exr (OpenEXR or PNG per texture per level), ktx2 or dds (one file per
+        /// texture with its whole MIP chain).
+        #[arg(long, default_value = "exr")]
+        container: String,
+        /// Block compression of ktx2/dds files: bc6h, bc7 or bc5 (where the textures' channels
+        /// and ranges allow; refused before any work otherwise).
+        #[arg(long)]
+        compress: Option<String>,
         #[command(flatten)]
         pbr: PbrArgs,
         #[command(flatten)]
@@ -278,8 +287,9 @@ enum Command {
         /// over levels 1 and coarser either way, and level 0 is three quarters of the work).
         #[arg(long, default_value_t = 0)]
         first_level: usize,
-        /// Storage formats to measure, comma-separated (f32, f16, unorm16, unorm8): each bake
-        /// is rounded through the format before shading, so the format's own error shows.
+        /// Storage formats to measure, comma-separated (f32, f16, unorm16, unorm8, and the
+        /// block compressions bc6h, bc7, bc5, bc6h+bc4): each bake is rounded through the
+        /// format (encoded and decoded) before shading, so the format's own error shows.
         #[arg(long, default_value = "f32", value_delimiter = ',')]
         formats: Vec<String>,
         /// Print JSON instead of tables.
@@ -732,6 +742,8 @@ fn run(cli: Cli) -> Result<()> {
             brdf,
             format,
             pbr,
+            container,
+            compress,
             ingest,
         } => {
             // Everything is checked before any work: the options, the format against the
@@ -790,6 +802,12 @@ fn run(cli: Cli) -> Result<()> {
             }
             let color = ingest.feature.is_some();
             ndfmap::methods::check_options(method, &options, color, Some(format))?;
+            let container: ndfmap::container::Container = container.parse()?;
+            let codec = compress
+                .map(|c| c.parse::<ndfmap::compress::Codec>())
+                .transpose()?;
+            let lobes_or_lmax = if method == Method::Sh { lmax } else { lobes };
+            ndfmap::container::check(container, method, lobes_or_lmax, color, format, codec)?;
             let (w, h) = ndfmap::ingest::probe_size(&input, &ingest.options()?)?;
             ndfmap::methods::check_memory(w, h, method, &options, color).map_err(|e| match e {
                 Error::MemoryBudget {
@@ -814,7 +832,7 @@ fn run(cli: Cli) -> Result<()> {
             drop(map); // what the bake needs of it is done: less memory while writing
             let b = ndfmap::pack::quantize_into(b, format)?;
             let seconds = t.elapsed().as_secs_f64();
-            let manifest = write_bake(&b, info, &output)?;
+            let manifest = ndfmap::container::write_bake(&b, info, &output, container, codec)?;
             println!("baked {method} in {seconds:.3} s: {}", manifest.display());
         }
         Command::Eval {
@@ -854,10 +872,18 @@ fn run(cli: Cli) -> Result<()> {
             };
             let brdfs = eval_brdfs(&brdf, &s, &sigma, &alpha, ggx_g, &ggx_c)?;
             let methods = parse_methods(&methods)?;
+            // A storage format, or a block compression (its bakes' labels name the codec).
             let formats = formats
                 .iter()
-                .map(|f| f.trim().parse())
-                .collect::<Result<Vec<Format>>>()?;
+                .map(|f| match f.trim().parse::<Format>() {
+                    Ok(f) => Ok(Ok(f)),
+                    Err(e) => f
+                        .trim()
+                        .parse::<ndfmap::compress::Codec>()
+                        .map(Err)
+                        .map_err(|_| e),
+                })
+                .collect::<Result<Vec<std::result::Result<Format, ndfmap::compress::Codec>>>>()?;
             let color = ingest.feature.is_some();
             for &m in &methods {
                 for o in mixtures.options(m) {
@@ -866,17 +892,32 @@ fn run(cli: Cli) -> Result<()> {
             }
             let (map, _) = ingest.load(&input)?;
             let mut bakes = Vec::new();
+            let mut codec_labels = Vec::new();
             for b in bake_all(&map, &methods, &mixtures, json)? {
                 for &f in &formats {
-                    match ndfmap::pack::quantize(&b, f) {
-                        Ok(q) => bakes.push(q),
-                        Err(e) => eprintln!("skipped {} in {f}: {e}", b.method),
+                    let (stored, label) = match f {
+                        Ok(f) => (ndfmap::pack::quantize(&b, f), None),
+                        Err(c) => (
+                            ndfmap::compress::round_trip(&b, c),
+                            Some(format!("{} {c}", b.label())),
+                        ),
+                    };
+                    match stored {
+                        Ok(q) => {
+                            bakes.push(q);
+                            codec_labels.push(label);
+                        }
+                        Err(e) => eprintln!(
+                            "skipped {} in {}: {e}",
+                            b.method,
+                            f.map_or_else(|c| c.name(), |f| f.name())
+                        ),
                     }
                 }
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
             let t = Instant::now();
-            let errors = evaluate_with(
+            let mut errors = evaluate_with(
                 &map,
                 &refs,
                 &brdfs,
@@ -884,6 +925,12 @@ fn run(cli: Cli) -> Result<()> {
                 first_level,
                 &shading,
             );
+            // Errors come bake by bake, BRDF by BRDF: name the codec of compressed bakes.
+            for (i, e) in errors.iter_mut().enumerate() {
+                if let Some(Some(l)) = codec_labels.get(i / brdfs.len().max(1)) {
+                    e.label = l.clone();
+                }
+            }
             // How well lobe j lines up across neighbouring texels (Sec 7.3), per vMF bake.
             let coherence: Vec<(String, Vec<Option<f64>>)> = bakes
                 .iter()

@@ -24,6 +24,8 @@ pub mod map;
 
 pub mod bake;
 
+pub mod container;
+
 pub mod shader;
 
 pub mod brdf;

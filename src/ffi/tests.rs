@@ -1442,3 +1442,172 @@ fn fuzz_finding_exr_line_outside_its_level_is_a_decode_status() {
     // SAFETY: NULL or the map just made.
     unsafe { ndf_normal_map_free(map) };
 }
+
+/// Issue 19: the container files through the C API, in memory and on disk, equal the Rust
+/// API's bytes (which tests/containers.rs reads back with the ktx2 and ddsfile crates);
+/// refusals come before any write.
+#[test]
+fn container_files_in_memory_and_on_disk_equal_the_rust_apis() {
+    use super::container::*;
+    use crate::container::Container;
+    let map = c_map();
+    let bake = c_bake(map, NDF_METHOD_OLANO);
+    // SAFETY: a live bake from c_bake.
+    let b = unsafe { &*bake };
+    let dir = tempfile::tempdir().unwrap();
+    for (container, c_container, compression, codec, format, c_format) in [
+        (
+            Container::Ktx2,
+            NDF_CONTAINER_KTX2,
+            NDF_COMPRESSION_NONE,
+            None,
+            Format::F16,
+            NDF_FORMAT_RGBA_F16,
+        ),
+        (
+            Container::Dds,
+            NDF_CONTAINER_DDS,
+            NDF_COMPRESSION_NONE,
+            None,
+            Format::Unorm8,
+            NDF_FORMAT_RGBA_UNORM8,
+        ),
+        (
+            Container::Ktx2,
+            NDF_CONTAINER_KTX2,
+            NDF_COMPRESSION_BC7,
+            Some(crate::compress::Codec::Bc7),
+            Format::F32,
+            NDF_FORMAT_RGBA_F32,
+        ),
+        (
+            Container::Dds,
+            NDF_CONTAINER_DDS,
+            NDF_COMPRESSION_BC6H,
+            Some(crate::compress::Codec::Bc6h),
+            Format::F32,
+            NDF_FORMAT_RGBA_F32,
+        ),
+    ] {
+        let q = crate::pack::quantize(&b.bake, format).unwrap();
+        let out = dir.path().join(format!("{container}-{compression}"));
+        let c_out = std::ffi::CString::new(out.to_str().unwrap()).unwrap();
+        // SAFETY: a live bake and a NUL-terminated path.
+        let s = unsafe {
+            ndf_bake_write_container(bake, c_out.as_ptr(), c_format, c_container, compression)
+        };
+        assert_eq!(s, ndf_status::Ok, "{}", message());
+        for t in 0..q.textures.len() {
+            let want = crate::container::texture_file(&q, t, container, codec).unwrap();
+            let mut size = 0usize;
+            // SAFETY: a live bake, a writable out-pointer.
+            let s = unsafe {
+                ndf_bake_container_size(
+                    bake,
+                    t as u32,
+                    c_format,
+                    c_container,
+                    compression,
+                    &mut size,
+                )
+            };
+            assert_eq!((s, size), (ndf_status::Ok, want.len()), "{}", message());
+            // One byte short: refused, nothing written.
+            let mut buf = vec![0xAAu8; size];
+            let mut written = 7usize;
+            // SAFETY: `buf` is writable for `size - 1` bytes.
+            let s = unsafe {
+                ndf_bake_container_file(
+                    bake,
+                    t as u32,
+                    c_format,
+                    c_container,
+                    compression,
+                    buf.as_mut_ptr().cast(),
+                    size - 1,
+                    &mut written,
+                )
+            };
+            assert_eq!(s, ndf_status::BufferTooSmall);
+            assert!(buf.iter().all(|&x| x == 0xAA) && written == 7);
+            // SAFETY: `buf` is writable for `size` bytes.
+            let s = unsafe {
+                ndf_bake_container_file(
+                    bake,
+                    t as u32,
+                    c_format,
+                    c_container,
+                    compression,
+                    buf.as_mut_ptr().cast(),
+                    size,
+                    &mut written,
+                )
+            };
+            assert_eq!((s, written), (ndf_status::Ok, size), "{}", message());
+            assert_eq!(buf, want);
+            let name = crate::container::file_name(q.textures[t].name, container);
+            assert_eq!(std::fs::read(out.join(name)).unwrap(), want);
+        }
+    }
+    let mut size = 0usize;
+    // SAFETY: a live bake, a writable out-pointer (every call below).
+    unsafe {
+        // EXR is a folder, not one file; a compression in EXR or over f16 is refused.
+        let s = ndf_bake_container_size(
+            bake,
+            0,
+            NDF_FORMAT_RGBA_F32,
+            NDF_CONTAINER_EXR,
+            NDF_COMPRESSION_NONE,
+            &mut size,
+        );
+        assert_eq!(s, ndf_status::InvalidArgument);
+        let s = ndf_bake_container_size(
+            bake,
+            0,
+            NDF_FORMAT_RGBA_F16,
+            NDF_CONTAINER_KTX2,
+            NDF_COMPRESSION_BC7,
+            &mut size,
+        );
+        assert_eq!(s, ndf_status::UnsupportedFormat);
+        let s = ndf_bake_container_size(
+            bake,
+            9,
+            NDF_FORMAT_RGBA_F32,
+            NDF_CONTAINER_KTX2,
+            NDF_COMPRESSION_NONE,
+            &mut size,
+        );
+        assert_eq!(s, ndf_status::OutOfRange);
+        let s = ndf_bake_container_size(
+            bake,
+            0,
+            NDF_FORMAT_RGBA_F32,
+            NDF_CONTAINER_KTX2,
+            99,
+            &mut size,
+        );
+        assert_eq!(s, ndf_status::InvalidArgument);
+        ndf_bake_free(bake);
+    }
+    // vMF lobes use alpha: BC6H is refused naming the texture, and no folder appears.
+    let vmf = c_bake(map, NDF_METHOD_VMF);
+    let out = dir.path().join("vmf-bc6h");
+    let c_out = std::ffi::CString::new(out.to_str().unwrap()).unwrap();
+    // SAFETY: a live bake and a NUL-terminated path; then the handles are released once.
+    unsafe {
+        let s = ndf_bake_write_container(
+            vmf,
+            c_out.as_ptr(),
+            NDF_FORMAT_RGBA_F32,
+            NDF_CONTAINER_KTX2,
+            NDF_COMPRESSION_BC6H,
+        );
+        assert_eq!(s, ndf_status::UnsupportedFormat);
+        assert!(message().contains("'lobe0'"), "{}", message());
+        ndf_bake_free(vmf);
+        ndf_normal_map_free(map);
+    }
+    assert!(!out.exists());
+}

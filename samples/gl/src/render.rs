@@ -101,6 +101,19 @@ impl BakeRenderer {
     /// Uploads `bake`'s textures in `bake.format` and compiles its shaders specialized with
     /// `options` (which must not ask for the probe variant).
     pub fn new(gl: &Gl, bake: &Bake, options: &ShaderOptions) -> Result<BakeRenderer> {
+        let textures = BakeTextures::upload(gl, bake, bake.format)?;
+        Self::with_textures(gl, bake, textures, options)
+    }
+
+    /// Like [`BakeRenderer::new`], with textures uploaded already (e.g.
+    /// [`BakeTextures::upload_ktx2`] from container files): `bake` describes them (method,
+    /// lobes, format: what the shaders are specialized for); its texels are not read.
+    pub fn with_textures(
+        gl: &Gl,
+        bake: &Bake,
+        textures: BakeTextures,
+        options: &ShaderOptions,
+    ) -> Result<BakeRenderer> {
         if options.probe {
             return Err(Error::Usage(
                 "BakeRenderer draws meshes: the probe variant is for full-screen tests".into(),
@@ -109,7 +122,6 @@ impl BakeRenderer {
         let vertex = source(bake, Stage::Vertex, options)?;
         let fragment = source(bake, Stage::Fragment, options)?;
         let program = Program::new(gl, &vertex, &fragment)?;
-        let textures = BakeTextures::upload(gl, bake, bake.format)?;
         Ok(BakeRenderer {
             gl: gl.clone(),
             program,

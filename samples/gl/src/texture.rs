@@ -108,6 +108,116 @@ impl BakeTextures {
         Ok(out)
     }
 
+    /// Uploads KTX2 files (one per texture, in the bake's texture order, as
+    /// `ndfmap bake --container ktx2` writes them) straight into textures: each file is parsed
+    /// by the `ktx2` crate and its levels are handed to `glTexImage2D` as they lie in the file,
+    /// with the sampling state of [`BakeTextures::upload`] (`addressing` as the bake's). The
+    /// files must be uncompressed RGBA32F, RGBA16F, RGBA16 or RGBA8, all in one format, with
+    /// full MIP chains of the same size; anything else is an error and nothing is created.
+    pub fn upload_ktx2(gl: &Gl, files: &[&[u8]], addressing: Addressing) -> Result<BakeTextures> {
+        let bad = |i: usize, what: String| Error::Usage(format!("KTX2 file {i}: {what}"));
+        let mut readers = Vec::with_capacity(files.len());
+        for (i, f) in files.iter().enumerate() {
+            let r = ktx2::Reader::new(*f).map_err(|e| bad(i, e.to_string()))?;
+            readers.push(r);
+        }
+        let Some(first) = readers.first() else {
+            return Err(Error::Usage("no KTX2 file to upload".into()));
+        };
+        let h = first.header();
+        let format = match h.format {
+            Some(ktx2::Format::R32G32B32A32_SFLOAT) => Format::F32,
+            Some(ktx2::Format::R16G16B16A16_SFLOAT) => Format::F16,
+            Some(ktx2::Format::R16G16B16A16_UNORM) => Format::Unorm16,
+            Some(ktx2::Format::R8G8B8A8_UNORM) => Format::Unorm8,
+            other => return Err(bad(0, format!("format {other:?} is not uploaded here"))),
+        };
+        let mut sizes = Vec::new();
+        let (mut w, mut hgt) = (h.pixel_width, h.pixel_height.max(1));
+        for _ in 0..h.level_count.max(1) {
+            sizes.push((w, hgt));
+            (w, hgt) = ((w / 2).max(1), (hgt / 2).max(1));
+        }
+        for (i, r) in readers.iter().enumerate() {
+            let hi = r.header();
+            if (hi.format, hi.pixel_width, hi.pixel_height, hi.level_count)
+                != (h.format, h.pixel_width, h.pixel_height, h.level_count)
+                || hi.supercompression_scheme.is_some()
+            {
+                return Err(bad(
+                    i,
+                    "differs from file 0 in format, size or levels".into(),
+                ));
+            }
+            for (k, level) in r.levels().enumerate() {
+                let (lw, lh) = sizes[k];
+                let need = lw as usize * lh as usize * 4 * format.channel_bytes();
+                if level.data.len() != need {
+                    return Err(bad(
+                        i,
+                        format!("level {k} has {} bytes, {need} expected", level.data.len()),
+                    ));
+                }
+            }
+        }
+        let mut out = BakeTextures {
+            gl: gl.clone(),
+            textures: Vec::with_capacity(readers.len()),
+            format,
+            sizes: sizes.clone(),
+        };
+        let (internal, pixel_type) = gl_format(format);
+        let wrap = match addressing {
+            Addressing::Wrap => glow::REPEAT,
+            Addressing::Clamp => glow::CLAMP_TO_EDGE,
+        } as i32;
+        let g = gl.glow();
+        for r in &readers {
+            // SAFETY: the context is current on this thread while `gl` lives; the new texture
+            // is owned by `out` at once, so an early return deletes it.
+            let texture = unsafe { g.create_texture() }
+                .map_err(|e| Gl::creation_error("glCreateTexture", e))?;
+            out.textures.push(texture);
+            gl.with_texture_2d(texture, || {
+                // SAFETY: as above, with `texture` bound; the parameters are valid enums for a
+                // 2D texture.
+                unsafe {
+                    g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
+                    let last = sizes.len() as i32 - 1;
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, last);
+                    let min = glow::LINEAR_MIPMAP_LINEAR as i32;
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, min);
+                    let mag = glow::LINEAR as i32;
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, mag);
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_S, wrap);
+                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_T, wrap);
+                }
+                for (k, level) in r.levels().enumerate() {
+                    let (lw, lh) = sizes[k];
+                    // SAFETY: `level.data` holds lw·lh RGBA texels of `pixel_type`, tightly
+                    // packed (checked above; KTX2 data is little-endian, as this host).
+                    unsafe {
+                        g.tex_image_2d(
+                            glow::TEXTURE_2D,
+                            k as i32,
+                            internal as i32,
+                            lw as i32,
+                            lh as i32,
+                            0,
+                            glow::RGBA,
+                            pixel_type,
+                            PixelUnpackData::Slice(Some(level.data)),
+                        );
+                    }
+                }
+                Ok::<_, Error>(())
+            })?;
+        }
+        gl.check_error("texture upload")?;
+        Ok(out)
+    }
+
     /// Binds texture `i` to texture unit `i` for every texture, and sets the sampler uniform
     /// `ndf_tex{i}` of `program` to `i` where the program has it.
     pub fn bind(&self, program: &Program) {

@@ -157,3 +157,56 @@ fn standard_scenes_match_the_references_through_egl() {
 fn standard_scenes_match_the_references_through_osmesa() {
     run(Route::OsMesa);
 }
+
+/// Issue 19: vMF J = 4 aligned (hardware trilinear) uploaded straight from the KTX2 files
+/// `ndfmap bake --container ktx2` writes (f32 and f16), parsed by the `ktx2` crate, renders the
+/// same image as the in-memory bake, bit for bit: the files hold exactly the texels `upload`
+/// packs, and the shader and draw are the same.
+#[test]
+fn ktx2_container_renders_the_in_memory_bakes_image() {
+    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
+        println!("skipped: NDFMAP_SKIP_GL=1");
+        return;
+    }
+    let gl =
+        Gl::new(Route::Egl).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    let map = ndfmap::procedural::generate(128, 3).map;
+    let options = BakeOptions {
+        lobes: 4,
+        align: Some(1.0),
+        ..Default::default()
+    };
+    let baked = bake_with(&map, Method::Vmf, &options).unwrap();
+    for format in [ndfmap::format::Format::F32, ndfmap::format::Format::F16] {
+        let b = ndfmap::pack::quantize(&baked, format).unwrap();
+        let files: Vec<Vec<u8>> = (0..b.textures.len())
+            .map(|t| {
+                ndfmap::container::texture_file(&b, t, ndfmap::container::Container::Ktx2, None)
+                    .unwrap()
+            })
+            .collect();
+        let slices: Vec<&[u8]> = files.iter().map(Vec::as_slice).collect();
+        let textures = ndfmap_gl::BakeTextures::upload_ktx2(&gl, &slices, b.addressing).unwrap();
+        assert_eq!(
+            (textures.format(), textures.sizes()),
+            (format, &b.sizes[..])
+        );
+        let from_file =
+            BakeRenderer::with_textures(&gl, &b, textures, &ShaderOptions::default()).unwrap();
+        let in_memory = BakeRenderer::new(&gl, &b, &ShaderOptions::default()).unwrap();
+        for scene in Scene::standard() {
+            let a = scene.render(&gl, &from_file, SIZE).unwrap();
+            let m = scene.render(&gl, &in_memory, SIZE).unwrap();
+            assert!(
+                a.iter().flatten().any(|v| *v > 0.0),
+                "{}: a lit image",
+                scene.name
+            );
+            assert_eq!(
+                a, m,
+                "{} {format}: the KTX2 upload renders differently",
+                scene.name
+            );
+        }
+    }
+}

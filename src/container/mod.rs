@@ -1,0 +1,333 @@
+//! GPU texture containers: one KTX2 or DDS file per texture of a bake, each holding the
+//! texture's whole MIP chain in one format — RGBA32F, RGBA16F, RGBA16 or RGBA8 (the bake's
+//! storage format) or a block compression ([`crate::compress::Codec`]) — always linear, never
+//! sRGB.
+//!
+//! Main types: [`Container`] (OpenEXR folders, KTX2 or DDS), [`Encoding`] (what a file's
+//! texels are), [`check`] (refuses an impossible combination before any work),
+//! [`texture_file`] (one texture's file, in memory) and [`write_bake`] (a whole bake and its
+//! `manifest.json`, through the one atomic folder writer, `output::write_folder`).
+//!
+//! KTX2 files ([`ktx2`]) carry their data-format descriptor (built by the `ktx2` crate) and
+//! key/value metadata naming the method, the texture, its channels, ranges and encoding; DDS
+//! files ([`dds`]) have the DX10 header and no metadata of their own: the manifest beside them
+//! is their sidecar, with the same information. Files are byte-deterministic: the same bake
+//! gives the same bytes whatever the thread count.
+
+pub mod dds;
+pub mod ktx2;
+
+use crate::bake::{Bake, Method};
+use crate::compress::Codec;
+use crate::error::{Error, Result};
+use crate::format::{Format, ValueRange};
+use crate::output::{InputInfo, MANIFEST, Manifest};
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// How a bake's textures are stored on disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Container {
+    /// One OpenEXR (float) or PNG (unorm) file per texture per level (module `output`).
+    #[default]
+    Exr,
+    /// One KTX2 file per texture with its whole MIP chain.
+    Ktx2,
+    /// One DDS file (DX10 header) per texture with its whole MIP chain.
+    Dds,
+}
+
+impl Container {
+    /// Every container.
+    pub const ALL: [Container; 3] = [Container::Exr, Container::Ktx2, Container::Dds];
+
+    /// The lower-case name on the command line (and the file extension of KTX2 and DDS).
+    pub fn name(self) -> &'static str {
+        match self {
+            Container::Exr => "exr",
+            Container::Ktx2 => "ktx2",
+            Container::Dds => "dds",
+        }
+    }
+}
+
+impl fmt::Display for Container {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Container {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Container::ALL
+            .into_iter()
+            .find(|c| c.name().eq_ignore_ascii_case(s))
+            .ok_or_else(|| {
+                Error::InvalidOption(format!(
+                    "unknown container '{s}' (expected one of: exr, ktx2, dds)"
+                ))
+            })
+    }
+}
+
+/// What the texels of a container file are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Encoding {
+    /// Uncompressed RGBA in a storage format.
+    Plain(Format),
+    /// Block-compressed.
+    Block(Codec),
+}
+
+impl Encoding {
+    /// The encoding a file of `bake` gets: its storage format, or `codec` when given.
+    pub fn of(bake: &Bake, codec: Option<Codec>) -> Encoding {
+        codec.map_or(Encoding::Plain(bake.format), Encoding::Block)
+    }
+
+    /// The name (`f16`, `bc7`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Encoding::Plain(f) => f.name(),
+            Encoding::Block(c) => c.name(),
+        }
+    }
+
+    /// How values are stored, in words (the manifest's `encoding`, KTX2's `ndfmap.encoding`).
+    pub fn description(self) -> String {
+        match self {
+            Encoding::Plain(Format::F32) => "f32: values as baked".into(),
+            Encoding::Plain(Format::F16) => "f16: values as baked, rounded to half floats".into(),
+            Encoding::Plain(f) => format!(
+                "{f}: unsigned-normalized; channels whose range is 'signed' store 0.5 + 0.5*v"
+            ),
+            Encoding::Block(Codec::Bc6h) => "bc6h: unsigned half-float blocks (BC6H_UF16); \
+                 channels whose range is 'signed' store 0.5 + 0.5*v; no alpha (reads 1)"
+                .into(),
+            Encoding::Block(c) => format!(
+                "{c}: unsigned-normalized blocks; channels whose range is 'signed' store \
+                 0.5 + 0.5*v"
+            ),
+        }
+    }
+
+    /// The format a shader decodes the sampled values as (its bias and clamps): the storage
+    /// format, or the codec's [`Codec::shading_format`].
+    pub fn shading_format(self) -> Format {
+        match self {
+            Encoding::Plain(f) => f,
+            Encoding::Block(c) => c.shading_format(),
+        }
+    }
+}
+
+/// File name of texture `name` in `container` (KTX2 or DDS): `lobe0.ktx2`.
+pub fn file_name(name: &str, container: Container) -> String {
+    format!("{name}.{}", container.name())
+}
+
+/// Whether `container` can hold a bake of `method` (`lobes_or_lmax`, `color` as in
+/// [`crate::methods::texture_ranges`]) stored in `format`, or block-compressed with `codec`,
+/// checked before any work: OpenEXR folders hold no block compression, no container holds the
+/// measurement-only [`Codec::Bc6hBc4`], and the codec must hold every texture
+/// ([`crate::compress::check_layout`], naming the texture). Unbounded textures in unorm
+/// formats are refused by [`crate::methods::check_options`].
+pub fn check(
+    container: Container,
+    method: Method,
+    lobes_or_lmax: usize,
+    color: bool,
+    format: Format,
+    codec: Option<Codec>,
+) -> Result<()> {
+    let Some(codec) = codec else {
+        return Ok(());
+    };
+    if container == Container::Exr {
+        return Err(Error::InvalidOption(format!(
+            "the exr container (OpenEXR/PNG files) cannot hold {codec} blocks; use --container \
+             ktx2 or dds"
+        )));
+    }
+    if codec == Codec::Bc6hBc4 {
+        return Err(Error::InvalidOption(format!(
+            "{codec} stores one texture as two (RGB and alpha): a measurement for eval that no \
+             {container} file holds; use bc7, or bc6h for textures without alpha"
+        )));
+    }
+    if format != Format::F32 {
+        return Err(Error::InvalidOption(format!(
+            "block compression {codec} encodes the baked f32 values; format {format} would round \
+             them twice (leave the format at f32)"
+        )));
+    }
+    crate::compress::check_layout(method, lobes_or_lmax, color, codec)
+}
+
+/// The bytes of level `level` of texture `texture` uncompressed in `format`, little-endian,
+/// rows top to bottom (what [`crate::pack::pack_level`] gives on a little-endian host).
+fn plain_level(bake: &Bake, texture: usize, level: usize, format: Format) -> Vec<u8> {
+    let t = &bake.textures[texture];
+    let mut out = Vec::with_capacity(crate::pack::packed_len(bake, level, format));
+    for texel in &t.levels[level] {
+        for (c, &v) in texel.iter().enumerate() {
+            let range: ValueRange = t.ranges[c];
+            match format {
+                Format::F32 => out.extend_from_slice(&v.to_le_bytes()),
+                Format::F16 => out.extend_from_slice(&half::f16::from_f32(v).to_le_bytes()),
+                Format::Unorm16 => {
+                    out.extend_from_slice(&crate::pack::unorm_code(v, range, 65535.0).to_le_bytes())
+                }
+                Format::Unorm8 => out.push(crate::pack::unorm_code(v, range, 255.0) as u8),
+            }
+        }
+    }
+    out
+}
+
+/// Every level of texture `texture` of `bake` in `encoding`, finest first.
+fn levels(bake: &Bake, texture: usize, encoding: Encoding) -> Result<Vec<Vec<u8>>> {
+    let t = &bake.textures[texture];
+    match encoding {
+        Encoding::Plain(format) => {
+            crate::pack::check(bake, texture, format)?;
+            Ok((0..bake.sizes.len())
+                .map(|k| plain_level(bake, texture, k, format))
+                .collect())
+        }
+        Encoding::Block(codec) => {
+            crate::compress::check_texture(codec, bake.method, t.name, &t.channels, &t.ranges)?;
+            (0..bake.sizes.len())
+                .map(|k| {
+                    let (w, h) = bake.sizes[k];
+                    let what = format!("texture '{}' level {k}", t.name);
+                    crate::compress::encode_level(&what, w, h, &t.levels[k], t.ranges, codec)
+                })
+                .collect()
+        }
+    }
+}
+
+/// One texture's file in `container` (KTX2 or DDS), in memory: texture `texture` of `bake`
+/// with its whole MIP chain, in the bake's storage format or block-compressed with `codec`.
+///
+/// # Errors
+///
+/// [`Error::InvalidOption`] for the exr container (a folder of files, [`write_bake`]), a
+/// texture index out of range, a codec that cannot hold the texture, or values the format
+/// cannot hold (f16 beyond ±65504).
+pub fn texture_file(
+    bake: &Bake,
+    texture: usize,
+    container: Container,
+    codec: Option<Codec>,
+) -> Result<Vec<u8>> {
+    if texture >= bake.textures.len() {
+        return Err(Error::InvalidOption(format!(
+            "texture {texture} out of range: the bake has {}",
+            bake.textures.len()
+        )));
+    }
+    let encoding = Encoding::of(bake, codec);
+    if let Encoding::Block(c @ Codec::Bc6hBc4) = encoding {
+        return Err(Error::InvalidOption(format!(
+            "{c} is a measurement for eval that no {container} file holds"
+        )));
+    }
+    let data = levels(bake, texture, encoding)?;
+    match container {
+        Container::Exr => Err(Error::InvalidOption(
+            "the exr container is a folder of files per level: write it with write_bake".into(),
+        )),
+        Container::Ktx2 => Ok(ktx2::file(bake, texture, encoding, &data)),
+        Container::Dds => Ok(dds::file(bake, encoding, &data)),
+    }
+}
+
+/// The manifest of `bake` written in `container` with `codec`: [`Manifest::new`]'s, with one
+/// file per texture, the container's storage and the encoding's description.
+pub fn manifest(
+    bake: &Bake,
+    input: InputInfo,
+    container: Container,
+    codec: Option<Codec>,
+) -> Manifest {
+    let mut m = Manifest::new(bake, input);
+    if container == Container::Exr {
+        return m;
+    }
+    let encoding = Encoding::of(bake, codec);
+    m.storage = match container {
+        Container::Ktx2 => {
+            "one KTX2 file per texture holding its whole MIP chain (finest level \
+             first in the level index, rows top first, linear, key/value metadata ndfmap.*)"
+        }
+        _ => {
+            "one DDS file per texture (DX10 header) holding its whole MIP chain (finest \
+             first, rows top first, linear; this manifest is its metadata)"
+        }
+    }
+    .into();
+    m.encoding = encoding.description();
+    m.texel_format = encoding.shading_format();
+    m.compression = codec.map(|c| c.name().to_string());
+    for (t, info) in bake.textures.iter().zip(&mut m.textures) {
+        info.files = vec![file_name(t.name, container)];
+    }
+    m
+}
+
+/// Writes `bake` and its manifest as folder `dir` in `container` (KTX2 or DDS: one file per
+/// texture; exr: [`crate::output::write_bake`]), atomically through
+/// [`crate::output::write_folder`]: afterwards `dir` holds this bake and nothing else, or, on
+/// failure, what it held before. Returns the manifest's path.
+///
+/// # Errors
+///
+/// As [`crate::output::write_bake`], and [`texture_file`]'s (checked per texture before the
+/// folder is swapped in).
+pub fn write_bake(
+    bake: &Bake,
+    input: InputInfo,
+    dir: &Path,
+    container: Container,
+    codec: Option<Codec>,
+) -> Result<PathBuf> {
+    if container == Container::Exr {
+        if let Some(c) = codec {
+            return Err(Error::InvalidOption(format!(
+                "the exr container cannot hold {c} blocks; use ktx2 or dds"
+            )));
+        }
+        return crate::output::write_bake(bake, input, dir);
+    }
+    let manifest = manifest(bake, input, container, codec);
+    let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Write {
+        path: dir.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    crate::output::write_folder(dir, |staging| {
+        use rayon::prelude::*;
+        // One file per job; each is built alone (same bytes whatever the thread count), and
+        // the first failure in texture order is reported.
+        let results: Vec<Result<()>> = (0..bake.textures.len())
+            .into_par_iter()
+            .map(|t| {
+                let name = &manifest.textures[t].files[0];
+                let bytes = texture_file(bake, t, container, codec)?;
+                std::fs::write(staging.join(name), bytes).map_err(|e| Error::Write {
+                    path: dir.join(name),
+                    message: e.to_string(),
+                })
+            })
+            .collect();
+        results.into_iter().collect::<Result<()>>()?;
+        std::fs::write(staging.join(MANIFEST), json + "\n").map_err(|e| Error::Write {
+            path: dir.join(MANIFEST),
+            message: e.to_string(),
+        })
+    })?;
+    Ok(dir.join(MANIFEST))
+}
