@@ -166,6 +166,14 @@ pub fn layout(
                 .map(|(n, c, r)| (n.to_string(), c, r))
                 .collect();
         }
+        // With the anisotropy texture: its channels and ranges are the normal's pattern, so a
+        // codec holds the isotropic bake exactly when it holds this one.
+        Method::Pbr => {
+            return crate::pbr::layout(true)
+                .into_iter()
+                .map(|(n, c, r)| (n.to_string(), c, r))
+                .collect();
+        }
         _ => {
             return crate::baseline::layout(method)
                 .into_iter()
@@ -475,6 +483,7 @@ mod tests {
             assert!(m.contains(codec.name()) && m.contains("'slopes'"), "{m}");
         }
         // Olano–North's three textures use RGB of bounded values: BC6H and BC7 hold them.
+        assert!(check_layout(Method::Pbr, 0, false, Codec::Bc7).is_ok());
         assert!(check_layout(Method::Olano, 0, false, Codec::Bc6h).is_ok());
         assert!(check_layout(Method::Olano, 0, false, Codec::Bc7).is_ok());
         let m = check_layout(Method::Olano, 0, false, Codec::Bc5)
