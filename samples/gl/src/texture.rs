@@ -9,6 +9,26 @@ use ndfmap::bake::Bake;
 use ndfmap::format::Format;
 use ndfmap::ingest::Addressing;
 
+/// Sets up the bound `TEXTURE_2D` as a trilinear MIP chain of `levels` levels with `wrap`
+/// addressing (both axes), and tightly packed uploads (unpack alignment 1).
+fn set_mip_chain_parameters(gl: &Gl, levels: usize, wrap: i32) {
+    let g = gl.glow();
+    // SAFETY: the context is current on this thread while `gl` lives and the caller has a
+    // texture bound to TEXTURE_2D; the parameters are valid enums for a 2D texture.
+    unsafe {
+        g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
+        let last = levels as i32 - 1;
+        g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
+        g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, last);
+        let min = glow::LINEAR_MIPMAP_LINEAR as i32;
+        g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, min);
+        let mag = glow::LINEAR as i32;
+        g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, mag);
+        g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_S, wrap);
+        g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_T, wrap);
+    }
+}
+
 /// The GL enums of a storage format: `(internal format, pixel type)`; the pixel format is
 /// always `GL_RGBA`. f32 → `RGBA32F`/`FLOAT`, f16 → `RGBA16F`/`HALF_FLOAT`, unorm16 →
 /// `RGBA16`/`UNSIGNED_SHORT`, unorm8 → `RGBA8`/`UNSIGNED_BYTE`.
@@ -69,20 +89,7 @@ impl BakeTextures {
                 .map_err(|e| Gl::creation_error("glCreateTexture", e))?;
             out.textures.push(texture);
             gl.with_texture_2d(texture, || {
-                // SAFETY: as above, with `texture` bound; the parameters are valid enums for a
-                // 2D texture.
-                unsafe {
-                    g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
-                    let last = bake.level_count() as i32 - 1;
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, last);
-                    let min = glow::LINEAR_MIPMAP_LINEAR as i32;
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, min);
-                    let mag = glow::LINEAR as i32;
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, mag);
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_S, wrap);
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_T, wrap);
-                }
+                set_mip_chain_parameters(gl, bake.level_count(), wrap);
                 for (level, &(w, h)) in bake.sizes.iter().enumerate() {
                     let n = ndfmap::pack::pack_level(bake, t, level, format, &mut bytes)?;
                     // SAFETY: `bytes[..n]` holds w·h RGBA texels of `pixel_type`, tightly
@@ -179,20 +186,7 @@ impl BakeTextures {
                 .map_err(|e| Gl::creation_error("glCreateTexture", e))?;
             out.textures.push(texture);
             gl.with_texture_2d(texture, || {
-                // SAFETY: as above, with `texture` bound; the parameters are valid enums for a
-                // 2D texture.
-                unsafe {
-                    g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
-                    let last = sizes.len() as i32 - 1;
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, last);
-                    let min = glow::LINEAR_MIPMAP_LINEAR as i32;
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, min);
-                    let mag = glow::LINEAR as i32;
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, mag);
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_S, wrap);
-                    g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_T, wrap);
-                }
+                set_mip_chain_parameters(gl, sizes.len(), wrap);
                 for (k, level) in r.levels().enumerate() {
                     let (lw, lh) = sizes[k];
                     // SAFETY: `level.data` holds lw·lh RGBA texels of `pixel_type`, tightly
