@@ -399,9 +399,10 @@ pub enum ShDiffuse {
 /// spread `σ = v/sqrt(v + ε)`, `v = max(E[u²] − E[u]², 0)`, `ε` =
 /// [`MOMENTS_VARIANCE_SOFTENING`] ([`clamped_gaussian_mean`]), clamped to [0, 1] by [`shade`].
 /// `σ ≈ √v` for spreads over 0.01 rad; below, σ falls linearly instead of as `√v`, whose
-/// infinite slope at 0 would turn f32 rounding of `E[u²] − E[u]²` (10⁻⁷) into GPU-against-CPU
-/// differences of 10⁻³ (the slope is now at most `1/√ε`; the shared maps' error changes by
-/// under 0.002 points). A single normal (variance 0) gives `max(n·ω_i, 0)` exactly.
+/// infinite slope at 0 would amplify the f32 rounding of `E[u²] − E[u]²` (about 10⁻⁷ in a
+/// shader) without bound where the spread vanishes (the slope is now at most `1/√ε` = 100;
+/// the shared maps' error changes by at most 0.002 points). A single normal (variance 0)
+/// gives `max(n·ω_i, 0)` exactly.
 pub fn diffuse_moments(texels: &[[f32; 4]], lmax: usize, l: DVec3) -> f64 {
     let l = l.try_normalize().unwrap_or(DVec3::Z);
     let mean = DVec3::new(
