@@ -92,21 +92,9 @@ impl fmt::Display for Method {
 impl FromStr for Method {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Method::ALL
-            .into_iter()
-            .chain([Method::Pbr])
-            .find(|m| m.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| {
-                let names: Vec<_> = Method::ALL
-                    .iter()
-                    .chain(&[Method::Pbr])
-                    .map(|m| m.name())
-                    .collect();
-                Error::InvalidOption(format!(
-                    "unknown method '{s}' (expected one of: {})",
-                    names.join(", ")
-                ))
-            })
+        // Every method with a name: ALL (the C API's numbering) and PBR.
+        let named: Vec<Method> = Method::ALL.into_iter().chain([Method::Pbr]).collect();
+        crate::error::parse_named(s, &named, Method::name, "method")
     }
 }
 

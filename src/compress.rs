@@ -94,14 +94,7 @@ impl fmt::Display for Codec {
 impl FromStr for Codec {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Codec::ALL
-            .into_iter()
-            .find(|c| c.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| {
-                Error::InvalidOption(format!(
-                    "unknown block compression '{s}' (expected one of: bc6h, bc7, bc5, bc6h+bc4)"
-                ))
-            })
+        crate::error::parse_named(s, &Codec::ALL, Codec::name, "block compression")
     }
 }
 

@@ -164,5 +164,26 @@ pub(crate) fn bytes_in_words(bytes: u64) -> String {
     format!("{bytes} bytes")
 }
 
+/// The value of `all` whose `name` equals `s` (ASCII case ignored), or
+/// [`Error::InvalidOption`] "unknown {what} 's' (expected one of: …)" listing every name: the
+/// `FromStr` of ndfmap's named choices (methods, formats, containers, codecs).
+pub(crate) fn parse_named<T: Copy>(
+    s: &str,
+    all: &[T],
+    name: impl Fn(T) -> &'static str,
+    what: &str,
+) -> Result<T> {
+    all.iter()
+        .copied()
+        .find(|&v| name(v).eq_ignore_ascii_case(s))
+        .ok_or_else(|| {
+            let names: Vec<_> = all.iter().map(|&v| name(v)).collect();
+            Error::InvalidOption(format!(
+                "unknown {what} '{s}' (expected one of: {})",
+                names.join(", ")
+            ))
+        })
+}
+
 /// Shorthand for results carrying [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -68,13 +68,6 @@ impl fmt::Display for Format {
 impl FromStr for Format {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Format::ALL
-            .into_iter()
-            .find(|m| m.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| {
-                Error::InvalidOption(format!(
-                    "unknown format '{s}' (expected one of: f32, f16, unorm16, unorm8)"
-                ))
-            })
+        crate::error::parse_named(s, &Format::ALL, Format::name, "format")
     }
 }

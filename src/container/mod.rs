@@ -61,14 +61,7 @@ impl fmt::Display for Container {
 impl FromStr for Container {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Container::ALL
-            .into_iter()
-            .find(|c| c.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| {
-                Error::InvalidOption(format!(
-                    "unknown container '{s}' (expected one of: exr, ktx2, dds)"
-                ))
-            })
+        crate::error::parse_named(s, &Container::ALL, Container::name, "container")
     }
 }
 

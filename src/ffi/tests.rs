@@ -1552,43 +1552,43 @@ fn container_files_in_memory_and_on_disk_equal_the_rust_apis() {
     let mut size = 0usize;
     // SAFETY: a live bake, a writable out-pointer (every call below).
     unsafe {
-        // EXR is a folder, not one file; a compression in EXR or over f16 is refused.
-        let s = ndf_bake_container_size(
-            bake,
-            0,
-            NDF_FORMAT_RGBA_F32,
-            NDF_CONTAINER_EXR,
-            NDF_COMPRESSION_NONE,
-            &mut size,
-        );
-        assert_eq!(s, ndf_status::InvalidArgument);
-        let s = ndf_bake_container_size(
-            bake,
-            0,
-            NDF_FORMAT_RGBA_F16,
-            NDF_CONTAINER_KTX2,
-            NDF_COMPRESSION_BC7,
-            &mut size,
-        );
-        assert_eq!(s, ndf_status::UnsupportedFormat);
-        let s = ndf_bake_container_size(
-            bake,
-            9,
-            NDF_FORMAT_RGBA_F32,
-            NDF_CONTAINER_KTX2,
-            NDF_COMPRESSION_NONE,
-            &mut size,
-        );
-        assert_eq!(s, ndf_status::OutOfRange);
-        let s = ndf_bake_container_size(
-            bake,
-            0,
-            NDF_FORMAT_RGBA_F32,
-            NDF_CONTAINER_KTX2,
-            99,
-            &mut size,
-        );
-        assert_eq!(s, ndf_status::InvalidArgument);
+        // EXR is a folder, not one file; a compression over f16 is refused; texture 9 does
+        // not exist; 99 is no compression.
+        let refused = [
+            (
+                0,
+                NDF_FORMAT_RGBA_F32,
+                NDF_CONTAINER_EXR,
+                NDF_COMPRESSION_NONE,
+                ndf_status::InvalidArgument,
+            ),
+            (
+                0,
+                NDF_FORMAT_RGBA_F16,
+                NDF_CONTAINER_KTX2,
+                NDF_COMPRESSION_BC7,
+                ndf_status::UnsupportedFormat,
+            ),
+            (
+                9,
+                NDF_FORMAT_RGBA_F32,
+                NDF_CONTAINER_KTX2,
+                NDF_COMPRESSION_NONE,
+                ndf_status::OutOfRange,
+            ),
+            (
+                0,
+                NDF_FORMAT_RGBA_F32,
+                NDF_CONTAINER_KTX2,
+                99,
+                ndf_status::InvalidArgument,
+            ),
+        ];
+        for (texture, format, container, compression, want) in refused {
+            let s =
+                ndf_bake_container_size(bake, texture, format, container, compression, &mut size);
+            assert_eq!(s, want, "{texture} {format} {container} {compression}");
+        }
         ndf_bake_free(bake);
     }
     // vMF lobes use alpha: BC6H is refused naming the texture, and no folder appears.
