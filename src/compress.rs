@@ -142,60 +142,11 @@ pub fn check_texture(
     Ok(())
 }
 
-/// The texture names, channel meanings and value ranges a bake of `method` will have, known
-/// before baking (`lobes_or_lmax` as in [`crate::methods::texture_ranges`]).
-pub fn layout(
-    method: Method,
-    lobes_or_lmax: usize,
-    color: bool,
-) -> Vec<(String, [&'static str; 4], [ValueRange; 4])> {
-    use crate::mixture::{Model, TanModel, VmfModel};
-    let (names, channels, ranges) = match method {
-        Method::Vmf => (VmfModel::NAMES, VmfModel::CHANNELS, VmfModel::RANGES),
-        Method::Tan2005 => (TanModel::NAMES, TanModel::CHANNELS, TanModel::RANGES),
-        Method::Sh => {
-            return crate::sh::layout(lobes_or_lmax)
-                .into_iter()
-                .map(|(n, c, r)| (n.to_string(), c, r))
-                .collect();
-        }
-        // With the anisotropy texture: its channels and ranges are the normal's pattern, so a
-        // codec holds the isotropic bake exactly when it holds this one.
-        Method::Pbr => {
-            return crate::pbr::layout(true)
-                .into_iter()
-                .map(|(n, c, r)| (n.to_string(), c, r))
-                .collect();
-        }
-        _ => {
-            return crate::baseline::layout(method)
-                .into_iter()
-                .map(|(n, c, r)| (n.to_string(), c, r))
-                .collect();
-        }
-    };
-    let lobes = lobes_or_lmax.min(names.len());
-    let mut out: Vec<_> = names[..lobes]
-        .iter()
-        .map(|n| (n.to_string(), channels, ranges))
-        .collect();
-    if color {
-        out.extend((0..lobes).map(|j| {
-            (
-                format!("color{j}"),
-                ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
-                [ValueRange::Unit; 4],
-            )
-        }));
-    }
-    out
-}
-
 /// Whether `codec` can hold every texture of a bake of `method` (`lobes_or_lmax` lobes or
 /// band limit, with colour textures when `color`), before any work: the first texture it
 /// cannot hold is named ([`check_texture`]).
 pub fn check_layout(method: Method, lobes_or_lmax: usize, color: bool, codec: Codec) -> Result<()> {
-    for (name, channels, ranges) in layout(method, lobes_or_lmax, color) {
+    for (name, channels, ranges) in crate::methods::texture_layout(method, lobes_or_lmax, color) {
         check_texture(codec, method, &name, &channels, &ranges)?;
     }
     Ok(())
@@ -491,7 +442,7 @@ mod tests {
                 ..Default::default()
             };
             let b = crate::methods::bake_with(&map, method, &options).unwrap();
-            let l = layout(method, n, false);
+            let l = crate::methods::texture_layout(method, n, false);
             assert_eq!(l.len(), b.textures.len());
             for ((name, c, r), t) in l.iter().zip(&b.textures) {
                 assert_eq!((name.as_str(), c, r), (t.name, &t.channels, &t.ranges));

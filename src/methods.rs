@@ -7,41 +7,53 @@ use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
 
-/// The value ranges of each texture a bake of `method` has, in texture order — what a shader
-/// needs to decode unsigned-normalized storage without a bake at hand: for PBR, `color` says
-/// whether the anisotropy texture is there; the baseline's textures,
-/// SH's textures for band limit `lobes_or_lmax`, or `lobes_or_lmax` lobe textures followed,
-/// with `color`, by as many colour textures (`α·y`, unit).
-pub fn texture_ranges(method: Method, lobes_or_lmax: usize, color: bool) -> Vec<[ValueRange; 4]> {
+/// The names, channel meanings and value ranges of each texture a bake of `method` has, in
+/// texture order, known before baking: the baseline's textures, SH's for band limit
+/// `lobes_or_lmax`, for PBR the normal and metallic-roughness textures and, with `color`, the
+/// anisotropy texture; for the mixtures `lobes_or_lmax` lobe textures followed, with `color`,
+/// by as many colour textures (`α·y`, unit).
+pub fn texture_layout(
+    method: Method,
+    lobes_or_lmax: usize,
+    color: bool,
+) -> Vec<(String, [&'static str; 4], [ValueRange; 4])> {
     use crate::mixture::{Model, TanModel, VmfModel};
-    let lobes = lobes_or_lmax;
-    let lobe = match method {
-        Method::Vmf => VmfModel::RANGES,
-        Method::Tan2005 => TanModel::RANGES,
-        Method::Pbr => {
-            return crate::pbr::layout(color)
-                .into_iter()
-                .map(|(_, _, ranges)| ranges)
-                .collect();
-        }
-        Method::Sh => {
-            return crate::sh::layout(lobes_or_lmax)
-                .into_iter()
-                .map(|(_, _, ranges)| ranges)
-                .collect();
-        }
-        _ => {
-            return crate::baseline::layout(method)
-                .into_iter()
-                .map(|(_, _, ranges)| ranges)
-                .collect();
-        }
+    let owned = |l: Vec<(&'static str, [&'static str; 4], [ValueRange; 4])>| {
+        l.into_iter()
+            .map(|(n, c, r)| (n.to_string(), c, r))
+            .collect()
     };
-    let mut ranges = vec![lobe; lobes];
+    let (names, channels, ranges) = match method {
+        Method::Vmf => (VmfModel::NAMES, VmfModel::CHANNELS, VmfModel::RANGES),
+        Method::Tan2005 => (TanModel::NAMES, TanModel::CHANNELS, TanModel::RANGES),
+        Method::Pbr => return owned(crate::pbr::layout(color)),
+        Method::Sh => return owned(crate::sh::layout(lobes_or_lmax)),
+        _ => return owned(crate::baseline::layout(method)),
+    };
+    let lobes = lobes_or_lmax.min(names.len());
+    let mut out: Vec<_> = names[..lobes]
+        .iter()
+        .map(|n| (n.to_string(), channels, ranges))
+        .collect();
     if color {
-        ranges.extend(std::iter::repeat_n([ValueRange::Unit; 4], lobes));
+        out.extend((0..lobes).map(|j| {
+            (
+                format!("color{j}"),
+                ["alpha*y_r", "alpha*y_g", "alpha*y_b", "alpha*y_a"],
+                [ValueRange::Unit; 4],
+            )
+        }));
     }
-    ranges
+    out
+}
+
+/// The value ranges of each texture a bake of `method` has, in texture order — what a shader
+/// needs to decode unsigned-normalized storage without a bake at hand ([`texture_layout`]).
+pub fn texture_ranges(method: Method, lobes_or_lmax: usize, color: bool) -> Vec<[ValueRange; 4]> {
+    texture_layout(method, lobes_or_lmax, color)
+        .into_iter()
+        .map(|(_, _, ranges)| ranges)
+        .collect()
 }
 
 /// Checks `options` for a bake of `method`, and that `format` (the storage format the bake will
