@@ -134,9 +134,8 @@ typedef uint32_t ndf_status;
 
 /**
  * A baked set of filtered textures (opaque): per texture an RGBA MIP chain, finest level
- * first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf`, `ndf_bake_tan2005` or
- * `ndf_bake_sh`;
- * released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
+ * first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf`, `ndf_bake_tan2005`,
+ * `ndf_bake_sh` or `ndf_bake_pbr`; released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
  * and write it at once.
  */
 typedef struct ndf_bake ndf_bake;
@@ -242,6 +241,58 @@ typedef uint32_t ndf_sample_type;
  * not call back into the bake being made.
  */
 typedef int (*ndf_progress_fn)(float fraction, void *user_data);
+
+/**
+ * Options of the PBR bake (`NDF_METHOD_PBR`, `ndf_bake_pbr`). Initialize with
+ * `ndf_pbr_options_default()`.
+ *
+ * The material maps are optional: each NULL (default) or `width × height` floats of the
+ * map's size, row-major (top row first), every value finite and in [0, 1]
+ * (`NDF_STATUS_BAD_FEATURES` names the count of bad values otherwise). They are read during
+ * the call only. Roughness is linear data (perceptual `√α`, glTF's): convert 8-bit values
+ * with `v / 255`, never through the sRGB curve.
+ */
+typedef struct ndf_pbr_options {
+  /**
+   * `sizeof(ndf_pbr_options)`, set by `ndf_pbr_options_default()`.
+   */
+  size_t struct_size;
+  /**
+   * Perceptual roughness `√α` of every texel when `roughness_map` is NULL, 0 to 1.
+   * Default 0.5.
+   */
+  double roughness;
+  /**
+   * Nonzero: fit an anisotropic GGX lobe per texel and add the `anisotropy` texture
+   * (`KHR_materials_anisotropy`). Default 0.
+   */
+  uint32_t anisotropic;
+  /**
+   * Per-texel perceptual roughness (its square is the texel's base α), or NULL.
+   */
+  const float *roughness_map;
+  /**
+   * Per-texel metallic, or NULL (metallic 0): box-filtered into the B channel.
+   */
+  const float *metallic_map;
+  /**
+   * Per-texel ambient occlusion, or NULL (occlusion 1): box-filtered into the R channel.
+   */
+  const float *occlusion_map;
+  /**
+   * Progress callback, or NULL (default) for none.
+   */
+  ndf_progress_fn progress;
+  /**
+   * Passed to `progress` unchanged. Default NULL.
+   */
+  void *progress_user_data;
+  /**
+   * Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+   * machine's memory.
+   */
+  uint64_t memory_limit;
+} ndf_pbr_options;
 
 /**
  * Options of the spherical-harmonic bake (`NDF_METHOD_SH`). Initialize with
@@ -698,6 +749,15 @@ typedef struct ndf_material_options {
 #define NDF_METHOD_SH 6
 
 /**
+ * The PBR bake for unmodified GGX metallic-roughness shaders (glTF, Filament, Unity, Unreal,
+ * Godot): per level a `normal` texture (signed), a `metallic_roughness` texture in glTF's
+ * channel layout (R occlusion, G perceptual roughness `√α′`, B metallic) and, with the
+ * anisotropic option, an `anisotropy` texture (`KHR_materials_anisotropy`: direction, strength).
+ * Made by `ndf_bake_pbr`; it has no ndfmap shader (the engine's own GGX shader reads it).
+ */
+#define NDF_METHOD_PBR 7
+
+/**
  * 32-bit float per channel, 16 bytes per texel (`GL_RGBA32F`, `GL_FLOAT`).
  */
 #define NDF_FORMAT_RGBA_F32 0
@@ -1064,6 +1124,12 @@ ndf_status ndf_normal_map_bad_normal_count(const struct ndf_normal_map *map, uin
 void ndf_normal_map_free(struct ndf_normal_map *map);
 
 /**
+ * The default PBR options: perceptual roughness 0.5 everywhere, isotropic, no material maps,
+ * no progress callback, the default memory budget.
+ */
+struct ndf_pbr_options ndf_pbr_options_default(void);
+
+/**
  * The default SH options: l* = 4, no progress callback, the default memory budget.
  */
 struct ndf_sh_options ndf_sh_options_default(void);
@@ -1143,6 +1209,24 @@ ndf_status ndf_bake_sh(const struct ndf_normal_map *map,
 ndf_status ndf_bake_tan2005(const struct ndf_normal_map *map,
                             const struct ndf_tan2005_options *options,
                             struct ndf_bake **bake_out);
+
+/**
+ * Bakes the PBR textures of `map` (`NDF_METHOD_PBR`): per level a normal and a GGX roughness
+ * fitted so that one GGX lobe per texel, sampled with ordinary trilinear filtering by an
+ * unmodified metallic-roughness shader, reproduces the footprint's average shading (the
+ * library's `pbr` module; `docs/pbr.md` has the measurements).
+ * - `options`: from `ndf_pbr_options_default()`; a roughness outside [0, 1] gives
+ *   `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
+ *   [0, 1] gives `NDF_STATUS_BAD_FEATURES`.
+ * - `bake_out`, cancellation: as for `ndf_bake_vmf`.
+ *
+ * # Safety
+ * As for `ndf_bake_baseline`; and each of `options`' material maps is NULL or points to
+ * `width × height` readable floats of `map`'s size.
+ */
+ndf_status ndf_bake_pbr(const struct ndf_normal_map *map,
+                        const struct ndf_pbr_options *options,
+                        struct ndf_bake **bake_out);
 
 /**
  * The method that made the bake (`NDF_METHOD_*`).

@@ -134,13 +134,15 @@ pub struct Bake {
 impl Bake {
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
     /// for mixtures, and for vMF `f` for the fast mode and `x` for the exact one (`vmf6`,
-    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), the band limit for SH (`sh4`), and the format
-    /// when it is not f32
-    /// (`vmf6a f16`).
+    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), the band limit for SH (`sh4`), `-aniso` for an
+    /// anisotropic PBR bake (`pbr-aniso`), and the format when it is not f32 (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
         if self.method == Method::Sh {
             l += &self.parameters["lmax"].to_string();
+        }
+        if self.method == Method::Pbr && self.parameters["anisotropic"] == true {
+            l += "-aniso";
         }
         if self.lobes > 0 {
             if l.ends_with(|c: char| c.is_ascii_digit()) {

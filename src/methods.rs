@@ -302,6 +302,27 @@ pub fn bake_with_progress(
     })
 }
 
+/// [`bake_with_progress`] for [`Method::Pbr`] with per-texel material `maps` (checked
+/// against the map first, `pbr::PbrMaps::check`): the C API's `ndf_bake_pbr`.
+pub fn bake_pbr_with_progress(
+    map: &NormalMap,
+    options: &BakeOptions,
+    maps: &crate::pbr::PbrMaps,
+    progress: &mut dyn FnMut(f32) -> bool,
+) -> Result<Bake> {
+    check_options(Method::Pbr, options, false, None)?;
+    maps.check(map.width(), map.height())?;
+    check_memory(map.width(), map.height(), Method::Pbr, options, false)?;
+    let none = crate::pbr::PbrMaps::default();
+    let maps = (maps != &none).then_some(maps);
+    run_with_progress(progress, |progress| {
+        progress.report(0.0)?;
+        let bake = crate::pbr::bake(map, &options.pbr, maps, progress)?;
+        progress.report(1.0)?;
+        Ok(bake)
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

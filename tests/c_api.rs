@@ -187,7 +187,7 @@ fn bakes() -> Vec<Bake> {
         &IngestOptions::default(),
     )
     .unwrap();
-    Method::ALL
+    let mut bakes: Vec<Bake> = Method::ALL
         .into_iter()
         .map(|m| {
             let options = BakeOptions {
@@ -197,7 +197,21 @@ fn bakes() -> Vec<Bake> {
             };
             bake_with(&map, m, &options).unwrap()
         })
-        .collect()
+        .collect();
+    // consumer.c's PBR bake: anisotropic, with its roughness map.
+    let roughness = (0..SIZE * SIZE)
+        .map(|i| (((i % SIZE) * 3 + i / SIZE) % 8) as f32 / 8.0)
+        .collect();
+    let maps = ndfmap::pbr::PbrMaps {
+        roughness: Some(roughness),
+        ..Default::default()
+    };
+    let options = ndfmap::bake::PbrOptions {
+        anisotropic: true,
+        ..Default::default()
+    };
+    bakes.push(ndfmap::pbr::bake_with_maps(&map, &options, Some(&maps)).unwrap());
+    bakes
 }
 
 /// What consumer.c prints, computed with the Rust API.

@@ -35,8 +35,19 @@ pub const NDF_METHOD_VMF: ndf_method = 5;
 /// `⌈(l*+1)²/4⌉` textures; any BRDF at shading time (`ndf_material_sh_coefficients`).
 pub const NDF_METHOD_SH: ndf_method = 6;
 
-/// The `NDF_METHOD_*` values, in order: [`Method::ALL`] (a test checks they agree).
-const METHODS: [Method; 7] = Method::ALL;
+/// The PBR bake for unmodified GGX metallic-roughness shaders (glTF, Filament, Unity, Unreal,
+/// Godot): per level a `normal` texture (signed), a `metallic_roughness` texture in glTF's
+/// channel layout (R occlusion, G perceptual roughness `√α′`, B metallic) and, with the
+/// anisotropic option, an `anisotropy` texture (`KHR_materials_anisotropy`: direction, strength).
+/// Made by `ndf_bake_pbr`; it has no ndfmap shader (the engine's own GGX shader reads it).
+pub const NDF_METHOD_PBR: ndf_method = 7;
+
+/// The `NDF_METHOD_*` values, in order: [`Method::ALL`] (the methods with an ndfmap shader; a
+/// test checks they agree), then [`Method::Pbr`].
+const METHODS: [Method; 8] = {
+    let a = Method::ALL;
+    [a[0], a[1], a[2], a[3], a[4], a[5], a[6], Method::Pbr]
+};
 
 /// A texel storage format for packing and writing: one of the `NDF_FORMAT_*` values. Every
 /// format has four channels (RGBA) per texel, in the host's byte order, rows top to bottom.
@@ -204,6 +215,59 @@ pub struct ndf_sh_options {
     pub memory_limit: u64,
 }
 
+/// Options of the PBR bake (`NDF_METHOD_PBR`, `ndf_bake_pbr`). Initialize with
+/// `ndf_pbr_options_default()`.
+///
+/// The material maps are optional: each NULL (default) or `width × height` floats of the
+/// map's size, row-major (top row first), every value finite and in [0, 1]
+/// (`NDF_STATUS_BAD_FEATURES` names the count of bad values otherwise). They are read during
+/// the call only. Roughness is linear data (perceptual `√α`, glTF's): convert 8-bit values
+/// with `v / 255`, never through the sRGB curve.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct ndf_pbr_options {
+    /// `sizeof(ndf_pbr_options)`, set by `ndf_pbr_options_default()`.
+    pub struct_size: usize,
+    /// Perceptual roughness `√α` of every texel when `roughness_map` is NULL, 0 to 1.
+    /// Default 0.5.
+    pub roughness: f64,
+    /// Nonzero: fit an anisotropic GGX lobe per texel and add the `anisotropy` texture
+    /// (`KHR_materials_anisotropy`). Default 0.
+    pub anisotropic: u32,
+    /// Per-texel perceptual roughness (its square is the texel's base α), or NULL.
+    pub roughness_map: *const f32,
+    /// Per-texel metallic, or NULL (metallic 0): box-filtered into the B channel.
+    pub metallic_map: *const f32,
+    /// Per-texel ambient occlusion, or NULL (occlusion 1): box-filtered into the R channel.
+    pub occlusion_map: *const f32,
+    /// Progress callback, or NULL (default) for none.
+    pub progress: ndf_progress_fn,
+    /// Passed to `progress` unchanged. Default NULL.
+    pub progress_user_data: *mut c_void,
+    /// Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
+    /// machine's memory.
+    pub memory_limit: u64,
+}
+
+/// The default PBR options: perceptual roughness 0.5 everywhere, isotropic, no material maps,
+/// no progress callback, the default memory budget.
+#[unsafe(no_mangle)]
+pub extern "C" fn ndf_pbr_options_default() -> ndf_pbr_options {
+    let d = crate::bake::PbrOptions::default();
+    let o = ndf_pbr_options {
+        struct_size: size_of::<ndf_pbr_options>(),
+        roughness: d.roughness,
+        anisotropic: u32::from(d.anisotropic),
+        roughness_map: std::ptr::null(),
+        metallic_map: std::ptr::null(),
+        occlusion_map: std::ptr::null(),
+        progress: None,
+        progress_user_data: std::ptr::null_mut(),
+        memory_limit: 0,
+    };
+    guard_value(o, || o)
+}
+
 /// The default SH options: l* = 4, no progress callback, the default memory budget.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_sh_options_default() -> ndf_sh_options {
@@ -271,9 +335,8 @@ pub extern "C" fn ndf_tan2005_options_default() -> ndf_tan2005_options {
 }
 
 /// A baked set of filtered textures (opaque): per texture an RGBA MIP chain, finest level
-/// first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf`, `ndf_bake_tan2005` or
-/// `ndf_bake_sh`;
-/// released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
+/// first, down to 1×1. Made by `ndf_bake_baseline`, `ndf_bake_vmf`, `ndf_bake_tan2005`,
+/// `ndf_bake_sh` or `ndf_bake_pbr`; released by `ndf_bake_free`. A bake never changes: any number of threads may query, pack
 /// and write it at once.
 pub struct ndf_bake {
     pub(crate) bake: Bake,
@@ -287,7 +350,7 @@ fn c_name(s: &str) -> CString {
     CString::new(s).unwrap_or_default()
 }
 
-/// Bakes `map` and stores the handle in `out`.
+/// Bakes `map` with `method` and stores the handle in `out`.
 ///
 /// # Safety
 /// `progress` is NULL or a callback that may be called with `user_data`; `out` is writable.
@@ -299,13 +362,33 @@ unsafe fn run(
     user_data: *mut c_void,
     out: Out<*mut ndf_bake>,
 ) -> Outcome {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        run_with(map, progress, user_data, out, |report| {
+            bake_with_progress(&map.map, method, options, report)
+        })
+    }
+}
+
+/// Runs `make` (a bake of `map` reporting to a progress callback) and stores the handle in
+/// `out`.
+///
+/// # Safety
+/// As for [`run`].
+unsafe fn run_with(
+    map: &ndf_normal_map,
+    progress: ndf_progress_fn,
+    user_data: *mut c_void,
+    out: Out<*mut ndf_bake>,
+    make: impl FnOnce(&mut dyn FnMut(f32) -> bool) -> crate::error::Result<Bake>,
+) -> Outcome {
     let mut report = |fraction: f32| match progress {
         // SAFETY: a callback of type ndf_progress_fn with the caller's user data, called on
         // the caller's thread (the function's contract).
         Some(callback) => (unsafe { callback(fraction, user_data) }) != 0,
         None => true,
     };
-    let bake = bake_with_progress(&map.map, method, options, &mut report)?;
+    let bake = make(&mut report)?;
     let names = bake
         .textures
         .iter()
@@ -491,6 +574,55 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
                 o.progress_user_data,
                 out,
             )
+        }
+    })
+}
+
+/// Bakes the PBR textures of `map` (`NDF_METHOD_PBR`): per level a normal and a GGX roughness
+/// fitted so that one GGX lobe per texel, sampled with ordinary trilinear filtering by an
+/// unmodified metallic-roughness shader, reproduces the footprint's average shading (the
+/// library's `pbr` module; `docs/pbr.md` has the measurements).
+/// - `options`: from `ndf_pbr_options_default()`; a roughness outside [0, 1] gives
+///   `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
+///   [0, 1] gives `NDF_STATUS_BAD_FEATURES`.
+/// - `bake_out`, cancellation: as for `ndf_bake_vmf`.
+///
+/// # Safety
+/// As for `ndf_bake_baseline`; and each of `options`' material maps is NULL or points to
+/// `width × height` readable floats of `map`'s size.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_bake_pbr(
+    map: *const ndf_normal_map,
+    options: *const ndf_pbr_options,
+    bake_out: *mut *mut ndf_bake,
+) -> ndf_status {
+    guard("ndf_bake_pbr", || {
+        // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
+        let map = unsafe { arg(map, "map") }?;
+        let o = unsafe { read_options(options, "options", "ndf_pbr_options_default") }?;
+        let out = Out::new(bake_out, "bake_out")?;
+        let texels = map.map.width() as usize * map.map.height() as usize;
+        let read = |p: *const f32| {
+            // SAFETY: NULL or `texels` readable floats (this function's contract).
+            (!p.is_null()).then(|| unsafe { std::slice::from_raw_parts(p, texels) }.to_vec())
+        };
+        let maps = crate::pbr::PbrMaps {
+            roughness: read(o.roughness_map),
+            metallic: read(o.metallic_map),
+            occlusion: read(o.occlusion_map),
+        };
+        let bake_options = BakeOptions {
+            pbr: crate::bake::PbrOptions {
+                roughness: o.roughness,
+                anisotropic: o.anisotropic != 0,
+            },
+            memory_limit: super::memory_limit(o.memory_limit),
+            ..BakeOptions::default()
+        };
+        unsafe {
+            run_with(map, o.progress, o.progress_user_data, out, |report| {
+                crate::methods::bake_pbr_with_progress(&map.map, &bake_options, &maps, report)
+            })
         }
     })
 }

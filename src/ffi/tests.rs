@@ -133,6 +133,7 @@ fn c_bake(map: *const ndf_normal_map, method: ndf_method) -> *mut ndf_bake {
                 };
                 ndf_bake_sh(map, &o, &mut bake)
             }
+            NDF_METHOD_PBR => ndf_bake_pbr(map, &ndf_pbr_options_default(), &mut bake),
             m => ndf_bake_baseline(map, m, &ndf_baseline_options_default(), &mut bake),
         }
     };
@@ -172,6 +173,7 @@ fn enumeration_values_name_the_rust_variants() {
         (NDF_METHOD_TAN2005, Method::Tan2005),
         (NDF_METHOD_VMF, Method::Vmf),
         (NDF_METHOD_SH, Method::Sh),
+        (NDF_METHOD_PBR, Method::Pbr),
     ] {
         let bake = c_bake(map, value);
         let mut got = u32::MAX;
@@ -565,6 +567,129 @@ fn bakes_equal_the_rust_bakes_and_report_progress() {
 }
 
 #[test]
+fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
+    let map = c_map();
+    let rust = rust_map();
+    let texels = (W * H) as usize;
+    let ramp =
+        |scale: f32| -> Vec<f32> { (0..texels).map(|i| scale * (i % 7) as f32 / 6.0).collect() };
+    let (rough, metal, occl) = (ramp(0.8), ramp(1.0), ramp(0.5));
+    let mut r = Recorder {
+        seen: Vec::new(),
+        stop_after: usize::MAX,
+    };
+    let o = ndf_pbr_options {
+        anisotropic: 1,
+        roughness_map: rough.as_ptr(),
+        metallic_map: metal.as_ptr(),
+        occlusion_map: occl.as_ptr(),
+        progress: Some(record),
+        progress_user_data: (&mut r as *mut Recorder).cast(),
+        ..ndf_pbr_options_default()
+    };
+    let options = crate::bake::PbrOptions {
+        roughness: 0.5,
+        anisotropic: true,
+    };
+    let maps = crate::pbr::PbrMaps {
+        roughness: Some(rough.clone()),
+        metallic: Some(metal.clone()),
+        occlusion: Some(occl.clone()),
+    };
+    let want = crate::pbr::bake_with_maps(&rust, &options, Some(&maps)).unwrap();
+    let sentinel = 0x77 as *mut ndf_bake;
+    let mut bake = null_mut();
+    // SAFETY: a live map, valid options (maps of W × H floats) and out-pointers; each bake
+    // made is freed once.
+    unsafe {
+        check!(ndf_bake_pbr(map, &o, &mut bake) => Ok, "");
+        assert_eq!((*bake).bake, want);
+        let mut method = u32::MAX;
+        assert_eq!(ndf_bake_method(bake, &mut method), ndf_status::Ok);
+        assert_eq!(method, NDF_METHOD_PBR);
+        ndf_bake_free(bake);
+        // Without maps: the constant roughness, as the Rust bake with none.
+        let plain = ndf_pbr_options {
+            roughness: 0.3,
+            ..ndf_pbr_options_default()
+        };
+        check!(ndf_bake_pbr(map, &plain, &mut bake) => Ok, "");
+        let options = crate::bake::PbrOptions {
+            roughness: 0.3,
+            anisotropic: false,
+        };
+        let want = crate::pbr::bake_with_maps(&rust, &options, None).unwrap();
+        assert_eq!((*bake).bake, want);
+        ndf_bake_free(bake);
+        // Bad options and maps: a status naming the problem, no bake, the out-pointer alone.
+        let mut nan = rough.clone();
+        nan[5] = f32::NAN;
+        let mut high = rough.clone();
+        high[0] = 1.5;
+        let bad = [
+            (
+                ndf_pbr_options {
+                    roughness: 1.5,
+                    ..ndf_pbr_options_default()
+                },
+                ndf_status::InvalidArgument,
+                "roughness 1.5",
+            ),
+            (
+                ndf_pbr_options {
+                    roughness_map: nan.as_ptr(),
+                    ..ndf_pbr_options_default()
+                },
+                ndf_status::BadFeatures,
+                "roughness map",
+            ),
+            (
+                ndf_pbr_options {
+                    metallic_map: high.as_ptr(),
+                    ..ndf_pbr_options_default()
+                },
+                ndf_status::BadFeatures,
+                "metallic map",
+            ),
+            (
+                ndf_pbr_options {
+                    struct_size: 8,
+                    ..ndf_pbr_options_default()
+                },
+                ndf_status::InvalidArgument,
+                "ndf_pbr_options_default",
+            ),
+        ];
+        for (options, status, words) in bad {
+            let mut out = sentinel;
+            expect(
+                ndf_bake_pbr(map, &options, &mut out),
+                status,
+                "ndf_bake_pbr",
+                words,
+            );
+            assert_eq!(out, sentinel, "{words}");
+        }
+        // Cancelled after the first report.
+        let mut c = Recorder {
+            seen: Vec::new(),
+            stop_after: 1,
+        };
+        let cancel = ndf_pbr_options {
+            progress: Some(record),
+            progress_user_data: (&mut c as *mut Recorder).cast(),
+            ..ndf_pbr_options_default()
+        };
+        let mut out = sentinel;
+        check!(ndf_bake_pbr(map, &cancel, &mut out) => Cancelled, "cancelled");
+        assert_eq!(out, sentinel);
+        ndf_normal_map_free(map);
+    }
+    assert_eq!(r.seen.first(), Some(&0.0));
+    assert_eq!(r.seen.last(), Some(&1.0));
+}
+
+#[test]
 fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
     let map = c_map();
     let sentinel = 0x77 as *mut ndf_bake;
@@ -648,7 +773,8 @@ fn bad_bake_arguments_and_a_cancelled_bake_make_no_bake() {
         check!(ndf_bake_baseline(null(), 0, &base, &mut out) => NullArgument, "map");
         check!(ndf_bake_baseline(map, 0, null(), &mut out) => NullArgument, "options");
         check!(ndf_bake_baseline(map, 0, &base, null_mut()) => NullArgument, "bake_out");
-        check!(ndf_bake_baseline(map, 7, &base, &mut out) => InvalidArgument, "unknown method value 7");
+        check!(ndf_bake_baseline(map, 8, &base, &mut out) => InvalidArgument, "unknown method value 8");
+        check!(ndf_bake_baseline(map, NDF_METHOD_PBR, &base, &mut out) => InvalidArgument, "use ndf_bake_pbr");
         check!(ndf_bake_baseline(map, NDF_METHOD_SH, &base, &mut out) => InvalidArgument, "use ndf_bake_sh");
         check!(ndf_bake_baseline(map, NDF_METHOD_VMF, &base, &mut out) => InvalidArgument, "use ndf_bake_vmf");
         // Cancelled at the first report, and half-way.
@@ -920,6 +1046,7 @@ fn every_entry_point<'a>(
     };
     let so = ndf_shader_options_default();
     let sh = ndf_sh_options_default();
+    let pbr = ndf_pbr_options_default();
     let mo = ndf_material_options_default();
     let (pxp, pngp) = (px.as_ptr().cast::<c_void>(), png.as_ptr().cast::<c_void>());
     let name = c"n.png".as_ptr();
@@ -1002,6 +1129,10 @@ fn every_entry_point<'a>(
         (
             "ndf_bake_sh",
             Box::new(move || unsafe { made(|b| ndf_bake_sh(map, &sh, b), bf) }),
+        ),
+        (
+            "ndf_bake_pbr",
+            Box::new(move || unsafe { made(|b| ndf_bake_pbr(map, &pbr, b), bf) }),
         ),
         (
             "ndf_material_new",

@@ -58,7 +58,8 @@ static void make_pixels(unsigned char *rgb) {
     }
 }
 
-static const char *method_names[] = {"plain", "toksvig", "lean", "olano", "tan2005", "vmf", "sh"};
+static const char *method_names[] = {"plain", "toksvig", "lean", "olano", "tan2005", "vmf", "sh",
+                                     "pbr"};
 static const char *format_names[] = {"f32", "f16", "unorm16", "unorm8"};
 
 /* Prints the bake's description and every packed level in every format. */
@@ -281,6 +282,10 @@ int main(int argc, char **argv) {
     ndf_vmf_options vo = ndf_vmf_options_default();
     ndf_tan2005_options to = ndf_tan2005_options_default();
     ndf_sh_options so = ndf_sh_options_default();
+    ndf_pbr_options po = ndf_pbr_options_default();
+    ndf_bake *pbr = NULL;
+    float roughness[SIZE * SIZE];
+    int i;
     ndf_normal_map *map = NULL, *from_file = NULL;
     ndf_bake *bakes[7] = {NULL, NULL, NULL, NULL, NULL, NULL, NULL};
     ndf_method m;
@@ -323,6 +328,17 @@ int main(int argc, char **argv) {
             describe(bakes[m]);
         }
     }
+    /* The PBR bake, anisotropic, with a roughness map (perceptual, linear, row-major). */
+    for (i = 0; i < SIZE * SIZE; i++) {
+        roughness[i] = (float)(((i % SIZE) * 3 + i / SIZE) % 8) / 8.0f;
+    }
+    po.anisotropic = 1;
+    po.roughness_map = roughness;
+    expect(ndf_bake_pbr(map, &po, &pbr), NDF_STATUS_OK, "bake pbr");
+    if (pbr != NULL) {
+        describe(pbr);
+    }
+    ndf_bake_free(pbr);
     expect(ndf_bake_write(bakes[NDF_METHOD_VMF], argv[1], NDF_FORMAT_RGBA_F16), NDF_STATUS_OK,
            "write");
     shaders(bakes[NDF_METHOD_VMF]);
