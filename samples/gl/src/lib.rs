@@ -20,7 +20,8 @@
 //! `ndfmap::glsl` vertex and fragment shaders compiled, meshes drawn under a [`Lighting`];
 //! [`Scene::standard`] lists the views the regression renders (`tests/scenes.rs`) and the
 //! frame-time table use. `tests/shaders.rs` proves the shaders equal their CPU twin texel for
-//! texel.
+//! texel. PBR bakes are drawn by a plain glTF metallic-roughness GGX shader with no ndfmap code
+//! ([`gltf`]; `tests/gltf.rs`), as an unmodified engine would draw them.
 //!
 //! A third route, [`Route::Window`], is a window: with the `window` feature,
 //! `window::Window::new` opens a winit window (X11) and makes a glutin context (EGL on the X11
@@ -88,6 +89,7 @@
 
 pub mod camera;
 pub mod context;
+pub mod gltf;
 pub mod mesh;
 pub mod present;
 pub mod program;

@@ -1,5 +1,6 @@
 //! Drawing a bake with the product shaders: [`BakeRenderer`] compiles `ndfmap::glsl`'s
-//! specialized vertex and fragment shaders for a bake, uploads its textures, and draws meshes lit
+//! specialized vertex and fragment shaders for a bake (for a PBR bake, the plain glTF GGX shader
+//! of [`crate::gltf`] instead: no ndfmap shader code), uploads its textures, and draws meshes lit
 //! by one [`Lighting`]; [`Scene`] bundles a mesh, a camera and lighting, as the regression renders,
 //! the frame-time benchmark and the viewer use them.
 
@@ -99,7 +100,8 @@ pub struct BakeRenderer {
 
 impl BakeRenderer {
     /// Uploads `bake`'s textures in `bake.format` and compiles its shaders specialized with
-    /// `options` (which must not ask for the probe variant).
+    /// `options` (which must not ask for the probe variant). A PBR bake gets the plain glTF
+    /// GGX shader ([`crate::gltf::sources`]; `options.brdf` must be GGX).
     pub fn new(gl: &Gl, bake: &Bake, options: &ShaderOptions) -> Result<BakeRenderer> {
         let textures = BakeTextures::upload(gl, bake, bake.format)?;
         Self::with_textures(gl, bake, textures, options)
@@ -119,8 +121,15 @@ impl BakeRenderer {
                 "BakeRenderer draws meshes: the probe variant is for full-screen tests".into(),
             ));
         }
-        let vertex = source(bake, Stage::Vertex, options)?;
-        let fragment = source(bake, Stage::Fragment, options)?;
+        // A PBR bake has no ndfmap shader: an engine's plain GGX shader draws it.
+        let (vertex, fragment) = if bake.method == Method::Pbr {
+            crate::gltf::sources(bake, options.brdf, false)?
+        } else {
+            (
+                source(bake, Stage::Vertex, options)?,
+                source(bake, Stage::Fragment, options)?,
+            )
+        };
         let program = Program::new(gl, &vertex, &fragment)?;
         Ok(BakeRenderer {
             gl: gl.clone(),

@@ -1,6 +1,7 @@
 //! Regression renders: the standard scenes (`Scene::standard`: plane far, plane grazing under a
 //! point light, sphere under a directional light) drawn with the product shaders for plain,
-//! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), through
+//! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), and
+//! the PBR bakes (isotropic and anisotropic) with the plain glTF GGX shader, through
 //! EGL and through OSMesa, against the reference images in `tests/reference/`.
 //!
 //! Images are compared after the same tone mapping the references are stored with
@@ -15,8 +16,9 @@
 //! `target/ndfmap-regression/` and the test names them. `NDFMAP_BLESS=1` rewrites the references
 //! from the EGL route (do it only for an intended change, and look at the images).
 
-use ndfmap::bake::{BakeOptions, Method};
-use ndfmap::glsl::ShaderOptions;
+use ndfmap::bake::{BakeOptions, Method, PbrOptions};
+use ndfmap::brdf::{Brdf, Ggx};
+use ndfmap::glsl::{ShaderBrdf, ShaderOptions};
 use ndfmap::methods::{bake, bake_with};
 use ndfmap_gl::{BakeRenderer, Gl, Route, Scene, tone_map};
 use std::path::{Path, PathBuf};
@@ -54,8 +56,11 @@ fn to_rgb8(img: &image::ImageBuffer<image::Rgb<u16>, Vec<u16>>) -> Vec<u8> {
 }
 
 /// The bakes drawn, each with its default shader (aligned lobes sample in hardware, unaligned
-/// ones manually), on the 128² built-in sample.
-fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
+/// ones manually), on the 128² built-in sample; and the PBR bakes (isotropic and anisotropic,
+/// base perceptual roughness 0.3) with the plain glTF GGX shader, which the scenes light with
+/// GGX (α = 0.09, Smith and Schlick) instead of their Blinn-Phong: each renderer with the BRDF
+/// it is drawn under, if not the scene's.
+fn renderers(gl: &Gl) -> Vec<(BakeRenderer, Option<Brdf>)> {
     let map = ndfmap::procedural::generate(128, 3).map;
     let lobes = |align: Option<f64>| BakeOptions {
         lobes: 4,
@@ -69,10 +74,36 @@ fn renderers(gl: &Gl) -> Vec<BakeRenderer> {
         bake_with(&map, Method::Vmf, &lobes(None)).unwrap(),
         bake_with(&map, Method::Vmf, &lobes(Some(1.0))).unwrap(),
     ];
-    bakes
+    let mut out: Vec<(BakeRenderer, Option<Brdf>)> = bakes
         .iter()
-        .map(|b| BakeRenderer::new(gl, b, &ShaderOptions::default()).unwrap())
-        .collect()
+        .map(|b| {
+            (
+                BakeRenderer::new(gl, b, &ShaderOptions::default()).unwrap(),
+                None,
+            )
+        })
+        .collect();
+    let ggx = Brdf::Ggx(Ggx {
+        g: true,
+        ..Ggx::new(0.09)
+    });
+    let shader = ShaderOptions {
+        brdf: ShaderBrdf::of(&ggx),
+        ..ShaderOptions::default()
+    };
+    for anisotropic in [false, true] {
+        let options = BakeOptions {
+            pbr: PbrOptions {
+                roughness: 0.3,
+                anisotropic,
+            },
+            ..Default::default()
+        };
+        let b = bake_with(&map, Method::Pbr, &options).unwrap();
+        let r = BakeRenderer::new(gl, &b, &shader).unwrap();
+        out.push((r, Some(ggx.clone())));
+    }
+    out
 }
 
 fn file_stem(scene: &Scene, renderer: &BakeRenderer) -> String {
@@ -88,8 +119,12 @@ fn run(route: Route) {
     let bless = std::env::var("NDFMAP_BLESS").is_ok_and(|v| v == "1") && route == Route::Egl;
     let renderers = renderers(&gl);
     let mut failures = Vec::new();
-    for scene in Scene::standard() {
-        for r in &renderers {
+    for standard in Scene::standard() {
+        for (r, brdf) in &renderers {
+            let mut scene = standard.clone();
+            if let Some(b) = brdf {
+                scene.lighting.brdf = b.clone();
+            }
             let pixels = scene.render(&gl, r, SIZE).unwrap();
             assert!(
                 pixels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
