@@ -27,6 +27,7 @@ Window controls:
   S                 split screen: method | supersampled reference
   X                 show the reference alone  C            albedo colour on / off
   ] / [             BRDF exponent s x2 / /2   T            Torrance-Sparrow / Blinn-Phong
+                    (PBR methods: always GGX at --roughness)
   arrows            turn the light            F            f32 / f16 textures
   R                 reset the view            Esc, Q       quit
 The title shows the method, BRDF, reference passes and the method's draw time (glFinish).";
@@ -45,7 +46,8 @@ struct Cli {
     /// Side of the built-in sample.
     #[arg(long, default_value_t = 512)]
     sample_size: u32,
-    /// Methods to cycle (`plain,toksvig,lean,olano,vmf6a,vmf4,tan2005-4`, …; `a` = aligned).
+    /// Methods to cycle (`plain,toksvig,lean,olano,vmf6a,vmf4,tan2005-4`, …; `a` = aligned;
+    /// `pbr,pbr-aniso,pbr-mip`: PBR bakes drawn by a plain glTF GGX shader, no ndfmap code).
     #[arg(
         long,
         value_delimiter = ',',
@@ -89,6 +91,10 @@ struct Cli {
     /// Blinn-Phong s), instead of Blinn-Phong.
     #[arg(long)]
     ggx: bool,
+    /// Base perceptual roughness √α (glTF's) of the PBR methods (`pbr`, `pbr-aniso`,
+    /// `pbr-mip`), which are drawn by a plain glTF GGX shader and lit by GGX of this α.
+    #[arg(long, default_value_t = 0.3, value_parser = parse_roughness)]
+    roughness: f64,
     /// Ignore the map's albedo.
     #[arg(long)]
     no_color: bool,
@@ -128,6 +134,16 @@ struct Cli {
     /// Window: quit after this many frames. Bench: timed frames per shader and view.
     #[arg(long)]
     frames: Option<u32>,
+}
+
+/// A perceptual roughness in [0, 1].
+fn parse_roughness(s: &str) -> Result<f64, String> {
+    let r: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.0..=1.0).contains(&r) {
+        Ok(r)
+    } else {
+        Err(format!("{r} is not a perceptual roughness in [0, 1]"))
+    }
 }
 
 /// The map to show: `--map` (with `--albedo`), or the built-in sample with its albedo.
@@ -174,6 +190,7 @@ fn settings(cli: &Cli) -> Settings {
     }
     s.torrance_sparrow = cli.torrance_sparrow;
     s.ggx = cli.ggx;
+    s.pbr_roughness = cli.roughness;
     s.color = !cli.no_color;
     s.format = cli.format;
     s.supersampling = cli.ss.max(1);
@@ -205,7 +222,7 @@ fn run(cli: Cli) -> Result<(), String> {
         });
     }
     let map = load_map(&cli)?;
-    let bakes = Bakes::new(map, cli.align);
+    let bakes = Bakes::new(map, cli.align, cli.roughness);
     let settings = settings(&cli);
     if cli.headless || cli.compare {
         let path = cli

@@ -1,10 +1,13 @@
 //! What the viewer draws with: [`MethodSpec`] names a method with its lobe count and alignment
 //! (`plain`, `toksvig`, `lean`, `olano`, `vmf6a`, `vmf4`, `tan2005-4`, `sh6`, …, the labels of
-//! `ndfmap::bake::Bake::label`), and [`Bakes`] bakes them once each, on a background thread.
+//! `ndfmap::bake::Bake::label`; and the PBR bakes `pbr`, `pbr-aniso` and the engines' plain
+//! MIP chain `pbr-mip`, drawn by a plain glTF GGX shader), and [`Bakes`] bakes them once each,
+//! on a background thread.
 
 use ndfmap::NormalMap;
-use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::bake::{Bake, BakeOptions, Method, PbrOptions};
 use ndfmap::methods::bake_with;
+use ndfmap::pbr::{Widening, bake_formula};
 use std::collections::{HashMap, HashSet};
 use std::fmt;
 use std::str::FromStr;
@@ -20,6 +23,22 @@ pub struct MethodSpec {
     pub lobes: usize,
     /// Aligned lobes (Sec 7.3, hardware filtering); mixtures only.
     pub aligned: bool,
+    /// Which PBR bake ([`Method::Pbr`] only).
+    pub pbr: PbrKind,
+}
+
+/// The PBR bakes the viewer shows, all drawn by the same plain glTF GGX shader
+/// (`ndfmap_gl::gltf`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum PbrKind {
+    /// ndfmap's fitted isotropic lobe per texel (`pbr`).
+    #[default]
+    Fitted,
+    /// ndfmap's fitted anisotropic lobe (`pbr-aniso`, `KHR_materials_anisotropy`).
+    Anisotropic,
+    /// What engines do without prefiltering (`pbr-mip`): the normalized mean normal and the
+    /// roughness left as it is.
+    Mip,
 }
 
 impl MethodSpec {
@@ -29,6 +48,17 @@ impl MethodSpec {
             method,
             lobes: 0,
             aligned: false,
+            pbr: PbrKind::Fitted,
+        }
+    }
+
+    /// A PBR bake.
+    pub const fn pbr(kind: PbrKind) -> Self {
+        MethodSpec {
+            method: Method::Pbr,
+            lobes: 0,
+            aligned: false,
+            pbr: kind,
         }
     }
 
@@ -38,6 +68,7 @@ impl MethodSpec {
             method,
             lobes,
             aligned,
+            pbr: PbrKind::Fitted,
         }
     }
 
@@ -52,6 +83,7 @@ impl MethodSpec {
             method: Method::Sh,
             lobes: lmax,
             aligned: false,
+            pbr: PbrKind::Fitted,
         }
     }
 
@@ -89,6 +121,13 @@ impl fmt::Display for MethodSpec {
         if self.method == Method::Sh {
             write!(f, "{}", self.lobes)?;
         }
+        if self.method == Method::Pbr {
+            match self.pbr {
+                PbrKind::Fitted => {}
+                PbrKind::Anisotropic => f.write_str("-aniso")?,
+                PbrKind::Mip => f.write_str("-mip")?,
+            }
+        }
         Ok(())
     }
 }
@@ -99,9 +138,15 @@ impl FromStr for MethodSpec {
     /// `plain`, `toksvig`, `lean`, `olano`; `vmf` or `tan2005` followed by a lobe count (1–8,
     /// `-` optional) and `a` for aligned lobes: `vmf6a`, `vmf4`, `tan2005-4a`; `sh` followed by
     /// the band limit (0–10): `sh6`. A bare `vmf` is `vmf6a`, a bare `tan2005` is `tan2005-4`, a
-    /// bare `sh` is `sh6`.
+    /// bare `sh` is `sh6`. `pbr`, `pbr-aniso`, `pbr-mip`: the PBR bakes ([`PbrKind`]).
     fn from_str(s: &str) -> Result<Self, String> {
         let s = s.trim().to_ascii_lowercase();
+        match s.as_str() {
+            "pbr" => return Ok(MethodSpec::pbr(PbrKind::Fitted)),
+            "pbr-aniso" => return Ok(MethodSpec::pbr(PbrKind::Anisotropic)),
+            "pbr-mip" => return Ok(MethodSpec::pbr(PbrKind::Mip)),
+            _ => {}
+        }
         let name_end = if let Some(rest) = s.strip_prefix("tan2005") {
             s.len() - rest.len()
         } else {
@@ -161,6 +206,7 @@ pub struct BakeKey {
 pub struct Bakes {
     map: Arc<NormalMap>,
     align: f64,
+    roughness: f64,
     done: HashMap<BakeKey, Arc<Bake>>,
     pending: HashSet<BakeKey>,
     sender: Sender<(BakeKey, Result<Bake, String>)>,
@@ -168,12 +214,14 @@ pub struct Bakes {
 }
 
 impl Bakes {
-    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 29).
-    pub fn new(map: NormalMap, align: f64) -> Bakes {
+    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 29), PBR bakes
+    /// the base perceptual roughness `roughness` (`√α`, glTF's).
+    pub fn new(map: NormalMap, align: f64, roughness: f64) -> Bakes {
         let (sender, receiver) = channel();
         Bakes {
             map: Arc::new(map),
             align,
+            roughness,
             done: HashMap::new(),
             pending: HashSet::new(),
             sender,
@@ -201,10 +249,11 @@ impl Bakes {
         if self.done.contains_key(&key) || !self.pending.insert(key) {
             return;
         }
-        let (map, align, sender) = (self.map.clone(), self.align, self.sender.clone());
+        let (map, align, roughness) = (self.map.clone(), self.align, self.roughness);
+        let sender = self.sender.clone();
         std::thread::spawn(move || {
             // The receiver may be gone when the viewer quits mid-bake; nothing to do then.
-            let _ = sender.send((key, bake_key(&map, key, align)));
+            let _ = sender.send((key, bake_key(&map, key, align, roughness)));
         });
     }
 
@@ -228,22 +277,29 @@ impl Bakes {
         if let Some(b) = self.get(&key) {
             return Ok(b);
         }
-        let b = Arc::new(bake_key(&self.map, key, self.align)?);
+        let b = Arc::new(bake_key(&self.map, key, self.align, self.roughness)?);
         self.done.insert(key, b.clone());
         Ok(b)
     }
 }
 
-/// Bakes `key` of `map` at f32.
-fn bake_key(map: &NormalMap, key: BakeKey, align: f64) -> Result<Bake, String> {
+/// Bakes `key` of `map` at f32 (PBR bakes at base perceptual roughness `roughness`).
+fn bake_key(map: &NormalMap, key: BakeKey, align: f64, roughness: f64) -> Result<Bake, String> {
     let spec = key.spec;
+    let pbr = PbrOptions {
+        roughness,
+        anisotropic: spec.pbr == PbrKind::Anisotropic,
+    };
     let options = BakeOptions {
         lobes: spec.lobes.max(1),
         align: spec.aligned.then_some(align),
         lmax: spec.lobes,
+        pbr,
         ..BakeOptions::default()
     };
-    if key.color && spec.is_mixture() {
+    if spec.method == Method::Pbr && spec.pbr == PbrKind::Mip {
+        bake_formula(map, &pbr, None, Widening::Constant(0.0)).map_err(|e| e.to_string())
+    } else if key.color && spec.is_mixture() {
         bake_with(map, spec.method, &options).map_err(|e| e.to_string())
     } else if spec.is_mixture() {
         // Without colour the lobes alone: bake a copy of the map without its albedo.
@@ -290,11 +346,16 @@ mod tests {
             ("olano", "olano"),
             ("sh", "sh6"),
             ("SH2", "sh2"),
+            ("pbr", "pbr"),
+            ("PBR-aniso", "pbr-aniso"),
+            ("pbr-mip", "pbr-mip"),
         ] {
             let spec: MethodSpec = text.parse().unwrap();
             assert_eq!(spec.to_string(), want, "{text}");
         }
-        for bad in ["vmf9", "vmf0a", "plain2", "phong", "vmfx", "sh11", "sh2a"] {
+        for bad in [
+            "vmf9", "vmf0a", "plain2", "phong", "vmfx", "sh11", "sh2a", "pbr2", "pbr-x",
+        ] {
             assert!(bad.parse::<MethodSpec>().is_err(), "{bad}");
         }
     }
@@ -302,10 +363,19 @@ mod tests {
     #[test]
     fn labels_match_the_bakes() {
         let map = ndfmap::procedural::generate(16, 1).map;
-        for spec in ["plain", "lean", "vmf2a", "vmf2", "tan2005-2", "sh3"] {
+        for spec in [
+            "plain",
+            "lean",
+            "vmf2a",
+            "vmf2",
+            "tan2005-2",
+            "sh3",
+            "pbr",
+            "pbr-aniso",
+        ] {
             let spec: MethodSpec = spec.parse().unwrap();
             let key = BakeKey { spec, color: false };
-            let b = bake_key(&map, key, 0.1).unwrap();
+            let b = bake_key(&map, key, 0.1, 0.3).unwrap();
             assert_eq!(b.label(), spec.to_string());
             let finest = finest_level_only(&b);
             assert_eq!(finest.level_count(), 1);

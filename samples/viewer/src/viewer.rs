@@ -11,7 +11,7 @@
 //! shaders' manual path takes its level count from `ndf_max_level()`, which assumes a full MIP
 //! chain.
 
-use crate::methods::{BakeKey, Bakes, MethodSpec, finest_level_only};
+use crate::methods::{BakeKey, Bakes, MethodSpec, PbrKind, finest_level_only};
 use ndfmap::bake::Method;
 use ndfmap::brdf::Brdf;
 use ndfmap::format::Format;
@@ -146,6 +146,10 @@ pub struct Settings {
     pub torrance_sparrow: bool,
     /// GGX with Smith masking and Schlick Fresnel (`G`), ahead of `torrance_sparrow`.
     pub ggx: bool,
+    /// Base perceptual roughness `√α` of the PBR bakes ([`Bakes`] bakes them with it): a PBR
+    /// method is always lit by GGX of this α with Smith and Schlick, whatever the other BRDF
+    /// settings say.
+    pub pbr_roughness: f64,
     /// The map's albedo as colour (mixtures baked with colour textures, and their reference).
     pub color: bool,
     /// What the image shows.
@@ -173,6 +177,7 @@ impl Settings {
             exponent: 256.0,
             torrance_sparrow: false,
             ggx: false,
+            pbr_roughness: 0.3,
             color: true,
             show: Show::Method,
             format: Format::F32,
@@ -212,9 +217,15 @@ impl Settings {
     }
 
     /// The BRDF of the current settings: GGX with Smith and Schlick (`α = sqrt(2/(s+2))`, the
-    /// roughness of about the same width), the eq 18 lobe (`σ = sqrt(1/(2s))`), or Blinn-Phong.
+    /// roughness of about the same width), the eq 18 lobe (`σ = sqrt(1/(2s))`), or Blinn-Phong;
+    /// for a PBR method GGX with Smith and Schlick at the bakes' base α (`pbr_roughness²`).
     pub fn brdf(&self) -> Brdf {
-        if self.ggx {
+        if self.method().method == Method::Pbr {
+            Brdf::Ggx(ndfmap::brdf::Ggx {
+                g: true,
+                ..ndfmap::brdf::Ggx::new(self.pbr_roughness * self.pbr_roughness)
+            })
+        } else if self.ggx {
             Brdf::Ggx(ndfmap::brdf::Ggx {
                 g: true,
                 ..ndfmap::brdf::Ggx::new((2.0 / (self.exponent + 2.0)).sqrt())
@@ -387,9 +398,15 @@ impl Viewer {
     }
 
     /// The bake the reference for `spec` needs: plain, or vMF J = 1 with colour when `spec`
-    /// is shown in colour.
+    /// is shown in colour; for a PBR method the plain MIP chain (`pbr-mip`), whose finest level
+    /// is the input normals at the base roughness, drawn by the same glTF shader.
     fn reference_key(&self, spec: MethodSpec) -> BakeKey {
-        if self.uses_color(spec) {
+        if spec.method == Method::Pbr {
+            BakeKey {
+                spec: MethodSpec::pbr(PbrKind::Mip),
+                color: false,
+            }
+        } else if self.uses_color(spec) {
             BakeKey {
                 spec: MethodSpec::mixture(Method::Vmf, 1, true),
                 color: true,
