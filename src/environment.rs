@@ -305,12 +305,7 @@ fn decode_exr(bytes: &[u8]) -> std::result::Result<(u32, u32, Vec<[f32; 3]>), St
         .no_deep_data()
         .largest_resolution_level()
         .rgba_channels(
-            |res, _| {
-                (
-                    res.0,
-                    vec![[0.0f32; 3]; res.0 * res.1],
-                )
-            },
+            |res, _| (res.0, vec![[0.0f32; 3]; res.0 * res.1]),
             |(w, px): &mut (usize, Vec<[f32; 3]>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
                 px[pos.1 * *w + pos.0] = [r, g, b];
             },
@@ -383,7 +378,12 @@ impl Sky {
                 let mut c = [0.0f64; 3];
                 for sy in 0..4 {
                     for sx in 0..4 {
-                        let d = geo.sub_direction(x, y, (sx as f64 + 0.5) / 4.0, (sy as f64 + 0.5) / 4.0);
+                        let d = geo.sub_direction(
+                            x,
+                            y,
+                            (sx as f64 + 0.5) / 4.0,
+                            (sy as f64 + 0.5) / 4.0,
+                        );
                         let g = if d.z >= 0.0 {
                             let t = d.z.sqrt();
                             [0, 1, 2].map(|i| {
@@ -400,7 +400,11 @@ impl Sky {
                 let i = (y * w + x) as usize;
                 texels[i] = c.map(|v| v as f32);
                 // Sun coverage: only near the disc.
-                if geo.direction(x, y).dot(sun) > (self.sun_radius_deg.to_radians() + 4.0 * PI / h as f64).min(PI).cos() {
+                if geo.direction(x, y).dot(sun)
+                    > (self.sun_radius_deg.to_radians() + 4.0 * PI / h as f64)
+                        .min(PI)
+                        .cos()
+                {
                     let mut n = 0;
                     for sy in 0..16 {
                         for sx in 0..16 {
@@ -436,9 +440,8 @@ impl Sky {
         let scale = omega_sun / covered;
         for (t, c) in texels.iter_mut().zip(&coverage) {
             if *c > 0.0 {
-                for i in 0..3 {
-                    t[i] = (t[i] as f64 * (1.0 - c.min(1.0)) + self.sun[i] as f64 * c * scale)
-                        as f32;
+                for (v, sun) in t.iter_mut().zip(self.sun) {
+                    *v = (*v as f64 * (1.0 - c.min(1.0)) + sun as f64 * c * scale) as f32;
                 }
             }
         }
@@ -470,7 +473,11 @@ impl Geometry {
     pub fn direction(&self, x: u32, y: u32) -> DVec3 {
         let phi = -PI + 2.0 * PI * (x as f64 + 0.5) / self.width as f64;
         let theta = PI * (y as f64 + 0.5) / self.height as f64;
-        DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos())
+        DVec3::new(
+            theta.sin() * phi.cos(),
+            theta.sin() * phi.sin(),
+            theta.cos(),
+        )
     }
 
     /// `cos θ` at the top and the bottom edge of row `y` (decreasing).
@@ -696,7 +703,10 @@ mod tests {
         // Truncated at every length: an error, never a panic or a partial environment.
         let big = hdr_bytes(64, 32, |x, y| [(x * y) as f32 + 0.5, 1.0, 2.0]);
         for len in (0..big.len()).step_by(97) {
-            assert!(from_memory("cut.hdr", &big[..len], &EnvOptions::default()).is_err(), "{len}");
+            assert!(
+                from_memory("cut.hdr", &big[..len], &EnvOptions::default()).is_err(),
+                "{len}"
+            );
         }
         // Neither format.
         assert!(from_memory("x", b"hello", &EnvOptions::default()).is_err());
@@ -750,7 +760,10 @@ mod tests {
             d.x * 45f64.to_radians().sin() + d.y * 45f64.to_radians().cos(),
             d.z,
         );
-        assert_eq!(env.rotated(45.0).channel(0).nearest(rot), env.channel(0).nearest(d));
+        assert_eq!(
+            env.rotated(45.0).channel(0).nearest(rot),
+            env.channel(0).nearest(d)
+        );
     }
 
     #[test]
@@ -769,7 +782,10 @@ mod tests {
         let omega = 2.0 * PI * (1.0 - sky.sun_radius_deg.to_radians().cos());
         let sun = lum.power() - dark.power();
         // The disc replaces the sky it covers: off by at most the sky under it.
-        assert!((sun - 2.0e4 * omega).abs() < 1.0 * omega + 1e-3 * sun, "{sun}");
+        assert!(
+            (sun - 2.0e4 * omega).abs() < 1.0 * omega + 1e-3 * sun,
+            "{sun}"
+        );
         for w in [128, 64, 8] {
             let d = lum.downsample_to(w);
             assert!((d.power() - lum.power()).abs() < 1e-5 * lum.power(), "{w}");

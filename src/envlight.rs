@@ -143,13 +143,19 @@ fn sample_half(brdf: &Brdf, n: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64)> 
     let (c, pdf_of_c): (f64, Box<dyn Fn(f64) -> f64>) = match brdf {
         Brdf::BlinnPhong { s } => {
             let s = *s;
-            (u1.powf(1.0 / (s + 1.0)), Box::new(move |c| crate::brdf::blinn_phong(c, s)))
+            (
+                u1.powf(1.0 / (s + 1.0)),
+                Box::new(move |c| crate::brdf::blinn_phong(c, s)),
+            )
         }
         Brdf::Ggx(g) => {
             let a2 = g.alpha * g.alpha;
             let t2 = a2 * u1 / (1.0 - u1).max(1e-300);
             let a = g.alpha;
-            ((1.0 / (1.0 + t2)).sqrt(), Box::new(move |c| ggx(c, a) * c.max(0.0)))
+            (
+                (1.0 / (1.0 + t2)).sqrt(),
+                Box::new(move |c| ggx(c, a) * c.max(0.0)),
+            )
         }
         _ => return None,
     };
@@ -232,7 +238,12 @@ pub fn ground_truth(
         let n = normals[j].0;
         x.iter_mut().for_each(|v| *v = 0.0);
         // Light sample (shared by every term).
-        let ue = [rng.range(0.0, 1.0), rng.range(0.0, 1.0), rng.range(0.0, 1.0), rng.range(0.0, 1.0)];
+        let ue = [
+            rng.range(0.0, 1.0),
+            rng.range(0.0, 1.0),
+            rng.range(0.0, 1.0),
+            rng.range(0.0, 1.0),
+        ];
         let (le, _) = sampler.sample(env, ue);
         let lv = env.nearest(le);
         let pe = lv / sampler.total();
@@ -323,7 +334,9 @@ fn ggx_param(i: usize) -> f64 {
 
 impl EnergyTables {
     fn new() -> EnergyTables {
-        let build = |lobe: &(dyn Fn(f64, f64) -> f64 + Sync), param: fn(usize) -> f64, width: fn(f64) -> f64| {
+        let build = |lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
+                     param: fn(usize) -> f64,
+                     width: fn(f64) -> f64| {
             (0..ENERGY_PARAM * ENERGY_COS)
                 .into_par_iter()
                 .map(|k| {
@@ -334,7 +347,9 @@ impl EnergyTables {
                 .collect()
         };
         EnergyTables {
-            blinn_phong: build(&|c, s| crate::brdf::blinn_phong(c, s), bp_param, |s| (1.0 / s.sqrt()).min(0.5 * PI)),
+            blinn_phong: build(&|c, s| crate::brdf::blinn_phong(c, s), bp_param, |s| {
+                (1.0 / s.sqrt()).min(0.5 * PI)
+            }),
             ggx: build(&|c, a| ggx(c, a), ggx_param, |a| a.min(0.5 * PI)),
         }
     }
@@ -463,13 +478,21 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
         Method::Toksvig => {
             let m = v3(texels[0]);
             let len = m.length().min(1.0);
-            let mu = if len > 1e-12 { m / m.length() } else { DVec3::Z };
+            let mu = if len > 1e-12 {
+                m / m.length()
+            } else {
+                DVec3::Z
+            };
             let r = len.min(crate::vmf::r_max(bake.format));
             vec![Lobe {
                 alpha: 1.0,
                 mu,
                 r,
-                kappa: if r >= 1.0 { f64::INFINITY } else { crate::vmf::kappa_from_r(r) },
+                kappa: if r >= 1.0 {
+                    f64::INFINITY
+                } else {
+                    crate::vmf::kappa_from_r(r)
+                },
             }]
         }
         Method::Lean => {
@@ -486,12 +509,19 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
             vec![Lobe {
                 alpha: 1.0,
                 mu,
-                r: if kappa.is_infinite() { 1.0 } else { crate::vmf::a_kappa(kappa) },
+                r: if kappa.is_infinite() {
+                    1.0
+                } else {
+                    crate::vmf::a_kappa(kappa)
+                },
                 kappa,
             }]
         }
         Method::Vmf => {
-            let (rmax, amin) = (crate::vmf::r_max(bake.format), crate::vmf::alpha_min(bake.format));
+            let (rmax, amin) = (
+                crate::vmf::r_max(bake.format),
+                crate::vmf::alpha_min(bake.format),
+            );
             texels[..bake.lobes]
                 .iter()
                 .filter_map(|&t| crate::shade::vmf_decode(t, rmax, amin))
@@ -499,7 +529,11 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
                     alpha: t.alpha,
                     mu: t.mu,
                     r: t.r_len.min(rmax),
-                    kappa: if t.var > 0.0 { 1.0 / t.var } else { f64::INFINITY },
+                    kappa: if t.var > 0.0 {
+                        1.0 / t.var
+                    } else {
+                        f64::INFINITY
+                    },
                 })
                 .collect()
         }
@@ -562,9 +596,10 @@ pub fn shade(
         let lmax = crate::sh::lmax_of(bake);
         let c = |k: usize| texels[k / 4][k % 4] as f64;
         let ld = lmax.min(2);
-        for l in 0..=ld {
-            for k in l * l..(l + 1) * (l + 1) {
-                out.diffuse += LAMBERT[l] / lambda(l) * sh_tangent[k] * c(k);
+        for (l, rho) in LAMBERT.iter().enumerate().take(ld + 1) {
+            let band = &sh_tangent[l * l..(l + 1) * (l + 1)];
+            for (k, v) in (l * l..).zip(band) {
+                out.diffuse += rho / lambda(l) * v * c(k);
             }
         }
         out.diffuse = out.diffuse.max(0.0);
@@ -574,11 +609,14 @@ pub fn shade(
             let lp = light.reflected.at(view);
             let mut sum = 0.0;
             for (l, rl) in rho.iter().enumerate() {
-                for k in l * l..(l + 1) * (l + 1) {
-                    sum += rl / lambda(l) * lp[k] * c(k);
+                let band = &lp[l * l..(l + 1) * (l + 1)];
+                for (k, v) in (l * l..).zip(band) {
+                    sum += rl / lambda(l) * v * c(k);
                 }
             }
-            let nbar = DVec3::new(c(3), c(1), c(2)).try_normalize().unwrap_or(DVec3::Z);
+            let nbar = DVec3::new(c(3), c(1), c(2))
+                .try_normalize()
+                .unwrap_or(DVec3::Z);
             let co = view.dot(nbar).max(0.0);
             let r = 2.0 * co * nbar - view;
             out.specular = (sum * co).max(0.0) * brdf.g(r, nbar);
@@ -760,7 +798,10 @@ pub fn evaluate(
                 .texel(x, y)
                 .into_iter()
                 .map(|(fx, fy, w)| {
-                    (map.normals()[(fy * map.width() + fx) as usize].as_dvec3(), w)
+                    (
+                        map.normals()[(fy * map.width() + fx) as usize].as_dvec3(),
+                        w,
+                    )
                 })
                 .collect();
             let mut sums = vec![[0.0f64; 4]; nc * nb];
@@ -856,7 +897,15 @@ pub fn evaluate(
     })
 }
 
-/// The errors as a text table (percent).
+/// An error with the ground truth's own noise taken out: the noise is independent of the
+/// estimate, so the measured mean square is the true one plus the noise's,
+/// `sqrt(max(e² − n², 0))` (columns `-dn` of [`format_table`]).
+pub fn denoised(error: f64, noise: f64) -> f64 {
+    (error * error - noise * noise).max(0.0).sqrt()
+}
+
+/// The errors as a text table (percent): measured, and with the ground truth's noise taken out
+/// ([`denoised`]).
 pub fn format_table(e: &Evaluation) -> String {
     let mut s = format!(
         "environment-lit texel-space error (relative RMS %, {} texels × {} views, ground truth {} MIS iterations; its noise: diffuse {:.2} %, specular {})\n",
@@ -870,19 +919,26 @@ pub fn format_table(e: &Evaluation) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    s += &format!("{:<24} {:<28} {:>10} {:>10}\n", "config", "brdf", "diffuse", "specular");
-    for r in &e.errors {
+    s += &format!(
+        "{:<24} {:<28} {:>10} {:>10} {:>12} {:>12}\n",
+        "config", "brdf", "diffuse", "specular", "diffuse-dn", "specular-dn"
+    );
+    let nb = e.noise_specular.len().max(1);
+    for (i, r) in e.errors.iter().enumerate() {
         let brdf = match &r.brdf {
             Brdf::BlinnPhong { s } => format!("blinn-phong s={s}"),
             Brdf::Ggx(g) => format!("ggx a={}", g.alpha),
             b => b.model().to_string(),
         };
+        let ns = e.noise_specular.get(i % nb).copied().unwrap_or(0.0);
         s += &format!(
-            "{:<24} {:<28} {:>10.2} {:>10.2}\n",
+            "{:<24} {:<28} {:>10.2} {:>10.2} {:>12.2} {:>12.2}\n",
             r.label,
             brdf,
             100.0 * r.diffuse,
-            100.0 * r.specular
+            100.0 * r.specular,
+            100.0 * denoised(r.diffuse, e.noise_diffuse),
+            100.0 * denoised(r.specular, ns)
         );
     }
     s
@@ -912,28 +968,59 @@ mod tests {
     #[test]
     fn constant_environment_matches_the_closed_forms() {
         let light = EnvLight::new(Radiance::constant(64, 1.0));
-        let brdfs = [Brdf::BlinnPhong { s: 32.0 }, Brdf::BlinnPhong { s: 256.0 }, Brdf::ggx(0.3)];
+        let brdfs = [
+            Brdf::BlinnPhong { s: 32.0 },
+            Brdf::BlinnPhong { s: 256.0 },
+            Brdf::ggx(0.3),
+        ];
         let n = [(DVec3::Z, 1.0)];
         let gt = ground_truth(&light, &n, DVec3::Z, &brdfs, 20000, 3);
         // Lambert: π for any normal under a constant environment.
-        assert!((gt.diffuse - PI).abs() < 4.0 * gt.diffuse_se + 1e-9, "{gt:?}");
+        assert!(
+            (gt.diffuse - PI).abs() < 4.0 * gt.diffuse_se + 1e-9,
+            "{gt:?}"
+        );
         assert!(gt.diffuse_se < 0.01 * PI);
         for (b, s) in [(0, 32.0), (1, 256.0)] {
             let cf = bp_closed_form(s);
-            assert!((gt.specular[b] - cf).abs() < 4.0 * gt.specular_se[b], "s={s} {} {cf}", gt.specular[b]);
+            assert!(
+                (gt.specular[b] - cf).abs() < 4.0 * gt.specular_se[b],
+                "s={s} {} {cf}",
+                gt.specular[b]
+            );
         }
         // GGX: the projected lobe integrates to 1; at normal view ∫ D (2c²−1) 4c dω_h by quadrature.
         let q = energy(&|c| ggx(c, 0.3), 0.3, 1.0);
-        assert!((gt.specular[2] - q).abs() < 4.0 * gt.specular_se[2], "{} {q}", gt.specular[2]);
+        assert!(
+            (gt.specular[2] - q).abs() < 4.0 * gt.specular_se[2],
+            "{} {q}",
+            gt.specular[2]
+        );
         // The routes on a flat map: exact diffuse, specular within the tables' interpolation.
         for m in [Method::Plain, Method::Toksvig, Method::Lean, Method::Vmf] {
             let bake = flat_bake(m);
             let t = bake.texel(0, 0, 0);
             for (b, brdf) in brdfs.iter().enumerate() {
-                let f = shade(&light, light.sh(), &bake, &t, DVec3::Z, brdf, Route::Prefiltered);
+                let f = shade(
+                    &light,
+                    light.sh(),
+                    &bake,
+                    &t,
+                    DVec3::Z,
+                    brdf,
+                    Route::Prefiltered,
+                );
                 assert!((f.diffuse - PI).abs() < 1e-3, "{m} {}", f.diffuse);
-                let g = if b < 2 { bp_closed_form([32.0, 256.0][b]) } else { q };
-                assert!((f.specular - g).abs() < 0.01 * g, "{m} {brdf:?} {} {g}", f.specular);
+                let g = if b < 2 {
+                    bp_closed_form([32.0, 256.0][b])
+                } else {
+                    q
+                };
+                assert!(
+                    (f.specular - g).abs() < 0.01 * g,
+                    "{m} {brdf:?} {} {g}",
+                    f.specular
+                );
             }
         }
     }
@@ -942,10 +1029,23 @@ mod tests {
     fn black_environment_is_exactly_zero() {
         let light = EnvLight::new(Radiance::constant(32, 0.0));
         let brdfs = [Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.1)];
-        let gt = ground_truth(&light, &[(DVec3::Z, 1.0)], DVec3::new(0.6, 0.0, 0.8), &brdfs, 64, 1);
+        let gt = ground_truth(
+            &light,
+            &[(DVec3::Z, 1.0)],
+            DVec3::new(0.6, 0.0, 0.8),
+            &brdfs,
+            64,
+            1,
+        );
         assert_eq!(gt.diffuse, 0.0);
         assert!(gt.specular.iter().all(|&v| v == 0.0));
-        for m in [Method::Plain, Method::Toksvig, Method::Lean, Method::Vmf, Method::Sh] {
+        for m in [
+            Method::Plain,
+            Method::Toksvig,
+            Method::Lean,
+            Method::Vmf,
+            Method::Sh,
+        ] {
             let bake = flat_bake(m);
             let t = bake.texel(0, 0, 0);
             for route in [Route::Prefiltered, Route::Sh] {
@@ -961,11 +1061,25 @@ mod tests {
     fn lambert_sh_is_eq_25_and_matches_the_ground_truth_of_a_smooth_sky() {
         // Eq 25 against the addition theorem summed over the texels directly:
         // E_2(n) = Σ_t L_t Ω_t Σ_{l≤2} ρ̂_l (2l+1)/(4π) P_l(ω_t·n).
-        let sky = Sky { width: 128, ..Sky::default() }.render().unwrap().luminance();
+        let sky = Sky {
+            width: 128,
+            ..Sky::default()
+        }
+        .render()
+        .unwrap()
+        .luminance();
         let light = EnvLight::new(sky.clone());
         let bake = flat_bake(Method::Plain);
         let t = bake.texel(0, 0, 0);
-        let f = shade(&light, light.sh(), &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh);
+        let f = shade(
+            &light,
+            light.sh(),
+            &bake,
+            &t,
+            DVec3::Z,
+            &Brdf::Lambert,
+            Route::Sh,
+        );
         let g = sky.grid();
         let mut direct = 0.0;
         for y in 0..g.height {
@@ -974,23 +1088,49 @@ mod tests {
                 for (fx, fy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
                     let u = g.sub_direction(x, y, fx, fy).z;
                     let p = [1.0, u, 0.5 * (3.0 * u * u - 1.0)];
-                    k += (0..3).map(|l| LAMBERT[l] * (2 * l + 1) as f64 / (4.0 * PI) * p[l]).sum::<f64>() / 4.0;
+                    k += (0..3)
+                        .map(|l| LAMBERT[l] * (2 * l + 1) as f64 / (4.0 * PI) * p[l])
+                        .sum::<f64>()
+                        / 4.0;
                 }
                 direct += sky.values()[(y * g.width + x) as usize] as f64 * sky.solid_angle(y) * k;
             }
         }
-        assert!((f.diffuse - direct).abs() < 1e-9 * direct, "{} {direct}", f.diffuse);
+        assert!(
+            (f.diffuse - direct).abs() < 1e-9 * direct,
+            "{} {direct}",
+            f.diffuse
+        );
         // A smooth sky (no sun): l ≤ 2 within 1 % of the Monte Carlo ground truth
         // (Ramamoorthi & Hanrahan), for tilted normals too.
-        let smooth = Sky { width: 128, sun: [0.0; 3], ..Sky::default() }.render().unwrap();
+        let smooth = Sky {
+            width: 128,
+            sun: [0.0; 3],
+            ..Sky::default()
+        }
+        .render()
+        .unwrap();
         let light = EnvLight::new(smooth.luminance());
-        for n in [DVec3::Z, DVec3::new(0.5, 0.2, 0.8).normalize(), DVec3::new(-0.9, 0.0, 0.1).normalize()] {
+        for n in [
+            DVec3::Z,
+            DVec3::new(0.5, 0.2, 0.8).normalize(),
+            DVec3::new(-0.9, 0.0, 0.1).normalize(),
+        ] {
             let gt = ground_truth(&light, &[(n, 1.0)], DVec3::Z, &[Brdf::Lambert], 20000, 9);
-            let lobe = Lobe { alpha: 1.0, mu: n, r: 1.0, kappa: f64::INFINITY };
+            let lobe = Lobe {
+                alpha: 1.0,
+                mu: n,
+                r: 1.0,
+                kappa: f64::INFINITY,
+            };
             let y = crate::harmonics::eval(ENV_LMAX, n);
             let e = diffuse_lobe(light.sh(), &y, &lobe);
             assert!(gt.diffuse_se < 0.005 * gt.diffuse, "{gt:?}");
-            assert!((e - gt.diffuse).abs() < 0.01 * gt.diffuse + 3.0 * gt.diffuse_se, "{n} {e} {}", gt.diffuse);
+            assert!(
+                (e - gt.diffuse).abs() < 0.01 * gt.diffuse + 3.0 * gt.diffuse_se,
+                "{n} {e} {}",
+                gt.diffuse
+            );
         }
     }
 
@@ -1026,7 +1166,12 @@ mod tests {
     #[test]
     fn sh_method_diffuse_uses_the_rotated_environment() {
         // Rotating the environment and the tangent frame together changes nothing.
-        let sky = Sky { width: 64, ..Sky::default() }.render().unwrap();
+        let sky = Sky {
+            width: 64,
+            ..Sky::default()
+        }
+        .render()
+        .unwrap();
         let light = EnvLight::new(sky.luminance());
         let map = map_of(
             2,
@@ -1045,13 +1190,37 @@ mod tests {
         // Shading with the environment rotated by r, in a tangent frame rotated by r: the
         // tangent-frame coefficients are the rotation back.
         let back = projection::rotate(&rotated, ENV_LMAX, r.transpose());
-        let a = shade(&light, light.sh(), &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh);
-        let b = shade(&light, &back, &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh);
+        let a = shade(
+            &light,
+            light.sh(),
+            &bake,
+            &t,
+            DVec3::Z,
+            &Brdf::Lambert,
+            Route::Sh,
+        );
+        let b = shade(
+            &light,
+            &back,
+            &bake,
+            &t,
+            DVec3::Z,
+            &Brdf::Lambert,
+            Route::Sh,
+        );
         assert!((a.diffuse - b.diffuse).abs() < 1e-9 * a.diffuse.abs().max(1.0));
         // And against the exact footprint average by Monte Carlo.
-        let normals: Vec<(DVec3, f64)> =
-            map.normals().iter().map(|n| (n.as_dvec3().normalize(), 0.25)).collect();
+        let normals: Vec<(DVec3, f64)> = map
+            .normals()
+            .iter()
+            .map(|n| (n.as_dvec3().normalize(), 0.25))
+            .collect();
         let gt = ground_truth(&light, &normals, DVec3::Z, &[Brdf::Lambert], 20000, 5);
-        assert!((a.diffuse - gt.diffuse).abs() < 0.05 * gt.diffuse, "{} {}", a.diffuse, gt.diffuse);
+        assert!(
+            (a.diffuse - gt.diffuse).abs() < 0.05 * gt.diffuse,
+            "{} {}",
+            a.diffuse,
+            gt.diffuse
+        );
     }
 }

@@ -143,7 +143,9 @@ pub enum Error {
     },
     /// An environment map has NaN, infinite or negative radiance and the caller asked to
     /// reject rather than repair it (`environment::BadTexels::Reject`).
-    #[error("{what}: {count} bad environment texels (NaN, infinite or negative), the first at x={x}, y={y}")]
+    #[error(
+        "{what}: {count} bad environment texels (NaN, infinite or negative), the first at x={x}, y={y}"
+    )]
     BadEnvironment {
         /// The file or buffer.
         what: String,

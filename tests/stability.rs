@@ -389,7 +389,11 @@ fn environment_lighting_is_exact_zero_in_the_dark_and_bounded_under_a_point_sun(
     assert_eq!(e.black_max, 0.0);
     assert_eq!(e.sun_bad, 0);
     assert!(e.sun_diffuse_ratio <= 1.0 + 1e-9, "{}", e.sun_diffuse_ratio);
-    assert!(e.sun_specular_ratio <= 1.0 + 1e-9, "{}", e.sun_specular_ratio);
+    assert!(
+        e.sun_specular_ratio <= 1.0 + 1e-9,
+        "{}",
+        e.sun_specular_ratio
+    );
     assert!(e.sun_diffuse_ratio > 1e-3, "the sun must light something");
     assert_eq!(e.infinite_kappa_lod, 0.0);
     assert_eq!(e.infinite_kappa_difference, 0.0);

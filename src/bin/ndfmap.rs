@@ -362,7 +362,10 @@ impl EnvArgs {
         if !quiet && name != "sky" {
             eprintln!("{}", cmgen_check(Path::new(name), &env));
         }
-        Ok(Some((name.clone(), ndfmap::envlight::EnvLight::new(env.luminance()))))
+        Ok(Some((
+            name.clone(),
+            ndfmap::envlight::EnvLight::new(env.luminance()),
+        )))
     }
 }
 
@@ -403,23 +406,33 @@ fn cmgen_check(path: &Path, env: &ndfmap::environment::Environment) -> String {
         .lines()
         .filter_map(|l| {
             let inner = l.split('(').nth(1)?.split(')').next()?;
-            let v: Vec<f64> = inner.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+            let v: Vec<f64> = inner
+                .split(',')
+                .filter_map(|x| x.trim().parse().ok())
+                .collect();
             (v.len() == 3).then(|| [v[0], v[1], v[2]])
         })
         .collect();
     if theirs.len() != 9 {
-        return format!("cmgen check skipped: {} coefficients read, 9 expected", theirs.len());
+        return format!(
+            "cmgen check skipped: {} coefficients read, 9 expected",
+            theirs.len()
+        );
     }
     let mut worst: f64 = 0.0;
     let mut cells = Vec::new();
     for c in 0..3 {
         let ours = ndfmap::environment::projection::project(&env.channel(c), 2);
+        let cm: Vec<f64> = theirs.iter().map(|t| t[c]).collect();
         for l in 0..3usize {
             let band = |v: &dyn Fn(usize) -> f64| {
-                (l * l..(l + 1) * (l + 1)).map(|k| v(k) * v(k)).sum::<f64>().sqrt()
+                (l * l..(l + 1) * (l + 1))
+                    .map(|k| v(k) * v(k))
+                    .sum::<f64>()
+                    .sqrt()
             };
             let a = band(&|k| ours[k]);
-            let b = band(&|k| theirs[k][c]);
+            let b = band(&|k| cm[k]);
             let rel = (a - b).abs() / a.max(b).max(1e-12);
             worst = worst.max(rel);
             if c == 1 {
@@ -1093,10 +1106,16 @@ fn run(cli: Cli) -> Result<()> {
                         "environment": name,
                         "evaluation": e,
                     });
-                    println!("{}", serde_json::to_string_pretty(&v).expect("errors serialize"));
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&v).expect("errors serialize")
+                    );
                 } else {
                     print!("{}", ndfmap::envlight::format_table(&e));
-                    eprintln!("evaluated under {name} in {:.2} s", t.elapsed().as_secs_f64());
+                    eprintln!(
+                        "evaluated under {name} in {:.2} s",
+                        t.elapsed().as_secs_f64()
+                    );
                 }
                 return Ok(());
             }

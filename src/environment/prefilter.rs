@@ -168,13 +168,10 @@ pub fn convolve(env: &Radiance, kappa: f64) -> Radiance {
                         let xs: Box<dyn Iterator<Item = usize>> = if 2 * half + 1 >= w {
                             Box::new(0..w)
                         } else {
-                            Box::new(
-                                (0..2 * half + 1).map(move |j| (xo + w + j - half) % w),
-                            )
+                            Box::new((0..2 * half + 1).map(move |j| (xo + w + j - half) % w))
                         };
                         for xi in xs {
-                            let wgt =
-                                omega[yi] * (kappa * (d.dot(dirs[yi * w + xi]) - 1.0)).exp();
+                            let wgt = omega[yi] * (kappa * (d.dot(dirs[yi * w + xi]) - 1.0)).exp();
                             num += wgt * row[xi] as f64;
                             den += wgt;
                         }
@@ -226,10 +223,17 @@ mod tests {
             let k = l.kappa;
             let a1 = 1.0 / k.tanh() - 1.0 / k;
             let a2 = 1.0 - 3.0 * a1 / k;
-            for d in [DVec3::Z, DVec3::new(0.6, 0.0, 0.8), DVec3::new(0.0, -1.0, 0.0)] {
+            for d in [
+                DVec3::Z,
+                DVec3::new(0.6, 0.0, 0.8),
+                DVec3::new(0.0, -1.0, 0.0),
+            ] {
                 let exact = 1.0 + a1 * d.z + 1.0 / 3.0 + a2 * (d.x * d.x - 1.0 / 3.0);
                 let got = l.radiance.bilinear(d);
-                assert!((got - exact).abs() < 0.03 * exact, "κ={k} {d} {got} {exact}");
+                assert!(
+                    (got - exact).abs() < 0.03 * exact,
+                    "κ={k} {d} {got} {exact}"
+                );
             }
         }
     }

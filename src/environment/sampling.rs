@@ -103,7 +103,12 @@ mod tests {
         let mut n1 = 0;
         let n = 20000;
         for _ in 0..n {
-            let u = [rng.uniform() % 1.0, rng.uniform() % 1.0, rng.uniform(), rng.uniform()];
+            let u = [
+                rng.uniform() % 1.0,
+                rng.uniform() % 1.0,
+                rng.uniform(),
+                rng.uniform(),
+            ];
             let (d, i) = s.sample(&env, u.map(|x| x.min(1.0 - 1e-12)));
             assert!(i == 2 * 16 + 3 || i == 5 * 16 + 9, "{i}");
             assert_eq!(env.grid().texel_of(d), ((i % 16) as u32, (i / 16) as u32));
