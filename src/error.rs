@@ -141,6 +141,21 @@ pub enum Error {
         /// Row of the first bad texel.
         y: u32,
     },
+    /// An environment map has NaN, infinite or negative radiance and the caller asked to
+    /// reject rather than repair it (`environment::BadTexels::Reject`).
+    #[error(
+        "{what}: {count} bad environment texels (NaN, infinite or negative), the first at x={x}, y={y}"
+    )]
+    BadEnvironment {
+        /// The file or buffer.
+        what: String,
+        /// How many texels have a bad value.
+        count: usize,
+        /// Column of the first bad texel.
+        x: u32,
+        /// Row of the first bad texel.
+        y: u32,
+    },
 }
 
 /// A byte count in words: `512 MiB`, `4.0 GiB`, `3 bytes` (what `budget::format_bytes` gives).

@@ -23,6 +23,8 @@ pub mod budget;
 pub mod compress;
 pub mod container;
 pub mod em;
+pub mod environment;
+pub mod envlight;
 pub mod error;
 pub mod eval;
 pub mod ffi;

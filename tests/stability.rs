@@ -376,3 +376,26 @@ fn degenerate_sizes_bake_every_method_with_gl_chains() {
     assert_eq!(ndfmap::pyramid::level_sizes(4097, 3).len(), 13);
     assert_eq!(ndfmap::pyramid::level_sizes(16384, 16).len(), 15);
 }
+
+/// Issue 16: a black environment lights nothing (exactly 0, every method and route); a
+/// single-texel sun of radiance 10⁶ gives finite, non-negative output within the energy
+/// bounds of `stability::EnvStability`; κ → ∞ lobes read level 0 of the prefiltered
+/// environment.
+#[test]
+fn environment_lighting_is_exact_zero_in_the_dark_and_bounded_under_a_point_sun() {
+    let e = ndfmap::report::stability::environment();
+    eprintln!("{e:?}");
+    assert!(e.checked > 10_000);
+    assert_eq!(e.black_max, 0.0);
+    assert_eq!(e.sun_bad, 0);
+    assert!(e.sun_diffuse_ratio <= 1.0 + 1e-9, "{}", e.sun_diffuse_ratio);
+    assert!(
+        e.sun_specular_ratio <= 1.0 + 1e-9,
+        "{}",
+        e.sun_specular_ratio
+    );
+    assert!(e.sun_diffuse_ratio > 1e-3, "the sun must light something");
+    assert_eq!(e.infinite_kappa_lod, 0.0);
+    assert_eq!(e.infinite_kappa_difference, 0.0);
+    assert!(e.ok());
+}

@@ -296,8 +296,162 @@ enum Command {
         #[arg(long)]
         json: bool,
         #[command(flatten)]
+        env: EnvArgs,
+        #[command(flatten)]
         ingest: IngestArgs,
     },
+}
+
+/// Environment lighting (`eval --env`).
+#[derive(Args)]
+struct EnvArgs {
+    /// Light with an equirectangular environment (Radiance .hdr or OpenEXR, 2:1, linear), or
+    /// `sky` for the generated sky with a small bright sun, instead of point lights; the error
+    /// is of the luminance, against a Monte Carlo ground truth (MIS of the environment and the
+    /// BRDF). Methods: plain, toksvig, lean, vmf, sh (others are left out); BRDFs: lambert,
+    /// blinn-phong, ggx.
+    #[arg(long)]
+    env: Option<String>,
+    /// vMF specular routes under the environment, comma-separated: prefiltered, sh.
+    #[arg(long, default_value = "prefiltered,sh", value_delimiter = ',')]
+    env_route: Vec<String>,
+    /// Environment rotation about the zenith, degrees.
+    #[arg(long, default_value_t = 0.0)]
+    env_yaw: f64,
+    /// Environment radiance multiplier.
+    #[arg(long, default_value_t = 1.0)]
+    env_intensity: f64,
+    /// Ground-truth MIS iterations per texel and view.
+    #[arg(long, default_value_t = 512)]
+    env_samples: usize,
+    /// Texels drawn per MIP level (all of a smaller level).
+    #[arg(long, default_value_t = 48)]
+    env_texels: usize,
+}
+
+impl EnvArgs {
+    /// The environment's luminance, ready to light with; prints what was repaired and the
+    /// projection's check against Filament's cmgen (or that cmgen is absent).
+    fn load(&self, quiet: bool) -> Result<Option<(String, ndfmap::envlight::EnvLight)>> {
+        let Some(name) = &self.env else {
+            return Ok(None);
+        };
+        let options = ndfmap::environment::EnvOptions {
+            yaw_deg: self.env_yaw,
+            intensity: self.env_intensity,
+            ..Default::default()
+        };
+        let env = if name == "sky" {
+            let sky = ndfmap::environment::Sky::default().render()?;
+            ndfmap::environment::Environment::from_rgb(
+                "generated sky",
+                sky.width(),
+                sky.height(),
+                sky.texels().to_vec(),
+                &options,
+            )?
+        } else {
+            ndfmap::environment::load(Path::new(name), &options)?
+        };
+        if env.repaired() > 0 {
+            eprintln!(
+                "{name}: {} texels with NaN, infinite or negative radiance set to 0",
+                env.repaired()
+            );
+        }
+        if !quiet && name != "sky" {
+            eprintln!("{}", cmgen_check(Path::new(name), &env));
+        }
+        Ok(Some((
+            name.clone(),
+            ndfmap::envlight::EnvLight::new(env.luminance()),
+        )))
+    }
+}
+
+/// Compares the environment's SH projection (bands 0–2, per channel) with Filament's `cmgen`
+/// (`--sh=3 --sh-window=no`, radiance, not irradiance) by band energy `sqrt(Σ_m L_lm²)`, which
+/// does not depend on the frame or the sign conventions. One line: the largest relative
+/// difference, or why there is no check.
+fn cmgen_check(path: &Path, env: &ndfmap::environment::Environment) -> String {
+    let cmgen = ["/usr/bin/cmgen", "/usr/local/bin/cmgen"]
+        .into_iter()
+        .map(Path::new)
+        .find(|p| p.exists());
+    let Some(cmgen) = cmgen else {
+        return "cmgen not found: the SH projection is not cross-checked".into();
+    };
+    if env.repaired() > 0 {
+        return "cmgen check skipped: the environment was repaired".into();
+    }
+    let Ok(dir) = tempdir() else {
+        return "cmgen check skipped: no temporary directory".into();
+    };
+    let out = dir.join("sh.txt");
+    let status = std::process::Command::new(cmgen)
+        .arg("--sh=3")
+        .arg(format!("--sh-output={}", out.display()))
+        .arg("--sh-window=no")
+        .arg("-q")
+        .arg(path)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status();
+    let text = std::fs::read_to_string(&out).unwrap_or_default();
+    let _ = std::fs::remove_dir_all(&dir);
+    if !matches!(status, Ok(s) if s.success()) || text.is_empty() {
+        return "cmgen check skipped: cmgen failed on this file".into();
+    }
+    let theirs: Vec<[f64; 3]> = text
+        .lines()
+        .filter_map(|l| {
+            let inner = l.split('(').nth(1)?.split(')').next()?;
+            let v: Vec<f64> = inner
+                .split(',')
+                .filter_map(|x| x.trim().parse().ok())
+                .collect();
+            (v.len() == 3).then(|| [v[0], v[1], v[2]])
+        })
+        .collect();
+    if theirs.len() != 9 {
+        return format!(
+            "cmgen check skipped: {} coefficients read, 9 expected",
+            theirs.len()
+        );
+    }
+    let mut worst: f64 = 0.0;
+    let mut cells = Vec::new();
+    for c in 0..3 {
+        let ours = ndfmap::environment::projection::project(&env.channel(c), 2);
+        let cm: Vec<f64> = theirs.iter().map(|t| t[c]).collect();
+        for l in 0..3usize {
+            let band = |v: &dyn Fn(usize) -> f64| {
+                (l * l..(l + 1) * (l + 1))
+                    .map(|k| v(k) * v(k))
+                    .sum::<f64>()
+                    .sqrt()
+            };
+            let a = band(&|k| ours[k]);
+            let b = band(&|k| cm[k]);
+            let rel = (a - b).abs() / a.max(b).max(1e-12);
+            worst = worst.max(rel);
+            if c == 1 {
+                cells.push(format!("l={l} {a:.4}/{b:.4}"));
+            }
+        }
+    }
+    format!(
+        "SH projection against cmgen (band energies, ours/cmgen, green: {}): largest relative difference {:.2} %",
+        cells.join(", "),
+        100.0 * worst
+    )
+}
+
+/// A fresh temporary directory (std only: the binary does not depend on tempfile).
+fn tempdir() -> std::io::Result<PathBuf> {
+    let d = std::env::temp_dir().join(format!("ndfmap-cmgen-{}", std::process::id()));
+    std::fs::create_dir_all(&d)?;
+    Ok(d)
 }
 
 /// How to read the normal map.
@@ -854,6 +1008,7 @@ fn run(cli: Cli) -> Result<()> {
             first_level,
             formats,
             json,
+            env,
             ingest,
         } => {
             // Everything is checked before any work.
@@ -871,7 +1026,27 @@ fn run(cli: Cli) -> Result<()> {
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
             };
             let brdfs = eval_brdfs(&brdf, &s, &sigma, &alpha, ggx_g, &ggx_c)?;
-            let methods = parse_methods(&methods)?;
+            let mut methods = parse_methods(&methods)?;
+            let routes = env
+                .env_route
+                .iter()
+                .map(|r| r.parse())
+                .collect::<Result<Vec<ndfmap::envlight::Route>>>()?;
+            if env.env.is_some() {
+                for b in &brdfs {
+                    ndfmap::envlight::check_brdf(b)?;
+                }
+                let left: Vec<String> = methods
+                    .iter()
+                    .filter(|m| ndfmap::envlight::check_method(**m).is_err())
+                    .map(|m| m.to_string())
+                    .collect();
+                if !left.is_empty() {
+                    eprintln!("left out under --env (not supported): {}", left.join(", "));
+                }
+                methods.retain(|m| ndfmap::envlight::check_method(*m).is_ok());
+            }
+            let light = env.load(json)?;
             // A storage format, or a block compression (its bakes' labels name the codec).
             let formats = formats
                 .iter()
@@ -916,6 +1091,34 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             let refs: Vec<&Bake> = bakes.iter().collect();
+            if let Some((name, light)) = light {
+                let t = Instant::now();
+                let options = ndfmap::envlight::EvalOptions {
+                    first_level: first_level.max(1),
+                    texels_per_level: env.env_texels.max(1),
+                    samples: env.env_samples.max(1),
+                    ..Default::default()
+                };
+                let e = ndfmap::envlight::evaluate(&map, &refs, &brdfs, &light, &routes, &options)?;
+                if json {
+                    let v = serde_json::json!({
+                        "input": input.display().to_string(),
+                        "environment": name,
+                        "evaluation": e,
+                    });
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&v).expect("errors serialize")
+                    );
+                } else {
+                    print!("{}", ndfmap::envlight::format_table(&e));
+                    eprintln!(
+                        "evaluated under {name} in {:.2} s",
+                        t.elapsed().as_secs_f64()
+                    );
+                }
+                return Ok(());
+            }
             let t = Instant::now();
             let mut errors = evaluate_with(
                 &map,

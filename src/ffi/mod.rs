@@ -226,6 +226,8 @@ impl From<Error> for Failure {
             Error::Cancelled => ndf_status::Cancelled,
             Error::MemoryBudget { .. } => ndf_status::MemoryBudget,
             Error::BadFeatures { .. } => ndf_status::BadFeatures,
+            // Values a decoded environment cannot hold: reported as undecodable content.
+            Error::BadEnvironment { .. } => ndf_status::Decode,
         };
         fail(status, e.to_string())
     }

@@ -730,3 +730,146 @@ pub fn markdown(s: &Summary) -> String {
     m.push('\n');
     m
 }
+
+/// The environment-lighting cases of the suite (issue 16): a black environment (every route's
+/// output exactly 0), a single-texel sun of radiance 10⁶ (finite, non-negative, within the
+/// energy bounds below), and κ → ∞ lobes reading level 0 of the prefiltered environment.
+#[derive(Debug, Clone, Serialize)]
+pub struct EnvStability {
+    /// Shading evaluations made.
+    pub checked: u64,
+    /// Largest |output| under the black environment (must be exactly 0).
+    pub black_max: f64,
+    /// Non-finite or negative outputs under the single-texel sun.
+    pub sun_bad: u64,
+    /// Largest diffuse output over its bound `1.0625 ∫L dω` (the l ≤ 2 Lambert kernel's peak,
+    /// `Σ ρ̂_l (2l+1)/4π = 17/16`).
+    pub sun_diffuse_ratio: f64,
+    /// Largest specular output over its bound: `max(∫L dω · Σ_l |ρ̂_l|(2l+1)/4π` (SH route, by
+    /// the addition theorem), `8 · max L` (prefiltered route: a convex combination of texels
+    /// times the lobe energy, ≤ 4 ∫f dω_h ≤ 8)`)`.
+    pub sun_specular_ratio: f64,
+    /// LOD of κ = ∞, 10³⁰ and NaN (must be 0).
+    pub infinite_kappa_lod: f64,
+    /// |lookup(κ = ∞) − level 0's bilinear value|, largest over directions (must be 0).
+    pub infinite_kappa_difference: f64,
+}
+
+impl EnvStability {
+    /// Whether every check holds.
+    pub fn ok(&self) -> bool {
+        self.black_max == 0.0
+            && self.sun_bad == 0
+            && self.sun_diffuse_ratio <= 1.0 + 1e-9
+            && self.sun_specular_ratio <= 1.0 + 1e-9
+            && self.infinite_kappa_lod == 0.0
+            && self.infinite_kappa_difference == 0.0
+    }
+}
+
+/// Runs the environment cases on a small bumpy map (16 × 16) with plain, Toksvig, LEAN,
+/// vMF J = 3 and SH l* = 4 bakes, Blinn-Phong s = 1, 10⁵, GGX α = 10⁻³, 1 and Lambert, both
+/// routes, 9 views, every level.
+pub fn environment() -> EnvStability {
+    use crate::environment::Radiance;
+    use crate::envlight::{ENV_LMAX, EnvLight, Route, shade};
+    let m = map(16, 16, bumpy);
+    let bakes: Vec<Bake> = [
+        (Method::Plain, BakeOptions::default()),
+        (Method::Toksvig, BakeOptions::default()),
+        (Method::Lean, BakeOptions::default()),
+        (
+            Method::Vmf,
+            BakeOptions {
+                lobes: 3,
+                ..BakeOptions::default()
+            },
+        ),
+        (
+            Method::Sh,
+            BakeOptions {
+                lmax: 4,
+                ..BakeOptions::default()
+            },
+        ),
+    ]
+    .into_iter()
+    .map(|(method, o)| bake_with(&m, method, &o).expect("valid options"))
+    .collect();
+    let brdfs = [
+        Brdf::BlinnPhong { s: 1.0 },
+        Brdf::BlinnPhong { s: 1e5 },
+        Brdf::ggx(1e-3),
+        Brdf::ggx(1.0),
+        Brdf::Lambert,
+    ];
+    let views: Vec<DVec3> = hemisphere(9);
+    let black = EnvLight::new(Radiance::constant(32, 0.0));
+    let mut v = vec![0.0f32; 64 * 32];
+    v[9 * 64 + 40] = 1e6;
+    let sun_env = Radiance::new(64, 32, v).expect("valid");
+    let power = sun_env.power();
+    let max_l = 1e6;
+    let sun = EnvLight::new(sun_env);
+    let mut out = EnvStability {
+        checked: 0,
+        black_max: 0.0,
+        sun_bad: 0,
+        sun_diffuse_ratio: 0.0,
+        sun_specular_ratio: 0.0,
+        infinite_kappa_lod: 0.0,
+        infinite_kappa_difference: 0.0,
+    };
+    let spec_bound: Vec<f64> = brdfs
+        .iter()
+        .map(|b| {
+            let sh: f64 = b
+                .sh_coefficients(ENV_LMAX)
+                .iter()
+                .enumerate()
+                .map(|(l, r)| r.abs() * (2 * l + 1) as f64 / (4.0 * PI))
+                .sum();
+            (power * sh).max(8.0 * max_l)
+        })
+        .collect();
+    for bake in &bakes {
+        for (k, &(w, h)) in bake.sizes.iter().enumerate() {
+            for i in (0..(w * h) as usize).step_by(7) {
+                let mut t = vec![[0.0f32; 4]; bake.textures.len()];
+                bake.texel_into(k, i, &mut t);
+                for &view in &views {
+                    for (b, brdf) in brdfs.iter().enumerate() {
+                        for route in [Route::Prefiltered, Route::Sh] {
+                            let f = shade(&black, black.sh(), bake, &t, view, brdf, route);
+                            out.black_max =
+                                out.black_max.max(f.diffuse.abs()).max(f.specular.abs());
+                            let f = shade(&sun, sun.sh(), bake, &t, view, brdf, route);
+                            if !(f.diffuse.is_finite()
+                                && f.specular.is_finite()
+                                && f.diffuse >= 0.0
+                                && f.specular >= 0.0)
+                            {
+                                out.sun_bad += 1;
+                            }
+                            out.sun_diffuse_ratio =
+                                out.sun_diffuse_ratio.max(f.diffuse / (1.0625 * power));
+                            out.sun_specular_ratio =
+                                out.sun_specular_ratio.max(f.specular / spec_bound[b]);
+                            out.checked += 2;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let p = sun.prefiltered();
+    for kappa in [f64::INFINITY, 1e30, f64::NAN] {
+        out.infinite_kappa_lod = out.infinite_kappa_lod.max(p.lod(kappa));
+    }
+    for d in hemisphere(64) {
+        let a = p.lookup(d, f64::INFINITY);
+        let b = p.levels()[0].radiance.bilinear(d);
+        out.infinite_kappa_difference = out.infinite_kappa_difference.max((a - b).abs());
+    }
+    out
+}
