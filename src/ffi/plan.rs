@@ -382,3 +382,102 @@ pub unsafe extern "C" fn ndf_plan_free(plan: *mut ndf_plan) {
         }
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ffi::map::ndf_normal_map;
+
+    fn map() -> ndf_normal_map {
+        ndf_normal_map::from_map_for_tests(crate::procedural::generate(32, 5).map)
+    }
+
+    #[test]
+    fn plan_through_the_c_api() {
+        let m = map();
+        let mut scene = ndf_scene_default();
+        scene.model = NDF_SCENE_MODEL_LAMBERT;
+        scene.ks = 0.0;
+        scene.lights = NDF_SCENE_LIGHT_ENVIRONMENT;
+        scene.level_min = 1;
+        scene.level_max = 5;
+        let mut plan: *mut ndf_plan = std::ptr::null_mut();
+        // SAFETY (all blocks): the pointers are live locals.
+        let st = unsafe { ndf_plan_new(&m, &scene, &mut plan) };
+        assert_eq!(st, ndf_status::Ok);
+        let mut parts = 0u32;
+        assert_eq!(unsafe { ndf_plan_part_count(plan, &mut parts) }, ndf_status::Ok);
+        assert!(parts >= 1);
+        for what in [NDF_PLAN_TEXT_JSON, NDF_PLAN_TEXT_EXPLAIN, NDF_PLAN_TEXT_SHADER] {
+            let mut size = 0usize;
+            assert_eq!(unsafe { ndf_plan_text_size(plan, what, 0, &mut size) }, ndf_status::Ok);
+            let mut buf = vec![0 as c_char; size];
+            let mut len = 0usize;
+            // Too small: nothing written.
+            assert_eq!(
+                unsafe { ndf_plan_text(plan, what, 0, buf.as_mut_ptr(), size - 1, &mut len) },
+                ndf_status::BufferTooSmall
+            );
+            assert_eq!(len, 0);
+            assert_eq!(
+                unsafe { ndf_plan_text(plan, what, 0, buf.as_mut_ptr(), size, &mut len) },
+                ndf_status::Ok
+            );
+            assert_eq!(len, size);
+            assert_eq!(buf[size - 1], 0);
+        }
+        let mut size = 0usize;
+        assert_eq!(
+            unsafe { ndf_plan_text_size(plan, NDF_PLAN_TEXT_SHADER, parts, &mut size) },
+            ndf_status::OutOfRange
+        );
+        // The same scene as text plans the same.
+        let text = "lights = [\"environment\"]\n[material]\nmodel = \"lambert\"\nks = 0\n\
+                    [view]\nlevels = [1, 5]\n[target]\nerror = 0.05\n";
+        let mut plan2: *mut ndf_plan = std::ptr::null_mut();
+        let st = unsafe { ndf_plan_new_from_text(&m, text.as_ptr().cast(), text.len(), &mut plan2) };
+        assert_eq!(st, ndf_status::Ok);
+        let (a, b) = unsafe { (&(*plan).plan, &(*plan2).plan) };
+        assert_eq!(a.parts, b.parts);
+        assert_eq!(a.scene, b.scene);
+        unsafe {
+            ndf_plan_free(plan);
+            ndf_plan_free(plan2);
+            ndf_plan_free(std::ptr::null_mut());
+        }
+    }
+
+    #[test]
+    fn bad_scenes_through_the_c_api() {
+        let m = map();
+        let bad: [(&str, fn(&mut ndf_scene)); 6] = [
+            ("target", |s| s.target = f64::NAN),
+            ("material.exponent", |s| s.param_min = -1.0),
+            ("lights", |s| s.lights = 0),
+            ("lights", |s| s.lights = 8),
+            ("view.levels", |s| s.level_max = 9),
+            ("model", |s| s.model = 7),
+        ];
+        for (needle, f) in bad {
+            let mut scene = ndf_scene_default();
+            f(&mut scene);
+            let mut plan: *mut ndf_plan = std::ptr::null_mut();
+            // SAFETY: the pointers are live locals.
+            let st = unsafe { ndf_plan_new(&m, &scene, &mut plan) };
+            assert_eq!(st, ndf_status::InvalidArgument, "{needle}");
+            assert!(plan.is_null(), "written only on success");
+            // SAFETY: the message is a NUL-terminated thread-local string.
+            let msg = unsafe { std::ffi::CStr::from_ptr(crate::ffi::ndf_last_error_message()) }
+                .to_string_lossy()
+                .into_owned();
+            assert!(msg.contains(needle), "{needle}: {msg}");
+        }
+        let text = "";
+        let mut plan: *mut ndf_plan = std::ptr::null_mut();
+        // SAFETY: the pointers are live locals.
+        let st = unsafe { ndf_plan_new_from_text(&m, text.as_ptr().cast(), 0, &mut plan) };
+        assert_eq!(st, ndf_status::InvalidArgument);
+        let st = unsafe { ndf_plan_new(&m, std::ptr::null(), &mut plan) };
+        assert_eq!(st, ndf_status::NullArgument);
+    }
+}
