@@ -46,7 +46,11 @@ fn plan_then_bake_the_plan() {
         out.to_str().unwrap(),
         "--explain",
     ]);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let explain = String::from_utf8_lossy(&run.stdout);
     assert!(explain.contains("level 0: left out") || explain.contains("levels 0-0: left out"));
     let plan: serde_json::Value =
@@ -70,7 +74,11 @@ fn plan_then_bake_the_plan() {
         "-o",
         baked.to_str().unwrap(),
     ]);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(baked.join("manifest.json")).unwrap())
             .unwrap();
@@ -165,8 +173,14 @@ fn bad_scenes_are_one_line_errors_naming_the_field() {
         (SCENE.replace("[16, 64]", "[16, nan]"), "material.exponent"),
         (SCENE.replace("[16, 64]", "[-16, 64]"), "material.exponent"),
         (SCENE.replace("[1, 6]", "[1, 9]"), "view.levels"),
-        (SCENE.replace("lights = [\"point\", \"environment\"]", "lights = []"), "lights"),
-        ("{\"lights\": [\"point\"], \"material\": {\"model\": \"lambert\"}}".into(), "view"),
+        (
+            SCENE.replace("lights = [\"point\", \"environment\"]", "lights = []"),
+            "lights",
+        ),
+        (
+            "{\"lights\": [\"point\"], \"material\": {\"model\": \"lambert\"}}".into(),
+            "view",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let scene = dir.path().join(format!("scene{i}.toml"));

@@ -549,10 +549,7 @@ fn plan_cmd(
                 "scene: field 'color.albedo': given, and --feature too: give one".into(),
             ));
         }
-        let path = scene_path
-            .parent()
-            .unwrap_or(Path::new("."))
-            .join(albedo);
+        let path = scene_path.parent().unwrap_or(Path::new(".")).join(albedo);
         map = map.with_feature_file(&path, &ingest.options()?)?;
     }
     let plan = ndfmap::plan::plan(&map, &scene, Some(&input.display().to_string()))?;

@@ -4,8 +4,10 @@
 //! and bake and write what it says.
 
 use super::map::ndf_normal_map;
-use super::{Out, Outcome, arg, bytes, c_str, fail, guard, guard_value, index, ndf_status, path,
-    read_options};
+use super::{
+    Out, Outcome, arg, bytes, c_str, fail, guard, guard_value, index, ndf_status, path,
+    read_options,
+};
 use crate::plan::scene::{Budget, Color, LightKind, Material, Model, Scene, Target, View};
 use crate::plan::{Plan, execute, plan, write};
 use std::ffi::c_char;
@@ -406,11 +408,21 @@ mod tests {
         let st = unsafe { ndf_plan_new(&m, &scene, &mut plan) };
         assert_eq!(st, ndf_status::Ok);
         let mut parts = 0u32;
-        assert_eq!(unsafe { ndf_plan_part_count(plan, &mut parts) }, ndf_status::Ok);
+        assert_eq!(
+            unsafe { ndf_plan_part_count(plan, &mut parts) },
+            ndf_status::Ok
+        );
         assert!(parts >= 1);
-        for what in [NDF_PLAN_TEXT_JSON, NDF_PLAN_TEXT_EXPLAIN, NDF_PLAN_TEXT_SHADER] {
+        for what in [
+            NDF_PLAN_TEXT_JSON,
+            NDF_PLAN_TEXT_EXPLAIN,
+            NDF_PLAN_TEXT_SHADER,
+        ] {
             let mut size = 0usize;
-            assert_eq!(unsafe { ndf_plan_text_size(plan, what, 0, &mut size) }, ndf_status::Ok);
+            assert_eq!(
+                unsafe { ndf_plan_text_size(plan, what, 0, &mut size) },
+                ndf_status::Ok
+            );
             let mut buf = vec![0 as c_char; size];
             let mut len = 0usize;
             // Too small: nothing written.
@@ -435,7 +447,8 @@ mod tests {
         let text = "lights = [\"environment\"]\n[material]\nmodel = \"lambert\"\nks = 0\n\
                     [view]\nlevels = [1, 5]\n[target]\nerror = 0.05\n";
         let mut plan2: *mut ndf_plan = std::ptr::null_mut();
-        let st = unsafe { ndf_plan_new_from_text(&m, text.as_ptr().cast(), text.len(), &mut plan2) };
+        let st =
+            unsafe { ndf_plan_new_from_text(&m, text.as_ptr().cast(), text.len(), &mut plan2) };
         assert_eq!(st, ndf_status::Ok);
         let (a, b) = unsafe { (&(*plan).plan, &(*plan2).plan) };
         assert_eq!(a.parts, b.parts);

@@ -580,7 +580,9 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             if measured[i].is_none() {
                 measured[i] = Some(m.run(*c, &keep)?);
             }
-            let e = measured[i].as_ref().map_or(f64::INFINITY, |x| x.error(level, scene));
+            let e = measured[i]
+                .as_ref()
+                .map_or(f64::INFINITY, |x| x.error(level, scene));
             if best.is_none_or(|(_, b)| e < b) {
                 best = Some((i, e));
             }
@@ -670,9 +672,16 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     let mut predictions = Vec::new();
     for (p, &wanted) in parts.iter_mut().zip(&wants) {
         let ci = cands.iter().position(|c| *c == p.config).unwrap_or(0);
-        let meas = measured[ci].clone().unwrap_or_else(|| full_measured.clone());
+        let meas = measured[ci]
+            .clone()
+            .unwrap_or_else(|| full_measured.clone());
         let levels = p.first..=p.last;
-        let err = |x: &Measured| levels.clone().map(|k| x.error(k, scene)).fold(0.0, f64::max);
+        let err = |x: &Measured| {
+            levels
+                .clone()
+                .map(|k| x.error(k, scene))
+                .fold(0.0, f64::max)
+        };
         let full_err = err(&full_measured);
         let targets_ok = |x: &Measured| {
             levels
@@ -692,7 +701,11 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             p.config.textures(),
             if p.config.textures() == 1 { "" } else { "s" },
             p.config.fetches(false),
-            if p.config.fetches(false) == 1 { "" } else { "es" },
+            if p.config.fetches(false) == 1 {
+                ""
+            } else {
+                "es"
+            },
             pct(e),
             pct(full_err),
             {
@@ -763,15 +776,13 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                             format!(
                                 " (a vmf{wanted}a fit of its own was predicted at {}, at the \
                                  cost of a second bake)",
-                                pct(
-                                    cands
-                                        .iter()
-                                        .position(|c| c.method == Method::Vmf
-                                            && c.aligned
-                                            && c.lobes == wanted)
-                                        .and_then(|i| measured[i].as_ref())
-                                        .map_or(f64::NAN, |x| err(x))
-                                )
+                                pct(cands
+                                    .iter()
+                                    .position(|c| c.method == Method::Vmf
+                                        && c.aligned
+                                        && c.lobes == wanted)
+                                    .and_then(|i| measured[i].as_ref())
+                                    .map_or(f64::NAN, |x| err(x)))
                             )
                         } else {
                             String::new()
@@ -1034,7 +1045,9 @@ impl Plan {
     /// Parses a plan file's text; [`Error::InvalidOption`] when it is not a plan.
     pub fn from_json(name: &str, text: &str) -> Result<Plan> {
         if text.trim().is_empty() {
-            return Err(Error::InvalidOption(format!("plan {name}: the file is empty")));
+            return Err(Error::InvalidOption(format!(
+                "plan {name}: the file is empty"
+            )));
         }
         let plan: Plan = serde_json::from_str(text)
             .map_err(|e| Error::InvalidOption(format!("plan {name}: not an ndfmap plan: {e}")))?;
@@ -1306,8 +1319,8 @@ pub fn write(
     let mut parts = Vec::new();
     let mut jobs = Vec::new();
     for (i, (p, (b, seconds))) in plan.parts.iter().zip(&baked.parts).enumerate() {
-        let color_format = (b.lobes > 0 && b.textures.len() >= 2 * b.lobes && p.color)
-            .then_some(p.color_format);
+        let color_format =
+            (b.lobes > 0 && b.textures.len() >= 2 * b.lobes && p.color).then_some(p.color_format);
         let textures = b
             .textures
             .iter()
@@ -1380,7 +1393,14 @@ pub fn write(
                 let b = &baked.parts[*i].0;
                 let tex = &b.textures[*t];
                 let (w, h) = b.sizes[*li];
-                crate::output::write_level(&staging.join(name), w, h, &tex.levels[*li], tex.ranges, *f)
+                crate::output::write_level(
+                    &staging.join(name),
+                    w,
+                    h,
+                    &tex.levels[*li],
+                    tex.ranges,
+                    *f,
+                )
             })
             .collect::<Vec<Result<()>>>()
             .into_iter()
@@ -1476,11 +1496,20 @@ error = 0.05
             fetches.push(plan.parts.iter().map(|p| p.textures()).max().unwrap());
             for (k, e) in measured(&plan, &map) {
                 let pr = plan.predictions.iter().find(|p| p.level == k).unwrap();
-                assert!(e <= pr.target, "level {k}: {e} > {}\n{}", pr.target, plan.explain());
+                assert!(
+                    e <= pr.target,
+                    "level {k}: {e} > {}\n{}",
+                    pr.target,
+                    plan.explain()
+                );
                 // The prediction within a factor 2 where the error is above 0.5 %.
                 if e > 0.005 || pr.predicted > 0.005 {
                     let r = e.max(1e-3) / pr.predicted.max(1e-3);
-                    assert!((0.5..=2.0).contains(&r), "level {k}: measured {e}, predicted {}", pr.predicted);
+                    assert!(
+                        (0.5..=2.0).contains(&r),
+                        "level {k}: measured {e}, predicted {}",
+                        pr.predicted
+                    );
                 }
             }
             // Every decision is one line.
@@ -1524,11 +1553,15 @@ error = 0.05
         let p = plan(&map, &scene(&MATTE.replace("[2, 6]", "[1, 5]")), None).unwrap();
         let mut v: serde_json::Value = serde_json::from_str(&p.to_json()).unwrap();
         v["parts"][0]["first"] = 3.into();
-        let e = Plan::from_json("p", &v.to_string()).unwrap_err().to_string();
+        let e = Plan::from_json("p", &v.to_string())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("do not continue"), "{e}");
         let mut v: serde_json::Value = serde_json::from_str(&p.to_json()).unwrap();
         v["version"] = 99.into();
-        let e = Plan::from_json("p", &v.to_string()).unwrap_err().to_string();
+        let e = Plan::from_json("p", &v.to_string())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("version 99"), "{e}");
     }
 

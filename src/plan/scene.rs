@@ -318,7 +318,10 @@ impl Scene {
                 ));
             }
             (None, None, Some(_)) => {
-                return Err(field("view.distances", "missing: the density needs distances"));
+                return Err(field(
+                    "view.distances",
+                    "missing: the density needs distances",
+                ));
             }
             (None, None, None) => {
                 return Err(field(
@@ -372,7 +375,8 @@ impl Scene {
     /// K_d and K_s with their defaults (K_s: 1 with a specular model, 0 with Lambert).
     pub fn kd_ks(&self) -> (f64, f64) {
         let m = &self.material;
-        let ks = m.ks.unwrap_or(if m.model == Model::Lambert { 0.0 } else { 1.0 });
+        let ks =
+            m.ks.unwrap_or(if m.model == Model::Lambert { 0.0 } else { 1.0 });
         (m.kd, ks)
     }
 
@@ -522,35 +526,80 @@ error = 0.05
             ("{\"lights\": }", "not a valid JSON"),
             (&GLOSSY.replace("kd = 0.2", "kd = 0.2\nshine = 3"), "shine"),
             (&GLOSSY.replace("error = 0.05", "error = \"low\""), "error"),
-            (&GLOSSY.replace("error = 0.05", "error = nan"), "target.error"),
-            (&GLOSSY.replace("error = 0.05", "error = 0"), "target.error"),
-            (&GLOSSY.replace("error = 0.05", "error = -0.1"), "target.error"),
-            (&GLOSSY.replace("[16, 256]", "[0, 256]"), "material.exponent"),
-            (&GLOSSY.replace("[16, 256]", "[-4, 256]"), "material.exponent"),
-            (&GLOSSY.replace("[16, 256]", "[256, 16]"), "material.exponent"),
-            (&GLOSSY.replace("exponent = [16, 256]", ""), "material.exponent"),
             (
-                &GLOSSY.replace("exponent = [16, 256]", "exponent = [16, 256]\nalpha = [0.1, 0.2]"),
+                &GLOSSY.replace("error = 0.05", "error = nan"),
+                "target.error",
+            ),
+            (&GLOSSY.replace("error = 0.05", "error = 0"), "target.error"),
+            (
+                &GLOSSY.replace("error = 0.05", "error = -0.1"),
+                "target.error",
+            ),
+            (
+                &GLOSSY.replace("[16, 256]", "[0, 256]"),
+                "material.exponent",
+            ),
+            (
+                &GLOSSY.replace("[16, 256]", "[-4, 256]"),
+                "material.exponent",
+            ),
+            (
+                &GLOSSY.replace("[16, 256]", "[256, 16]"),
+                "material.exponent",
+            ),
+            (
+                &GLOSSY.replace("exponent = [16, 256]", ""),
+                "material.exponent",
+            ),
+            (
+                &GLOSSY.replace(
+                    "exponent = [16, 256]",
+                    "exponent = [16, 256]\nalpha = [0.1, 0.2]",
+                ),
                 "material.alpha",
             ),
             (
-                &GLOSSY.replace("model = \"blinn-phong\"\nexponent = [16, 256]", "model = \"lambert\""),
+                &GLOSSY.replace(
+                    "model = \"blinn-phong\"\nexponent = [16, 256]",
+                    "model = \"lambert\"",
+                ),
                 "material.ks",
             ),
             (&GLOSSY.replace("kd = 0.2", "kd = -1"), "material.kd"),
-            (&GLOSSY.replace("kd = 0.2\nks = 0.8", "kd = 0\nks = 0"), "material.kd"),
+            (
+                &GLOSSY.replace("kd = 0.2\nks = 0.8", "kd = 0\nks = 0"),
+                "material.kd",
+            ),
             (&GLOSSY.replace("[\"point\"]", "[]"), "lights"),
             (&GLOSSY.replace("[\"point\"]", "[\"laser\"]"), "laser"),
             (&GLOSSY.replace("[0, 4]", "[4, 0]"), "view.levels"),
-            (&GLOSSY.replace("levels = [0, 4]", "distances = [1, 2]"), "view.texel_density"),
-            (&GLOSSY.replace("error = 0.05", "per_level = [0.1, 0.1]"), "target.per_level"),
-            (&GLOSSY.replace("error = 0.05", "error = 0.05\nper_level = [0.1]"), "target.per_level"),
             (
-                &GLOSSY.replace("lights = [\"point\"]", "lights = [\"environment\"]\nlight_elevation = [5, 20]"),
+                &GLOSSY.replace("levels = [0, 4]", "distances = [1, 2]"),
+                "view.texel_density",
+            ),
+            (
+                &GLOSSY.replace("error = 0.05", "per_level = [0.1, 0.1]"),
+                "target.per_level",
+            ),
+            (
+                &GLOSSY.replace("error = 0.05", "error = 0.05\nper_level = [0.1]"),
+                "target.per_level",
+            ),
+            (
+                &GLOSSY.replace(
+                    "lights = [\"point\"]",
+                    "lights = [\"environment\"]\nlight_elevation = [5, 20]",
+                ),
                 "light_elevation",
             ),
-            (&format!("{GLOSSY}[budget]\ntexture_bytes = 0\n"), "budget.texture_bytes"),
-            (&format!("{GLOSSY}[budget]\ntexture_bytes = -5\n"), "texture_bytes"),
+            (
+                &format!("{GLOSSY}[budget]\ntexture_bytes = 0\n"),
+                "budget.texture_bytes",
+            ),
+            (
+                &format!("{GLOSSY}[budget]\ntexture_bytes = -5\n"),
+                "texture_bytes",
+            ),
         ];
         for (text, needle) in cases {
             let e = err(text);

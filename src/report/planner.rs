@@ -200,7 +200,10 @@ impl PlannerRow {
             if self.meets { "yes" } else { "NO" },
             self.prediction_factor
         );
-        let _ = writeln!(s, "\n| level | target | predicted | measured (plan) | measured (full) |");
+        let _ = writeln!(
+            s,
+            "\n| level | target | predicted | measured (plan) | measured (full) |"
+        );
         let _ = writeln!(s, "|---|---|---|---|---|");
         for (k, t, p, m, f) in &self.levels {
             let _ = writeln!(
