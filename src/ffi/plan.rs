@@ -463,7 +463,8 @@ mod tests {
     #[test]
     fn bad_scenes_through_the_c_api() {
         let m = map();
-        let bad: [(&str, fn(&mut ndf_scene)); 6] = [
+        type Edit = fn(&mut ndf_scene);
+        let bad: [(&str, Edit); 6] = [
             ("target", |s| s.target = f64::NAN),
             ("material.exponent", |s| s.param_min = -1.0),
             ("lights", |s| s.lights = 0),

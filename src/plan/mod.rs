@@ -782,7 +782,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                                         && c.aligned
                                         && c.lobes == wanted)
                                     .and_then(|i| measured[i].as_ref())
-                                    .map_or(f64::NAN, |x| err(x)))
+                                    .map_or(f64::NAN, &err))
                             )
                         } else {
                             String::new()

@@ -4,7 +4,7 @@
 //! against the exact footprint average ([`crate::eval`]) beside the target and the plan's
 //! prediction.
 
-use crate::bake::{Bake, BakeOptions, Method};
+use crate::bake::{Bake, Method};
 use crate::error::Result;
 use crate::eval::evaluate_from;
 use crate::glsl::{ShaderOptions, ShaderSpec, Stage};
@@ -79,9 +79,7 @@ pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
     let mut measured = vec![f64::NAN; plan.levels[1] + 1];
     for (p, (b, _)) in plan.parts.iter().zip(&chains) {
         let e = scene_errors(plan, &evaluate_from(map, &[b], &brdfs, &dirs, p.first));
-        for k in p.first..=p.last {
-            measured[k] = e[k];
-        }
+        measured[p.first..=p.last].copy_from_slice(&e[p.first..=p.last]);
     }
     let mut seen = Vec::new();
     let mut plan_bake = 0.0;
@@ -144,7 +142,6 @@ pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
         }
         levels.push((k, pr.target, pr.predicted, m, fe[k]));
     }
-    let _ = BakeOptions::default();
     Ok(PlannerRow {
         plan: plan
             .parts
