@@ -401,6 +401,16 @@ impl Measure<'_> {
     /// Measures `config`'s sample bakes after `edit` (quantizing, dropping lobes), at map
     /// levels `from` and coarser.
     fn run(&self, config: Config, edit: &dyn Fn(Bake) -> Result<Bake>) -> Result<Measured> {
+        self.run_from(config, edit, self.from)
+    }
+
+    /// [`Measure::run`] at map levels `from` and coarser only (a level range's own checks).
+    fn run_from(
+        &self,
+        config: Config,
+        edit: &dyn Fn(Bake) -> Result<Bake>,
+        from: usize,
+    ) -> Result<Measured> {
         // Per map level: Σ squared relative errors over samples, count.
         let mut acc = vec![(0.0f64, 0.0f64, 0usize); self.levels];
         let mut alpha_max = vec![Vec::<f64>::new(); self.levels];
@@ -408,7 +418,7 @@ impl Measure<'_> {
         for ((map, stands), bake) in self.samples.maps.iter().zip(bakes.iter()) {
             let first = stands
                 .iter()
-                .position(|l| l.is_some_and(|l| l >= self.from))
+                .position(|l| l.is_some_and(|l| l >= from))
                 .unwrap_or(stands.len());
             if first == stands.len() {
                 continue;
@@ -756,7 +766,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 let mut drop = order[..n].to_vec();
                 drop.sort_unstable();
                 let d2 = drop.clone();
-                let dm = m.run(p.config, &move |b| Ok(drop_lobes(b, &d2)))?;
+                let dm = m.run_from(p.config, &move |b| Ok(drop_lobes(b, &d2)), p.first)?;
                 let ed = err(&dm);
                 if targets_ok(&dm) {
                     decisions.push(format!(
@@ -824,9 +834,11 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 continue;
             }
             let dropped = p.dropped.clone();
-            let q = m.run(p.config, &move |b| {
-                crate::pack::quantize_into(drop_lobes(b, &dropped), f)
-            })?;
+            let q = m.run_from(
+                p.config,
+                &move |b| crate::pack::quantize_into(drop_lobes(b, &dropped), f),
+                p.first,
+            )?;
             if targets_ok(&q) {
                 format = f;
                 format_err = err(&q);
