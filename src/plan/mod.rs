@@ -1187,8 +1187,8 @@ pub struct PlanBake {
 }
 
 /// Bakes each part of `plan` over the map's whole MIP chain (each distinct configuration
-/// once), drops the part's lobes and quantizes to the part's formats: per part, the bake
-/// (every level) and the seconds its method took. [`execute`] keeps each part's levels; the
+/// once), drops the part's lobes and quantizes to the part's formats: per part, the bake (its
+/// levels and the coarser ones; the finer levels are empty) and the seconds its method took. [`execute`] keeps each part's levels; the
 /// report measures the error of the chains.
 pub fn bake_chains(plan: &Plan, map: &NormalMap) -> Result<Vec<(Bake, f64)>> {
     plan.check_map(map)?;
@@ -1223,7 +1223,32 @@ pub fn bake_chains(plan: &Plan, map: &NormalMap) -> Result<Vec<(Bake, f64)>> {
             }
         };
         let (_, _, full, seconds) = &cache[idx];
-        let b = drop_lobes(full.clone(), &p.dropped);
+        // The part's levels and the coarser ones (what eval reads from the part's first level
+        // on); the finer ones, most of the texels, are left empty instead of copied.
+        let part = Bake {
+            textures: full
+                .textures
+                .iter()
+                .map(|t| crate::bake::Texture {
+                    name: t.name,
+                    channels: t.channels,
+                    ranges: t.ranges,
+                    levels: t
+                        .levels
+                        .iter()
+                        .enumerate()
+                        .map(|(k, l)| if k < p.first { Vec::new() } else { l.clone() })
+                        .collect(),
+                })
+                .collect(),
+            sizes: full.sizes.clone(),
+            addressing: full.addressing,
+            lobes: full.lobes,
+            parameters: full.parameters.clone(),
+            format: full.format,
+            method: full.method,
+        };
+        let b = drop_lobes(part, &p.dropped);
         // Colour textures get their own (narrower) format: quantize the lobes and the colours
         // apart, then put them back together.
         let lobes = b.lobes;
@@ -1466,7 +1491,7 @@ error = 0.05
         let dirs = directions(&plan.scene);
         let mut out = Vec::new();
         for (p, (b, _)) in plan.parts.iter().zip(&chains) {
-            let errors = crate::eval::evaluate(map, &[b], &brdfs, &dirs);
+            let errors = crate::eval::evaluate_from(map, &[b], &brdfs, &dirs, p.first);
             for k in p.first..=p.last {
                 let e = errors
                     .iter()
