@@ -38,6 +38,56 @@
 #define NDF_VERSION 256
 
 /**
+ * Scene material model: Lambert only (no specular term).
+ */
+#define NDF_SCENE_MODEL_LAMBERT 0
+
+/**
+ * Scene material model: normalized Blinn-Phong (`param_min`, `param_max`: the exponent s).
+ */
+#define NDF_SCENE_MODEL_BLINN_PHONG 1
+
+/**
+ * Scene material model: Torrance–Sparrow eq 18 (the parameters: σ).
+ */
+#define NDF_SCENE_MODEL_TORRANCE_SPARROW 2
+
+/**
+ * Scene material model: GGX (the parameters: α).
+ */
+#define NDF_SCENE_MODEL_GGX 3
+
+/**
+ * Light flag: point lights.
+ */
+#define NDF_SCENE_LIGHT_POINT 1
+
+/**
+ * Light flag: directional lights.
+ */
+#define NDF_SCENE_LIGHT_DIRECTIONAL 2
+
+/**
+ * Light flag: an environment.
+ */
+#define NDF_SCENE_LIGHT_ENVIRONMENT 4
+
+/**
+ * Which text `ndf_plan_text` returns: the plan file (JSON, what `ndfmap bake --plan` reads).
+ */
+#define NDF_PLAN_TEXT_JSON 0
+
+/**
+ * The decisions, one per line (`ndfmap plan --explain`).
+ */
+#define NDF_PLAN_TEXT_EXPLAIN 1
+
+/**
+ * The specialized GLSL fragment shader of part `part`.
+ */
+#define NDF_PLAN_TEXT_SHADER 2
+
+/**
  * Status of a call. `NDF_STATUS_OK` (0) is success; the numbers are stable and never reused.
  */
 enum ndf_status
@@ -153,6 +203,12 @@ typedef struct ndf_material ndf_material;
  * several threads at once (baking reads it); attaching a feature needs exclusive access.
  */
 typedef struct ndf_normal_map ndf_normal_map;
+
+/**
+ * A plan (opaque): made by `ndf_plan_new` or `ndf_plan_new_from_text`, released by
+ * `ndf_plan_free`.
+ */
+typedef struct ndf_plan ndf_plan;
 
 /**
  * Direction of the green channel: one of the `NDF_GREEN_*` values.
@@ -624,6 +680,93 @@ typedef struct ndf_material_options {
    */
   const char *tabulated_path;
 } ndf_material_options;
+
+/**
+ * A scene (the fields of the scene file, `docs/planner.md`). Initialize with
+ * `ndf_scene_default()`, then set the fields.
+ */
+typedef struct ndf_scene {
+  /**
+   * `sizeof(ndf_scene)`.
+   */
+  size_t struct_size;
+  /**
+   * `NDF_SCENE_MODEL_*` (default Blinn-Phong).
+   */
+  uint32_t model;
+  /**
+   * The model parameter's range `[param_min, param_max]` (s > 0; σ, α in (0, 1]); ignored
+   * for Lambert. Default 16 to 256.
+   */
+  double param_min;
+  /**
+   * See `param_min`.
+   */
+  double param_max;
+  /**
+   * K_d ≥ 0 (default 1).
+   */
+  double kd;
+  /**
+   * K_s ≥ 0 (default 1; must be 0 for Lambert).
+   */
+  double ks;
+  /**
+   * `NDF_SCENE_LIGHT_*` flags, at least one (default point).
+   */
+  uint32_t lights;
+  /**
+   * Elevation of the point/directional lights, degrees in (0, 90]; both 0 for the default
+   * (10 to 90).
+   */
+  double elevation_min;
+  /**
+   * See `elevation_min`.
+   */
+  double elevation_max;
+  /**
+   * Nonzero when the albedo varies (used only when the map has no feature image attached,
+   * whose variation is measured instead).
+   */
+  uint32_t color_varies;
+  /**
+   * MIP levels reached, finest and coarsest (used when `distance_near` is 0). Default 0
+   * to 0.
+   */
+  uint32_t level_min;
+  /**
+   * See `level_min`.
+   */
+  uint32_t level_max;
+  /**
+   * Viewing distances (> 0) with `texel_density` (> 0) instead of levels; 0 for none.
+   */
+  double distance_near;
+  /**
+   * See `distance_near`.
+   */
+  double distance_far;
+  /**
+   * Texels per screen pixel at distance 1.
+   */
+  double texel_density;
+  /**
+   * Nonzero for anisotropic filtering.
+   */
+  uint32_t anisotropic;
+  /**
+   * The error target, relative RMS in (0, 1] (default 0.05).
+   */
+  double target;
+  /**
+   * Texture memory budget in bytes, 0 for none.
+   */
+  uint64_t budget_texture_bytes;
+  /**
+   * Fetches per pixel budget, 0 for none.
+   */
+  uint32_t budget_fetches;
+} ndf_scene;
 
 /**
  * +Y up (OpenGL, Blender, most CC0 libraries): green is the bitangent as stored. Default.
@@ -1552,6 +1695,97 @@ ndf_status ndf_material_table_size(const struct ndf_material *brdf,
  * `brdf` is NULL or a live BRDF; `out` is NULL or writable for `capacity` floats.
  */
 ndf_status ndf_material_table(const struct ndf_material *brdf, float *out, size_t capacity);
+
+/**
+ * The default scene: Blinn-Phong s 16 to 256, K_d = K_s = 1, a point light, level 0 only,
+ * target 5 %.
+ */
+struct ndf_scene ndf_scene_default(void);
+
+/**
+ * Plans `map` for `scene` (module `plan`): measures the map by sampling and chooses per level
+ * range the cheapest configuration meeting the target.
+ * - `NDF_STATUS_INVALID_ARGUMENT` for a scene with a field out of range or contradictory (the
+ *   message names the field), levels beyond the map, or a budget the plan exceeds.
+ *
+ * # Safety
+ * `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`; `plan_out`
+ * is NULL or writable.
+ */
+ndf_status ndf_plan_new(const struct ndf_normal_map *map,
+                        const struct ndf_scene *scene,
+                        struct ndf_plan **plan_out);
+
+/**
+ * Plans `map` for the scene file text `text` (`length` bytes, TOML or JSON, no NUL needed;
+ * `docs/planner.md`). Failures as for `ndf_plan_new`, and `NDF_STATUS_INVALID_ARGUMENT` for
+ * empty text, syntax errors, unknown keys and wrong types.
+ *
+ * # Safety
+ * `map` is NULL or live; `text` is NULL or readable for `length` bytes; `plan_out` is NULL or
+ * writable.
+ */
+ndf_status ndf_plan_new_from_text(const struct ndf_normal_map *map,
+                                  const char *text,
+                                  size_t length,
+                                  struct ndf_plan **plan_out);
+
+/**
+ * The number of level ranges (parts) of `plan`, each with its own method and shader.
+ *
+ * # Safety
+ * `plan` is NULL or live; `count_out` is NULL or writable.
+ */
+ndf_status ndf_plan_part_count(const struct ndf_plan *plan, uint32_t *count_out);
+
+/**
+ * Bytes `ndf_plan_text` writes for the same arguments (the NUL included).
+ * - `what`: `NDF_PLAN_TEXT_*`; `part`: the part for `NDF_PLAN_TEXT_SHADER` (else ignored).
+ *
+ * # Safety
+ * `plan` is NULL or live; `size_out` is NULL or writable.
+ */
+ndf_status ndf_plan_text_size(const struct ndf_plan *plan,
+                              uint32_t what,
+                              uint32_t part,
+                              size_t *size_out);
+
+/**
+ * Writes a text of `plan` into `buffer`, NUL-terminated: the plan file, the explanation, or
+ * a part's specialized fragment shader. `buffer` must hold `ndf_plan_text_size()` bytes
+ * (`NDF_STATUS_BUFFER_TOO_SMALL` otherwise, nothing written); `length_out` receives the bytes
+ * written.
+ *
+ * # Safety
+ * `plan` is NULL or live; `buffer` is NULL or writable for `capacity` bytes; `length_out` is
+ * NULL or writable.
+ */
+ndf_status ndf_plan_text(const struct ndf_plan *plan,
+                         uint32_t what,
+                         uint32_t part,
+                         char *buffer,
+                         size_t capacity,
+                         size_t *length_out);
+
+/**
+ * Bakes `plan` for `map` and writes it as folder `directory` with its manifest
+ * (`ndfmap bake --plan`): `NDF_STATUS_INVALID_ARGUMENT` when the plan was made for another
+ * map (size or content hash), before any work; nothing is written on failure.
+ *
+ * # Safety
+ * `plan` and `map` are NULL or live; `directory` is NULL or a NUL-terminated string.
+ */
+ndf_status ndf_plan_bake_write(const struct ndf_plan *plan,
+                               const struct ndf_normal_map *map,
+                               const char *directory);
+
+/**
+ * Releases a plan. NULL is fine. Must not be called twice with the same plan.
+ *
+ * # Safety
+ * `plan` is NULL or a plan from this library not yet freed.
+ */
+void ndf_plan_free(struct ndf_plan *plan);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -13,7 +13,8 @@
 //!   [`tan2005`] driven per level by [`mixture`]; [`pbr`] (normal + GGX roughness MIP chains
 //!   for unmodified engines); [`methods`] is the one dispatch over them;
 //! - consumers: [`shade`] (the shaders' CPU twin) → [`sample`] / [`eval`] / [`render`];
-//!   [`pack`] / [`output`] (storage, files), [`glsl`] (the shaders), `report` (feature
+//!   [`pack`] / [`output`] (storage, files), [`glsl`] (the shaders), [`plan`] (the scene
+//!   planner: what a scene needs, issue 18), `report` (feature
 //!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`).
 
 pub mod bake;
@@ -37,6 +38,7 @@ pub mod mixture;
 pub mod output;
 pub mod pack;
 pub mod pbr;
+pub mod plan;
 pub mod procedural;
 pub mod pyramid;
 pub mod quality;

@@ -154,7 +154,7 @@ pub fn file_name(name: &str, level: usize, format: Format) -> String {
 }
 
 /// Writes one level of one texture in the bake's format.
-fn write_level(
+pub(crate) fn write_level(
     path: &Path,
     w: u32,
     h: u32,

@@ -93,8 +93,12 @@ enum Command {
         /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
         input: PathBuf,
         /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh, pbr.
-        #[arg(short, long)]
-        method: String,
+        #[arg(short, long, required_unless_present = "plan")]
+        method: Option<String>,
+        /// A plan file from `ndfmap plan` (docs/planner.md): bake what it says, mixing methods
+        /// across level ranges, instead of one --method (the method options are then refused).
+        #[arg(long, conflicts_with = "method")]
+        plan: Option<PathBuf>,
         /// Output folder (created if missing; written all-or-nothing).
         #[arg(short, long)]
         output: PathBuf,
@@ -134,6 +138,29 @@ enum Command {
         compress: Option<String>,
         #[command(flatten)]
         pbr: PbrArgs,
+        #[command(flatten)]
+        ingest: IngestArgs,
+    },
+    /// Plan what a scene needs (docs/planner.md): measure MAP by sampling, choose per level
+    /// range the cheapest method, lobe count and storage format meeting SCENE's error target,
+    /// and write the plan file and specialized shaders (`bake --plan` consumes the plan).
+    Plan {
+        /// The scene description (TOML or JSON, docs/planner.md).
+        scene: PathBuf,
+        /// The normal map.
+        input: PathBuf,
+        /// Output folder for plan.json and the shaders (part0.frag, ...); without it the plan
+        /// is printed.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Print every decision, with the error it saves or costs.
+        #[arg(long)]
+        explain: bool,
+        /// Then bake the plan and the full configuration (vMF J = 8 aligned, f32, colour) and
+        /// measure both on the whole map: bytes, bake seconds, fetches, ALU, error against the
+        /// target and the prediction (the report's planner row; slow: a full bake).
+        #[arg(long)]
+        verify: bool,
         #[command(flatten)]
         ingest: IngestArgs,
     },
@@ -659,6 +686,125 @@ impl IngestArgs {
     }
 }
 
+/// `ndfmap plan`: everything is checked (scene, map, albedo) before anything is written.
+fn plan_cmd(
+    scene_path: &Path,
+    input: &Path,
+    output: Option<&Path>,
+    explain: bool,
+    verify: bool,
+    ingest: &IngestArgs,
+) -> Result<()> {
+    let scene = ndfmap::plan::Scene::load(scene_path)?;
+    let (mut map, _) = ingest.load(input)?;
+    if let Some(albedo) = &scene.color.albedo {
+        if ingest.feature.is_some() {
+            return Err(Error::InvalidOption(
+                "scene: field 'color.albedo': given, and --feature too: give one".into(),
+            ));
+        }
+        let path = scene_path.parent().unwrap_or(Path::new(".")).join(albedo);
+        map = map.with_feature_file(&path, &ingest.options()?)?;
+    }
+    let plan = ndfmap::plan::plan(&map, &scene, Some(&input.display().to_string()))?;
+    let addressing = map.addressing();
+    let shaders: Vec<String> = (0..plan.parts.len())
+        .map(|i| plan.shader(i, addressing))
+        .collect::<Result<_>>()?;
+    if explain {
+        print!("{}", plan.explain());
+    }
+    match output {
+        Some(dir) => {
+            // Every file is complete before it is renamed into place; only these names are
+            // written (a folder's other files are left alone).
+            std::fs::create_dir_all(dir).map_err(|e| Error::Write {
+                path: dir.to_path_buf(),
+                message: e.to_string(),
+            })?;
+            let mut files = vec![
+                ("plan.json".to_string(), plan.to_json()),
+                ("explain.txt".to_string(), plan.explain()),
+            ];
+            for (i, s) in shaders.iter().enumerate() {
+                files.push((format!("part{i}.frag"), s.clone()));
+            }
+            for (name, text) in files {
+                let tmp = dir.join(format!(".{name}.tmp"));
+                std::fs::write(&tmp, text)
+                    .and_then(|_| std::fs::rename(&tmp, dir.join(&name)))
+                    .map_err(|e| Error::Write {
+                        path: dir.join(&name),
+                        message: e.to_string(),
+                    })?;
+            }
+            println!(
+                "planned in {:.2} s: {} part(s), {} texture bytes (full: {}): {}",
+                plan.seconds,
+                plan.parts.len(),
+                plan.bytes,
+                plan.full_bytes,
+                dir.join("plan.json").display()
+            );
+        }
+        None if !explain && !verify => print!("{}", plan.to_json()),
+        None => {}
+    }
+    if verify {
+        let row = ndfmap::report::planner::measure(&plan, &map)?;
+        let name = scene_path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        println!(
+            "| scene | plan | bytes plan / full | bake s plan / full | fetches plan / full | ALU \
+             plan / full | plan s | meets target | prediction factor |\n|---|---|---|---|---|---|---|---|---|"
+        );
+        print!("{}", row.markdown(&name));
+        if let Some(dir) = output {
+            let json = serde_json::to_string_pretty(&row).unwrap_or_default();
+            std::fs::write(dir.join("verify.json"), json).map_err(|e| Error::Write {
+                path: dir.join("verify.json"),
+                message: e.to_string(),
+            })?;
+        }
+    }
+    Ok(())
+}
+
+/// `ndfmap bake --plan`: the plan is read and checked against the map before any work.
+fn bake_plan(plan_path: &Path, input: &Path, output: &Path, ingest: &IngestArgs) -> Result<()> {
+    let text = std::fs::read_to_string(plan_path).map_err(|source| Error::Read {
+        path: plan_path.to_path_buf(),
+        source,
+    })?;
+    let plan = ndfmap::plan::Plan::from_json(&plan_path.display().to_string(), &text)?;
+    let (w, h) = ndfmap::ingest::probe_size(input, &ingest.options()?)?;
+    if (w, h) != (plan.map.width, plan.map.height) {
+        return Err(Error::InvalidOption(format!(
+            "{}: the plan was made for a {}x{} map, {} is {w}x{h}",
+            plan_path.display(),
+            plan.map.width,
+            plan.map.height,
+            input.display()
+        )));
+    }
+    let (map, info) = ingest.load(input)?;
+    let t = Instant::now();
+    let baked = ndfmap::plan::execute(&plan, &map).map_err(|e| match e {
+        Error::InvalidOption(m) => Error::InvalidOption(format!("{}: {m}", plan_path.display())),
+        e => e,
+    })?;
+    let seconds = t.elapsed().as_secs_f64();
+    let manifest = ndfmap::plan::write(&plan, &baked, info, output)?;
+    println!(
+        "baked the plan ({} part(s)) in {seconds:.3} s: {}",
+        plan.parts.len(),
+        manifest.display()
+    );
+    Ok(())
+}
+
 fn parse_methods(names: &[String]) -> Result<Vec<Method>> {
     names.iter().map(|n| n.trim().parse()).collect()
 }
@@ -887,6 +1033,47 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bake {
             input,
             method,
+            plan: Some(plan_path),
+            output,
+            lobes,
+            align,
+            align_form,
+            mode,
+            lmax,
+            brdf: _,
+            format,
+            pbr,
+            container,
+            compress,
+            ingest,
+        } => {
+            let _ = method;
+            let defaults = (6, None, "appendix", "balanced", None, "f32", "exr", None);
+            if (
+                lobes,
+                align,
+                align_form.as_str(),
+                mode.as_str(),
+                lmax,
+                format.as_str(),
+                container.as_str(),
+                compress.as_deref(),
+            ) != defaults
+                || pbr.roughness.is_some()
+                || pbr.anisotropic
+            {
+                return Err(Error::InvalidOption(
+                    "--plan decides the method, lobes, alignment, band limit, format and \
+                     container: give none of those options with it"
+                        .into(),
+                ));
+            }
+            bake_plan(&plan_path, &input, &output, &ingest)?;
+        }
+        Command::Bake {
+            input,
+            method,
+            plan: None,
             output,
             lobes,
             align,
@@ -902,7 +1089,7 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             // Everything is checked before any work: the options, the format against the
             // method, the input's header and the bake's memory estimate, then the decoding.
-            let method: Method = method.parse()?;
+            let method: Method = method.unwrap_or_default().parse()?;
             let format: Format = format.parse()?;
             let lmax = match (method, lmax) {
                 (_, Some(l)) => l,
@@ -1257,6 +1444,14 @@ fn run(cli: Cli) -> Result<()> {
                 [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];
             print!("{}", ndfmap::glsl::source_for(&spec, stage, &options)?);
         }
+        Command::Plan {
+            scene,
+            input,
+            output,
+            explain,
+            verify,
+            ingest,
+        } => plan_cmd(&scene, &input, output.as_deref(), explain, verify, &ingest)?,
         Command::Demo { output, size } => demo(&output, size)?,
         #[cfg(feature = "report")]
         Command::Report(args) => report(args)?,

@@ -160,6 +160,12 @@ impl ndf_normal_map {
             },
         }
     }
+
+    /// A handle for `map` (tests of other C API modules).
+    #[cfg(test)]
+    pub(crate) fn from_map_for_tests(map: NormalMap) -> Self {
+        ndf_normal_map::new(map, None, IngestOptions::default())
+    }
 }
 
 /// Reads the options argument of a map entry point.

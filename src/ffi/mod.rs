@@ -29,6 +29,8 @@ pub mod container;
 pub mod shader;
 
 pub mod brdf;
+
+pub mod plan;
 #[cfg(test)]
 mod tests;
 
@@ -286,7 +288,7 @@ pub(crate) fn guard_value<T>(fallback: T, body: impl FnOnce() -> T) -> T {
 }
 
 /// The NULL-argument failure for argument `name`.
-fn null(name: &str) -> Failure {
+pub(crate) fn null(name: &str) -> Failure {
     fail(ndf_status::NullArgument, format!("{name} is NULL"))
 }
 

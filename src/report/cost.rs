@@ -67,7 +67,7 @@ pub fn shader_cost(bake: &Bake) -> ShaderCost {
 }
 
 /// Compiles a fragment shader to SPIR-V for OpenGL and returns the human-readable listing.
-fn spirv_text(src: &str) -> Result<String, String> {
+pub(crate) fn spirv_text(src: &str) -> Result<String, String> {
     // One folder per call: calls may run in parallel, also on the same source.
     static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);

@@ -11,6 +11,7 @@
 pub mod cost;
 pub mod frame;
 pub mod pbr;
+pub mod planner;
 pub mod plot;
 pub mod stability;
 

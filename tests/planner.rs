@@ -1,0 +1,199 @@
+//! `ndfmap plan` and `ndfmap bake --plan` (issue 18): a plan is written with its shaders and
+//! decisions, bakes into one folder mixing methods with a manifest that says so, and bad
+//! scenes and plans for another map are one-line errors that write nothing.
+
+mod common;
+
+use common::{assert_one_line_error, ndfmap};
+use std::path::Path;
+
+/// A bumpy 64² normal map (the procedural sample encoded as PNG).
+fn write_map(path: &Path, seed: u64) {
+    let s = ndfmap::procedural::generate(64, seed);
+    let rgb = ndfmap::procedural::encode_rgb8(s.map.normals());
+    image::RgbImage::from_raw(64, 64, rgb)
+        .unwrap()
+        .save(path)
+        .unwrap();
+}
+
+const SCENE: &str = r#"
+lights = ["point", "environment"]
+[material]
+model = "blinn-phong"
+exponent = [16, 64]
+kd = 0.5
+ks = 0.5
+[view]
+levels = [1, 6]
+[target]
+per_level = [0.05, 0.08, 0.10, 0.10, 0.10, 0.10]
+"#;
+
+#[test]
+fn plan_then_bake_the_plan() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("map.png");
+    write_map(&map, 3);
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let out = dir.path().join("plan");
+    let run = ndfmap(&[
+        "plan",
+        scene.to_str().unwrap(),
+        map.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--explain",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let explain = String::from_utf8_lossy(&run.stdout);
+    assert!(explain.contains("level 0: left out") || explain.contains("levels 0-0: left out"));
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("plan.json")).unwrap()).unwrap();
+    let parts = plan["parts"].as_array().unwrap();
+    assert!(!parts.is_empty());
+    assert_eq!(plan["levels"], serde_json::json!([1, 6]));
+    for (i, _) in parts.iter().enumerate() {
+        let frag = std::fs::read_to_string(out.join(format!("part{i}.frag"))).unwrap();
+        assert!(frag.starts_with("#version 330 core"));
+        // No environment code exists; Blinn-Phong compiles no other BRDF's path.
+        assert!(!frag.contains("#define NDF_BRDF_GGX"));
+    }
+    // Bake it.
+    let baked = dir.path().join("baked");
+    let run = ndfmap(&[
+        "bake",
+        map.to_str().unwrap(),
+        "--plan",
+        out.join("plan.json").to_str().unwrap(),
+        "-o",
+        baked.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(baked.join("manifest.json")).unwrap())
+            .unwrap();
+    assert_eq!(m["format"], "ndfmap-plan-bake");
+    assert_eq!(m["mixed"], true);
+    let mparts = m["parts"].as_array().unwrap();
+    assert_eq!(mparts.len(), parts.len());
+    let mut next = 1;
+    for p in mparts {
+        assert_eq!(p["first"], next);
+        next = p["last"].as_u64().unwrap() + 1;
+        for t in p["textures"].as_array().unwrap() {
+            for f in t["files"].as_array().unwrap() {
+                assert!(baked.join(f.as_str().unwrap()).is_file(), "{f}");
+            }
+        }
+    }
+    assert_eq!(next, 7);
+    // No level-0 file anywhere: the scene never samples it.
+    for e in std::fs::read_dir(&baked).unwrap() {
+        let n = e.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!n.contains("_L00."), "{n}");
+    }
+
+    // The plan given to another map of the same size: refused, nothing written.
+    let other = dir.path().join("other.png");
+    write_map(&other, 4);
+    let refused = dir.path().join("refused");
+    let run = ndfmap(&[
+        "bake",
+        other.to_str().unwrap(),
+        "--plan",
+        out.join("plan.json").to_str().unwrap(),
+        "-o",
+        refused.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&run, &["another map", "content hash"]);
+    assert!(!refused.exists());
+    // ... and to a map of another size.
+    let small = dir.path().join("small.png");
+    image::RgbImage::from_pixel(32, 32, image::Rgb([128, 128, 255]))
+        .save(&small)
+        .unwrap();
+    let run = ndfmap(&[
+        "bake",
+        small.to_str().unwrap(),
+        "--plan",
+        out.join("plan.json").to_str().unwrap(),
+        "-o",
+        refused.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&run, &["64x64", "32x32"]);
+    assert!(!refused.exists());
+    // A plan file that is not a plan.
+    let junk = dir.path().join("junk.json");
+    std::fs::write(&junk, "{\"format\": 3}").unwrap();
+    let run = ndfmap(&[
+        "bake",
+        map.to_str().unwrap(),
+        "--plan",
+        junk.to_str().unwrap(),
+        "-o",
+        refused.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&run, &["junk.json", "not an ndfmap plan"]);
+    assert!(!refused.exists());
+    // --plan with a method option.
+    let run = ndfmap(&[
+        "bake",
+        map.to_str().unwrap(),
+        "--plan",
+        out.join("plan.json").to_str().unwrap(),
+        "--lobes",
+        "3",
+        "-o",
+        refused.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&run, &["--plan decides"]);
+    assert!(!refused.exists());
+}
+
+#[test]
+fn bad_scenes_are_one_line_errors_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("map.png");
+    write_map(&map, 3);
+    let cases: Vec<(String, &str)> = vec![
+        (String::new(), "empty"),
+        ("\u{1}\u{2}garbage".into(), "not a valid TOML"),
+        (SCENE.replace("kd = 0.5", "kd = 0.5\ncolour = 1"), "colour"),
+        (SCENE.replace("kd = 0.5", "kd = \"half\""), "kd"),
+        (SCENE.replace("[16, 64]", "[16, nan]"), "material.exponent"),
+        (SCENE.replace("[16, 64]", "[-16, 64]"), "material.exponent"),
+        (SCENE.replace("[1, 6]", "[1, 9]"), "view.levels"),
+        (
+            SCENE.replace("lights = [\"point\", \"environment\"]", "lights = []"),
+            "lights",
+        ),
+        (
+            "{\"lights\": [\"point\"], \"material\": {\"model\": \"lambert\"}}".into(),
+            "view",
+        ),
+    ];
+    for (i, (text, needle)) in cases.iter().enumerate() {
+        let scene = dir.path().join(format!("scene{i}.toml"));
+        std::fs::write(&scene, text).unwrap();
+        let out = dir.path().join(format!("out{i}"));
+        let run = ndfmap(&[
+            "plan",
+            scene.to_str().unwrap(),
+            map.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert_one_line_error(&run, &[needle]);
+        assert!(!out.exists(), "{text:?}: nothing written");
+    }
+}
