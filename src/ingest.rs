@@ -897,7 +897,7 @@ pub(crate) fn open_regular_file(path: &Path) -> Result<(std::fs::File, std::fs::
 
 /// Reads a whole input file, bounded: only a regular file ([`open_regular_file`]), and at most
 /// the memory budget's bytes.
-fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
+pub(crate) fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
     use std::io::Read;
     let read_error = |source: std::io::Error| Error::Read {
         path: path.to_path_buf(),
@@ -1003,17 +1003,23 @@ fn container(path: &Path, bytes: &[u8]) -> Result<Container> {
 ///
 /// As [`NormalMap::load`], for what its header shows.
 pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
-    use image::ImageDecoder;
     let bytes = read_file(path, opts.memory_limit)?;
+    probe_size_bytes(path, &bytes)
+}
+
+/// [`probe_size`] of a file already read into `bytes` (`path` names it in errors and gives
+/// the extension when the content does not say the format).
+pub(crate) fn probe_size_bytes(path: &Path, bytes: &[u8]) -> Result<(u32, u32)> {
+    use image::ImageDecoder;
     if bytes.is_empty() {
         return Err(decode_error(path, "the file is empty"));
     }
-    let format = container(path, &bytes)?;
+    let format = container(path, bytes)?;
     let size = std::panic::catch_unwind(|| -> Result<(u32, u32)> {
         match format {
             Container::Exr => {
                 let meta =
-                    exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+                    exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
                         .map_err(|e| decode_error(path, &e.to_string()))?;
                 let size = meta
                     .headers
@@ -1023,18 +1029,17 @@ pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
                 Ok((size.width() as u32, size.height() as u32))
             }
             Container::Jpeg => {
-                let mut d =
-                    zune_jpeg::JpegDecoder::new(zune_core::bytestream::ZCursor::new(&bytes));
+                let mut d = zune_jpeg::JpegDecoder::new(zune_core::bytestream::ZCursor::new(bytes));
                 d.decode_headers()
                     .map_err(|e| decode_error(path, &e.to_string()))?;
                 let (w, h) = d
                     .dimensions()
                     .ok_or_else(|| decode_error(path, "no frame header"))?;
-                check_jpeg_structure(path, &bytes, w as u32, h as u32)?;
+                check_jpeg_structure(path, bytes, w as u32, h as u32)?;
                 Ok((w as u32, h as u32))
             }
             Container::Image(f) => {
-                let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes));
+                let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes));
                 reader.set_format(f);
                 let decoder = reader
                     .into_decoder()

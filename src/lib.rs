@@ -18,6 +18,7 @@
 
 pub mod bake;
 pub mod baseline;
+pub mod batch;
 pub mod brdf;
 pub mod budget;
 pub mod compress;

@@ -288,15 +288,33 @@ pub fn write_bake(
     container: Container,
     codec: Option<Codec>,
 ) -> Result<PathBuf> {
+    write_bake_hashed(bake, input, dir, container, codec, None)
+}
+
+/// [`write_bake`] with `content_hash` recorded in the manifest ([`Manifest::content_hash`],
+/// module `batch`). The manifest is the last file written into the staging folder, and the
+/// folder replaces `dir` only once complete, so a manifest with a hash always describes
+/// complete files.
+pub fn write_bake_hashed(
+    bake: &Bake,
+    input: InputInfo,
+    dir: &Path,
+    container: Container,
+    codec: Option<Codec>,
+    content_hash: Option<String>,
+) -> Result<PathBuf> {
     if container == Container::Exr {
         if let Some(c) = codec {
             return Err(Error::InvalidOption(format!(
                 "the exr container cannot hold {c} blocks; use ktx2 or dds"
             )));
         }
-        return crate::output::write_bake(bake, input, dir);
+        let mut manifest = Manifest::new(bake, input);
+        manifest.content_hash = content_hash;
+        return crate::output::write_bake_with(bake, manifest, dir);
     }
-    let manifest = manifest(bake, input, container, codec);
+    let mut manifest = manifest(bake, input, container, codec);
+    manifest.content_hash = content_hash;
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Write {
         path: dir.to_path_buf(),
         message: e.to_string(),
