@@ -556,7 +556,7 @@ impl Outcome {
 }
 
 /// Options of [`run`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RunOptions {
     /// Memory budget of the whole batch in bytes (`None`: the machine's default,
     /// [`crate::budget::default_memory_limit`]).
@@ -565,16 +565,6 @@ pub struct RunOptions {
     pub workers: usize,
     /// Bake even inputs whose output is up to date.
     pub force: bool,
-}
-
-impl Default for RunOptions {
-    fn default() -> Self {
-        RunOptions {
-            memory: None,
-            workers: 0,
-            force: false,
-        }
-    }
 }
 
 /// The memory still free in the budget, shared by the workers.
@@ -647,7 +637,7 @@ pub fn run(
         .map(|r| {
             r.into_inner()
                 .unwrap_or_else(|e| e.into_inner())
-                .unwrap_or_else(|| Outcome::Failed(Error::Cancelled))
+                .unwrap_or(Outcome::Failed(Error::Cancelled))
         })
         .collect()
 }

@@ -90,7 +90,7 @@ pub struct Manifest {
     /// The content hash of a batch bake (module `batch`): SHA-256 of the ndfmap version, the
     /// bake's settings and the input's (and feature image's) bytes, `sha256:<hex>`. A build
     /// system or `ndfmap bake` itself skips an input whose folder's manifest has the hash it
-    /// would write ([`crate::batch::is_up_to_date`]). Absent for bakes written without one.
+    /// would write (`is_up_to_date` of module `batch`). Absent for bakes written without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub content_hash: Option<String>,
 }
