@@ -143,6 +143,24 @@ fn globbed_inputs_bake_once_then_are_up_to_date() {
     // --force bakes everything.
     let forced = run(&["--format", "f16", "--force"]);
     assert!(stdout(&forced).contains("3 baked"), "{}", stdout(&forced));
+    // --check bakes nothing: one line per input with its hash; the status counts the stale.
+    write_normal_png(&dir.path().join("a.png"), 16, 9);
+    let check = run(&["--format", "f16", "--check"]);
+    assert_eq!(check.status.code(), Some(1), "{}", stderr(&check));
+    let lines: Vec<String> = stdout(&check).lines().map(str::to_string).collect();
+    assert_eq!(lines.len(), 3, "{lines:?}");
+    assert!(
+        lines[0].contains(" stale ") && lines[0].contains("a.png"),
+        "{lines:?}"
+    );
+    assert!(lines[1].contains(" current ") && lines[2].contains(" current "));
+    assert!(lines[1].starts_with(manifest(&out.join("b"))["content_hash"].as_str().unwrap()));
+    assert!(
+        !manifest(&out.join("a"))["content_hash"]
+            .as_str()
+            .is_some_and(|h| lines[0].starts_with(h)),
+        "a.png changed: its folder is stale and was not rebaked"
+    );
 }
 
 /// A batch file with per-input methods and options; one unreadable and one corrupt input fail
