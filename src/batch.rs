@@ -281,22 +281,27 @@ impl Settings {
             .as_deref()
             .ok_or_else(|| Error::InvalidOption("batch entry without 'path'".into()))?;
         let input = base_dir.join(path);
-        let output =
-            match (&self.output, out_root) {
-                (Some(o), _) => base_dir.join(o),
-                (None, Some(root)) => root.join(input.file_stem().ok_or_else(|| {
+        let output = match (&self.output, out_root) {
+            (Some(o), _) => base_dir.join(o),
+            (None, Some(root)) => {
+                root.join(input.file_stem().ok_or_else(|| {
                     Error::InvalidOption(format!("input '{path}' has no file name"))
-                })?),
-                (None, None) => {
-                    return Err(Error::InvalidOption(format!(
-                        "input '{path}': no 'output' and no output folder (-o) to put it in"
-                    )));
-                }
-            };
+                })?)
+            }
+            (None, None) => {
+                return Err(Error::InvalidOption(format!(
+                    "input '{path}': no output folder (give -o DIR, or 'output' in a batch file)"
+                )));
+            }
+        };
         let method: Method = self
             .method
             .as_deref()
-            .ok_or_else(|| Error::InvalidOption(format!("input '{path}': no 'method'")))?
+            .ok_or_else(|| {
+                Error::InvalidOption(format!(
+                    "input '{path}': no method (give --method, or 'method' in a batch file)"
+                ))
+            })?
             .parse()
             .map_err(|e| bad("method", e))?;
         fn enum_of<T: serde::de::DeserializeOwned>(
