@@ -698,6 +698,9 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
     let (input, feature) = job.read_inputs()?;
     let hash = content_hash(&job.settings_text(), &input, feature.as_deref());
     if !force && is_up_to_date(&job.output, &hash) {
+        // Nothing to write, but what killed writers left beside the folder goes, as a
+        // write would remove it.
+        crate::output::tidy(&job.output)?;
         return Ok(None);
     }
     let (w, h) = crate::ingest::probe_size_bytes(&job.input, &input)?;

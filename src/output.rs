@@ -358,6 +358,30 @@ pub fn write_folder(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Resul
     result
 }
 
+/// Removes what dead writers of folder `dir` left beside it (staging folders, a folder set
+/// aside), under the writers' lock, as [`write_folder`] does before it writes: for callers
+/// that find `dir` current and write nothing (module `batch`).
+pub(crate) fn tidy(dir: &Path) -> Result<()> {
+    let Some(name) = dir.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Ok(());
+    };
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let lock_path = parent.join(format!(".{name}{LOCK}"));
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_path)
+        .map_err(|e| write_err(&lock_path, e))?;
+    lock.lock().map_err(|e| write_err(&lock_path, e))?;
+    let result = clean_up(&parent, &name, dir);
+    drop(lock);
+    result
+}
+
 /// Replaces `dir` by `staging`, setting an existing `dir` aside as `old` first.
 fn swap_in(staging: &Path, dir: &Path, old: &Path) -> Result<()> {
     let existed = dir.exists();
