@@ -618,6 +618,35 @@ fn convert_normals(
     source_bits: u32,
     opts: &IngestOptions,
 ) -> Result<NormalMap> {
+    let (layout, unorm, stats) =
+        source_layout(what, width, height, channels, samples, source_bits, opts)?;
+    let vectors = match samples {
+        Samples::U8(data) => layout.gather(data, if unorm { unorm8 } else { snorm8 }),
+        Samples::U16(data) => layout.gather(data, if unorm { unorm16 } else { snorm16 }),
+        Samples::F32(data) => layout.gather(data, if unorm { unorm_f32 } else { snorm_f32 }),
+    };
+    finish(
+        what,
+        width,
+        height,
+        vectors,
+        opts.addressing,
+        opts.bad_normals,
+        stats,
+    )
+}
+
+/// How `samples` (`channels` per texel) are read as vectors under `opts`: the layout, whether
+/// the encoding is unorm, and the statistics so far — or the layout error.
+fn source_layout(
+    what: &str,
+    width: u32,
+    height: u32,
+    channels: u32,
+    samples: Samples<'_>,
+    source_bits: u32,
+    opts: &IngestOptions,
+) -> Result<(Layout, bool, IngestStats)> {
     let texels = check_buffer(what, width, height, channels, samples)?;
     let layout_error = |layout: String| Error::UnsupportedLayout {
         what: what.to_string(),
@@ -656,11 +685,6 @@ fn convert_normals(
             GreenChannel::DirectX => -1.0,
         },
     };
-    let vectors = match samples {
-        Samples::U8(data) => layout.gather(data, if unorm { unorm8 } else { snorm8 }),
-        Samples::U16(data) => layout.gather(data, if unorm { unorm16 } else { snorm16 }),
-        Samples::F32(data) => layout.gather(data, if unorm { unorm_f32 } else { snorm_f32 }),
-    };
     let stats = IngestStats {
         width,
         height,
@@ -670,18 +694,11 @@ fn convert_normals(
         reconstructed_z: reconstruct,
         ..IngestStats::default()
     };
-    finish(
-        what,
-        width,
-        height,
-        vectors,
-        opts.addressing,
-        opts.bad_normals,
-        stats,
-    )
+    Ok((layout, unorm, stats))
 }
 
 /// How interleaved samples become vectors.
+#[derive(Debug, Clone)]
 struct Layout {
     channels: usize,
     texels: usize,
@@ -695,16 +712,19 @@ impl Layout {
     fn gather<T: Copy>(&self, data: &[T], component: fn(T) -> f32) -> Vec<Vec3> {
         data.chunks_exact(self.channels)
             .take(self.texels)
-            .map(|px| {
-                let x = component(px[0]);
-                let y = self.y_sign * component(px[1]);
-                if self.reconstruct {
-                    reconstruct_z(x, y)
-                } else {
-                    Vec3::new(x, y, component(px[2]))
-                }
-            })
+            .map(|px| self.vector(px, component))
             .collect()
+    }
+
+    /// One texel's raw vector from its samples `px`.
+    fn vector<T: Copy>(&self, px: &[T], component: fn(T) -> f32) -> Vec3 {
+        let x = component(px[0]);
+        let y = self.y_sign * component(px[1]);
+        if self.reconstruct {
+            reconstruct_z(x, y)
+        } else {
+            Vec3::new(x, y, component(px[2]))
+        }
     }
 }
 
@@ -838,6 +858,7 @@ impl Purpose {
 }
 
 /// Decoded samples owned by ingest.
+#[derive(Debug, Clone)]
 enum SampleBuf {
     U8(Vec<u8>),
     U16(Vec<u16>),
@@ -897,7 +918,7 @@ pub(crate) fn open_regular_file(path: &Path) -> Result<(std::fs::File, std::fs::
 
 /// Reads a whole input file, bounded: only a regular file ([`open_regular_file`]), and at most
 /// the memory budget's bytes.
-fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
+pub(crate) fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
     use std::io::Read;
     let read_error = |source: std::io::Error| Error::Read {
         path: path.to_path_buf(),
@@ -1003,17 +1024,23 @@ fn container(path: &Path, bytes: &[u8]) -> Result<Container> {
 ///
 /// As [`NormalMap::load`], for what its header shows.
 pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
-    use image::ImageDecoder;
     let bytes = read_file(path, opts.memory_limit)?;
+    probe_size_bytes(path, &bytes)
+}
+
+/// [`probe_size`] of a file already read into `bytes` (`path` names it in errors and gives
+/// the extension when the content does not say the format).
+pub(crate) fn probe_size_bytes(path: &Path, bytes: &[u8]) -> Result<(u32, u32)> {
+    use image::ImageDecoder;
     if bytes.is_empty() {
         return Err(decode_error(path, "the file is empty"));
     }
-    let format = container(path, &bytes)?;
+    let format = container(path, bytes)?;
     let size = std::panic::catch_unwind(|| -> Result<(u32, u32)> {
         match format {
             Container::Exr => {
                 let meta =
-                    exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+                    exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
                         .map_err(|e| decode_error(path, &e.to_string()))?;
                 let size = meta
                     .headers
@@ -1023,18 +1050,17 @@ pub fn probe_size(path: &Path, opts: &IngestOptions) -> Result<(u32, u32)> {
                 Ok((size.width() as u32, size.height() as u32))
             }
             Container::Jpeg => {
-                let mut d =
-                    zune_jpeg::JpegDecoder::new(zune_core::bytestream::ZCursor::new(&bytes));
+                let mut d = zune_jpeg::JpegDecoder::new(zune_core::bytestream::ZCursor::new(bytes));
                 d.decode_headers()
                     .map_err(|e| decode_error(path, &e.to_string()))?;
                 let (w, h) = d
                     .dimensions()
                     .ok_or_else(|| decode_error(path, "no frame header"))?;
-                check_jpeg_structure(path, &bytes, w as u32, h as u32)?;
+                check_jpeg_structure(path, bytes, w as u32, h as u32)?;
                 Ok((w as u32, h as u32))
             }
             Container::Image(f) => {
-                let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes));
+                let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes));
                 reader.set_format(f);
                 let decoder = reader
                     .into_decoder()
@@ -1563,42 +1589,86 @@ fn finish(
     mut vectors: Vec<Vec3>,
     addressing: Addressing,
     policy: BadNormals,
-    mut stats: IngestStats,
+    stats: IngestStats,
 ) -> Result<NormalMap> {
+    let count = vectors.len();
+    let stats = clean_normals(what, width, count, policy, stats, |i| {
+        let n = clean_normal(vectors[i]);
+        vectors[i] = n.0;
+        n
+    })?;
+    Ok(NormalMap {
+        width,
+        height,
+        normals: vectors,
+        feature: None,
+        addressing,
+        stats,
+    })
+}
+
+/// What [`clean_normal`] found wrong with a raw vector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Flaw {
+    Nan,
+    ZeroLength,
+    BelowHorizon,
+}
+
+/// One raw vector made a unit tangent-space normal (the one rule every map follows):
+/// non-finite → +Z, zero length → +Z, else normalized in f64 (a float map's tiny vectors keep
+/// their direction); one below the horizon keeps its azimuth at z = 0 (+Z if it points
+/// straight down). Returns the normal, its flaw, and the raw length when it had one.
+fn clean_normal(v: Vec3) -> (Vec3, Option<Flaw>, Option<f64>) {
+    if !v.is_finite() {
+        return (Vec3::Z, Some(Flaw::Nan), None);
+    }
+    let len = v.as_dvec3().length();
+    if len == 0.0 {
+        return (Vec3::Z, Some(Flaw::ZeroLength), None);
+    }
+    let n = (v.as_dvec3() / len).as_vec3();
+    if n.z < 0.0 {
+        let xy = glam::DVec2::new(n.x as f64, n.y as f64);
+        let l = xy.length();
+        // A normal pointing (almost) straight down has no azimuth to keep: +Z.
+        let n = if l > 1e-6 {
+            Vec3::new((xy.x / l) as f32, (xy.y / l) as f32, 0.0)
+        } else {
+            Vec3::Z
+        };
+        return (n, Some(Flaw::BelowHorizon), Some(len));
+    }
+    (n, None, Some(len))
+}
+
+/// Cleans `count` vectors in scan-line order (`clean(i)`: texel i's [`clean_normal`]),
+/// counting the flaws and the mean z and length into `stats`, and refuses a map with a flaw
+/// under [`BadNormals::Reject`] ([`Error::BadNormals`], the first flaw's kind and position).
+fn clean_normals(
+    what: &str,
+    width: u32,
+    count: usize,
+    policy: BadNormals,
+    mut stats: IngestStats,
+    mut clean: impl FnMut(usize) -> (Vec3, Option<Flaw>, Option<f64>),
+) -> Result<IngestStats> {
     let mut sum_len = 0.0f64;
     let mut n_len = 0u64;
     let mut sum_z = 0.0f64;
-    for (i, v) in vectors.iter_mut().enumerate() {
-        let mut n = *v;
-        if !n.is_finite() {
-            stats.nan.note(i, width);
-            n = Vec3::Z;
-        } else {
-            // In f64, a float map's tiny vectors (1e-30) keep their direction: only exact zeros
-            // have none.
-            let len = (n.as_dvec3()).length();
-            if len == 0.0 {
-                stats.zero_length.note(i, width);
-                n = Vec3::Z;
-            } else {
-                sum_len += len;
-                n_len += 1;
-                n = (n.as_dvec3() / len).as_vec3();
-                if n.z < 0.0 {
-                    stats.below_horizon.note(i, width);
-                    let xy = glam::DVec2::new(n.x as f64, n.y as f64);
-                    let l = xy.length();
-                    // A normal pointing (almost) straight down has no azimuth to keep: +Z.
-                    n = if l > 1e-6 {
-                        Vec3::new((xy.x / l) as f32, (xy.y / l) as f32, 0.0)
-                    } else {
-                        Vec3::Z
-                    };
-                }
-            }
+    for i in 0..count {
+        let (n, flaw, len) = clean(i);
+        match flaw {
+            Some(Flaw::Nan) => stats.nan.note(i, width),
+            Some(Flaw::ZeroLength) => stats.zero_length.note(i, width),
+            Some(Flaw::BelowHorizon) => stats.below_horizon.note(i, width),
+            None => {}
+        }
+        if let Some(len) = len {
+            sum_len += len;
+            n_len += 1;
         }
         sum_z += n.z as f64;
-        *v = n;
     }
     if policy == BadNormals::Reject
         && let Some((kind, first)) = first_bad(&[
@@ -1615,19 +1685,119 @@ fn finish(
             y: first.1,
         });
     }
-    let n = vectors.len().max(1) as f64;
+    let n = count.max(1) as f64;
     stats.mean_z = sum_z / n;
     stats.mean_length = if n_len > 0 {
         sum_len / n_len as f64
     } else {
         0.0
     };
-    Ok(NormalMap {
-        width,
-        height,
-        normals: vectors,
-        feature: None,
-        addressing,
-        stats,
-    })
+    Ok(stats)
+}
+
+/// A normal map kept as its source samples (8 or 16 bits per channel), each texel's normal
+/// decoded when asked for: 3 bytes per texel for an 8-bit RGB map instead of `NormalMap`'s 12,
+/// for maps too large to hold as vectors (a 16384² map: 768 MiB instead of 3 GiB; issue 19's
+/// tiled bakes, docs/scale.md). [`CompactNormals::normal`] is bit for bit the normal
+/// [`NormalMap::from_samples`] stores for the same samples and options, and
+/// [`CompactNormals::stats`] the same statistics (one conversion, shared; tested).
+#[derive(Debug, Clone)]
+pub struct CompactNormals {
+    width: u32,
+    height: u32,
+    samples: SampleBuf,
+    layout: Layout,
+    unorm: bool,
+    addressing: Addressing,
+    stats: IngestStats,
+}
+
+impl CompactNormals {
+    /// Keeps `samples` (8 or 16 bits, `channels` per texel, rows top first) as a normal map
+    /// read under `opts`, checking every texel as [`NormalMap::from_samples`] does.
+    ///
+    /// # Errors
+    ///
+    /// Those of [`NormalMap::from_samples`], and [`Error::UnsupportedLayout`] for float
+    /// samples (keep those as a [`NormalMap`]).
+    pub fn from_samples(
+        what: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        samples: Samples<'_>,
+        opts: &IngestOptions,
+    ) -> Result<CompactNormals> {
+        let owned = match samples {
+            Samples::U8(d) => SampleBuf::U8(d.to_vec()),
+            Samples::U16(d) => SampleBuf::U16(d.to_vec()),
+            Samples::F32(_) => {
+                return Err(Error::UnsupportedLayout {
+                    what: what.to_string(),
+                    layout: "float samples: compact maps hold 8- or 16-bit samples".into(),
+                });
+            }
+        };
+        let bits = samples_bits(samples);
+        let (layout, unorm, stats) =
+            source_layout(what, width, height, channels, samples, bits, opts)?;
+        let mut map = CompactNormals {
+            width,
+            height,
+            samples: owned,
+            layout,
+            unorm,
+            addressing: opts.addressing,
+            stats: IngestStats::default(),
+        };
+        let count = width as usize * height as usize;
+        map.stats = clean_normals(what, width, count, opts.bad_normals, stats, |i| {
+            clean_normal(map.raw(i))
+        })?;
+        Ok(map)
+    }
+
+    /// Texel `i`'s raw vector.
+    fn raw(&self, i: usize) -> Vec3 {
+        let c = self.layout.channels;
+        match &self.samples {
+            SampleBuf::U8(d) => self.layout.vector(
+                &d[i * c..(i + 1) * c],
+                if self.unorm { unorm8 } else { snorm8 },
+            ),
+            SampleBuf::U16(d) => self.layout.vector(
+                &d[i * c..(i + 1) * c],
+                if self.unorm { unorm16 } else { snorm16 },
+            ),
+            SampleBuf::F32(d) => self.layout.vector(
+                &d[i * c..(i + 1) * c],
+                if self.unorm { unorm_f32 } else { snorm_f32 },
+            ),
+        }
+    }
+
+    /// The unit normal of row-major texel `i` (as [`NormalMap::normals`]`()[i]`).
+    pub fn normal(&self, i: usize) -> Vec3 {
+        clean_normal(self.raw(i)).0
+    }
+
+    /// Width in texels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in texels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Edge addressing.
+    pub fn addressing(&self) -> Addressing {
+        self.addressing
+    }
+
+    /// What ingest found in the samples (as [`NormalMap::stats`]).
+    pub fn stats(&self) -> &IngestStats {
+        &self.stats
+    }
 }

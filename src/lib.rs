@@ -19,6 +19,7 @@
 
 pub mod bake;
 pub mod baseline;
+pub mod batch;
 pub mod brdf;
 pub mod budget;
 pub mod compress;

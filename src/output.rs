@@ -87,6 +87,12 @@ pub struct Manifest {
     pub textures: Vec<TextureInfo>,
     /// The input and its convention.
     pub input: InputInfo,
+    /// The content hash of a batch bake (module `batch`): SHA-256 of the ndfmap version, the
+    /// bake's settings and the input's (and feature image's) bytes, `sha256:<hex>`. A build
+    /// system or `ndfmap bake` itself skips an input whose folder's manifest has the hash it
+    /// would write (`is_up_to_date` of module `batch`). Absent for bakes written without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub content_hash: Option<String>,
 }
 
 impl Manifest {
@@ -140,6 +146,7 @@ impl Manifest {
                 })
                 .collect(),
             input,
+            content_hash: None,
         }
     }
 }
@@ -242,7 +249,12 @@ fn write_err(path: &Path, e: impl std::fmt::Display) -> Error {
 /// [`Error::Write`] when `dir` holds files that no ndfmap bake wrote (it is not replaced), or
 /// when a file or folder cannot be written.
 pub fn write_bake(bake: &Bake, input: InputInfo, dir: &Path) -> Result<PathBuf> {
-    let manifest = Manifest::new(bake, input);
+    write_bake_with(bake, Manifest::new(bake, input), dir)
+}
+
+/// [`write_bake`] with the manifest given (made by [`Manifest::new`] for `bake`, with fields
+/// such as [`Manifest::content_hash`] set by the caller).
+pub(crate) fn write_bake_with(bake: &Bake, manifest: Manifest, dir: &Path) -> Result<PathBuf> {
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| write_err(dir, e))?;
     write_folder(dir, |staging| {
         use rayon::prelude::*;
@@ -342,6 +354,30 @@ pub fn write_folder(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Resul
     if result.is_err() {
         let _ = std::fs::remove_dir_all(&staging);
     }
+    drop(lock);
+    result
+}
+
+/// Removes what dead writers of folder `dir` left beside it (staging folders, a folder set
+/// aside), under the writers' lock, as [`write_folder`] does before it writes: for callers
+/// that find `dir` current and write nothing (module `batch`).
+pub(crate) fn tidy(dir: &Path) -> Result<()> {
+    let Some(name) = dir.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Ok(());
+    };
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let lock_path = parent.join(format!(".{name}{LOCK}"));
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_path)
+        .map_err(|e| write_err(&lock_path, e))?;
+    lock.lock().map_err(|e| write_err(&lock_path, e))?;
+    let result = clean_up(&parent, &name, dir);
     drop(lock);
     result
 }

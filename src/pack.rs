@@ -13,8 +13,8 @@ use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use half::f16;
 
-/// Largest finite f16.
-const F16_MAX: f32 = 65504.0;
+/// The largest finite half float: f16 storage refuses values beyond it.
+pub const F16_MAX: f32 = 65504.0;
 
 /// Bytes one level of one texture takes in `format` (4 channels per texel).
 pub fn packed_len(bake: &Bake, level: usize, format: Format) -> usize {

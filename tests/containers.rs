@@ -367,3 +367,56 @@ fn impossible_combinations_are_refused_before_any_work_naming_texture_and_format
     common::assert_one_line_error(&run, &["bc6h", "'lobe0'"]);
     assert!(!out.exists());
 }
+
+/// A KTX2 or DDS file streamed a band of rows at a time, bands in reverse order and levels
+/// coarsest first (as a tiled bake finishes them), from a description of the bake without its
+/// levels, is byte-identical to the in-memory `texture_file` of the whole bake, in every
+/// uncompressed format; rows outside a level and partial rows are refused.
+#[test]
+fn streamed_files_equal_in_memory_files() {
+    use ndfmap::container::StreamedFile;
+    let dir = tempfile::tempdir().unwrap();
+    for bake in bakes() {
+        for format in [Format::F32, Format::F16, Format::Unorm16, Format::Unorm8] {
+            let Ok(b) = ndfmap::pack::quantize(&bake, format) else {
+                continue; // unbounded textures in unorm formats
+            };
+            let mut described = b.clone();
+            for t in &mut described.textures {
+                t.levels.clear();
+            }
+            for container in [Container::Ktx2, Container::Dds] {
+                for t in 0..b.textures.len() {
+                    let path = dir.path().join(format!("t{t}.{container}"));
+                    let f = StreamedFile::create(&path, &described, t, container).unwrap();
+                    for k in (0..b.sizes.len()).rev() {
+                        let (w, h) = b.sizes[k];
+                        let rows: Vec<u32> = (0..h).step_by(2).collect();
+                        for &r in rows.iter().rev() {
+                            let end = (r + 2).min(h);
+                            let band =
+                                &b.textures[t].levels[k][(r * w) as usize..(end * w) as usize];
+                            f.write_rows(k, r, band).unwrap();
+                        }
+                    }
+                    drop(f);
+                    let streamed = std::fs::read(&path).unwrap();
+                    let whole = texture_file(&b, t, container, None).unwrap();
+                    assert!(
+                        streamed == whole,
+                        "{} {format} {container} texture {t}",
+                        b.method
+                    );
+                }
+            }
+        }
+    }
+    let b = &bakes()[1];
+    let path = dir.path().join("bad.ktx2");
+    let f = StreamedFile::create(&path, b, 0, Container::Ktx2).unwrap();
+    let (w, h) = b.sizes[0];
+    assert!(f.write_rows(0, h, &vec![[0.0; 4]; w as usize]).is_err());
+    assert!(f.write_rows(0, 0, &vec![[0.0; 4]; w as usize - 1]).is_err());
+    assert!(f.write_rows(b.sizes.len(), 0, &[]).is_err());
+    assert!(StreamedFile::create(&path, b, 0, Container::Exr).is_err());
+}

@@ -1166,3 +1166,64 @@ fn fuzz_finding_exr_line_outside_its_level_is_a_decode_error() {
         }
     }
 }
+
+/// `CompactNormals` (issue 19's tiled bakes) decodes each texel to exactly the bits
+/// `NormalMap::from_samples` stores, with the same statistics, for 8- and 16-bit samples,
+/// unorm and snorm, RGB, RGBA and two-channel maps, either green convention, including zero,
+/// below-horizon and reconstructed-z texels; the reject policy refuses the same maps.
+#[test]
+fn compact_normals_decode_the_same_bits_as_normal_maps() {
+    use ndfmap::ingest::{BadNormals, Channels, CompactNormals, Encoding, GreenChannel, Samples};
+    let (w, h) = (37u32, 23u32);
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for channels in [2u32, 3, 4] {
+        let n = (w * h * channels) as usize;
+        let mut u8s: Vec<u8> = (0..n).map(|_| next() as u8).collect();
+        // A zero texel under snorm, one pointing down under unorm.
+        u8s[..channels as usize].fill(0);
+        let u16s: Vec<u16> = (0..n).map(|_| next() as u16).collect();
+        for encoding in [Encoding::Unorm, Encoding::Snorm] {
+            for green in [GreenChannel::OpenGl, GreenChannel::DirectX] {
+                for chan in [Channels::Auto, Channels::Xy] {
+                    for bad in [BadNormals::Repair, BadNormals::Reject] {
+                        let opts = ndfmap::IngestOptions {
+                            encoding,
+                            green,
+                            channels: chan,
+                            bad_normals: bad,
+                            ..Default::default()
+                        };
+                        for samples in [Samples::U8(&u8s), Samples::U16(&u16s)] {
+                            let full = ndfmap::NormalMap::from_samples(
+                                "m", w, h, channels, samples, &opts,
+                            );
+                            let compact =
+                                CompactNormals::from_samples("m", w, h, channels, samples, &opts);
+                            match (full, compact) {
+                                (Ok(f), Ok(c)) => {
+                                    assert_eq!(f.stats(), c.stats());
+                                    for (i, n) in f.normals().iter().enumerate() {
+                                        let m = c.normal(i);
+                                        assert_eq!(
+                                            n.to_array().map(f32::to_bits),
+                                            m.to_array().map(f32::to_bits),
+                                            "texel {i}"
+                                        );
+                                    }
+                                }
+                                (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                                (a, b) => panic!("{:?} vs {:?}", a.err(), b.err()),
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

@@ -88,20 +88,44 @@ enum Command {
         ingest: IngestArgs,
     },
     /// Bake one method's MIP chain to a folder: manifest.json plus OpenEXR (or PNG) files, or
-    /// one KTX2 or DDS file per texture (`--container`).
+    /// one KTX2 or DDS file per texture (`--container`). Several inputs (files or quoted globs)
+    /// or a batch file (`--batch`) are baked in parallel within the memory budget, each into
+    /// its own folder; the manifest records a content hash of the input, the options and the
+    /// ndfmap version, and an input whose folder is complete and current is skipped. With
+    /// several inputs the exit status is the number that failed (at most 125).
     Bake {
-        /// The normal map (PNG, JPEG, TGA, TIFF, OpenEXR).
-        input: PathBuf,
-        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh, pbr.
-        #[arg(short, long, required_unless_present = "plan")]
-        method: Option<String>,
-        /// A plan file from `ndfmap plan` (docs/planner.md): bake what it says, mixing methods
-        /// across level ranges, instead of one --method (the method options are then refused).
-        #[arg(long, conflicts_with = "method")]
-        plan: Option<PathBuf>,
-        /// Output folder (created if missing; written all-or-nothing).
+        /// The normal maps (PNG, JPEG, TGA, TIFF, OpenEXR), or glob patterns (quoted).
+        inputs: Vec<PathBuf>,
+        /// A batch file (TOML, or JSON when it ends in .json): `[defaults]` and `[[input]]`
+        /// tables with `path`, `output`, `method`, `feature` and any option's name (see
+        /// docs/batch.md); unknown keys are refused.
+        #[arg(long)]
+        batch: Option<PathBuf>,
+        /// Bake even inputs whose output is complete and current.
+        #[arg(long)]
+        force: bool,
+        /// Bake nothing: print each input's content hash, `current` or `stale`, and its
+        /// output folder (one line each); the exit status is the number of stale or
+        /// unreadable inputs (at most 125). For build systems that key on the hash.
+        #[arg(long)]
+        check: bool,
+        /// Most bakes running at once (default: the number of cores; each bake also uses
+        /// every core).
+        #[arg(long, default_value_t = 0)]
+        jobs: usize,
+        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh, pbr (a batch file
+        /// may set it per input).
         #[arg(short, long)]
-        output: PathBuf,
+        method: Option<String>,
+        /// A plan file from `ndfmap plan` (docs/planner.md): bake what it says for the one
+        /// input, mixing methods across level ranges, instead of one --method (the method
+        /// options are then refused).
+        #[arg(long, conflicts_with_all = ["method", "batch"])]
+        plan: Option<PathBuf>,
+        /// Output folder (created if missing; written all-or-nothing). With several inputs,
+        /// the folder that holds one folder per input, named after the input's file stem.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
         /// vmf, tan2005: lobes (mixture components) per texel, 1 to 8.
         #[arg(long, default_value_t = 6)]
         lobes: usize,
@@ -1024,14 +1048,322 @@ fn bake_all(
         .collect()
 }
 
-fn run(cli: Cli) -> Result<()> {
+/// `ndfmap bake`'s arguments.
+struct BakeCommand {
+    inputs: Vec<PathBuf>,
+    batch: Option<PathBuf>,
+    force: bool,
+    check: bool,
+    jobs: usize,
+    method: Option<String>,
+    output: Option<PathBuf>,
+    lobes: usize,
+    align: Option<f64>,
+    align_form: String,
+    mode: String,
+    lmax: Option<usize>,
+    brdf: BrdfArgs,
+    format: String,
+    pbr: PbrArgs,
+    container: String,
+    compress: Option<String>,
+    ingest: IngestArgs,
+}
+
+/// `ndfmap bake`: one input into `-o`, or many (files, globs, a batch file) each into its own
+/// folder, through `ndfmap::batch`. Returns the number of failed inputs (0 for one input:
+/// its failure is the command's error).
+fn bake_command(a: BakeCommand) -> Result<u8> {
+    use ndfmap::batch::{Outcome, RunOptions, Settings};
+    let pbr_maps = a.pbr.roughness_map.is_some()
+        || a.pbr.metallic_map.is_some()
+        || a.pbr.occlusion_map.is_some();
+    let pbr_flags = a.pbr.roughness.is_some() || pbr_maps || a.pbr.anisotropic;
+    let method: Option<Method> = a.method.as_deref().map(str::parse).transpose()?;
+    if pbr_flags && method.is_some_and(|m| m != Method::Pbr) {
+        return Err(Error::InvalidOption(
+            "--roughness, --roughness-map, --metallic-map, --occlusion-map and \
+             --anisotropic are for --method pbr"
+                .into(),
+        ));
+    }
+    if a.pbr.metallic_map.is_some() && a.pbr.roughness_map.is_none() && a.pbr.roughness.is_none() {
+        return Err(Error::InvalidOption(
+            "--metallic-map without a roughness: the packed texture's G channel is the \
+             roughness; give --roughness R or --roughness-map IMG"
+                .into(),
+        ));
+    }
+    // SH without --lmax: the band limit the BRDF suggests (Sec 5.1).
+    let lmax = match (method, a.lmax) {
+        (_, Some(l)) => Some(l),
+        (Some(Method::Sh), None) => {
+            let b = parse_brdf(&a.brdf.brdf, a.brdf.s, a.brdf.sigma, a.brdf.alpha)?;
+            let l = b.suggested_lmax();
+            eprintln!(
+                "no --lmax: l* = {l} chosen for {b} ({})",
+                if b.has_specular() {
+                    "about √(4s) of the equivalent Blinn-Phong exponent, Sec 5.1"
+                } else {
+                    "Lambert: nine coefficients, Ramamoorthi & Hanrahan"
+                }
+            );
+            Some(l)
+        }
+        (_, None) => None,
+    };
+    let memory = a.ingest.memory_limit()?;
+    a.ingest.options()?; // every ingest flag parses
+    let base = Settings {
+        feature: a.ingest.feature.as_ref().map(|f| f.display().to_string()),
+        method: a.method.clone(),
+        lobes: Some(a.lobes),
+        align: a.align.map(ndfmap::batch::AlignSetting::Strength),
+        align_form: Some(a.align_form.clone()),
+        mode: Some(a.mode.clone()),
+        lmax,
+        roughness: a.pbr.roughness,
+        anisotropic: Some(a.pbr.anisotropic),
+        format: Some(a.format.clone()),
+        container: Some(a.container.clone()),
+        compress: a.compress.clone(),
+        green: Some(a.ingest.green.clone()),
+        encoding: Some(a.ingest.encoding.clone()),
+        channels: Some(a.ingest.channels.clone()),
+        addressing: Some(a.ingest.addressing.clone()),
+        bad_normals: Some(a.ingest.bad_normals.clone()),
+        feature_encoding: Some(a.ingest.feature_encoding.clone()),
+        ..Settings::default()
+    };
+    let inputs = ndfmap::batch::expand_inputs(&a.inputs)?;
+    let single = a.batch.is_none() && inputs.len() == 1;
+    if pbr_maps {
+        if !single {
+            return Err(Error::InvalidOption(
+                "the PBR material maps (--roughness-map, --metallic-map, --occlusion-map) \
+                 belong to one input: bake it alone"
+                    .into(),
+            ));
+        }
+        return bake_pbr_with_maps(&a, &inputs[0]).map(|()| 0);
+    }
+    let mut jobs = Vec::new();
+    if let Some(file) = &a.batch {
+        let text = std::fs::read_to_string(file).map_err(|source| Error::Read {
+            path: file.clone(),
+            source,
+        })?;
+        let json = file
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+        let dir = file.parent().unwrap_or(Path::new("."));
+        jobs = ndfmap::batch::parse_batch(
+            &file.display().to_string(),
+            &text,
+            json,
+            &base,
+            dir,
+            a.output.as_deref(),
+            memory,
+        )?;
+    }
+    for input in &inputs {
+        let entry = base.overlay(&Settings {
+            path: Some(input.display().to_string()),
+            // One input alone is written into -o itself, as always.
+            output: single
+                .then(|| a.output.as_ref().map(|o| o.display().to_string()))
+                .flatten(),
+            ..Settings::default()
+        });
+        jobs.push(entry.job(Path::new(""), a.output.as_deref(), memory)?);
+    }
+    if jobs.is_empty() {
+        return Err(Error::InvalidOption(
+            "no input: give normal maps, glob patterns or --batch FILE".into(),
+        ));
+    }
+    if a.check {
+        let mut stale = 0usize;
+        for job in &jobs {
+            match job.hash() {
+                Ok(hash) => {
+                    let current = ndfmap::batch::is_up_to_date(&job.output, &hash);
+                    stale += usize::from(!current);
+                    println!(
+                        "{hash} {} {} {}",
+                        if current { "current" } else { "stale" },
+                        job.input.display(),
+                        job.output.display()
+                    );
+                }
+                Err(e) => {
+                    stale += 1;
+                    let text = e.to_string();
+                    eprintln!(
+                        "ndfmap: error: {}: {}",
+                        job.input.display(),
+                        text.split_whitespace().collect::<Vec<_>>().join(" ")
+                    );
+                }
+            }
+        }
+        return Ok(stale.min(125) as u8);
+    }
+    let run_options = RunOptions {
+        memory,
+        workers: a.jobs,
+        force: a.force,
+    };
+    if single {
+        let outcome = ndfmap::batch::run(&jobs, &run_options, &|_| {}, &|_, _| {})
+            .pop()
+            .expect("one outcome per job");
+        let m = jobs[0].method;
+        match outcome {
+            Outcome::Baked { manifest, seconds } => {
+                println!("baked {m} in {seconds:.3} s: {}", manifest.display())
+            }
+            Outcome::UpToDate { manifest } => {
+                println!(
+                    "up to date (same input, options and version): {}",
+                    manifest.display()
+                )
+            }
+            Outcome::Failed(e) => return Err(e),
+        }
+        return Ok(0);
+    }
+    let started = Instant::now();
+    #[cfg(feature = "report")]
+    let bar = {
+        let bar = indicatif::ProgressBar::new(jobs.len() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {pos}/{len} eta {eta} {msg}",
+            )
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        bar
+    };
+    // Lines print above the bar (or alone when stderr is not a terminal): errors to stderr,
+    // the rest to stdout.
+    let say = |line: String, error: bool| {
+        let print = || {
+            if error {
+                eprintln!("{line}")
+            } else {
+                println!("{line}")
+            }
+        };
+        #[cfg(feature = "report")]
+        bar.suspend(print);
+        #[cfg(not(feature = "report"))]
+        print();
+    };
+    let outcomes = ndfmap::batch::run(
+        &jobs,
+        &run_options,
+        &|i| {
+            #[cfg(feature = "report")]
+            bar.set_message(jobs[i].input.display().to_string());
+            #[cfg(not(feature = "report"))]
+            let _ = i;
+        },
+        &|i, outcome| {
+            let input = jobs[i].input.display();
+            match outcome {
+                Outcome::Baked { manifest, seconds } => say(
+                    format!("baked {input} in {seconds:.2} s: {}", manifest.display()),
+                    false,
+                ),
+                Outcome::UpToDate { manifest } => {
+                    say(format!("up to date {input}: {}", manifest.display()), false)
+                }
+                Outcome::Failed(e) => {
+                    let text = e.to_string();
+                    say(
+                        format!(
+                            "ndfmap: error: {input}: {}",
+                            text.split_whitespace().collect::<Vec<_>>().join(" ")
+                        ),
+                        true,
+                    )
+                }
+            }
+            #[cfg(feature = "report")]
+            bar.inc(1);
+        },
+    );
+    #[cfg(feature = "report")]
+    bar.finish_and_clear();
+    let count = |f: fn(&Outcome) -> bool| outcomes.iter().filter(|o| f(o)).count();
+    let baked = count(|o| matches!(o, Outcome::Baked { .. }));
+    let current = count(|o| matches!(o, Outcome::UpToDate { .. }));
+    let failed = count(Outcome::failed);
+    println!(
+        "{} inputs in {:.1} s: {baked} baked, {current} up to date, {failed} failed",
+        jobs.len(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(failed.min(125) as u8)
+}
+
+/// The PBR bake with material maps, for one input (as before batches; no content hash: the
+/// maps are inputs the hash does not cover).
+fn bake_pbr_with_maps(a: &BakeCommand, input: &Path) -> Result<()> {
+    let Some(output) = &a.output else {
+        return Err(Error::InvalidOption("no output folder: give -o DIR".into()));
+    };
+    let format: Format = a.format.parse()?;
+    let options = BakeOptions {
+        memory_limit: a.ingest.memory_limit()?,
+        pbr: ndfmap::bake::PbrOptions {
+            roughness: a.pbr.roughness.unwrap_or(0.5),
+            anisotropic: a.pbr.anisotropic,
+        },
+        ..BakeOptions::default()
+    };
+    let color = a.ingest.feature.is_some();
+    ndfmap::methods::check_options(Method::Pbr, &options, color, Some(format))?;
+    let container: ndfmap::container::Container = a.container.parse()?;
+    let codec = a
+        .compress
+        .as_deref()
+        .map(|c| c.parse::<ndfmap::compress::Codec>())
+        .transpose()?;
+    ndfmap::container::check(container, Method::Pbr, 0, color, format, codec)?;
+    let (w, h) = ndfmap::ingest::probe_size(input, &a.ingest.options()?)?;
+    ndfmap::methods::check_memory(w, h, Method::Pbr, &options, color)?;
+    let (map, info) = a.ingest.load(input)?;
+    let t = Instant::now();
+    let maps = a
+        .pbr
+        .maps(map.width(), map.height(), &a.ingest.options()?)?;
+    let b = ndfmap::pbr::bake_with_maps(&map, &options.pbr, Some(&maps))?;
+    drop(map);
+    let b = ndfmap::pack::quantize_into(b, format)?;
+    let seconds = t.elapsed().as_secs_f64();
+    let manifest = ndfmap::container::write_bake(&b, info, output, container, codec)?;
+    println!("baked pbr in {seconds:.3} s: {}", manifest.display());
+    Ok(())
+}
+
+/// Runs the command; the exit status (0, or the number of failed inputs of a batch bake).
+fn run(cli: Cli) -> Result<u8> {
+    let mut status = 0u8;
     match cli.command {
         Command::Info { input, ingest } => {
             let (map, _) = ingest.load(&input)?;
             print_info(&map);
         }
         Command::Bake {
-            input,
+            inputs,
+            batch,
+            force,
+            check,
+            jobs,
             method,
             plan: Some(plan_path),
             output,
@@ -1068,10 +1400,24 @@ fn run(cli: Cli) -> Result<()> {
                         .into(),
                 ));
             }
-            bake_plan(&plan_path, &input, &output, &ingest)?;
+            let ([input], false, false, 0) = (inputs.as_slice(), force, check, jobs) else {
+                return Err(Error::InvalidOption(
+                    "--plan bakes one input map (no globs, --batch, --force, --check or --jobs)"
+                        .into(),
+                ));
+            };
+            let output = output.ok_or_else(|| {
+                Error::InvalidOption("--plan needs an output folder (-o DIR)".into())
+            })?;
+            let _ = batch;
+            bake_plan(&plan_path, input, &output, &ingest)?;
         }
         Command::Bake {
-            input,
+            inputs,
+            batch,
+            force,
+            check,
+            jobs,
             method,
             plan: None,
             output,
@@ -1087,94 +1433,26 @@ fn run(cli: Cli) -> Result<()> {
             compress,
             ingest,
         } => {
-            // Everything is checked before any work: the options, the format against the
-            // method, the input's header and the bake's memory estimate, then the decoding.
-            let method: Method = method.unwrap_or_default().parse()?;
-            let format: Format = format.parse()?;
-            let lmax = match (method, lmax) {
-                (_, Some(l)) => l,
-                (Method::Sh, None) => {
-                    let b = parse_brdf(&brdf.brdf, brdf.s, brdf.sigma, brdf.alpha)?;
-                    let l = b.suggested_lmax();
-                    eprintln!(
-                        "no --lmax: l* = {l} chosen for {b} ({})",
-                        if b.has_specular() {
-                            "about √(4s) of the equivalent Blinn-Phong exponent, Sec 5.1"
-                        } else {
-                            "Lambert: nine coefficients, Ramamoorthi & Hanrahan"
-                        }
-                    );
-                    l
-                }
-                (_, None) => BakeOptions::default().lmax,
-            };
-            let options = BakeOptions {
+            status = bake_command(BakeCommand {
+                inputs,
+                batch,
+                force,
+                check,
+                jobs,
+                method,
+                output,
                 lobes,
                 align,
-                align_form: align_form.parse()?,
-                mode: mode.parse()?,
-                memory_limit: ingest.memory_limit()?,
+                align_form,
+                mode,
                 lmax,
-                pbr: ndfmap::bake::PbrOptions {
-                    roughness: pbr.roughness.unwrap_or(0.5),
-                    anisotropic: pbr.anisotropic,
-                },
-                ..BakeOptions::default()
-            };
-            let pbr_flags = pbr.roughness.is_some()
-                || pbr.roughness_map.is_some()
-                || pbr.metallic_map.is_some()
-                || pbr.occlusion_map.is_some()
-                || pbr.anisotropic;
-            if pbr_flags && method != Method::Pbr {
-                return Err(Error::InvalidOption(
-                    "--roughness, --roughness-map, --metallic-map, --occlusion-map and \
-                     --anisotropic are for --method pbr"
-                        .into(),
-                ));
-            }
-            if pbr.metallic_map.is_some() && pbr.roughness_map.is_none() && pbr.roughness.is_none()
-            {
-                return Err(Error::InvalidOption(
-                    "--metallic-map without a roughness: the packed texture's G channel is the \
-                     roughness; give --roughness R or --roughness-map IMG"
-                        .into(),
-                ));
-            }
-            let color = ingest.feature.is_some();
-            ndfmap::methods::check_options(method, &options, color, Some(format))?;
-            let container: ndfmap::container::Container = container.parse()?;
-            let codec = compress
-                .map(|c| c.parse::<ndfmap::compress::Codec>())
-                .transpose()?;
-            let lobes_or_lmax = if method == Method::Sh { lmax } else { lobes };
-            ndfmap::container::check(container, method, lobes_or_lmax, color, format, codec)?;
-            let (w, h) = ndfmap::ingest::probe_size(&input, &ingest.options()?)?;
-            ndfmap::methods::check_memory(w, h, method, &options, color).map_err(|e| match e {
-                Error::MemoryBudget {
-                    what,
-                    needed,
-                    limit,
-                } => Error::MemoryBudget {
-                    what: format!("{}: {what}", input.display()),
-                    needed,
-                    limit,
-                },
-                e => e,
+                brdf,
+                format,
+                pbr,
+                container,
+                compress,
+                ingest,
             })?;
-            let (map, info) = ingest.load(&input)?;
-            let t = Instant::now();
-            let b = if method == Method::Pbr {
-                let maps = pbr.maps(map.width(), map.height(), &ingest.options()?)?;
-                ndfmap::pbr::bake_with_maps(&map, &options.pbr, Some(&maps))?
-            } else {
-                bake_with(&map, method, &options)?
-            };
-            drop(map); // what the bake needs of it is done: less memory while writing
-            let b = ndfmap::pack::quantize_into(b, format)?;
-            let seconds = t.elapsed().as_secs_f64();
-            let manifest = ndfmap::container::write_bake(&b, info, &output, container, codec)?;
-            println!("baked {method} in {seconds:.3} s: {}", manifest.display());
         }
         Command::Eval {
             input,
@@ -1304,7 +1582,7 @@ fn run(cli: Cli) -> Result<()> {
                         t.elapsed().as_secs_f64()
                     );
                 }
-                return Ok(());
+                return Ok(0);
             }
             let t = Instant::now();
             let mut errors = evaluate_with(
@@ -1485,7 +1763,7 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
     }
-    Ok(())
+    Ok(status)
 }
 
 /// The main job on the built-in sample: generate, write as PNG, read it back like any user
@@ -2182,7 +2460,7 @@ fn pbr_report(
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(status) => ExitCode::from(status),
         Err(e) => {
             // One line, whatever a decoder's message holds.
             let text = e.to_string();

@@ -41,10 +41,22 @@ const DDS_ALPHA_MODE_CUSTOM: u32 = 4;
 /// The DDS file of a texture of `bake` whose levels, finest first, are `levels` (encoded in
 /// `encoding`).
 pub(super) fn file(bake: &Bake, encoding: Encoding, levels: &[Vec<u8>]) -> Vec<u8> {
+    let lengths: Vec<u64> = levels.iter().map(|l| l.len() as u64).collect();
+    let (mut out, _) = layout(bake, encoding, &lengths);
+    for data in levels {
+        out.extend_from_slice(data);
+    }
+    out
+}
+
+/// The layout of the DDS file of a texture of `bake` whose levels, finest first, are
+/// `lengths` bytes long: the header bytes (magic, `DDS_HEADER`, `DDS_HEADER_DXT10`) and each
+/// level's byte offset (tightly packed after the header, finest first).
+pub(super) fn layout(bake: &Bake, encoding: Encoding, lengths: &[u64]) -> (Vec<u8>, Vec<u64>) {
     let (w, h) = bake.sizes[0];
     let (flags, pitch_or_linear_size) = match encoding {
         Encoding::Plain(f) => (DDSD_PITCH, w * 4 * f.channel_bytes() as u32),
-        Encoding::Block(_) => (DDSD_LINEARSIZE, levels[0].len() as u32),
+        Encoding::Block(_) => (DDSD_LINEARSIZE, lengths[0] as u32),
     };
     let mut header = [0u32; 31];
     header[0] = 124; // dwSize
@@ -53,7 +65,7 @@ pub(super) fn file(bake: &Bake, encoding: Encoding, levels: &[Vec<u8>]) -> Vec<u
     header[3] = w;
     header[4] = pitch_or_linear_size;
     header[5] = 0; // depth
-    header[6] = levels.len() as u32;
+    header[6] = lengths.len() as u32;
     // header[7..18]: dwReserved1; the pixel format (DDS_PIXELFORMAT) from header[18]:
     header[18] = 32;
     header[19] = DDPF_FOURCC;
@@ -66,14 +78,16 @@ pub(super) fn file(bake: &Bake, encoding: Encoding, levels: &[Vec<u8>]) -> Vec<u
         1, // arraySize
         DDS_ALPHA_MODE_CUSTOM,
     ];
-    let data_len: usize = levels.iter().map(Vec::len).sum();
-    let mut out = Vec::with_capacity(4 + 124 + 20 + data_len);
+    let mut out = Vec::with_capacity(4 + 124 + 20);
     out.extend_from_slice(b"DDS ");
     for v in header.iter().chain(&dx10) {
         out.extend_from_slice(&v.to_le_bytes());
     }
-    for data in levels {
-        out.extend_from_slice(data);
+    let mut offsets = Vec::with_capacity(lengths.len());
+    let mut at = out.len() as u64;
+    for &len in lengths {
+        offsets.push(at);
+        at += len;
     }
-    out
+    (out, offsets)
 }

@@ -75,6 +75,27 @@ fn pad(out: &mut Vec<u8>, align: u64) {
 /// The KTX2 file of texture `texture` of `bake` whose levels, finest first, are `levels`
 /// (encoded in `encoding`).
 pub(super) fn file(bake: &Bake, texture: usize, encoding: Encoding, levels: &[Vec<u8>]) -> Vec<u8> {
+    let lengths: Vec<u64> = levels.iter().map(|l| l.len() as u64).collect();
+    let (mut out, offsets) = layout(bake, texture, encoding, &lengths);
+    for (k, data) in levels.iter().enumerate().rev() {
+        out.resize(offsets[k] as usize, 0);
+        out.extend_from_slice(data);
+    }
+    out
+}
+
+/// The layout of the KTX2 file of texture `texture` of `bake` whose levels, finest first, are
+/// `lengths` bytes long (encoded in `encoding`): the bytes before the first level's data
+/// (header, level index, DFD, key/value data) and each level's byte offset in the file. The
+/// levels lie smallest first, each aligned to lcm(texel block size, 4), zeros between them: a
+/// file is the prefix, then each level's bytes at its offset (what [`file`] and the streamed
+/// writer, `container::StreamedFile`, both write).
+pub(super) fn layout(
+    bake: &Bake,
+    texture: usize,
+    encoding: Encoding,
+    lengths: &[u64],
+) -> (Vec<u8>, Vec<u64>) {
     let format = vk_format(encoding);
     // The crate's DFD for the format: its default transfer function is linear for every
     // format here (none is an _SRGB format), BT.709 primaries, straight alpha.
@@ -97,7 +118,7 @@ pub(super) fn file(bake: &Bake, texture: usize, encoding: Encoding, levels: &[Ve
     }
 
     let (w, h) = bake.sizes[0];
-    let index_len = levels.len() * ktx2::LevelIndex::LENGTH;
+    let index_len = lengths.len() * ktx2::LevelIndex::LENGTH;
     let dfd_offset = ktx2::Header::LENGTH + index_len;
     let kvd_offset = dfd_offset + dfd.len();
     let header = ktx2::Header {
@@ -108,7 +129,7 @@ pub(super) fn file(bake: &Bake, texture: usize, encoding: Encoding, levels: &[Ve
         pixel_depth: 0,
         layer_count: 0,
         face_count: 1,
-        level_count: levels.len() as u32,
+        level_count: lengths.len() as u32,
         supercompression_scheme: None,
         index: ktx2::Index {
             dfd_byte_offset: dfd_offset as u32,
@@ -126,20 +147,21 @@ pub(super) fn file(bake: &Bake, texture: usize, encoding: Encoding, levels: &[Ve
     out.resize(dfd_offset, 0); // the level index, filled in below
     out.extend_from_slice(&dfd);
     out.extend_from_slice(&kvd);
-    let mut offsets = vec![0u64; levels.len()];
-    for (k, data) in levels.iter().enumerate().rev() {
-        pad(&mut out, align);
-        offsets[k] = out.len() as u64;
-        out.extend_from_slice(data);
+    let mut offsets = vec![0u64; lengths.len()];
+    let mut end = out.len() as u64;
+    for (k, &len) in lengths.iter().enumerate().rev() {
+        end = end.next_multiple_of(align);
+        offsets[k] = end;
+        end += len;
     }
-    for (k, data) in levels.iter().enumerate() {
+    for (k, &len) in lengths.iter().enumerate() {
         let entry = ktx2::LevelIndex {
             byte_offset: offsets[k],
-            byte_length: data.len() as u64,
-            uncompressed_byte_length: data.len() as u64,
+            byte_length: len,
+            uncompressed_byte_length: len,
         };
         let at = ktx2::Header::LENGTH + k * ktx2::LevelIndex::LENGTH;
         out[at..at + ktx2::LevelIndex::LENGTH].copy_from_slice(&entry.as_bytes());
     }
-    out
+    (out, offsets)
 }

@@ -159,25 +159,160 @@ pub fn check(
     crate::compress::check_layout(method, lobes_or_lmax, color, codec)
 }
 
+/// Appends `texels` uncompressed in `format` to `out`, little-endian (what
+/// [`crate::pack::pack_level`] gives on a little-endian host), channels of range `ranges`.
+fn encode_texels(texels: &[[f32; 4]], ranges: [ValueRange; 4], format: Format, out: &mut Vec<u8>) {
+    for texel in texels {
+        for (c, &v) in texel.iter().enumerate() {
+            match format {
+                Format::F32 => out.extend_from_slice(&v.to_le_bytes()),
+                Format::F16 => out.extend_from_slice(&half::f16::from_f32(v).to_le_bytes()),
+                Format::Unorm16 => out.extend_from_slice(
+                    &crate::pack::unorm_code(v, ranges[c], 65535.0).to_le_bytes(),
+                ),
+                Format::Unorm8 => out.push(crate::pack::unorm_code(v, ranges[c], 255.0) as u8),
+            }
+        }
+    }
+}
+
 /// The bytes of level `level` of texture `texture` uncompressed in `format`, little-endian,
 /// rows top to bottom (what [`crate::pack::pack_level`] gives on a little-endian host).
 fn plain_level(bake: &Bake, texture: usize, level: usize, format: Format) -> Vec<u8> {
     let t = &bake.textures[texture];
     let mut out = Vec::with_capacity(crate::pack::packed_len(bake, level, format));
-    for texel in &t.levels[level] {
-        for (c, &v) in texel.iter().enumerate() {
-            let range: ValueRange = t.ranges[c];
-            match format {
-                Format::F32 => out.extend_from_slice(&v.to_le_bytes()),
-                Format::F16 => out.extend_from_slice(&half::f16::from_f32(v).to_le_bytes()),
-                Format::Unorm16 => {
-                    out.extend_from_slice(&crate::pack::unorm_code(v, range, 65535.0).to_le_bytes())
-                }
-                Format::Unorm8 => out.push(crate::pack::unorm_code(v, range, 255.0) as u8),
-            }
-        }
-    }
+    encode_texels(&t.levels[level], t.ranges, format, &mut out);
     out
+}
+
+/// One texture's KTX2 or DDS file written a band of rows at a time, in any order: for bakes
+/// too large to hold in memory (issue 19's tiled bakes, docs/scale.md). The header and the
+/// level layout depend only on the bake's description — level sizes, method, parameters, the
+/// texture's name, channels and ranges, the storage format (`bake`'s textures may hold no
+/// levels) — so every level's bytes lie at an offset known before any texel is baked, and
+/// [`StreamedFile::write_rows`] writes rows where they belong (positional writes). Uncompressed
+/// formats only (block codecs encode whole 4-row blocks). Written completely, the file is
+/// byte-identical to [`texture_file`] of the whole bake (tested), the bytes between levels
+/// being zeros as there.
+#[derive(Debug)]
+pub struct StreamedFile {
+    file: std::fs::File,
+    path: PathBuf,
+    offsets: Vec<u64>,
+    sizes: Vec<(u32, u32)>,
+    format: Format,
+    ranges: [ValueRange; 4],
+}
+
+impl StreamedFile {
+    /// Creates (or truncates) `path` as texture `texture` of `bake` in `container` (KTX2 or
+    /// DDS) in `bake.format`, writes its header and sets its final length.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::InvalidOption`] for the exr container or a texture index out of range,
+    /// [`Error::Write`] when the file cannot be created or sized (a full disk).
+    pub fn create(path: &Path, bake: &Bake, texture: usize, container: Container) -> Result<Self> {
+        let t = bake.textures.get(texture).ok_or_else(|| {
+            Error::InvalidOption(format!(
+                "texture {texture} out of range: the bake has {}",
+                bake.textures.len()
+            ))
+        })?;
+        let encoding = Encoding::Plain(bake.format);
+        let texel_bytes = 4 * bake.format.channel_bytes() as u64;
+        let lengths: Vec<u64> = bake
+            .sizes
+            .iter()
+            .map(|&(w, h)| w as u64 * h as u64 * texel_bytes)
+            .collect();
+        let (prefix, offsets) = match container {
+            Container::Ktx2 => ktx2::layout(bake, texture, encoding, &lengths),
+            Container::Dds => dds::layout(bake, encoding, &lengths),
+            Container::Exr => {
+                return Err(Error::InvalidOption(
+                    "a streamed file is one KTX2 or DDS file; the exr container is a folder".into(),
+                ));
+            }
+        };
+        let write_err = |e: std::io::Error| Error::Write {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
+        let end = offsets
+            .iter()
+            .zip(&lengths)
+            .map(|(o, l)| o + l)
+            .max()
+            .unwrap_or(prefix.len() as u64);
+        let file = std::fs::File::create(path).map_err(write_err)?;
+        file.set_len(end).map_err(write_err)?;
+        write_at(&file, &prefix, 0).map_err(write_err)?;
+        Ok(StreamedFile {
+            file,
+            path: path.to_path_buf(),
+            offsets,
+            sizes: bake.sizes.clone(),
+            format: bake.format,
+            ranges: t.ranges,
+        })
+    }
+
+    /// Writes whole rows `first_row..` of `level` (`texels`: a multiple of the level's width,
+    /// row-major), encoded as [`texture_file`] encodes them. Values must already be what the
+    /// format holds (f16 within ±65504: [`Error::InvalidOption`] otherwise, naming the level).
+    ///
+    /// # Errors
+    ///
+    /// [`Error::InvalidOption`] for rows outside the level or a partial row, and
+    /// [`Error::Write`] when the write fails (a full disk).
+    pub fn write_rows(&self, level: usize, first_row: u32, texels: &[[f32; 4]]) -> Result<()> {
+        let Some(&(w, h)) = self.sizes.get(level) else {
+            return Err(Error::InvalidOption(format!("level {level} out of range")));
+        };
+        let rows = texels.len() / w as usize;
+        if !texels.len().is_multiple_of(w as usize) || first_row as usize + rows > h as usize {
+            return Err(Error::InvalidOption(format!(
+                "{} texels from row {first_row} are not whole rows of level {level} ({w}x{h})",
+                texels.len()
+            )));
+        }
+        if self.format == Format::F16
+            && let Some(v) = texels
+                .iter()
+                .flatten()
+                .find(|v| v.abs() > crate::pack::F16_MAX)
+        {
+            return Err(Error::InvalidOption(format!(
+                "format f16 cannot hold {} level {level}: value {v} exceeds {}; use f32",
+                self.path.display(),
+                crate::pack::F16_MAX
+            )));
+        }
+        let texel_bytes = 4 * self.format.channel_bytes() as u64;
+        let mut bytes = Vec::with_capacity(texels.len() * texel_bytes as usize);
+        encode_texels(texels, self.ranges, self.format, &mut bytes);
+        let at = self.offsets[level] + first_row as u64 * w as u64 * texel_bytes;
+        write_at(&self.file, &bytes, at).map_err(|e| Error::Write {
+            path: self.path.clone(),
+            message: e.to_string(),
+        })
+    }
+}
+
+/// Writes all of `bytes` at byte `offset` of `file`.
+fn write_at(file: &std::fs::File, bytes: &[u8], offset: u64) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::FileExt::write_all_at(file, bytes, offset)
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Seek, SeekFrom, Write};
+        let mut f = file;
+        f.seek(SeekFrom::Start(offset))?;
+        f.write_all(bytes)
+    }
 }
 
 /// Every level of texture `texture` of `bake` in `encoding`, finest first.
@@ -288,15 +423,33 @@ pub fn write_bake(
     container: Container,
     codec: Option<Codec>,
 ) -> Result<PathBuf> {
+    write_bake_hashed(bake, input, dir, container, codec, None)
+}
+
+/// [`write_bake`] with `content_hash` recorded in the manifest ([`Manifest::content_hash`],
+/// module `batch`). The manifest is the last file written into the staging folder, and the
+/// folder replaces `dir` only once complete, so a manifest with a hash always describes
+/// complete files.
+pub fn write_bake_hashed(
+    bake: &Bake,
+    input: InputInfo,
+    dir: &Path,
+    container: Container,
+    codec: Option<Codec>,
+    content_hash: Option<String>,
+) -> Result<PathBuf> {
     if container == Container::Exr {
         if let Some(c) = codec {
             return Err(Error::InvalidOption(format!(
                 "the exr container cannot hold {c} blocks; use ktx2 or dds"
             )));
         }
-        return crate::output::write_bake(bake, input, dir);
+        let mut manifest = Manifest::new(bake, input);
+        manifest.content_hash = content_hash;
+        return crate::output::write_bake_with(bake, manifest, dir);
     }
-    let manifest = manifest(bake, input, container, codec);
+    let mut manifest = manifest(bake, input, container, codec);
+    manifest.content_hash = content_hash;
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Write {
         path: dir.to_path_buf(),
         message: e.to_string(),
