@@ -93,78 +93,7 @@ enum Command {
     /// its own folder; the manifest records a content hash of the input, the options and the
     /// ndfmap version, and an input whose folder is complete and current is skipped. With
     /// several inputs the exit status is the number that failed (at most 125).
-    Bake {
-        /// The normal maps (PNG, JPEG, TGA, TIFF, OpenEXR), or glob patterns (quoted).
-        inputs: Vec<PathBuf>,
-        /// A batch file (TOML, or JSON when it ends in .json): `[defaults]` and `[[input]]`
-        /// tables with `path`, `output`, `method`, `feature` and any option's name (see
-        /// docs/batch.md); unknown keys are refused.
-        #[arg(long)]
-        batch: Option<PathBuf>,
-        /// Bake even inputs whose output is complete and current.
-        #[arg(long)]
-        force: bool,
-        /// Bake nothing: print each input's content hash, `current` or `stale`, and its
-        /// output folder (one line each); the exit status is the number of stale or
-        /// unreadable inputs (at most 125). For build systems that key on the hash.
-        #[arg(long)]
-        check: bool,
-        /// Most bakes running at once (default: the number of cores; each bake also uses
-        /// every core).
-        #[arg(long, default_value_t = 0)]
-        jobs: usize,
-        /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh, pbr (a batch file
-        /// may set it per input).
-        #[arg(short, long)]
-        method: Option<String>,
-        /// A plan file from `ndfmap plan` (docs/planner.md): bake what it says for the one
-        /// input, mixing methods across level ranges, instead of one --method (the method
-        /// options are then refused).
-        #[arg(long, conflicts_with_all = ["method", "batch"])]
-        plan: Option<PathBuf>,
-        /// Output folder (created if missing; written all-or-nothing). With several inputs,
-        /// the folder that holds one folder per input, named after the input's file stem.
-        #[arg(short, long)]
-        output: Option<PathBuf>,
-        /// vmf, tan2005: lobes (mixture components) per texel, 1 to 8.
-        #[arg(long, default_value_t = 6)]
-        lobes: usize,
-        /// vmf, tan2005: coherent lobes for hardware trilinear filtering, with alignment
-        /// strength C (vMF eq 29: 1 is a good start, eq 23: 0.1; Tan's prior: c = 1). Without
-        /// it lobes are fitted per texel (unaligned).
-        #[arg(long)]
-        align: Option<f64>,
-        /// vmf: the alignment's M-step, `appendix` (eq 29: the pull on a lobe shrinks as
-        /// 1/(κα), so sharp lobes stay on their normals) or `main-text` (eq 23: the same pull
-        /// for every lobe).
-        #[arg(long, default_value = "appendix")]
-        align_form: String,
-        /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
-        /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
-        #[arg(long, default_value = "balanced")]
-        mode: String,
-        /// sh: band limit l* (0 to 16; (l*+1)² coefficients, four per texture). Without it,
-        /// chosen from --brdf: 2 for Lambert, about √(4s) for Blinn-Phong (Sec 5.1).
-        #[arg(long)]
-        lmax: Option<usize>,
-        #[command(flatten)]
-        brdf: BrdfArgs,
-        /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
-        #[arg(long, default_value = "f32")]
-        format: String,
-        /// Files: exr (OpenEXR or PNG per texture per level), ktx2 or dds (one file per
-        /// texture with its whole MIP chain).
-        #[arg(long, default_value = "exr")]
-        container: String,
-        /// Block compression of ktx2/dds files: bc6h, bc7 or bc5 (where the textures' channels
-        /// and ranges allow; refused before any work otherwise).
-        #[arg(long)]
-        compress: Option<String>,
-        #[command(flatten)]
-        pbr: PbrArgs,
-        #[command(flatten)]
-        ingest: IngestArgs,
-    },
+    Bake(BakeCommand),
     /// Plan what a scene needs (docs/planner.md): measure MAP by sampling, choose per level
     /// range the cheapest method, lobe count and storage format meeting SCENE's error target,
     /// and write the plan file and specialized shaders (`bake --plan` consumes the plan).
@@ -1049,24 +978,77 @@ fn bake_all(
 }
 
 /// `ndfmap bake`'s arguments.
+#[derive(Args)]
 struct BakeCommand {
+    /// The normal maps (PNG, JPEG, TGA, TIFF, OpenEXR), or glob patterns (quoted).
     inputs: Vec<PathBuf>,
+    /// A batch file (TOML, or JSON when it ends in .json): `[defaults]` and `[[input]]`
+    /// tables with `path`, `output`, `method`, `feature` and any option's name (see
+    /// docs/batch.md); unknown keys are refused.
+    #[arg(long)]
     batch: Option<PathBuf>,
+    /// Bake even inputs whose output is complete and current.
+    #[arg(long)]
     force: bool,
+    /// Bake nothing: print each input's content hash, `current` or `stale`, and its
+    /// output folder (one line each); the exit status is the number of stale or
+    /// unreadable inputs (at most 125). For build systems that key on the hash.
+    #[arg(long)]
     check: bool,
+    /// Most bakes running at once (default: the number of cores; each bake also uses
+    /// every core).
+    #[arg(long, default_value_t = 0)]
     jobs: usize,
+    /// Filtering method: plain, toksvig, lean, olano, tan2005, vmf, sh, pbr (a batch file
+    /// may set it per input).
+    #[arg(short, long)]
     method: Option<String>,
+    /// A plan file from `ndfmap plan` (docs/planner.md): bake what it says for the one
+    /// input, mixing methods across level ranges, instead of one --method (the method
+    /// options are then refused).
+    #[arg(long, conflicts_with_all = ["method", "batch"])]
+    plan: Option<PathBuf>,
+    /// Output folder (created if missing; written all-or-nothing). With several inputs,
+    /// the folder that holds one folder per input, named after the input's file stem.
+    #[arg(short, long)]
     output: Option<PathBuf>,
+    /// vmf, tan2005: lobes (mixture components) per texel, 1 to 8.
+    #[arg(long, default_value_t = 6)]
     lobes: usize,
+    /// vmf, tan2005: coherent lobes for hardware trilinear filtering, with alignment
+    /// strength C (vMF eq 29: 1 is a good start, eq 23: 0.1; Tan's prior: c = 1). Without
+    /// it lobes are fitted per texel (unaligned).
+    #[arg(long)]
     align: Option<f64>,
+    /// vmf: the alignment's M-step, `appendix` (eq 29: the pull on a lobe shrinks as
+    /// 1/(κα), so sharp lobes stay on their normals) or `main-text` (eq 23: the same pull
+    /// for every lobe).
+    #[arg(long, default_value = "appendix")]
     align_form: String,
+    /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
+    /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
+    #[arg(long, default_value = "balanced")]
     mode: String,
+    /// sh: band limit l* (0 to 16; (l*+1)² coefficients, four per texture). Without it,
+    /// chosen from --brdf: 2 for Lambert, about √(4s) for Blinn-Phong (Sec 5.1).
+    #[arg(long)]
     lmax: Option<usize>,
+    #[command(flatten)]
     brdf: BrdfArgs,
+    /// Texel format of the files: f32 or f16 (OpenEXR), unorm16 or unorm8 (PNG).
+    #[arg(long, default_value = "f32")]
     format: String,
-    pbr: PbrArgs,
+    /// Files: exr (OpenEXR or PNG per texture per level), ktx2 or dds (one file per
+    /// texture with its whole MIP chain).
+    #[arg(long, default_value = "exr")]
     container: String,
+    /// Block compression of ktx2/dds files: bc6h, bc7 or bc5 (where the textures' channels
+    /// and ranges allow; refused before any work otherwise).
+    #[arg(long)]
     compress: Option<String>,
+    #[command(flatten)]
+    pbr: PbrArgs,
+    #[command(flatten)]
     ingest: IngestArgs,
 }
 
@@ -1358,102 +1340,59 @@ fn run(cli: Cli) -> Result<u8> {
             let (map, _) = ingest.load(&input)?;
             print_info(&map);
         }
-        Command::Bake {
-            inputs,
-            batch,
-            force,
-            check,
-            jobs,
-            method,
-            plan: Some(plan_path),
-            output,
-            lobes,
-            align,
-            align_form,
-            mode,
-            lmax,
-            brdf: _,
-            format,
-            pbr,
-            container,
-            compress,
-            ingest,
-        } => {
-            let _ = method;
-            let defaults = (6, None, "appendix", "balanced", None, "f32", "exr", None);
-            if (
-                lobes,
-                align,
-                align_form.as_str(),
-                mode.as_str(),
-                lmax,
-                format.as_str(),
-                container.as_str(),
-                compress.as_deref(),
-            ) != defaults
-                || pbr.roughness.is_some()
-                || pbr.anisotropic
-            {
-                return Err(Error::InvalidOption(
-                    "--plan decides the method, lobes, alignment, band limit, format and \
-                     container: give none of those options with it"
-                        .into(),
-                ));
+        Command::Bake(mut a) => match a.plan.take() {
+            Some(plan_path) => {
+                let BakeCommand {
+                    inputs,
+                    force,
+                    check,
+                    jobs,
+                    output,
+                    lobes,
+                    align,
+                    align_form,
+                    mode,
+                    lmax,
+                    format,
+                    pbr,
+                    container,
+                    compress,
+                    ingest,
+                    ..
+                } = a;
+                let defaults = (6, None, "appendix", "balanced", None, "f32", "exr", None);
+                if (
+                    lobes,
+                    align,
+                    align_form.as_str(),
+                    mode.as_str(),
+                    lmax,
+                    format.as_str(),
+                    container.as_str(),
+                    compress.as_deref(),
+                ) != defaults
+                    || pbr.roughness.is_some()
+                    || pbr.anisotropic
+                {
+                    return Err(Error::InvalidOption(
+                        "--plan decides the method, lobes, alignment, band limit, format and \
+                         container: give none of those options with it"
+                            .into(),
+                    ));
+                }
+                let ([input], false, false, 0) = (inputs.as_slice(), force, check, jobs) else {
+                    return Err(Error::InvalidOption(
+                        "--plan bakes one input map (no globs, --batch, --force, --check or --jobs)"
+                            .into(),
+                    ));
+                };
+                let output = output.ok_or_else(|| {
+                    Error::InvalidOption("--plan needs an output folder (-o DIR)".into())
+                })?;
+                bake_plan(&plan_path, input, &output, &ingest)?;
             }
-            let ([input], false, false, 0) = (inputs.as_slice(), force, check, jobs) else {
-                return Err(Error::InvalidOption(
-                    "--plan bakes one input map (no globs, --batch, --force, --check or --jobs)"
-                        .into(),
-                ));
-            };
-            let output = output.ok_or_else(|| {
-                Error::InvalidOption("--plan needs an output folder (-o DIR)".into())
-            })?;
-            let _ = batch;
-            bake_plan(&plan_path, input, &output, &ingest)?;
-        }
-        Command::Bake {
-            inputs,
-            batch,
-            force,
-            check,
-            jobs,
-            method,
-            plan: None,
-            output,
-            lobes,
-            align,
-            align_form,
-            mode,
-            lmax,
-            brdf,
-            format,
-            pbr,
-            container,
-            compress,
-            ingest,
-        } => {
-            status = bake_command(BakeCommand {
-                inputs,
-                batch,
-                force,
-                check,
-                jobs,
-                method,
-                output,
-                lobes,
-                align,
-                align_form,
-                mode,
-                lmax,
-                brdf,
-                format,
-                pbr,
-                container,
-                compress,
-                ingest,
-            })?;
-        }
+            None => status = bake_command(a)?,
+        },
         Command::Eval {
             input,
             methods,
