@@ -328,19 +328,9 @@ pub fn write_folder(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Resul
             dir.display()
         )));
     };
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
+    let parent = parent_of(dir);
     std::fs::create_dir_all(&parent).map_err(|e| write_err(&parent, e))?;
-    let lock_path = parent.join(format!(".{name}{LOCK}"));
-    let lock = std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&lock_path)
-        .map_err(|e| write_err(&lock_path, e))?;
-    lock.lock().map_err(|e| write_err(&lock_path, e))?;
+    let lock = lock_writers(&parent, &name)?;
     clean_up(&parent, &name, dir)?;
     check_replaceable(dir)?;
     let nonce = std::time::SystemTime::now()
@@ -365,10 +355,24 @@ pub(crate) fn tidy(dir: &Path) -> Result<()> {
     let Some(name) = dir.file_name().map(|n| n.to_string_lossy().into_owned()) else {
         return Ok(());
     };
-    let parent = match dir.parent() {
+    let parent = parent_of(dir);
+    let lock = lock_writers(&parent, &name)?;
+    let result = clean_up(&parent, &name, dir);
+    drop(lock);
+    result
+}
+
+/// The folder that holds `dir` (`.` for a bare name).
+fn parent_of(dir: &Path) -> PathBuf {
+    match dir.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
-    };
+    }
+}
+
+/// Takes the writers' lock of folder `name` in `parent` (the file `.{name}.ndfmap-lock`
+/// beside it), held until the returned file is dropped.
+fn lock_writers(parent: &Path, name: &str) -> Result<std::fs::File> {
     let lock_path = parent.join(format!(".{name}{LOCK}"));
     let lock = std::fs::OpenOptions::new()
         .create(true)
@@ -377,9 +381,7 @@ pub(crate) fn tidy(dir: &Path) -> Result<()> {
         .open(&lock_path)
         .map_err(|e| write_err(&lock_path, e))?;
     lock.lock().map_err(|e| write_err(&lock_path, e))?;
-    let result = clean_up(&parent, &name, dir);
-    drop(lock);
-    result
+    Ok(lock)
 }
 
 /// Replaces `dir` by `staging`, setting an existing `dir` aside as `old` first.
