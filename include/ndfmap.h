@@ -38,26 +38,6 @@
 #define NDF_VERSION 256
 
 /**
- * Scene material model: Lambert only (no specular term).
- */
-#define NDF_SCENE_MODEL_LAMBERT 0
-
-/**
- * Scene material model: normalized Blinn-Phong (`param_min`, `param_max`: the exponent s).
- */
-#define NDF_SCENE_MODEL_BLINN_PHONG 1
-
-/**
- * Scene material model: Torrance–Sparrow eq 18 (the parameters: σ).
- */
-#define NDF_SCENE_MODEL_TORRANCE_SPARROW 2
-
-/**
- * Scene material model: GGX (the parameters: α).
- */
-#define NDF_SCENE_MODEL_GGX 3
-
-/**
  * Light flag: point lights.
  */
 #define NDF_SCENE_LIGHT_POINT 1
@@ -691,12 +671,14 @@ typedef struct ndf_scene {
    */
   size_t struct_size;
   /**
-   * `NDF_SCENE_MODEL_*` (default Blinn-Phong).
+   * The material model, an `NDF_BRDF_*` value: `NDF_BRDF_LAMBERT` (no specular term),
+   * `NDF_BRDF_BLINN_PHONG` (the default), `NDF_BRDF_TORRANCE_SPARROW` (eq 18) or
+   * `NDF_BRDF_GGX`; `NDF_BRDF_TABULATED` is refused (a scene plans over parameter ranges).
    */
-  uint32_t model;
+  ndf_brdf model;
   /**
-   * The model parameter's range `[param_min, param_max]` (s > 0; σ, α in (0, 1]); ignored
-   * for Lambert. Default 16 to 256.
+   * The model parameter's range `[param_min, param_max]` (Blinn-Phong: the exponent s > 0;
+   * Torrance–Sparrow σ, GGX α in (0, 1]); ignored for Lambert. Default 16 to 256.
    */
   double param_min;
   /**
@@ -755,9 +737,26 @@ typedef struct ndf_scene {
    */
   uint32_t anisotropic;
   /**
-   * The error target, relative RMS in (0, 1] (default 0.05).
+   * The error target, relative RMS in (0, 1] (default 0.05); ignored when
+   * `target_per_level` is given.
    */
   double target;
+  /**
+   * Per-level targets instead of `target` (the scene file's `target.per_level`): one per
+   * level reached, finest first, each in (0, 1]; NULL for none.
+   */
+  const double *target_per_level;
+  /**
+   * The number of values at `target_per_level`.
+   */
+  size_t target_per_level_count;
+  /**
+   * Path of an albedo image (the scene file's `color.albedo`, NUL-terminated, relative to
+   * the working directory) whose variation decides the colour textures; NULL for none. A
+   * feature image attached to the map (`ndf_normal_map_attach_feature_*`) does the same;
+   * giving both is refused.
+   */
+  const char *albedo_path;
   /**
    * Texture memory budget in bytes, 0 for none.
    */
@@ -1709,8 +1708,9 @@ struct ndf_scene ndf_scene_default(void);
  *   message names the field), levels beyond the map, or a budget the plan exceeds.
  *
  * # Safety
- * `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`; `plan_out`
- * is NULL or writable.
+ * `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`, its
+ * `target_per_level` NULL or readable for `target_per_level_count` values and its
+ * `albedo_path` NULL or NUL-terminated; `plan_out` is NULL or writable.
  */
 ndf_status ndf_plan_new(const struct ndf_normal_map *map,
                         const struct ndf_scene *scene,

@@ -4,6 +4,9 @@
 //! and bake and write what it says.
 
 use super::map::ndf_normal_map;
+use super::shader::{
+    NDF_BRDF_BLINN_PHONG, NDF_BRDF_GGX, NDF_BRDF_LAMBERT, NDF_BRDF_TORRANCE_SPARROW, ndf_brdf,
+};
 use super::{
     Out, Outcome, arg, bytes, c_str, fail, guard, guard_value, index, ndf_status, path,
     read_options,
@@ -11,15 +14,6 @@ use super::{
 use crate::plan::scene::{Budget, Color, LightKind, Material, Model, Scene, Target, View};
 use crate::plan::{Plan, execute, plan, write};
 use std::ffi::c_char;
-
-/// Scene material model: Lambert only (no specular term).
-pub const NDF_SCENE_MODEL_LAMBERT: u32 = 0;
-/// Scene material model: normalized Blinn-Phong (`param_min`, `param_max`: the exponent s).
-pub const NDF_SCENE_MODEL_BLINN_PHONG: u32 = 1;
-/// Scene material model: Torrance–Sparrow eq 18 (the parameters: σ).
-pub const NDF_SCENE_MODEL_TORRANCE_SPARROW: u32 = 2;
-/// Scene material model: GGX (the parameters: α).
-pub const NDF_SCENE_MODEL_GGX: u32 = 3;
 
 /// Light flag: point lights.
 pub const NDF_SCENE_LIGHT_POINT: u32 = 1;
@@ -42,10 +36,12 @@ pub const NDF_PLAN_TEXT_SHADER: u32 = 2;
 pub struct ndf_scene {
     /// `sizeof(ndf_scene)`.
     pub struct_size: usize,
-    /// `NDF_SCENE_MODEL_*` (default Blinn-Phong).
-    pub model: u32,
-    /// The model parameter's range `[param_min, param_max]` (s > 0; σ, α in (0, 1]); ignored
-    /// for Lambert. Default 16 to 256.
+    /// The material model, an `NDF_BRDF_*` value: `NDF_BRDF_LAMBERT` (no specular term),
+    /// `NDF_BRDF_BLINN_PHONG` (the default), `NDF_BRDF_TORRANCE_SPARROW` (eq 18) or
+    /// `NDF_BRDF_GGX`; `NDF_BRDF_TABULATED` is refused (a scene plans over parameter ranges).
+    pub model: ndf_brdf,
+    /// The model parameter's range `[param_min, param_max]` (Blinn-Phong: the exponent s > 0;
+    /// Torrance–Sparrow σ, GGX α in (0, 1]); ignored for Lambert. Default 16 to 256.
     pub param_min: f64,
     /// See `param_min`.
     pub param_max: f64,
@@ -76,8 +72,19 @@ pub struct ndf_scene {
     pub texel_density: f64,
     /// Nonzero for anisotropic filtering.
     pub anisotropic: u32,
-    /// The error target, relative RMS in (0, 1] (default 0.05).
+    /// The error target, relative RMS in (0, 1] (default 0.05); ignored when
+    /// `target_per_level` is given.
     pub target: f64,
+    /// Per-level targets instead of `target` (the scene file's `target.per_level`): one per
+    /// level reached, finest first, each in (0, 1]; NULL for none.
+    pub target_per_level: *const f64,
+    /// The number of values at `target_per_level`.
+    pub target_per_level_count: usize,
+    /// Path of an albedo image (the scene file's `color.albedo`, NUL-terminated, relative to
+    /// the working directory) whose variation decides the colour textures; NULL for none. A
+    /// feature image attached to the map (`ndf_normal_map_attach_feature_*`) does the same;
+    /// giving both is refused.
+    pub albedo_path: *const c_char,
     /// Texture memory budget in bytes, 0 for none.
     pub budget_texture_bytes: u64,
     /// Fetches per pixel budget, 0 for none.
@@ -90,7 +97,7 @@ pub struct ndf_scene {
 pub extern "C" fn ndf_scene_default() -> ndf_scene {
     ndf_scene {
         struct_size: size_of::<ndf_scene>(),
-        model: NDF_SCENE_MODEL_BLINN_PHONG,
+        model: NDF_BRDF_BLINN_PHONG,
         param_min: 16.0,
         param_max: 256.0,
         kd: 1.0,
@@ -106,24 +113,56 @@ pub extern "C" fn ndf_scene_default() -> ndf_scene {
         texel_density: 0.0,
         anisotropic: 0,
         target: 0.05,
+        target_per_level: std::ptr::null(),
+        target_per_level_count: 0,
+        albedo_path: std::ptr::null(),
         budget_texture_bytes: 0,
         budget_fetches: 0,
     }
 }
 
 /// The Rust scene of a C one (checked by [`Scene::check`]).
-fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
+///
+/// # Safety
+/// `s.target_per_level` is NULL or readable for `s.target_per_level_count` values;
+/// `s.albedo_path` is NULL or NUL-terminated.
+unsafe fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
     let range = Some([s.param_min, s.param_max]);
-    let model = super::choose(
-        "model",
-        s.model,
-        &[
-            Model::Lambert,
-            Model::BlinnPhong,
-            Model::TorranceSparrow,
-            Model::Ggx,
-        ],
-    )?;
+    let model = match s.model {
+        NDF_BRDF_LAMBERT => Model::Lambert,
+        NDF_BRDF_BLINN_PHONG => Model::BlinnPhong,
+        NDF_BRDF_TORRANCE_SPARROW => Model::TorranceSparrow,
+        NDF_BRDF_GGX => Model::Ggx,
+        v => {
+            return Err(fail(
+                ndf_status::InvalidArgument,
+                format!(
+                    "scene model {v} is not a planner model (expected NDF_BRDF_LAMBERT, \
+                     _BLINN_PHONG, _TORRANCE_SPARROW or _GGX)"
+                ),
+            ));
+        }
+    };
+    let per_level = if s.target_per_level.is_null() {
+        None
+    } else {
+        // SAFETY: non-NULL and readable for `target_per_level_count` values (the contract).
+        let v = unsafe { std::slice::from_raw_parts(s.target_per_level, s.target_per_level_count) };
+        Some(v.to_vec())
+    };
+    let albedo = if s.albedo_path.is_null() {
+        None
+    } else {
+        // SAFETY: non-NULL and NUL-terminated (the contract).
+        let c = unsafe { c_str(s.albedo_path, "albedo_path") }?;
+        let text = c.to_str().map_err(|_| {
+            fail(
+                ndf_status::InvalidArgument,
+                "scene: field 'albedo_path' is not UTF-8",
+            )
+        })?;
+        Some(text.to_owned())
+    };
     if s.lights & !7 != 0 {
         return Err(fail(
             ndf_status::InvalidArgument,
@@ -154,7 +193,7 @@ fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
             .then_some([s.elevation_min, s.elevation_max]),
         color: Color {
             varies: s.color_varies != 0,
-            albedo: None,
+            albedo,
         },
         view: View {
             levels: (!distances).then_some([s.level_min, s.level_max]),
@@ -163,8 +202,8 @@ fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
             anisotropic: s.anisotropic != 0,
         },
         target: Target {
-            error: Some(s.target),
-            per_level: None,
+            error: per_level.is_none().then_some(s.target),
+            per_level,
         },
         budget: (s.budget_texture_bytes != 0 || s.budget_fetches != 0).then_some(Budget {
             texture_bytes: (s.budget_texture_bytes != 0).then_some(s.budget_texture_bytes),
@@ -182,8 +221,26 @@ pub struct ndf_plan {
     addressing: crate::ingest::Addressing,
 }
 
+/// Plans `map` for `scene`, with the scene's albedo image (a path relative to the working
+/// directory) attached as the map's feature image when it names one.
 fn finish(map: &ndf_normal_map, scene: &Scene, out: Out<*mut ndf_plan>) -> Outcome {
-    let p = plan(&map.map, scene, map.input.path.as_deref())?;
+    let p = match &scene.color.albedo {
+        None => plan(&map.map, scene, map.input.path.as_deref())?,
+        Some(albedo) => {
+            if map.map.feature().is_some() {
+                return Err(fail(
+                    ndf_status::InvalidArgument,
+                    "scene: field 'color.albedo': given, and the map has a feature image \
+                     attached too: give one",
+                ));
+            }
+            let with = map
+                .map
+                .clone()
+                .with_feature_file(std::path::Path::new(albedo), &map.input.options)?;
+            plan(&with, scene, map.input.path.as_deref())?
+        }
+    };
     let boxed = Box::new(ndf_plan {
         plan: p,
         addressing: map.map.addressing(),
@@ -199,8 +256,9 @@ fn finish(map: &ndf_normal_map, scene: &Scene, out: Out<*mut ndf_plan>) -> Outco
 ///   message names the field), levels beyond the map, or a budget the plan exceeds.
 ///
 /// # Safety
-/// `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`; `plan_out`
-/// is NULL or writable.
+/// `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`, its
+/// `target_per_level` NULL or readable for `target_per_level_count` values and its
+/// `albedo_path` NULL or NUL-terminated; `plan_out` is NULL or writable.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn ndf_plan_new(
     map: *const ndf_normal_map,
@@ -212,7 +270,9 @@ pub unsafe extern "C" fn ndf_plan_new(
         let m = unsafe { arg(map, "map") }?;
         let s = unsafe { read_options(scene, "scene", "ndf_scene_default") }?;
         let out = Out::new(plan_out, "plan_out")?;
-        finish(m, &scene_of(s)?, out)
+        // SAFETY: the scene's pointers are NULL or valid, as this function requires.
+        let scene = unsafe { scene_of(s) }?;
+        finish(m, &scene, out)
     })
 }
 
@@ -398,7 +458,7 @@ mod tests {
     fn plan_through_the_c_api() {
         let m = map();
         let mut scene = ndf_scene_default();
-        scene.model = NDF_SCENE_MODEL_LAMBERT;
+        scene.model = NDF_BRDF_LAMBERT;
         scene.ks = 0.0;
         scene.lights = NDF_SCENE_LIGHT_ENVIRONMENT;
         scene.level_min = 1;
@@ -461,16 +521,81 @@ mod tests {
     }
 
     #[test]
+    fn per_level_targets_and_an_albedo_through_the_struct_and_the_text_agree() {
+        let sample = crate::procedural::generate(32, 5);
+        let dir = tempfile::tempdir().unwrap();
+        let albedo = dir.path().join("albedo.png");
+        image::RgbImage::from_raw(32, 32, crate::procedural::encode_srgb8(&sample.albedo))
+            .unwrap()
+            .save(&albedo)
+            .unwrap();
+        let m = ndf_normal_map::from_map_for_tests(sample.map);
+        let targets = [0.05, 0.08, 0.1];
+        let c_albedo = std::ffi::CString::new(albedo.to_str().unwrap()).unwrap();
+        let mut scene = ndf_scene_default();
+        scene.level_min = 1;
+        scene.level_max = 3;
+        scene.target_per_level = targets.as_ptr();
+        scene.target_per_level_count = targets.len();
+        scene.albedo_path = c_albedo.as_ptr();
+        let mut plan: *mut ndf_plan = std::ptr::null_mut();
+        // SAFETY (all blocks): the pointers are live locals.
+        let st = unsafe { ndf_plan_new(&m, &scene, &mut plan) };
+        assert_eq!(st, ndf_status::Ok);
+        let text = format!(
+            "lights = [\"point\"]\n[material]\nmodel = \"blinn-phong\"\nexponent = [16, 256]\nks = 1\n\
+             [color]\nalbedo = {:?}\n[view]\nlevels = [1, 3]\n[target]\nper_level = [0.05, 0.08, 0.1]\n",
+            albedo.to_str().unwrap()
+        );
+        let mut plan2: *mut ndf_plan = std::ptr::null_mut();
+        let st =
+            unsafe { ndf_plan_new_from_text(&m, text.as_ptr().cast(), text.len(), &mut plan2) };
+        assert_eq!(st, ndf_status::Ok);
+        let (a, b) = unsafe { (&(*plan).plan, &(*plan2).plan) };
+        assert_eq!(a.scene.target.per_level.as_deref(), Some(&targets[..]));
+        assert_eq!(a.scene, b.scene);
+        assert_eq!(a.parts, b.parts);
+        // The albedo was measured: its variation is in the colour decision.
+        assert!(a.explain().contains("albedo varies by"), "{}", a.explain());
+        // An albedo that cannot be read fails, and no plan is made.
+        let missing = c"/nonexistent/albedo.png";
+        scene.albedo_path = missing.as_ptr();
+        let mut plan3: *mut ndf_plan = std::ptr::null_mut();
+        let st = unsafe { ndf_plan_new(&m, &scene, &mut plan3) };
+        assert_ne!(st, ndf_status::Ok);
+        assert!(plan3.is_null());
+        unsafe {
+            ndf_plan_free(plan);
+            ndf_plan_free(plan2);
+        }
+    }
+
+    #[test]
     fn bad_scenes_through_the_c_api() {
         let m = map();
         type Edit = fn(&mut ndf_scene);
-        let bad: [(&str, Edit); 6] = [
+        let bad: [(&str, Edit); 9] = [
             ("target", |s| s.target = f64::NAN),
             ("material.exponent", |s| s.param_min = -1.0),
             ("lights", |s| s.lights = 0),
             ("lights", |s| s.lights = 8),
             ("view.levels", |s| s.level_max = 9),
             ("model", |s| s.model = 7),
+            ("model", |s| {
+                s.model = crate::ffi::shader::NDF_BRDF_TABULATED
+            }),
+            ("target.per_level", |s| {
+                static BAD: [f64; 2] = [0.05, -1.0];
+                s.level_max = 1;
+                s.target_per_level = BAD.as_ptr();
+                s.target_per_level_count = 2;
+            }),
+            ("target.per_level", |s| {
+                static SHORT: [f64; 1] = [0.05];
+                s.level_max = 2;
+                s.target_per_level = SHORT.as_ptr();
+                s.target_per_level_count = 1;
+            }),
         ];
         for (needle, f) in bad {
             let mut scene = ndf_scene_default();
