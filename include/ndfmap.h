@@ -758,6 +758,12 @@ typedef struct ndf_scene {
    */
   const char *albedo_path;
   /**
+   * With `NDF_SCENE_LIGHT_ENVIRONMENT`: path of an equirectangular Radiance `.hdr` or
+   * OpenEXR environment (NUL-terminated, relative to the working directory); NULL for the
+   * generated sky with a sun (the scene file's `environment`).
+   */
+  const char *environment_path;
+  /**
    * Texture memory budget in bytes, 0 for none.
    */
   uint64_t budget_texture_bytes;
@@ -1710,7 +1716,7 @@ struct ndf_scene ndf_scene_default(void);
  * # Safety
  * `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`, its
  * `target_per_level` NULL or readable for `target_per_level_count` values and its
- * `albedo_path` NULL or NUL-terminated; `plan_out` is NULL or writable.
+ * `albedo_path` and `environment_path` NULL or NUL-terminated; `plan_out` is NULL or writable.
  */
 ndf_status ndf_plan_new(const struct ndf_normal_map *map,
                         const struct ndf_scene *scene,

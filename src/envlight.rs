@@ -680,7 +680,9 @@ pub struct EvalOptions {
     pub first_level: usize,
     /// Texels drawn per level (all of a level with fewer).
     pub texels_per_level: usize,
-    /// Ground-truth MIS iterations per texel and view.
+    /// Ground-truth MIS iterations per texel and view (a level with fewer texels than
+    /// `texels_per_level` gets `texels_per_level / texels` times as many per texel, so that
+    /// every level's ground truth has the same sample count).
     pub samples: usize,
     /// Seed of the texel choice and the ground truth.
     pub seed: u64,
@@ -733,7 +735,11 @@ pub struct Evaluation {
     pub noise_diffuse: f64,
     /// The ground truth's relative standard error, per BRDF's specular term.
     pub noise_specular: Vec<f64>,
-    /// Ground-truth iterations per texel and view (each one light + one BRDF sample per term).
+    /// Per measured level: (level, the diffuse noise, the specular noise per BRDF), in the
+    /// same metric (what [`denoised`] takes out of that level's errors).
+    pub level_noise: Vec<(usize, f64, Vec<f64>)>,
+    /// Ground-truth iterations per texel and view, at the levels with at least
+    /// `texels_per_level` texels (each one light + one BRDF sample per term).
     pub samples: usize,
     /// Texels measured in all.
     pub texels: usize,
@@ -741,9 +747,246 @@ pub struct Evaluation {
     pub views: usize,
 }
 
-/// Texel-space error of `bakes` (of `map`) under `light`, each vMF bake once per route in
-/// `routes`, the baselines by the prefiltered route, SH bakes by eq 25/26 (module docs).
-/// Deterministic for a given seed, whatever the thread count.
+/// The ground truth of a texel-space evaluation, computed once and scored against any number
+/// of bakes of the same map ([`Reference::score`]): the texels drawn per level and, per texel
+/// and view, the Monte Carlo estimate of [`ground_truth`].
+pub struct Reference {
+    /// (level, x, y) of every texel measured, level by level.
+    tasks: Vec<(usize, u32, u32)>,
+    /// Per task, per view: the estimate.
+    truths: Vec<Vec<Estimate>>,
+    /// The BRDFs the truths are for.
+    brdfs: Vec<Brdf>,
+    /// The views.
+    views: Vec<DVec3>,
+    /// Width of each level of the map's pyramid.
+    widths: Vec<u32>,
+    /// The first level measured.
+    first: usize,
+    /// Ground-truth iterations per texel and view.
+    samples: usize,
+}
+
+impl Reference {
+    /// Draws the texels of `options` from `map`'s pyramid and computes their ground truth
+    /// under `light` for `brdfs` (deterministic for a seed, whatever the thread count).
+    pub fn new(
+        map: &crate::NormalMap,
+        brdfs: &[Brdf],
+        light: &EnvLight,
+        options: &EvalOptions,
+    ) -> Result<Reference> {
+        for b in brdfs {
+            check_brdf(b)?;
+        }
+        let levels = pyramid(map.width(), map.height());
+        let first = options.first_level.min(levels.len() - 1);
+        let mut tasks = Vec::new();
+        for (k, lf) in levels.iter().enumerate().skip(first) {
+            let (w, h) = lf.size;
+            let n = w as usize * h as usize;
+            if n <= options.texels_per_level {
+                (0..n).for_each(|i| {
+                    tasks.push((k, (i % w as usize) as u32, (i / w as usize) as u32))
+                });
+            } else {
+                let mut rng = Rng(options.seed.wrapping_mul(0x9E37_79B9) ^ k as u64);
+                for _ in 0..options.texels_per_level {
+                    let x = (rng.next_u64() % w as u64) as u32;
+                    let y = (rng.next_u64() % h as u64) as u32;
+                    tasks.push((k, x, y));
+                }
+            }
+        }
+        let truths = tasks
+            .par_iter()
+            .enumerate()
+            .map(|(ti, &(k, x, y))| {
+                let normals: Vec<(DVec3, f64)> = levels[k]
+                    .texel(x, y)
+                    .into_iter()
+                    .map(|(fx, fy, w)| {
+                        (
+                            map.normals()[(fy * map.width() + fx) as usize].as_dvec3(),
+                            w,
+                        )
+                    })
+                    .collect();
+                // A level with fewer texels than `texels_per_level` gets proportionally more
+                // samples per texel: every level's ground truth has the same sample count.
+                let (w, h) = levels[k].size;
+                let n = (w as usize * h as usize).max(1);
+                let samples = options.samples * (options.texels_per_level / n).max(1);
+                options
+                    .views
+                    .iter()
+                    .enumerate()
+                    .map(|(vi, &view)| {
+                        let seed = options.seed ^ ((ti as u64) << 20) ^ vi as u64;
+                        ground_truth(light, &normals, view, brdfs, samples, seed)
+                    })
+                    .collect()
+            })
+            .collect();
+        Ok(Reference {
+            tasks,
+            truths,
+            brdfs: brdfs.to_vec(),
+            views: options.views.clone(),
+            widths: levels.iter().map(|l| l.size.0).collect(),
+            first,
+            samples: options.samples,
+        })
+    }
+
+    /// The texel-space error of `bakes` (of the map the reference was made for) against it,
+    /// each vMF bake once per route in `routes`, the baselines by the prefiltered route, SH
+    /// bakes by eq 25/26 (module docs). Deterministic, whatever the thread count.
+    pub fn score(&self, bakes: &[&Bake], light: &EnvLight, routes: &[Route]) -> Result<Evaluation> {
+        self.score_levels(bakes, light, routes, 0..=usize::MAX)
+    }
+
+    /// [`Reference::score`] at the levels in `levels` only (the levels a bake of part of a
+    /// chain holds); the others are measured as 0 with no ground truth.
+    pub fn score_levels(
+        &self,
+        bakes: &[&Bake],
+        light: &EnvLight,
+        routes: &[Route],
+        levels: std::ops::RangeInclusive<usize>,
+    ) -> Result<Evaluation> {
+        for b in bakes {
+            check_method(b.method)?;
+        }
+        // Configurations: (bake index, route).
+        let mut configs = Vec::new();
+        for (i, b) in bakes.iter().enumerate() {
+            match b.method {
+                Method::Vmf => routes.iter().for_each(|&r| configs.push((i, r))),
+                Method::Sh => configs.push((i, Route::Sh)),
+                _ => configs.push((i, Route::Prefiltered)),
+            }
+        }
+        let brdfs = &self.brdfs;
+        let nb = brdfs.len();
+        let nc = configs.len();
+        // Per task: per view: sums [config][brdf] of (F−G)² and G² (diffuse, specular), and
+        // the ground truth's se² sums.
+        type Sums = (Vec<[f64; 4]>, Vec<f64>, Vec<f64>);
+        let per_task: Vec<Sums> = self
+            .tasks
+            .par_iter()
+            .zip(&self.truths)
+            .map(|(&(k, x, y), truths)| {
+                let mut sums = vec![[0.0f64; 4]; nc * nb];
+                let mut se = vec![0.0f64; 1 + nb];
+                let mut g2 = vec![0.0f64; 1 + nb];
+                if !levels.contains(&k) {
+                    return (sums, se, g2);
+                }
+                let texels: Vec<Vec<[f32; 4]>> = bakes
+                    .iter()
+                    .map(|b| {
+                        let idx = y as usize * self.widths[k] as usize + x as usize;
+                        let mut t = vec![[0.0f32; 4]; b.textures.len()];
+                        b.texel_into(k, idx, &mut t);
+                        t
+                    })
+                    .collect();
+                for (&view, gt) in self.views.iter().zip(truths) {
+                    se[0] += gt.diffuse_se.powi(2);
+                    g2[0] += gt.diffuse.powi(2);
+                    for b in 0..nb {
+                        se[1 + b] += gt.specular_se[b].powi(2);
+                        g2[1 + b] += gt.specular[b].powi(2);
+                    }
+                    for (c, &(bi, route)) in configs.iter().enumerate() {
+                        for (b, brdf) in brdfs.iter().enumerate() {
+                            let f =
+                                shade(light, &light.sh, bakes[bi], &texels[bi], view, brdf, route);
+                            let e = &mut sums[c * nb + b];
+                            e[0] += (f.diffuse - gt.diffuse).powi(2);
+                            e[1] += gt.diffuse.powi(2);
+                            e[2] += (f.specular - gt.specular[b]).powi(2);
+                            e[3] += gt.specular[b].powi(2);
+                        }
+                    }
+                }
+                (sums, se, g2)
+            })
+            .collect();
+        // Per level sums, in task order.
+        let nl = self.widths.len();
+        let mut lvl = vec![vec![[0.0f64; 4]; nc * nb]; nl];
+        let mut lse = vec![vec![0.0f64; 1 + nb]; nl];
+        let mut lg2 = vec![vec![0.0f64; 1 + nb]; nl];
+        for (&(k, _, _), (sums, se, g2)) in self.tasks.iter().zip(&per_task) {
+            for (a, s) in lvl[k].iter_mut().zip(sums) {
+                for c in 0..4 {
+                    a[c] += s[c];
+                }
+            }
+            for i in 0..=nb {
+                lse[k][i] += se[i];
+                lg2[k][i] += g2[i];
+            }
+        }
+        let measured: Vec<usize> = (self.first..nl).collect();
+        let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        let rel = crate::eval::relative_rms;
+        let mut errors = Vec::new();
+        for (c, &(bi, route)) in configs.iter().enumerate() {
+            for (b, brdf) in brdfs.iter().enumerate() {
+                let per: Vec<(usize, f64, f64)> = measured
+                    .iter()
+                    .map(|&k| {
+                        let e = lvl[k][c * nb + b];
+                        (k, rel(e[0], e[1]), rel(e[2], e[3]))
+                    })
+                    .collect();
+                let label = match bakes[bi].method {
+                    Method::Vmf => format!("{} {}", bakes[bi].label(), route.name()),
+                    _ => bakes[bi].label(),
+                };
+                errors.push(EnvError {
+                    label,
+                    brdf: brdf.clone(),
+                    diffuse: rms(&per.iter().map(|p| p.1).collect::<Vec<_>>()),
+                    specular: rms(&per.iter().map(|p| p.2).collect::<Vec<_>>()),
+                    levels: per,
+                });
+            }
+        }
+        let noise = |i: usize| {
+            rms(&measured
+                .iter()
+                .map(|&k| rel(lse[k][i], lg2[k][i]))
+                .collect::<Vec<_>>())
+        };
+        let level_noise = measured
+            .iter()
+            .map(|&k| {
+                (
+                    k,
+                    rel(lse[k][0], lg2[k][0]),
+                    (0..nb).map(|b| rel(lse[k][1 + b], lg2[k][1 + b])).collect(),
+                )
+            })
+            .collect();
+        Ok(Evaluation {
+            errors,
+            level_noise,
+            noise_diffuse: noise(0),
+            noise_specular: (0..nb).map(|b| noise(1 + b)).collect(),
+            samples: self.samples,
+            texels: self.tasks.len(),
+            views: self.views.len(),
+        })
+    }
+}
+
+/// Texel-space error of `bakes` (of `map`) under `light`: a [`Reference`] for `brdfs` and
+/// `options`, scored against the bakes ([`Reference::score`]).
 pub fn evaluate(
     map: &crate::NormalMap,
     bakes: &[&Bake],
@@ -752,149 +995,10 @@ pub fn evaluate(
     routes: &[Route],
     options: &EvalOptions,
 ) -> Result<Evaluation> {
-    for b in brdfs {
-        check_brdf(b)?;
-    }
     for b in bakes {
         check_method(b.method)?;
     }
-    // Configurations: (bake index, route).
-    let mut configs = Vec::new();
-    for (i, b) in bakes.iter().enumerate() {
-        match b.method {
-            Method::Vmf => routes.iter().for_each(|&r| configs.push((i, r))),
-            Method::Sh => configs.push((i, Route::Sh)),
-            _ => configs.push((i, Route::Prefiltered)),
-        }
-    }
-    let levels = pyramid(map.width(), map.height());
-    let first = options.first_level.min(levels.len() - 1);
-    // Texels per level.
-    let mut tasks = Vec::new();
-    for (k, lf) in levels.iter().enumerate().skip(first) {
-        let (w, h) = lf.size;
-        let n = w as usize * h as usize;
-        if n <= options.texels_per_level {
-            (0..n).for_each(|i| tasks.push((k, (i % w as usize) as u32, (i / w as usize) as u32)));
-        } else {
-            let mut rng = Rng(options.seed.wrapping_mul(0x9E37_79B9) ^ k as u64);
-            for _ in 0..options.texels_per_level {
-                let x = (rng.next_u64() % w as u64) as u32;
-                let y = (rng.next_u64() % h as u64) as u32;
-                tasks.push((k, x, y));
-            }
-        }
-    }
-    let nb = brdfs.len();
-    let nc = configs.len();
-    // Per task: per view: sums [config][brdf] of (F−G)² and G² (diffuse, specular), and
-    // the ground truth's se² sums.
-    type Sums = (Vec<[f64; 4]>, Vec<f64>, Vec<f64>);
-    let per_task: Vec<Sums> = tasks
-        .par_iter()
-        .enumerate()
-        .map(|(ti, &(k, x, y))| {
-            let normals: Vec<(DVec3, f64)> = levels[k]
-                .texel(x, y)
-                .into_iter()
-                .map(|(fx, fy, w)| {
-                    (
-                        map.normals()[(fy * map.width() + fx) as usize].as_dvec3(),
-                        w,
-                    )
-                })
-                .collect();
-            let mut sums = vec![[0.0f64; 4]; nc * nb];
-            let mut se = vec![0.0f64; 1 + nb];
-            let mut g2 = vec![0.0f64; 1 + nb];
-            let idx = y as usize * levels[k].size.0 as usize + x as usize;
-            let texels: Vec<Vec<[f32; 4]>> = bakes
-                .iter()
-                .map(|b| {
-                    let mut t = vec![[0.0f32; 4]; b.textures.len()];
-                    b.texel_into(k, idx, &mut t);
-                    t
-                })
-                .collect();
-            for (vi, &view) in options.views.iter().enumerate() {
-                let seed = options.seed ^ ((ti as u64) << 20) ^ vi as u64;
-                let gt = ground_truth(light, &normals, view, brdfs, options.samples, seed);
-                se[0] += gt.diffuse_se.powi(2);
-                g2[0] += gt.diffuse.powi(2);
-                for b in 0..nb {
-                    se[1 + b] += gt.specular_se[b].powi(2);
-                    g2[1 + b] += gt.specular[b].powi(2);
-                }
-                for (c, &(bi, route)) in configs.iter().enumerate() {
-                    for (b, brdf) in brdfs.iter().enumerate() {
-                        let f = shade(light, &light.sh, bakes[bi], &texels[bi], view, brdf, route);
-                        let e = &mut sums[c * nb + b];
-                        e[0] += (f.diffuse - gt.diffuse).powi(2);
-                        e[1] += gt.diffuse.powi(2);
-                        e[2] += (f.specular - gt.specular[b]).powi(2);
-                        e[3] += gt.specular[b].powi(2);
-                    }
-                }
-            }
-            (sums, se, g2)
-        })
-        .collect();
-    // Per level sums, in task order.
-    let nl = levels.len();
-    let mut lvl = vec![vec![[0.0f64; 4]; nc * nb]; nl];
-    let mut lse = vec![vec![0.0f64; 1 + nb]; nl];
-    let mut lg2 = vec![vec![0.0f64; 1 + nb]; nl];
-    for (&(k, _, _), (sums, se, g2)) in tasks.iter().zip(&per_task) {
-        for (a, s) in lvl[k].iter_mut().zip(sums) {
-            for c in 0..4 {
-                a[c] += s[c];
-            }
-        }
-        for i in 0..=nb {
-            lse[k][i] += se[i];
-            lg2[k][i] += g2[i];
-        }
-    }
-    let measured: Vec<usize> = (first..nl).collect();
-    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let rel = crate::eval::relative_rms;
-    let mut errors = Vec::new();
-    for (c, &(bi, route)) in configs.iter().enumerate() {
-        for (b, brdf) in brdfs.iter().enumerate() {
-            let per: Vec<(usize, f64, f64)> = measured
-                .iter()
-                .map(|&k| {
-                    let e = lvl[k][c * nb + b];
-                    (k, rel(e[0], e[1]), rel(e[2], e[3]))
-                })
-                .collect();
-            let label = match bakes[bi].method {
-                Method::Vmf => format!("{} {}", bakes[bi].label(), route.name()),
-                _ => bakes[bi].label(),
-            };
-            errors.push(EnvError {
-                label,
-                brdf: brdf.clone(),
-                diffuse: rms(&per.iter().map(|p| p.1).collect::<Vec<_>>()),
-                specular: rms(&per.iter().map(|p| p.2).collect::<Vec<_>>()),
-                levels: per,
-            });
-        }
-    }
-    let noise = |i: usize| {
-        rms(&measured
-            .iter()
-            .map(|&k| rel(lse[k][i], lg2[k][i]))
-            .collect::<Vec<_>>())
-    };
-    Ok(Evaluation {
-        errors,
-        noise_diffuse: noise(0),
-        noise_specular: (0..nb).map(|b| noise(1 + b)).collect(),
-        samples: options.samples,
-        texels: tasks.len(),
-        views: options.views.len(),
-    })
+    Reference::new(map, brdfs, light, options)?.score(bakes, light, routes)
 }
 
 /// An error with the ground truth's own noise taken out: the noise is independent of the

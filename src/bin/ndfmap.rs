@@ -648,7 +648,15 @@ fn plan_cmd(
     verify: bool,
     ingest: &IngestArgs,
 ) -> Result<()> {
-    let scene = ndfmap::plan::Scene::load(scene_path)?;
+    let mut scene = ndfmap::plan::Scene::load(scene_path)?;
+    // An environment file is named relative to the scene file.
+    if let Some(env) = &scene.environment
+        && !matches!(env.as_str(), "sky" | "overcast")
+        && Path::new(env).is_relative()
+    {
+        let path = scene_path.parent().unwrap_or(Path::new(".")).join(env);
+        scene.environment = Some(path.display().to_string());
+    }
     let (mut map, _) = ingest.load(input)?;
     if let Some(albedo) = &scene.color.albedo {
         if ingest.feature.is_some() {

@@ -85,6 +85,10 @@ pub struct ndf_scene {
     /// feature image attached to the map (`ndf_normal_map_attach_feature_*`) does the same;
     /// giving both is refused.
     pub albedo_path: *const c_char,
+    /// With `NDF_SCENE_LIGHT_ENVIRONMENT`: path of an equirectangular Radiance `.hdr` or
+    /// OpenEXR environment (NUL-terminated, relative to the working directory); NULL for the
+    /// generated sky with a sun (the scene file's `environment`).
+    pub environment_path: *const c_char,
     /// Texture memory budget in bytes, 0 for none.
     pub budget_texture_bytes: u64,
     /// Fetches per pixel budget, 0 for none.
@@ -116,6 +120,7 @@ pub extern "C" fn ndf_scene_default() -> ndf_scene {
         target_per_level: std::ptr::null(),
         target_per_level_count: 0,
         albedo_path: std::ptr::null(),
+        environment_path: std::ptr::null(),
         budget_texture_bytes: 0,
         budget_fetches: 0,
     }
@@ -125,7 +130,7 @@ pub extern "C" fn ndf_scene_default() -> ndf_scene {
 ///
 /// # Safety
 /// `s.target_per_level` is NULL or readable for `s.target_per_level_count` values;
-/// `s.albedo_path` is NULL or NUL-terminated.
+/// `s.albedo_path` and `s.environment_path` are NULL or NUL-terminated.
 unsafe fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
     let range = Some([s.param_min, s.param_max]);
     let model = match s.model {
@@ -150,19 +155,22 @@ unsafe fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
         let v = unsafe { std::slice::from_raw_parts(s.target_per_level, s.target_per_level_count) };
         Some(v.to_vec())
     };
-    let albedo = if s.albedo_path.is_null() {
-        None
-    } else {
+    let text = |p: *const c_char, name: &str| -> Outcome<Option<String>> {
+        if p.is_null() {
+            return Ok(None);
+        }
         // SAFETY: non-NULL and NUL-terminated (the contract).
-        let c = unsafe { c_str(s.albedo_path, "albedo_path") }?;
-        let text = c.to_str().map_err(|_| {
+        let c = unsafe { c_str(p, name) }?;
+        let t = c.to_str().map_err(|_| {
             fail(
                 ndf_status::InvalidArgument,
-                "scene: field 'albedo_path' is not UTF-8",
+                format!("scene: field '{name}' is not UTF-8"),
             )
         })?;
-        Some(text.to_owned())
+        Ok(Some(t.to_owned()))
     };
+    let albedo = text(s.albedo_path, "albedo_path")?;
+    let environment = text(s.environment_path, "environment_path")?;
     if s.lights & !7 != 0 {
         return Err(fail(
             ndf_status::InvalidArgument,
@@ -191,6 +199,7 @@ unsafe fn scene_of(s: &ndf_scene) -> Outcome<Scene> {
         lights,
         light_elevation: (s.elevation_min != 0.0 || s.elevation_max != 0.0)
             .then_some([s.elevation_min, s.elevation_max]),
+        environment,
         color: Color {
             varies: s.color_varies != 0,
             albedo,
@@ -258,7 +267,7 @@ fn finish(map: &ndf_normal_map, scene: &Scene, out: Out<*mut ndf_plan>) -> Outco
 /// # Safety
 /// `map` is NULL or live; `scene` is NULL or initialized by `ndf_scene_default()`, its
 /// `target_per_level` NULL or readable for `target_per_level_count` values and its
-/// `albedo_path` NULL or NUL-terminated; `plan_out` is NULL or writable.
+/// `albedo_path` and `environment_path` NULL or NUL-terminated; `plan_out` is NULL or writable.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn ndf_plan_new(
     map: *const ndf_normal_map,

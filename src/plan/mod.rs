@@ -169,7 +169,9 @@ pub struct ShaderPlan {
     pub specular: bool,
     /// Anisotropic filtering (probes per pixel), if the scene asks for it.
     pub anisotropic: Option<u32>,
-    /// Whether the scene has an environment (no environment code exists yet: issue 16).
+    /// Whether the scene has an environment: the plan's errors were measured under it with
+    /// the prefiltered route (one prefiltered-environment lookup per lobe), which its shaders
+    /// then use.
     pub environment: bool,
 }
 
@@ -237,10 +239,10 @@ pub fn content_hash(map: &NormalMap) -> String {
     format!("{h:016x}")
 }
 
-/// The light/view pairs the planner measures for `scene`: for point and directional lights,
+/// The light/view pairs the planner measures for `scene`'s point and directional lights:
 /// elevations at the two ends and the middle of `light_elevation` (default 10°–90°) at four
-/// azimuths; for an environment, the hemisphere of [`crate::eval::default_directions`]'s
-/// lights (an environment is an integral of directional lights); views at 0°, 35° and 70°.
+/// azimuths; views at 0°, 35° and 70°. Empty for a scene lit only by an environment (which is
+/// measured under the environment itself, [`EnvMeasure`]).
 pub fn directions(scene: &Scene) -> Vec<LightView> {
     let mut lights = Vec::new();
     if scene.has_direct() {
@@ -254,14 +256,6 @@ pub fn directions(scene: &Scene) -> Vec<LightView> {
             }
             for phi in [0.0, 90.0, 180.0, 270.0] {
                 lights.push(direction(90.0 - e, phi));
-            }
-        }
-    }
-    if scene.has_environment() {
-        lights.push(direction(0.0, 0.0));
-        for theta in [35.0, 70.0] {
-            for phi in [0.0, 90.0, 180.0, 270.0] {
-                lights.push(direction(theta, phi));
             }
         }
     }
@@ -368,6 +362,167 @@ impl Measured {
     }
 }
 
+/// Ground-truth samples per texel and view of the planner's environment measurement.
+pub const ENV_SAMPLES: usize = 512;
+/// Texels drawn per level of each sample map under an environment.
+pub const ENV_TEXELS: usize = 48;
+
+/// The environment a scene is measured under: its light, and the ground truth of every
+/// sample map ([`crate::envlight::Reference`], computed once, scored against every
+/// candidate). Configurations are shaded by the prefiltered route (vMF: one lookup per lobe;
+/// the baselines: their single lobe) or, for SH bakes, eq 25/26.
+pub struct EnvMeasure {
+    /// The environment's luminance, ready to light with.
+    pub light: crate::envlight::EnvLight,
+    /// Per sample map (in [`Samples`] order), its ground truth.
+    references: Vec<crate::envlight::Reference>,
+}
+
+impl EnvMeasure {
+    /// The ground truth of `maps` under `light` for `brdfs` (the views of
+    /// [`crate::envlight::default_views`], [`ENV_TEXELS`] texels per level, [`ENV_SAMPLES`]
+    /// samples).
+    fn new(
+        light: crate::envlight::EnvLight,
+        maps: &[&NormalMap],
+        brdfs: &[Brdf],
+        first: &[usize],
+    ) -> Result<EnvMeasure> {
+        let references = maps
+            .iter()
+            .zip(first)
+            .map(|(map, &first_level)| {
+                let options = crate::envlight::EvalOptions {
+                    first_level,
+                    texels_per_level: ENV_TEXELS,
+                    samples: ENV_SAMPLES,
+                    ..Default::default()
+                };
+                crate::envlight::Reference::new(map, brdfs, &light, &options)
+            })
+            .collect::<Result<_>>()?;
+        Ok(EnvMeasure { light, references })
+    }
+
+    /// [`environment_errors`] of `bake` against sample map `i`'s reference.
+    fn errors(&self, i: usize, bake: &Bake) -> Result<Vec<Option<(f64, f64)>>> {
+        environment_errors(&self.references[i], &self.light, bake, 0..=usize::MAX)
+    }
+}
+
+/// Per level of the reference's map: (diffuse, specular) relative RMS of `bake` under the
+/// environment `light` by the prefiltered route, the specular one the largest over the
+/// reference's BRDFs, with the ground truth's own noise taken out
+/// ([`crate::envlight::denoised`]); `None` below the reference's first level.
+pub fn environment_errors(
+    reference: &crate::envlight::Reference,
+    light: &crate::envlight::EnvLight,
+    bake: &Bake,
+    levels: std::ops::RangeInclusive<usize>,
+) -> Result<Vec<Option<(f64, f64)>>> {
+    let e = reference.score_levels(
+        &[bake],
+        light,
+        &[crate::envlight::Route::Prefiltered],
+        levels,
+    )?;
+    let mut out = Vec::new();
+    for (err, b) in e.errors.iter().zip(0..) {
+        for (&(k, d, sp), (k2, nd, ns)) in err.levels.iter().zip(&e.level_noise) {
+            debug_assert_eq!(k, *k2);
+            let d = crate::envlight::denoised(d, *nd);
+            let sp = crate::envlight::denoised(sp, ns[b]);
+            if out.len() <= k {
+                out.resize(k + 1, None);
+            }
+            let (d0, s0) = out[k].unwrap_or((0.0f64, 0.0f64));
+            out[k] = Some((d0.max(d), s0.max(sp)));
+        }
+    }
+    Ok(out)
+}
+
+/// Measures bakes of a map on the whole map as a plan's scene sees them: the texel-space
+/// error per level against the exact footprint average under its point/directional lights
+/// ([`crate::eval::evaluate_from`]) and against a Monte Carlo ground truth under its
+/// environment ([`environment_errors`]), the largest over the terms the scene uses and its
+/// BRDFs. What `plan --verify`, the report's planner section and the tests measure.
+pub struct WholeMap<'a> {
+    plan: &'a Plan,
+    map: &'a NormalMap,
+    brdfs: Vec<Brdf>,
+    directions: Vec<LightView>,
+    env: Option<(crate::envlight::EnvLight, crate::envlight::Reference)>,
+    levels: usize,
+}
+
+impl<'a> WholeMap<'a> {
+    /// The measurement of `plan`'s scene on `map`; under an environment, its ground truth on
+    /// `env_texels` texels per level from the plan's first level ([`ENV_SAMPLES`] samples).
+    pub fn new(plan: &'a Plan, map: &'a NormalMap, env_texels: usize) -> Result<WholeMap<'a>> {
+        let brdfs = plan.scene.brdfs();
+        let env = match plan.scene.environment_light()? {
+            Some(light) => {
+                let options = crate::envlight::EvalOptions {
+                    first_level: plan.levels[0],
+                    texels_per_level: env_texels,
+                    samples: ENV_SAMPLES,
+                    ..Default::default()
+                };
+                let reference = crate::envlight::Reference::new(map, &brdfs, &light, &options)?;
+                Some((light, reference))
+            }
+            None => None,
+        };
+        Ok(WholeMap {
+            plan,
+            map,
+            directions: directions(&plan.scene),
+            brdfs,
+            env,
+            levels: crate::pyramid::level_sizes(map.width(), map.height()).len(),
+        })
+    }
+
+    /// The scene's error at every level of `bake` (a bake of the map) in `from..=to` (0
+    /// outside; levels the environment's ground truth does not measure count 0).
+    pub fn errors(&self, bake: &Bake, from: usize, to: usize) -> Result<Vec<f64>> {
+        let scene = &self.plan.scene;
+        let (kd, _) = scene.kd_ks();
+        let mut v = vec![0.0f64; self.levels];
+        if !self.directions.is_empty() {
+            let errors =
+                crate::eval::evaluate_from(self.map, &[bake], &self.brdfs, &self.directions, from);
+            for (k, a) in v.iter_mut().enumerate().skip(from) {
+                for e in &errors {
+                    if kd > 0.0 {
+                        *a = a.max(e.levels[k].diffuse);
+                    }
+                    if scene.specular() {
+                        *a = a.max(e.levels[k].specular);
+                    }
+                }
+            }
+        }
+        if let Some((light, reference)) = &self.env {
+            let errors = environment_errors(reference, light, bake, from..=to)?;
+            for (k, x) in errors.iter().enumerate() {
+                let Some((d, s)) = *x else { continue };
+                if !(from..=to).contains(&k) {
+                    continue;
+                }
+                if kd > 0.0 {
+                    v[k] = v[k].max(d);
+                }
+                if scene.specular() {
+                    v[k] = v[k].max(s);
+                }
+            }
+        }
+        Ok(v)
+    }
+}
+
 /// The measurement context: samples, BRDFs, directions, and the sample bakes of every
 /// configuration measured so far (each configuration is baked once; quantizing and dropping
 /// lobes edit a copy).
@@ -375,6 +530,8 @@ struct Measure<'a> {
     samples: &'a Samples,
     brdfs: Vec<Brdf>,
     directions: Vec<LightView>,
+    /// The environment, when the scene has one.
+    env: Option<EnvMeasure>,
     levels: usize,
     /// The finest map level measured.
     from: usize,
@@ -415,7 +572,7 @@ impl Measure<'_> {
         let mut acc = vec![(0.0f64, 0.0f64, 0usize); self.levels];
         let mut alpha_max = vec![Vec::<f64>::new(); self.levels];
         let bakes = self.bakes(config)?;
-        for ((map, stands), bake) in self.samples.maps.iter().zip(bakes.iter()) {
+        for (i, ((map, stands), bake)) in self.samples.maps.iter().zip(bakes.iter()).enumerate() {
             let first = stands
                 .iter()
                 .position(|l| l.is_some_and(|l| l >= from))
@@ -424,18 +581,26 @@ impl Measure<'_> {
                 continue;
             }
             let bake = edit(bake.clone())?;
-            let errors =
-                crate::eval::evaluate_from(map, &[&bake], &self.brdfs, &self.directions, first);
+            let errors = if self.directions.is_empty() {
+                Vec::new()
+            } else {
+                crate::eval::evaluate_from(map, &[&bake], &self.brdfs, &self.directions, first)
+            };
+            let env = match &self.env {
+                Some(env) => env.errors(i, &bake)?,
+                None => Vec::new(),
+            };
             for (k, level) in stands.iter().enumerate().skip(first) {
                 let Some(level) = *level else { continue };
+                let (ed, es) = env.get(k).copied().flatten().unwrap_or((0.0, 0.0));
                 let d = errors
                     .iter()
                     .map(|e| e.levels[k].diffuse)
-                    .fold(0.0, f64::max);
+                    .fold(ed, f64::max);
                 let s = errors
                     .iter()
                     .map(|e| e.levels[k].specular)
-                    .fold(0.0, f64::max);
+                    .fold(es, f64::max);
                 acc[level].0 += d * d;
                 acc[level].1 += s * s;
                 acc[level].2 += 1;
@@ -563,10 +728,28 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     // Measure.
     let measure_levels = range[1] + 1;
     let samples = samples(map, measure_levels)?;
+    let env = match scene.environment_light()? {
+        Some(light) => {
+            let maps: Vec<&NormalMap> = samples.maps.iter().map(|(m, _)| m).collect();
+            let first: Vec<usize> = samples
+                .maps
+                .iter()
+                .map(|(_, stands)| {
+                    stands
+                        .iter()
+                        .position(|l| l.is_some_and(|l| l >= range[0]))
+                        .unwrap_or(stands.len().saturating_sub(1))
+                })
+                .collect();
+            Some(EnvMeasure::new(light, &maps, &scene.brdfs(), &first)?)
+        }
+        None => None,
+    };
     let m = Measure {
         samples: &samples,
         brdfs: scene.brdfs(),
         directions: directions(scene),
+        env,
         levels: measure_levels,
         from: range[0],
         bakes: Default::default(),
@@ -930,9 +1113,17 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         );
     }
     decisions.push(if scene.has_environment() {
-        "environment: planned as a hemisphere of directional lights (13 directions measured); \
-         no environment code is compiled — ndfmap has no environment shading yet (issue 16)"
-            .into()
+        format!(
+            "environment: measured under {} (its luminance; ground truth by MIS, {ENV_SAMPLES} \
+             samples × {} views × {ENV_TEXELS} texels per level of each sample), shaded by the \
+             prefiltered route (one prefiltered-environment lookup per lobe); the SH route is \
+             not used (it is exact only for the diffuse term)",
+            scene
+                .environment
+                .as_deref()
+                .unwrap_or("the generated sky with a sun"),
+            crate::envlight::default_views().len()
+        )
     } else {
         "environment code: left out (the scene has point/directional lights only)".into()
     });
@@ -1484,29 +1675,16 @@ error = 0.05
 "#;
 
     /// The plan's measured error on the whole map (every part's bake, against the exact
-    /// footprint average) at each shipped level.
+    /// footprint average; under an environment against its ground truth) at each shipped
+    /// level.
     fn measured(plan: &Plan, map: &NormalMap) -> Vec<(usize, f64)> {
         let chains = bake_chains(plan, map).unwrap();
-        let brdfs = plan.scene.brdfs();
-        let dirs = directions(&plan.scene);
+        let whole = WholeMap::new(plan, map, 64).unwrap();
         let mut out = Vec::new();
         for (p, (b, _)) in plan.parts.iter().zip(&chains) {
-            let errors = crate::eval::evaluate_from(map, &[b], &brdfs, &dirs, p.first);
-            for k in p.first..=p.last {
-                let e = errors
-                    .iter()
-                    .map(|e| {
-                        let mut v: f64 = 0.0;
-                        if plan.scene.kd_ks().0 > 0.0 {
-                            v = v.max(e.levels[k].diffuse);
-                        }
-                        if plan.scene.specular() {
-                            v = v.max(e.levels[k].specular);
-                        }
-                        v
-                    })
-                    .fold(0.0, f64::max);
-                out.push((k, e));
+            let errors = whole.errors(b, p.first, p.last).unwrap();
+            for (k, e) in errors.iter().enumerate().take(p.last + 1).skip(p.first) {
+                out.push((k, *e));
             }
         }
         out

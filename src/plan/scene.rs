@@ -24,6 +24,13 @@ pub struct Scene {
     /// max]` in (0, 90] (default `[10, 90]`): a low sun is `[5, 20]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub light_elevation: Option<[f64; 2]>,
+    /// The environment of an `"environment"` light: `"sky"` (the generated sky with a small
+    /// bright sun, [`crate::environment::Sky`], the default), `"overcast"` (the same sky
+    /// without its sun) or an equirectangular Radiance
+    /// `.hdr` / OpenEXR file (a path relative to the scene file; through the C API, to the
+    /// working directory). Its luminance lights the measurement.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub environment: Option<String>,
     /// Colour across the map.
     #[serde(default)]
     pub color: Color,
@@ -282,6 +289,27 @@ impl Scene {
                 ));
             }
         }
+        if let Some(env) = &self.environment {
+            if !self.has_environment() {
+                return Err(field(
+                    "environment",
+                    "given, but lights has no \"environment\"",
+                ));
+            }
+            if env.is_empty() {
+                return Err(field(
+                    "environment",
+                    "empty (expected \"sky\", \"overcast\" or a file)",
+                ));
+            }
+        }
+        if self.has_environment() && m.model == Model::TorranceSparrow {
+            return Err(field(
+                "material.model",
+                "torrance-sparrow under an environment: the environment routes implement \
+                 lambert, blinn-phong and ggx",
+            ));
+        }
         if let Some(albedo) = &self.color.albedo
             && albedo.is_empty()
         {
@@ -457,6 +485,29 @@ impl Scene {
     pub fn has_environment(&self) -> bool {
         self.lights.contains(&LightKind::Environment)
     }
+
+    /// The environment to light with, when the scene has one: `environment` read (a relative
+    /// path against the working directory), or the generated sky (with or without its sun);
+    /// its luminance.
+    pub fn environment_light(&self) -> Result<Option<crate::envlight::EnvLight>> {
+        if !self.has_environment() {
+            return Ok(None);
+        }
+        let env = match self.environment.as_deref() {
+            None | Some("sky") => crate::environment::Sky::default().render()?,
+            Some("overcast") => crate::environment::Sky {
+                sun: [0.0; 3],
+                ..Default::default()
+            }
+            .render()?,
+            Some(path) => crate::environment::load(
+                std::path::Path::new(path),
+                &crate::environment::EnvOptions::default(),
+            )
+            .map_err(|e| Error::InvalidOption(format!("scene: field 'environment': {e}")))?,
+        };
+        Ok(Some(crate::envlight::EnvLight::new(env.luminance())))
+    }
 }
 
 fn target_value(name: &str, e: f64) -> Result<()> {
@@ -591,6 +642,25 @@ error = 0.05
                     "lights = [\"environment\"]\nlight_elevation = [5, 20]",
                 ),
                 "light_elevation",
+            ),
+            (
+                &GLOSSY.replace(
+                    "lights = [\"point\"]",
+                    "lights = [\"point\"]\nenvironment = \"sky\"",
+                ),
+                "'environment'",
+            ),
+            (
+                &GLOSSY.replace(
+                    "lights = [\"point\"]",
+                    "lights = [\"environment\"]\nenvironment = \"\"",
+                ),
+                "'environment'",
+            ),
+            (
+                "lights = [\"environment\"]\n[material]\nmodel = \"torrance-sparrow\"\n\
+                 sigma = [0.1, 0.2]\n[view]\nlevels = [0, 1]\n[target]\nerror = 0.05\n",
+                "material.model",
             ),
             (
                 &format!("{GLOSSY}[budget]\ntexture_bytes = 0\n"),

@@ -6,11 +6,14 @@
 
 use crate::bake::{Bake, Method};
 use crate::error::Result;
-use crate::eval::evaluate_from;
 use crate::glsl::{ShaderOptions, ShaderSpec, Stage};
 use crate::ingest::NormalMap;
-use crate::plan::{FULL, Plan, bake_chains, directions};
+use crate::plan::{FULL, Plan, WholeMap, bake_chains};
 use serde::Serialize;
+
+/// Texels drawn per level of the whole map for the environment-lit measurement (the
+/// planner's prediction draws [`crate::plan::ENV_TEXELS`] per level of each sample).
+pub const VERIFY_ENV_TEXELS: usize = 192;
 
 /// One scene's row: the plan against the full configuration.
 #[derive(Debug, Clone, Serialize)]
@@ -36,30 +39,6 @@ pub struct PlannerRow {
     pub prediction_factor: f64,
 }
 
-/// The scene's error at every level of `errors` (the largest over the terms the scene uses and
-/// its BRDFs).
-fn scene_errors(plan: &Plan, errors: &[crate::eval::MethodError]) -> Vec<f64> {
-    let (kd, _) = plan.scene.kd_ks();
-    let n = errors.first().map_or(0, |e| e.levels.len());
-    (0..n)
-        .map(|k| {
-            errors
-                .iter()
-                .map(|e| {
-                    let mut v: f64 = 0.0;
-                    if kd > 0.0 {
-                        v = v.max(e.levels[k].diffuse);
-                    }
-                    if plan.scene.specular() {
-                        v = v.max(e.levels[k].specular);
-                    }
-                    v
-                })
-                .fold(0.0, f64::max)
-        })
-        .collect()
-}
-
 fn alu_of(src: &str) -> Option<u32> {
     crate::report::cost::spirv_text(src)
         .ok()
@@ -71,14 +50,13 @@ fn alu_of(src: &str) -> Option<u32> {
 /// image when the scene has colour; the full configuration is baked with colour always (a
 /// white albedo when the map has none).
 pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
-    let brdfs = plan.scene.brdfs();
-    let dirs = directions(&plan.scene);
     let first = plan.levels[0];
+    let whole = WholeMap::new(plan, map, VERIFY_ENV_TEXELS)?;
     // The plan.
     let chains = bake_chains(plan, map)?;
     let mut measured = vec![f64::NAN; plan.levels[1] + 1];
     for (p, (b, _)) in plan.parts.iter().zip(&chains) {
-        let e = scene_errors(plan, &evaluate_from(map, &[b], &brdfs, &dirs, p.first));
+        let e = whole.errors(b, p.first, p.last)?;
         measured[p.first..=p.last].copy_from_slice(&e[p.first..=p.last]);
     }
     let mut seen = Vec::new();
@@ -103,7 +81,7 @@ pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
     let t = std::time::Instant::now();
     let full: Bake = crate::methods::bake_with(full_map, Method::Vmf, &FULL.bake_options())?;
     let full_seconds = t.elapsed().as_secs_f64();
-    let fe = scene_errors(plan, &evaluate_from(map, &[&full], &brdfs, &dirs, first));
+    let fe = whole.errors(&full, first, plan.levels[1])?;
     // Shaders.
     let addressing = map.addressing();
     let plan_alu = (0..plan.parts.len())
