@@ -75,6 +75,7 @@ fn report_writes_markdown_json_plots_and_images() {
             "--anisotropy",
             "4",
             "--no-stability",
+            "--no-planner",
             "--frame-times",
         ])
         .arg(&frame_times)

@@ -2057,6 +2057,11 @@ struct ReportArgs {
     /// Skip the stability sweep.
     #[arg(long)]
     no_stability: bool,
+    /// Skip the planner section (the four scenes of docs/planner planned for their shared
+    /// maps, or for the built-in sample where those are absent, each measured against the
+    /// full configuration: about a minute).
+    #[arg(long)]
+    no_planner: bool,
     /// Measure nothing: rewrite report.md and the plots from a report.json of an earlier run
     /// (with --frame-times, also replace its frame times).
     #[arg(long)]
@@ -2161,6 +2166,22 @@ fn load_frame_times(a: &ReportArgs) -> Result<Option<ndfmap::report::frame::Fram
         .transpose()
 }
 
+/// The shared normal maps' folder: $NDFMAP_DATA, else ../shared/data/normalmaps beside the
+/// current folder or beside the source tree this binary was built from.
+#[cfg(feature = "report")]
+fn shared_maps_dir() -> Option<PathBuf> {
+    std::env::var_os("NDFMAP_DATA")
+        .map(PathBuf::from)
+        .or_else(|| {
+            [
+                PathBuf::from("../shared/data/normalmaps"),
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/normalmaps"),
+            ]
+            .into_iter()
+            .find(|d| d.is_dir())
+        })
+}
+
 /// `ndfmap report`: measure, then write the report with a progress bar.
 #[cfg(feature = "report")]
 fn report(a: ReportArgs) -> Result<()> {
@@ -2258,17 +2279,7 @@ fn report(a: ReportArgs) -> Result<()> {
     if maps.is_empty() {
         // $NDFMAP_DATA, else ../shared/data/normalmaps beside the current folder or beside
         // the source tree this binary was built from.
-        let dir = std::env::var_os("NDFMAP_DATA")
-            .map(PathBuf::from)
-            .or_else(|| {
-                [
-                    PathBuf::from("../shared/data/normalmaps"),
-                    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/normalmaps"),
-                ]
-                .into_iter()
-                .find(|d| d.is_dir())
-            })
-            .unwrap_or_default();
+        let dir = shared_maps_dir().unwrap_or_default();
         maps = ["rock.jpg", "bark.jpg", "metal.jpg", "facade.jpg"]
             .iter()
             .map(|n| dir.join(n))
@@ -2307,6 +2318,20 @@ fn report(a: ReportArgs) -> Result<()> {
         rep.stability = Some(ndfmap::report::stability::sweep(true));
         if let Some(p) = &mut rep.phases {
             w.stop(&mut p.stability);
+        }
+        progress(Progress::Done);
+    }
+    if !a.no_planner {
+        bar.inc_length(1);
+        let w = ndfmap::report::Stopwatch::start();
+        let step = |name: &str| progress(Progress::Step(&format!("planner: {name}")));
+        rep.planner = Some(ndfmap::report::planner::section(
+            shared_maps_dir().as_deref(),
+            ndfmap::report::planner::SAMPLE_SIDE,
+            &step,
+        ));
+        if let Some(p) = &mut rep.phases {
+            w.stop(&mut p.planner);
         }
         progress(Progress::Done);
     }

@@ -497,6 +497,9 @@ pub struct Report {
     /// Why there are no frame times, or where they came from.
     #[serde(default)]
     pub frame_times_note: Option<String>,
+    /// The planner section (issue 18), when run.
+    #[serde(default)]
+    pub planner: Option<planner::Section>,
 }
 
 impl Report {
@@ -549,11 +552,14 @@ pub struct PhaseSeconds {
     pub frame_times: PhaseTime,
     /// The stability sweep.
     pub stability: PhaseTime,
+    /// The planner section.
+    #[serde(default)]
+    pub planner: PhaseTime,
 }
 
 impl PhaseSeconds {
     /// The phases as (name, time), in the order they run.
-    pub fn list(&self) -> [(&'static str, PhaseTime); 12] {
+    pub fn list(&self) -> [(&'static str, PhaseTime); 13] {
         [
             ("ground truth", self.ground_truth),
             ("ideal-NDF floor", self.oracle),
@@ -567,6 +573,7 @@ impl PhaseSeconds {
             ("images", self.images),
             ("frame times", self.frame_times),
             ("stability", self.stability),
+            ("planner", self.planner),
         ]
     }
 
@@ -1101,6 +1108,7 @@ pub fn run(
         phases: Some(ph),
         frame_times: None,
         frame_times_note: None,
+        planner: None,
     })
 }
 
@@ -1378,6 +1386,9 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
     s += &targets(report);
     if let Some(st) = &report.stability {
         s += &stability::markdown(st);
+    }
+    if let Some(p) = &report.planner {
+        s += &planner::markdown(p);
     }
     s += &gallery(report);
     if !plots.is_empty() {

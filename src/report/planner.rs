@@ -9,14 +9,14 @@ use crate::error::Result;
 use crate::glsl::{ShaderOptions, ShaderSpec, Stage};
 use crate::ingest::NormalMap;
 use crate::plan::{FULL, Plan, WholeMap, bake_chains};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Texels drawn per level of the whole map for the environment-lit measurement (the
 /// planner's prediction draws [`crate::plan::ENV_TEXELS`] per level of each sample).
 pub const VERIFY_ENV_TEXELS: usize = 192;
 
 /// One scene's row: the plan against the full configuration.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlannerRow {
     /// Parts of the plan (`L0-2 plain unorm8; L3-6 vmf3a f16`).
     pub plan: String,
@@ -191,5 +191,173 @@ impl PlannerRow {
             );
         }
         s
+    }
+}
+
+/// The report's contrasting scenes (`docs/planner/*.toml`, compiled in) and the shared map each
+/// is planned for, with its albedo: (name, scene text, map file, albedo file).
+pub const SCENES: [(&str, &str, &str, Option<&str>); 4] = [
+    (
+        "matte-far",
+        include_str!("../../docs/planner/matte-far.toml"),
+        "bark.jpg",
+        None,
+    ),
+    (
+        "glossy-metal-close",
+        include_str!("../../docs/planner/glossy-metal-close.toml"),
+        "metal.jpg",
+        None,
+    ),
+    (
+        "rough-stone-low-sun",
+        include_str!("../../docs/planner/rough-stone-low-sun.toml"),
+        "mossyrock.jpg",
+        Some("mossyrock_albedo.jpg"),
+    ),
+    (
+        "mixed-all-levels",
+        include_str!("../../docs/planner/mixed-all-levels.toml"),
+        "rock.jpg",
+        None,
+    ),
+];
+
+/// Side of the built-in sample the report plans the scenes for when the shared maps are
+/// absent (1024²: the mixed scene reaches level 10).
+pub const SAMPLE_SIDE: u32 = 1024;
+
+/// One scene of the section.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneRow {
+    /// The scene's name (`matte-far`).
+    pub scene: String,
+    /// The map it was planned for (file name, or `sample`).
+    pub map: String,
+    /// The measurement.
+    pub row: PlannerRow,
+}
+
+/// The report's planner section: the contrasting scenes planned and measured, and the scenes
+/// that could not be (with why).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Section {
+    /// Scenes measured.
+    pub rows: Vec<SceneRow>,
+    /// `scene: error` of the scenes that failed.
+    pub failed: Vec<String>,
+}
+
+/// Plans and measures every scene of [`SCENES`] for its map in `data` (a folder holding the
+/// shared maps), or for the built-in sample of side `sample_side` (with its albedo for a scene
+/// whose map has one) where the map is absent. A scene that fails (a level range beyond a
+/// small sample) is listed with its error. `step` is told each scene's name.
+pub fn section(data: Option<&std::path::Path>, sample_side: u32, step: &dyn Fn(&str)) -> Section {
+    let mut out = Section::default();
+    let mut sample = None;
+    for (name, text, file, albedo) in SCENES {
+        step(name);
+        let result = (|| -> Result<SceneRow> {
+            let scene = crate::plan::Scene::parse(name, text)?;
+            let path = data.map(|d| d.join(file)).filter(|p| p.exists());
+            let (map, label) = match path {
+                Some(path) => {
+                    let opts = crate::ingest::IngestOptions::default();
+                    let mut map = NormalMap::load(&path, &opts)?;
+                    if let Some(a) = albedo.map(|a| path.with_file_name(a)) {
+                        map = map.with_feature_file(&a, &opts)?;
+                    }
+                    (map, file.to_string())
+                }
+                None => {
+                    let s = sample
+                        .get_or_insert_with(|| crate::procedural::generate(sample_side, 2007));
+                    let map = if albedo.is_some() {
+                        s.map.clone().with_feature(s.albedo.clone())?
+                    } else {
+                        s.map.clone()
+                    };
+                    (map, "sample".to_string())
+                }
+            };
+            let plan = crate::plan::plan(&map, &scene, Some(&label))?;
+            Ok(SceneRow {
+                scene: name.to_string(),
+                map: label,
+                row: measure(&plan, &map)?,
+            })
+        })();
+        match result {
+            Ok(r) => out.rows.push(r),
+            Err(e) => out.failed.push(format!("{name}: {e}")),
+        }
+    }
+    out
+}
+
+/// The section as Markdown: the summary table, then each scene's per-level table.
+pub fn markdown(section: &Section) -> String {
+    use std::fmt::Write;
+    let mut s = String::from("## Planner: contrasting scenes, planned against full\n\n");
+    s += "Each scene of `docs/planner/` planned for its map (`ndfmap plan`), then the plan and \
+          the full configuration (vMF J = 8 aligned, f32, colour, every level) baked and \
+          measured on the whole map: texture bytes, bake seconds, fetches and SPIR-V ALU of \
+          the costliest part's shader, planning seconds, and the scene's texel-space error \
+          against its target and the plan's prediction (docs/planner.md).\n\n";
+    if section.rows.is_empty() {
+        s += "No scene was measured.\n\n";
+    } else {
+        s += "| scene | map | plan | bytes plan / full | bake s plan / full | fetches plan / full \
+              | ALU plan / full | plan s | meets target | prediction factor |\n\
+              |---|---|---|---|---|---|---|---|---|---|\n";
+        for r in &section.rows {
+            let line = r.row.markdown(&r.scene);
+            let first = line.lines().next().unwrap_or_default();
+            // Insert the map after the scene's cell.
+            let rest = first
+                .strip_prefix(&format!("| {} |", r.scene))
+                .unwrap_or(first);
+            let _ = writeln!(s, "| {} | {} |{rest}", r.scene, r.map);
+        }
+        s += "\n";
+        for r in &section.rows {
+            let _ = writeln!(s, "**{}** ({})", r.scene, r.map);
+            let md = r.row.markdown(&r.scene);
+            let table: Vec<&str> = md.lines().skip(1).collect();
+            let _ = writeln!(s, "{}\n", table.join("\n"));
+        }
+    }
+    for f in &section.failed {
+        let _ = writeln!(s, "Not measured: {f}\n");
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_section_plans_every_scene_that_fits_and_names_those_that_do_not() {
+        // A 128² sample (levels 0-7): the matte and the mixed scenes reach level 10.
+        let sec = section(None, 128, &|_| {});
+        let names: Vec<&str> = sec.rows.iter().map(|r| r.scene.as_str()).collect();
+        assert_eq!(names, ["glossy-metal-close", "rough-stone-low-sun"]);
+        assert_eq!(sec.failed.len(), 2);
+        for f in &sec.failed {
+            assert!(f.contains("view.levels"), "{f}");
+        }
+        for r in &sec.rows {
+            assert_eq!(r.map, "sample");
+            // Every scene meets its target at every level, measured on the whole map.
+            assert!(r.row.meets, "{}: {:?}", r.scene, r.row.levels);
+            assert!(r.row.bytes.0 < r.row.bytes.1);
+            for &(_, target, _, measured, _) in &r.row.levels {
+                assert!(measured.is_finite() && measured <= target);
+            }
+        }
+        let md = markdown(&sec);
+        assert!(md.contains("| glossy-metal-close | sample |"), "{md}");
+        assert!(md.contains("Not measured: mixed-all-levels"), "{md}");
     }
 }
