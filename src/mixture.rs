@@ -482,6 +482,34 @@ impl<M: Model> Gather<M> {
     }
 }
 
+/// One value per rayon worker (and one for callers outside the pool), for scratch space that
+/// lives longer than one parallel loop. Each worker only takes its own, so the locks are
+/// never contended; what a value holds never affects results.
+struct PerThread<T> {
+    slots: Vec<std::sync::Mutex<T>>,
+}
+
+impl<T: Default> PerThread<T> {
+    fn new() -> Self {
+        PerThread {
+            slots: (0..=rayon::current_num_threads())
+                .map(|_| Default::default())
+                .collect(),
+        }
+    }
+
+    /// Runs `f` on the calling worker's value, or on a fresh one when that is in use (a
+    /// worker that steals a job while it waits inside `f`, e.g. in a chunked E-step).
+    fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        let i = rayon::current_thread_index().map_or(0, |i| i + 1);
+        match self.slots[i.min(self.slots.len() - 1)].try_lock() {
+            Ok(mut guard) => f(&mut guard),
+            Err(std::sync::TryLockError::Poisoned(p)) => f(&mut p.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => f(&mut T::default()),
+        }
+    }
+}
+
 /// Validates the mixture options against their documented ranges (`bake`'s `MAX_*`).
 pub(crate) fn check(options: &BakeOptions) -> Result<()> {
     if !(1..=MAX_LOBES).contains(&options.lobes) {
@@ -872,6 +900,9 @@ fn top_down<M: Model>(
         };
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
         let wavefronts = w + 2 * (h - 1);
+        // One gathering buffer per worker for the whole level (a wavefront holds few texels:
+        // fresh buffers per wavefront would allocate per texel).
+        let gathers = PerThread::<Gather<M>>::new();
         for d in 0..wavefronts {
             let done = (levels - 1 - k) as f64 + d as f64 / wavefronts as f64;
             progress.report(start + span * done / levels as f64)?;
@@ -885,62 +916,66 @@ fn top_down<M: Model>(
             // Workers poll the cancellation flag between texels.
             let results: Vec<(u32, u32, TexelFit<M::C>)> = (y_lo..=y_hi)
                 .into_par_iter()
-                .map_init(Gather::<M>::default, |g, y| {
-                    if cancel.is_cancelled() {
-                        return None;
-                    }
-                    let x = d - 2 * y;
-                    let t = (y * w + x) as usize;
-                    let parent = parent_of_texel(x, y);
-                    g.collect(map, &level, x, y, cap);
-                    if g.normals.len() <= j && M::closed_form_when_aligned(options, g.min_alpha()) {
-                        let fit = g.one_per_normal();
-                        let fit = match &parent {
-                            Some(p) => into_slots::<M>(&fit, j, &p[..j]),
-                            None => fit,
+                .map(|y| {
+                    gathers.with(|g| {
+                        if cancel.is_cancelled() {
+                            return None;
+                        }
+                        let x = d - 2 * y;
+                        let t = (y * w + x) as usize;
+                        let parent = parent_of_texel(x, y);
+                        g.collect(map, &level, x, y, cap);
+                        if g.normals.len() <= j
+                            && M::closed_form_when_aligned(options, g.min_alpha())
+                        {
+                            let fit = g.one_per_normal();
+                            let fit = match &parent {
+                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
+                                None => fit,
+                            };
+                            return Some((x, y, fit));
+                        }
+                        // The previously visited neighbours and the parent pull (at most
+                        // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
+                        let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
+                        let mut count = 0;
+                        let (xi, yi) = (x as i64, y as i64);
+                        for (a, b) in [
+                            (xi - 1, yi),
+                            (xi - 1, yi - 1),
+                            (xi, yi - 1),
+                            (xi + 1, yi - 1),
+                        ] {
+                            if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
+                                pulls[count] =
+                                    done.components::<M>(b as usize * w as usize + a as usize, j);
+                                count += 1;
+                            }
+                        }
+                        let own = unaligned[k].components::<M>(t, j);
+                        let init = match &parent {
+                            Some(p) => {
+                                pulls[count] = *p;
+                                count += 1;
+                                match_slots::<M>(&own[..j], &p[..j])
+                            }
+                            None => own,
                         };
-                        return Some((x, y, fit));
-                    }
-                    // The previously visited neighbours and the parent pull (at most
-                    // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
-                    let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
-                    let mut count = 0;
-                    let (xi, yi) = (x as i64, y as i64);
-                    for (a, b) in [
-                        (xi - 1, yi),
-                        (xi - 1, yi - 1),
-                        (xi, yi - 1),
-                        (xi + 1, yi - 1),
-                    ] {
-                        if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
-                            pulls[count] =
-                                done.components::<M>(b as usize * w as usize + a as usize, j);
-                            count += 1;
+                        let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
+                        for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
+                            *n = &p[..j];
                         }
-                    }
-                    let own = unaligned[k].components::<M>(t, j);
-                    let init = match &parent {
-                        Some(p) => {
-                            pulls[count] = *p;
-                            count += 1;
-                            match_slots::<M>(&own[..j], &p[..j])
-                        }
-                        None => own,
-                    };
-                    let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
-                    for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
-                        *n = &p[..j];
-                    }
-                    Some((
-                        x,
-                        y,
-                        g.fit(
-                            &init[..j],
-                            (options, &em),
-                            Some(&neighbours[..count]),
-                            cancel,
-                        ),
-                    ))
+                        Some((
+                            x,
+                            y,
+                            g.fit(
+                                &init[..j],
+                                (options, &em),
+                                Some(&neighbours[..count]),
+                                cancel,
+                            ),
+                        ))
+                    })
                 })
                 .collect::<Option<_>>()
                 .ok_or(Error::Cancelled)?;
