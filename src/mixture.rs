@@ -750,7 +750,6 @@ fn bottom_up<M: Model>(
             M::init_from_children(&g.candidates, &mut init[..j]);
             g.fit(&init[..j], (options, &em), None, cancel)
         };
-        let trace_t = std::time::Instant::now();
         let mut out = LevelFit::with_capacity((w * h) as usize, j, colors);
         for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK).min(w * h);
@@ -767,9 +766,6 @@ fn bottom_up<M: Model>(
             }
             let done = (k - 1) as f64 + hi as f64 / (w * h) as f64;
             progress.report(start + span * done / steps)?;
-        }
-        if std::env::var_os("NDFMAP_TRACE").is_some() {
-            eprintln!("TRACE up {k} {:.4}", trace_t.elapsed().as_secs_f64());
         }
         fits.push(out);
     }
@@ -788,34 +784,43 @@ fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
 fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> [Option<usize>; MAX_LOBES] {
     let j = own.len();
     let live = |c: &M::C| M::alpha(c) > 0.0;
-    let mut pairs = [(0.0f64, 0usize, 0usize); MAX_LOBES * MAX_LOBES];
+    // The live pairs in (own index, slot) order: closeness as an integer with the order of
+    // f64::total_cmp, and the pair.
+    let mut keys = [0i64; MAX_LOBES * MAX_LOBES];
+    let mut pair = [(0u8, 0u8); MAX_LOBES * MAX_LOBES];
     let mut count = 0;
     for (i, a) in own.iter().enumerate().filter(|(_, c)| live(c)) {
         for (s, b) in reference.iter().enumerate().filter(|(_, c)| live(c)) {
-            pairs[count] = (M::closeness(a, b), i, s);
+            let bits = M::closeness(a, b).to_bits() as i64;
+            keys[count] = bits ^ ((((bits >> 63) as u64) >> 1) as i64);
+            pair[count] = (i as u8, s as u8);
             count += 1;
         }
     }
-    let pairs = &pairs[..count];
     let mut out = [None; MAX_LOBES];
     let mut used = [false; MAX_LOBES];
     // Greedy on the pairs ordered by closeness (descending), then own index, then slot: each
     // round takes the first pair in that order whose component and slot are both free (what
-    // sorting them and one pass would pick, without the sort).
-    loop {
-        let mut best: Option<(f64, usize, usize)> = None;
-        for &(c, i, s) in pairs {
-            if used[i] || out[s].is_some() {
-                continue;
-            }
-            // The pairs are listed by (own index, slot): the first of the closest wins ties.
-            if best.is_none_or(|(bc, _, _)| c.total_cmp(&bc).is_gt()) {
-                best = Some((c, i, s));
+    // sorting them and one pass would pick, without the sort), then drops the pairs it rules
+    // out (keeping the order, so the first of the closest still wins ties).
+    while count > 0 {
+        let mut best = 0;
+        for p in 1..count {
+            if keys[p] > keys[best] {
+                best = p;
             }
         }
-        let Some((_, i, s)) = best else { break };
-        out[s] = Some(i);
-        used[i] = true;
+        let (i, s) = pair[best];
+        out[s as usize] = Some(i as usize);
+        used[i as usize] = true;
+        let mut kept = 0;
+        for p in 0..count {
+            if pair[p].0 != i && pair[p].1 != s {
+                (keys[kept], pair[kept]) = (keys[p], pair[p]);
+                kept += 1;
+            }
+        }
+        count = kept;
     }
     let mut rest = (0..j).filter(|&i| !used[i]);
     for o in out.iter_mut().take(j) {
@@ -890,7 +895,6 @@ fn top_down<M: Model>(
             fits[0] = Some(fit0);
             continue;
         }
-        let trace_t = std::time::Instant::now();
         let level = LevelFootprints::new(finest, (w, h));
         let texels = (w * h) as usize;
         let cap = options.mode.sample_cap(texels);
@@ -982,9 +986,6 @@ fn top_down<M: Model>(
             for (x, y, fit) in &results {
                 out.set::<M>((y * w + x) as usize, fit);
             }
-        }
-        if std::env::var_os("NDFMAP_TRACE").is_some() {
-            eprintln!("TRACE down {k} {:.4}", trace_t.elapsed().as_secs_f64());
         }
         fits[k] = Some(out);
     }
