@@ -1434,7 +1434,7 @@ mod tests {
         ];
         for _ in 0..500 {
             let j = 1 + (rng.next_u64() % MAX_LOBES as u64) as usize;
-            let mut lobe = |rng: &mut crate::rng::Rng| {
+            let lobe = |rng: &mut crate::rng::Rng| {
                 let alpha = if rng.uniform() < 0.2 { 0.0 } else { 0.5 };
                 Lobe::new(alpha, dirs[(rng.next_u64() % 4) as usize], 10.0)
             };
