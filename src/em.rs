@@ -296,6 +296,9 @@ pub struct EmScratch {
     /// Which of the two the last [`EmScratch::prepare`] filled.
     precision: Precision,
     index: Vec<u32>,
+    /// `1/|n_i|` of every input normal (f32 preparation), computed in one pass that the
+    /// compiler can pipeline.
+    inverse_length: Vec<f64>,
     log_likelihoods: Vec<f64>,
 }
 
@@ -332,6 +335,15 @@ impl EmScratch {
         self.precision = precision;
         let mut original = 0.0;
         let mut max_w = 0.0_f64;
+        self.inverse_length.clear();
+        if precision == Precision::F32 {
+            self.inverse_length.extend(
+                input
+                    .normals
+                    .iter()
+                    .map(|v| 1.0 / v.as_dvec3().length_squared().sqrt()),
+            );
+        }
         for (i, v) in input.normals.iter().enumerate() {
             let w = input.weights.map_or(1.0, |w| w[i]);
             if !is_positive(w) || !w.is_finite() {
@@ -343,7 +355,7 @@ impl EmScratch {
             let l2 = d.length_squared();
             let near_unit = precision == Precision::F32 && (0.5..2.0).contains(&l2);
             let Some(n) = (if near_unit {
-                Some(d * (1.0 / l2.sqrt()))
+                Some(d * self.inverse_length[i])
             } else {
                 normalize_robust(d)
             }) else {

@@ -64,8 +64,15 @@ pub(crate) trait Model: Sync {
     fn with_alpha(c: &Self::C, alpha: f64) -> Self::C;
     /// How alike two components' directions are (larger is closer); used to match slots.
     fn closeness(a: &Self::C, b: &Self::C) -> f64;
-    /// `ln(α p(n))`, the E-step's score of normal `n` under `c` (−∞ for an empty one).
+    /// `ln(α p(n))`, the E-step's score of normal `n` under `c` (−∞ for an empty one), written
+    /// out directly: the reference the tests hold [`Model::log_score_with`] to.
+    #[cfg(test)]
     fn log_score(c: &Self::C, n: Vec3) -> f64;
+    /// The parts of [`Model::log_score`] that do not depend on the normal (logarithms), so
+    /// that scoring many normals under one component computes them once.
+    fn score_constants(c: &Self::C) -> [f64; 2];
+    /// [`Model::log_score`] from [`Model::score_constants`]: the same value, bit for bit.
+    fn log_score_with(c: &Self::C, k: [f64; 2], n: Vec3) -> f64;
     /// The initial components of a coarser texel from its children's components (their α
     /// already scaled by the footprint weights), into `out` (J = `out.len()`).
     fn init_from_children(candidates: &[Self::C], out: &mut [Self::C]);
@@ -124,12 +131,32 @@ impl Model for VmfModel {
     fn closeness(a: &Lobe, b: &Lobe) -> f64 {
         a.mu.dot(b.mu)
     }
+    #[cfg(test)]
     fn log_score(c: &Lobe, n: Vec3) -> f64 {
         if c.is_empty() {
             f64::NEG_INFINITY
         } else {
             c.alpha.ln() + crate::vmf::log_density(n.as_dvec3().dot(c.mu), c.kappa)
         }
+    }
+    fn score_constants(c: &Lobe) -> [f64; 2] {
+        if c.is_empty() {
+            return [f64::NEG_INFINITY, 0.0];
+        }
+        // vmf::log_density's constant: its κ = 0 branch is that constant plus 0·(n·μ − 1).
+        let k = c.kappa.max(0.0);
+        let peak = if k == 0.0 {
+            -(4.0 * std::f64::consts::PI).ln()
+        } else {
+            crate::vmf::log_peak_density(k)
+        };
+        [c.alpha.ln(), peak]
+    }
+    fn log_score_with(c: &Lobe, k: [f64; 2], n: Vec3) -> f64 {
+        if k[0] == f64::NEG_INFINITY {
+            return f64::NEG_INFINITY;
+        }
+        k[0] + (k[1] + c.kappa.max(0.0) * (n.as_dvec3().dot(c.mu) - 1.0))
     }
     fn init_from_children(candidates: &[Lobe], out: &mut [Lobe]) {
         em::seed_from_children_into(candidates, out)
@@ -212,12 +239,29 @@ impl Model for TanModel {
     fn closeness(a: &Gaussian, b: &Gaussian) -> f64 {
         -(a.mean - b.mean).length_squared()
     }
+    #[cfg(test)]
     fn log_score(c: &Gaussian, n: Vec3) -> f64 {
         if c.is_empty() {
             f64::NEG_INFINITY
         } else {
             c.alpha.ln() + c.log_density(tan2005::project(n.as_dvec3()))
         }
+    }
+    fn score_constants(c: &Gaussian) -> [f64; 2] {
+        [
+            if c.is_empty() {
+                f64::NEG_INFINITY
+            } else {
+                c.alpha.ln()
+            },
+            0.0,
+        ]
+    }
+    fn log_score_with(c: &Gaussian, k: [f64; 2], n: Vec3) -> f64 {
+        if k[0] == f64::NEG_INFINITY {
+            return f64::NEG_INFINITY;
+        }
+        k[0] + c.log_density(tan2005::project(n.as_dvec3()))
     }
     fn init_from_children(candidates: &[Gaussian], out: &mut [Gaussian]) {
         tan2005::farthest_first_into(candidates, out)
@@ -304,6 +348,9 @@ struct Gather<M: Model> {
     normals: Vec<Vec3>,
     weights: Vec<f64>,
     features: Vec<[f32; 4]>,
+    /// Leave the map's features out (the unaligned pass of an aligned bake keeps no colours,
+    /// so gathering them and fitting eq 22 there would be wasted work).
+    skip_features: bool,
     candidates: Vec<M::C>,
     scratch: M::Scratch,
 }
@@ -316,6 +363,7 @@ impl<M: Model> Default for Gather<M> {
             normals: Vec::new(),
             weights: Vec::new(),
             features: Vec::new(),
+            skip_features: false,
             candidates: Vec::new(),
             scratch: M::Scratch::default(),
         }
@@ -360,11 +408,12 @@ impl<M: Model> Gather<M> {
         self.features.clear();
         let w = map.width() as usize;
         let stride = sample_stride(xs.len() * ys.len(), cap);
+        let feature = map.feature().filter(|_| !self.skip_features);
         let mut push = |fx: u32, fy: u32, weight: f64| {
             let i = fy as usize * w + fx as usize;
             self.normals.push(map.normals()[i]);
             self.weights.push(weight);
-            if let Some(f) = map.feature() {
+            if let Some(f) = feature {
                 self.features.push(f[i]);
             }
         };
@@ -430,6 +479,34 @@ impl<M: Model> Gather<M> {
             input = input.with_features(&self.features);
         }
         M::fit(&input, init, pass, neighbours, &mut self.scratch)
+    }
+}
+
+/// One value per rayon worker (and one for callers outside the pool), for scratch space that
+/// lives longer than one parallel loop. Each worker only takes its own, so the locks are
+/// never contended; what a value holds never affects results.
+struct PerThread<T> {
+    slots: Vec<std::sync::Mutex<T>>,
+}
+
+impl<T: Default> PerThread<T> {
+    fn new() -> Self {
+        PerThread {
+            slots: (0..=rayon::current_num_threads())
+                .map(|_| Default::default())
+                .collect(),
+        }
+    }
+
+    /// Runs `f` on the calling worker's value, or on a fresh one when that is in use (a
+    /// worker that steals a job while it waits inside `f`, e.g. in a chunked E-step).
+    fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        let i = rayon::current_thread_index().map_or(0, |i| i + 1);
+        match self.slots[i.min(self.slots.len() - 1)].try_lock() {
+            Ok(mut guard) => f(&mut guard),
+            Err(std::sync::TryLockError::Poisoned(p)) => f(&mut p.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => f(&mut T::default()),
+        }
     }
 }
 
@@ -649,6 +726,7 @@ fn bottom_up<M: Model>(
         let cap = options.mode.sample_cap((w * h) as usize);
         let fit_texel = |g: &mut Gather<M>, t: u32| -> TexelFit<M::C> {
             let (x, y) = (t % w, t / w);
+            g.skip_features = !colors;
             g.collect(map, &level, x, y, cap);
             if g.normals.len() <= j {
                 return g.one_per_normal();
@@ -706,23 +784,43 @@ fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
 fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> [Option<usize>; MAX_LOBES] {
     let j = own.len();
     let live = |c: &M::C| M::alpha(c) > 0.0;
-    let mut pairs = [(0.0f64, 0usize, 0usize); MAX_LOBES * MAX_LOBES];
+    // The live pairs in (own index, slot) order: closeness as an integer with the order of
+    // f64::total_cmp, and the pair.
+    let mut keys = [0i64; MAX_LOBES * MAX_LOBES];
+    let mut pair = [(0u8, 0u8); MAX_LOBES * MAX_LOBES];
     let mut count = 0;
     for (i, a) in own.iter().enumerate().filter(|(_, c)| live(c)) {
         for (s, b) in reference.iter().enumerate().filter(|(_, c)| live(c)) {
-            pairs[count] = (M::closeness(a, b), i, s);
+            let bits = M::closeness(a, b).to_bits() as i64;
+            keys[count] = bits ^ ((((bits >> 63) as u64) >> 1) as i64);
+            pair[count] = (i as u8, s as u8);
             count += 1;
         }
     }
-    let pairs = &mut pairs[..count];
-    pairs.sort_unstable_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
     let mut out = [None; MAX_LOBES];
     let mut used = [false; MAX_LOBES];
-    for &(_, i, s) in pairs.iter() {
-        if !used[i] && out[s].is_none() {
-            out[s] = Some(i);
-            used[i] = true;
+    // Greedy on the pairs ordered by closeness (descending), then own index, then slot: each
+    // round takes the first pair in that order whose component and slot are both free (what
+    // sorting them and one pass would pick, without the sort), then drops the pairs it rules
+    // out (keeping the order, so the first of the closest still wins ties).
+    while count > 0 {
+        let mut best = 0;
+        for p in 1..count {
+            if keys[p] > keys[best] {
+                best = p;
+            }
         }
+        let (i, s) = pair[best];
+        out[s as usize] = Some(i as usize);
+        used[i as usize] = true;
+        let mut kept = 0;
+        for p in 0..count {
+            if pair[p].0 != i && pair[p].1 != s {
+                (keys[kept], pair[kept]) = (keys[p], pair[p]);
+                kept += 1;
+            }
+        }
+        count = kept;
     }
     let mut rest = (0..j).filter(|&i| !used[i]);
     for o in out.iter_mut().take(j) {
@@ -789,21 +887,11 @@ fn top_down<M: Model>(
             // One normal per texel: it goes, unpulled, to the parent's component that explains
             // it best (the E-step with the parent's components), so level 0 stays exact. A 1×1
             // map has no parent and nothing to align: slot 0.
-            let fit0 = finest_level::<M>(map, j, |t| {
-                let (x, y) = (t as u32 % w, t as u32 / w);
-                let n = map.normals()[t];
-                let Some(comps) = parent_of_texel(x, y) else {
-                    return 0;
-                };
-                let mut best = (0, f64::NEG_INFINITY);
-                for (s, c) in comps.iter().enumerate().take(j) {
-                    let score = M::log_score(c, n);
-                    if score > best.1 {
-                        best = (s, score);
-                    }
-                }
-                best.0
-            });
+            let slots = match (parent, parent_size) {
+                (Some(p), Some(size)) => finest_slots::<M>(map, p, size, j),
+                _ => vec![0; map.normals().len()],
+            };
+            let fit0 = finest_level::<M>(map, j, |t| slots[t] as usize);
             fits[0] = Some(fit0);
             continue;
         }
@@ -816,6 +904,9 @@ fn top_down<M: Model>(
         };
         // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
         let wavefronts = w + 2 * (h - 1);
+        // One gathering buffer per worker for the whole level (a wavefront holds few texels:
+        // fresh buffers per wavefront would allocate per texel).
+        let gathers = PerThread::<Gather<M>>::new();
         for d in 0..wavefronts {
             let done = (levels - 1 - k) as f64 + d as f64 / wavefronts as f64;
             progress.report(start + span * done / levels as f64)?;
@@ -829,62 +920,66 @@ fn top_down<M: Model>(
             // Workers poll the cancellation flag between texels.
             let results: Vec<(u32, u32, TexelFit<M::C>)> = (y_lo..=y_hi)
                 .into_par_iter()
-                .map_init(Gather::<M>::default, |g, y| {
-                    if cancel.is_cancelled() {
-                        return None;
-                    }
-                    let x = d - 2 * y;
-                    let t = (y * w + x) as usize;
-                    let parent = parent_of_texel(x, y);
-                    g.collect(map, &level, x, y, cap);
-                    if g.normals.len() <= j && M::closed_form_when_aligned(options, g.min_alpha()) {
-                        let fit = g.one_per_normal();
-                        let fit = match &parent {
-                            Some(p) => into_slots::<M>(&fit, j, &p[..j]),
-                            None => fit,
+                .map(|y| {
+                    gathers.with(|g| {
+                        if cancel.is_cancelled() {
+                            return None;
+                        }
+                        let x = d - 2 * y;
+                        let t = (y * w + x) as usize;
+                        let parent = parent_of_texel(x, y);
+                        g.collect(map, &level, x, y, cap);
+                        if g.normals.len() <= j
+                            && M::closed_form_when_aligned(options, g.min_alpha())
+                        {
+                            let fit = g.one_per_normal();
+                            let fit = match &parent {
+                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
+                                None => fit,
+                            };
+                            return Some((x, y, fit));
+                        }
+                        // The previously visited neighbours and the parent pull (at most
+                        // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
+                        let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
+                        let mut count = 0;
+                        let (xi, yi) = (x as i64, y as i64);
+                        for (a, b) in [
+                            (xi - 1, yi),
+                            (xi - 1, yi - 1),
+                            (xi, yi - 1),
+                            (xi + 1, yi - 1),
+                        ] {
+                            if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
+                                pulls[count] =
+                                    done.components::<M>(b as usize * w as usize + a as usize, j);
+                                count += 1;
+                            }
+                        }
+                        let own = unaligned[k].components::<M>(t, j);
+                        let init = match &parent {
+                            Some(p) => {
+                                pulls[count] = *p;
+                                count += 1;
+                                match_slots::<M>(&own[..j], &p[..j])
+                            }
+                            None => own,
                         };
-                        return Some((x, y, fit));
-                    }
-                    // The previously visited neighbours and the parent pull (at most
-                    // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
-                    let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
-                    let mut count = 0;
-                    let (xi, yi) = (x as i64, y as i64);
-                    for (a, b) in [
-                        (xi - 1, yi),
-                        (xi - 1, yi - 1),
-                        (xi, yi - 1),
-                        (xi + 1, yi - 1),
-                    ] {
-                        if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
-                            pulls[count] =
-                                done.components::<M>(b as usize * w as usize + a as usize, j);
-                            count += 1;
+                        let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
+                        for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
+                            *n = &p[..j];
                         }
-                    }
-                    let own = unaligned[k].components::<M>(t, j);
-                    let init = match &parent {
-                        Some(p) => {
-                            pulls[count] = *p;
-                            count += 1;
-                            match_slots::<M>(&own[..j], &p[..j])
-                        }
-                        None => own,
-                    };
-                    let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
-                    for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
-                        *n = &p[..j];
-                    }
-                    Some((
-                        x,
-                        y,
-                        g.fit(
-                            &init[..j],
-                            (options, &em),
-                            Some(&neighbours[..count]),
-                            cancel,
-                        ),
-                    ))
+                        Some((
+                            x,
+                            y,
+                            g.fit(
+                                &init[..j],
+                                (options, &em),
+                                Some(&neighbours[..count]),
+                                cancel,
+                            ),
+                        ))
+                    })
                 })
                 .collect::<Option<_>>()
                 .ok_or(Error::Cancelled)?;
@@ -898,6 +993,53 @@ fn top_down<M: Model>(
         .into_iter()
         .map(|f| f.expect("every level fitted"))
         .collect())
+}
+
+/// The slot of every finest texel in the aligned pass: the component of its parent texel
+/// (read back from `parent`'s texels, a level of `(pw, ph)` texels) that scores its normal
+/// best, the first on ties (an empty component never wins unless all are). A parent's
+/// components and their score constants are decoded once per run of rows sharing a parent
+/// row, not once per finest texel; the result does not depend on the thread count.
+fn finest_slots<M: Model>(
+    map: &NormalMap,
+    parent: &LevelFit,
+    (pw, ph): (u32, u32),
+    j: usize,
+) -> Vec<u8> {
+    type Decoded<C> = ([C; MAX_LOBES], [[f64; 2]; MAX_LOBES]);
+    let (w, h) = (map.width(), map.height());
+    let mut slots = vec![0u8; map.normals().len()];
+    slots.par_chunks_mut(w as usize).enumerate().for_each_init(
+        || (u32::MAX, Vec::<Decoded<M::C>>::new()),
+        |(cached_row, decoded), (y, row)| {
+            let py = parent_of(y as u32, h, ph);
+            if *cached_row != py {
+                decoded.clear();
+                decoded.extend((0..pw).map(|px| {
+                    let comps = parent.components::<M>((py * pw + px) as usize, j);
+                    let mut k = [[0.0; 2]; MAX_LOBES];
+                    for (k, c) in k.iter_mut().zip(&comps).take(j) {
+                        *k = M::score_constants(c);
+                    }
+                    (comps, k)
+                }));
+                *cached_row = py;
+            }
+            let normals = &map.normals()[y * w as usize..][..w as usize];
+            for (x, (slot, &n)) in row.iter_mut().zip(normals).enumerate() {
+                let (comps, k) = &decoded[parent_of(x as u32, w, pw) as usize];
+                let mut best = (0, f64::NEG_INFINITY);
+                for (s, (c, &k)) in comps.iter().zip(k).enumerate().take(j) {
+                    let score = M::log_score_with(c, k, n);
+                    if score > best.1 {
+                        best = (s, score);
+                    }
+                }
+                *slot = best.0 as u8;
+            }
+        },
+    );
+    slots
 }
 
 /// Lays the fits out as textures: J component chains, then J colour chains `α·y`.
@@ -1216,6 +1358,93 @@ mod tests {
             for (a, b) in color.iter().zip(want) {
                 assert!((a - b).abs() < 1e-4, "{color:?} vs {want:?}");
             }
+        }
+    }
+
+    #[test]
+    fn score_constants_give_the_direct_log_score_bit_for_bit() {
+        let mut rng = crate::rng::Rng(41);
+        let mut lobes = vec![
+            Lobe::EMPTY,
+            Lobe::new(0.3, glam::DVec3::Z, 0.0),
+            Lobe::new(0.2, glam::DVec3::new(0.1, 0.0, 1.0), 5.0),
+            Lobe::new(0.5, glam::DVec3::new(0.0, -0.3, 1.0), KAPPA_MAX),
+        ];
+        for _ in 0..20 {
+            lobes.push(Lobe::new(
+                rng.range(1e-6, 1.0),
+                rng.upper(),
+                rng.range(0.0, 3e4),
+            ));
+        }
+        let gaussians: Vec<Gaussian> = (0..10)
+            .map(|_| Gaussian::from_texel([0.4, 0.04, -0.02, 0.4 * 0.01 + 0.004]))
+            .chain([Gaussian::EMPTY])
+            .collect();
+        for _ in 0..200 {
+            let n = rng.upper().as_vec3();
+            for l in &lobes {
+                let k = VmfModel::score_constants(l);
+                let (a, b) = (VmfModel::log_score(l, n), VmfModel::log_score_with(l, k, n));
+                assert_eq!(a.to_bits(), b.to_bits(), "{l:?} {n}: {a} {b}");
+            }
+            for g in &gaussians {
+                let k = TanModel::score_constants(g);
+                let (a, b) = (TanModel::log_score(g, n), TanModel::log_score_with(g, k, n));
+                assert_eq!(a.to_bits(), b.to_bits(), "{g:?} {n}: {a} {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn slot_order_is_the_greedy_pass_over_the_sorted_pairs() {
+        // The reference: sort every live pair by closeness (descending), own index, slot, and
+        // take each pair whose component and slot are both free.
+        fn sorted(own: &[Lobe], reference: &[Lobe]) -> [Option<usize>; MAX_LOBES] {
+            let mut pairs = Vec::new();
+            for (i, a) in own.iter().enumerate().filter(|(_, c)| c.alpha > 0.0) {
+                for (s, b) in reference.iter().enumerate().filter(|(_, c)| c.alpha > 0.0) {
+                    pairs.push((a.mu.dot(b.mu), i, s));
+                }
+            }
+            pairs.sort_by(|p, q| q.0.total_cmp(&p.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
+            let mut out = [None; MAX_LOBES];
+            let mut used = [false; MAX_LOBES];
+            for (_, i, s) in pairs {
+                if !used[i] && out[s].is_none() {
+                    out[s] = Some(i);
+                    used[i] = true;
+                }
+            }
+            let mut rest = (0..own.len()).filter(|&i| !used[i]);
+            for o in out.iter_mut().take(own.len()) {
+                if o.is_none() {
+                    *o = rest.next();
+                }
+            }
+            out
+        }
+        let mut rng = crate::rng::Rng(5);
+        // A few directions only, so equal closeness (ties) is common.
+        let dirs = [
+            glam::DVec3::Z,
+            glam::DVec3::new(0.3, 0.0, 1.0).normalize(),
+            glam::DVec3::new(0.0, 0.3, 1.0).normalize(),
+            glam::DVec3::new(-0.3, 0.0, 1.0).normalize(),
+        ];
+        for _ in 0..500 {
+            let j = 1 + (rng.next_u64() % MAX_LOBES as u64) as usize;
+            let lobe = |rng: &mut crate::rng::Rng| {
+                let alpha = if rng.uniform() < 0.2 { 0.0 } else { 0.5 };
+                Lobe::new(alpha, dirs[(rng.next_u64() % 4) as usize], 10.0)
+            };
+            let own: Vec<Lobe> = (0..j).map(|_| lobe(&mut rng)).collect();
+            let reference: Vec<Lobe> = (0..j).map(|_| lobe(&mut rng)).collect();
+            assert_eq!(
+                slot_order::<VmfModel>(&own, &reference),
+                sorted(&own, &reference),
+                "{own:?} {reference:?}"
+            );
         }
     }
 

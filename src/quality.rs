@@ -31,6 +31,14 @@ use serde::Serialize;
 /// A lobe lighter than this (as a weight fraction of its texel) counts as near-empty.
 pub const NEAR_EMPTY: f64 = 0.01;
 
+/// The sharpest lobe an 8-bit normal map resolves: a vMF's angular spread is about `1/√κ`,
+/// and one quantization step of an 8-bit component near the pole is `2/255 ≈ 0.0078` rad, so
+/// κ = 1/0.0078² ≈ 1.6·10⁴. A sharper lobe can only bet on normals that repeat exactly (which
+/// 8-bit maps have many of), where the likelihood grows as `ln κ` up to
+/// [`crate::vmf::KAPPA_MAX`] without describing any more of the surface.
+/// [`LevelQuality::mean_gap_resolved`] scores both mixtures with κ capped here.
+pub const RESOLVED_KAPPA: f64 = 1.6e4;
+
 /// A texel's baked mixture counts as at least as good as the reference when its score is no
 /// more than this below (nats per normal): the two are independent local optima of the same
 /// objective, each rounded to f32 texels, and run to convergence at EM's tolerance.
@@ -75,6 +83,12 @@ pub struct LevelQuality {
     pub mean_gap: f64,
     /// The largest such gap.
     pub max_gap: f64,
+    /// The mean gap with every lobe of both mixtures capped at [`RESOLVED_KAPPA`] before
+    /// scoring: how much of [`LevelQuality::mean_gap`] is the reference's lobes sharper than
+    /// the map resolves (single or repeated normals at κ up to `KAPPA_MAX`).
+    pub mean_gap_resolved: f64,
+    /// [`LevelQuality::at_least_as_good`] under the same cap.
+    pub at_least_as_good_resolved: f64,
     /// Share of sampled texels whose bake scores at least the reference's (within
     /// [`SAME_SCORE`]).
     pub at_least_as_good: f64,
@@ -127,6 +141,17 @@ pub fn mean_log_likelihood(normals: &[Vec3], weights: &[f64], lobes: &[Lobe]) ->
         total += w;
     }
     if total > 0.0 { sum / total } else { 0.0 }
+}
+
+/// `lobes` with κ capped at `cap`.
+fn capped(lobes: &[Lobe], cap: f64) -> Vec<Lobe> {
+    lobes
+        .iter()
+        .map(|l| Lobe {
+            kappa: l.kappa.min(cap),
+            ..*l
+        })
+        .collect()
 }
 
 /// The lobes as the shader reads them back from f32 texels (Banerjee's κ from `|r|`).
@@ -328,7 +353,7 @@ pub fn fit_quality(
             chosen.into_iter().collect()
         };
         let footprints = LevelFootprints::new((map.width(), map.height()), (w, h));
-        let rows: Vec<(f64, usize, usize)> = picks
+        let rows: Vec<(f64, usize, usize, f64)> = picks
             .par_iter()
             .map(|&t| {
                 let (x, y) = (t as u32 % w, t as u32 / w);
@@ -343,7 +368,15 @@ pub fn fit_quality(
                     options.seed ^ t as u64,
                 );
                 let live = |lobes: &[Lobe]| lobes.iter().filter(|l| l.alpha >= NEAR_EMPTY).count();
-                (best - score, live(&reference), live(&baked))
+                let resolved = |lobes: &[Lobe]| {
+                    mean_log_likelihood(&normals, &weights, &capped(lobes, RESOLVED_KAPPA))
+                };
+                (
+                    best - score,
+                    live(&reference),
+                    live(&baked),
+                    resolved(&reference) - resolved(&baked),
+                )
             })
             .collect();
         let n = rows.len().max(1) as f64;
@@ -352,6 +385,8 @@ pub fn fit_quality(
             sampled: rows.len(),
             mean_gap: rows.iter().map(|r| r.0).sum::<f64>() / n,
             max_gap: rows.iter().map(|r| r.0).fold(f64::NEG_INFINITY, f64::max),
+            mean_gap_resolved: rows.iter().map(|r| r.3).sum::<f64>() / n,
+            at_least_as_good_resolved: rows.iter().filter(|r| r.3 <= SAME_SCORE).count() as f64 / n,
             at_least_as_good: rows.iter().filter(|r| r.0 <= SAME_SCORE).count() as f64 / n,
             dead: dead as f64 / (texels * j) as f64,
             near_empty: near as f64 / (texels * j) as f64,
@@ -471,6 +506,7 @@ mod tests {
         for l in &q {
             assert!(l.dead <= l.near_empty && l.near_empty <= 1.0, "{l:?}");
             assert!(l.mean_gap.is_finite() && l.max_gap >= l.mean_gap, "{l:?}");
+            assert!(l.mean_gap_resolved.is_finite(), "{l:?}");
             assert!((0.0..=1.0).contains(&l.at_least_as_good), "{l:?}");
         }
         let toksvig = crate::methods::bake(&map, Method::Toksvig);

@@ -365,22 +365,22 @@ impl Lobe {
         if !is_positive(alpha) || !alpha.is_finite() {
             return Lobe::EMPTY;
         }
-        match normalize_robust(alpha_r) {
-            Some(mu) => {
-                // |r| = |α·r| / α, computed after scaling so it cannot overflow to NaN.
-                let m = alpha_r.abs().max_element();
-                let len = (alpha_r / m).length() * (m / alpha);
-                Lobe {
-                    alpha,
-                    mu,
-                    kappa: kappa_from_r(len),
-                }
-            }
-            None => Lobe {
+        // normalize_robust's steps, kept for |r| = |α·r| / α (computed after scaling so it
+        // cannot overflow to NaN): the same values as normalizing and measuring separately.
+        let m = alpha_r.abs().max_element();
+        if !is_positive(m) || !m.is_finite() {
+            return Lobe {
                 alpha,
                 mu: DVec3::Z,
                 kappa: 0.0,
-            },
+            };
+        }
+        let s = alpha_r / m;
+        let l = s.length();
+        Lobe {
+            alpha,
+            mu: s / l,
+            kappa: kappa_from_r(l * (m / alpha)),
         }
     }
 

@@ -1951,12 +1951,14 @@ fn bench_quality(
             if !json {
                 println!("\n{name}: {} (baked in {seconds:.2} s)", bake.label());
                 println!(
-                    "{:>5} {:>7} {:>10} {:>9} {:>8} {:>7} {:>7} {:>7} {:>8}",
+                    "{:>5} {:>7} {:>10} {:>9} {:>11} {:>8} {:>8} {:>7} {:>7} {:>7} {:>8}",
                     "level",
                     "sampled",
                     "mean gap",
                     "max gap",
+                    "gap κ≤1.6e4",
                     ">= ref",
+                    ">= ref κ≤",
                     "dead",
                     "<0.01",
                     "wasted",
@@ -1964,12 +1966,14 @@ fn bench_quality(
                 );
                 for l in &q {
                     println!(
-                        "{:>5} {:>7} {:>10.5} {:>9.4} {:>7.0}% {:>6.1}% {:>6.1}% {:>7.2} {:>7.1}%",
+                        "{:>5} {:>7} {:>10.5} {:>9.4} {:>11.5} {:>7.0}% {:>7.0}% {:>6.1}% {:>6.1}% {:>7.2} {:>7.1}%",
                         l.level,
                         l.sampled,
                         l.mean_gap,
                         l.max_gap,
+                        l.mean_gap_resolved,
                         100.0 * l.at_least_as_good,
+                        100.0 * l.at_least_as_good_resolved,
                         100.0 * l.dead,
                         100.0 * l.near_empty,
                         l.wasted,
