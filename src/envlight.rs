@@ -96,6 +96,17 @@ impl EnvLight {
     pub fn reflected(&self) -> &ReflectedTable {
         &self.reflected
     }
+
+    /// The prefiltered route's lobe-energy table of `brdf`'s family (Blinn-Phong or GGX):
+    /// [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values `E(c_o, p)`, row-major, what the shaders
+    /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones).
+    pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
+        match brdf {
+            Brdf::BlinnPhong { .. } => Some(&self.energy.blinn_phong),
+            Brdf::Ggx(_) => Some(&self.energy.ggx),
+            _ => None,
+        }
+    }
 }
 
 /// Refuses BRDFs the environment routes do not implement.
@@ -314,8 +325,11 @@ pub fn ground_truth(
 // Lobe energy (the prefiltered route's split sum)
 // ---------------------------------------------------------------------------------------------
 
-const ENERGY_COS: usize = 33;
-const ENERGY_PARAM: usize = 49;
+/// Columns of a lobe-energy table: `c_o = cos θ_o` from 0 to 1 in equal steps.
+pub const ENERGY_COS: usize = 33;
+/// Rows of a lobe-energy table: the lobe parameter (Blinn-Phong `log2 s' ∈ [−4, 20]`, GGX
+/// `log10 α' ∈ [−3, 0]`) in equal steps.
+pub const ENERGY_PARAM: usize = 49;
 
 /// `E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i` for a view at `cos θ_o = c_o`: Blinn-Phong over
 /// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.

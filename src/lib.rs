@@ -26,6 +26,7 @@ pub mod compress;
 pub mod container;
 pub mod em;
 pub mod environment;
+pub mod envgpu;
 pub mod envlight;
 pub mod error;
 pub mod eval;
