@@ -30,8 +30,8 @@
 //! `mat3 ndf_env_rotation` (world → environment frame), set by the application.
 
 use crate::brdf::Brdf;
-use crate::envlight::{ENERGY_COS, ENERGY_PARAM, ENV_LMAX, EnvLight, Route};
 use crate::environment::projection::REFLECTED_GRID;
+use crate::envlight::{ENERGY_COS, ENERGY_PARAM, ENV_LMAX, EnvLight, Route};
 use crate::error::{Error, Result};
 use crate::harmonics::count;
 

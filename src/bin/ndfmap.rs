@@ -1665,11 +1665,7 @@ fn run(cli: Cli) -> Result<u8> {
                     ndfmap::glsl::ShaderLight::Point,
                     ndfmap::glsl::ShaderLight::EnvPrefiltered,
                     ndfmap::glsl::ShaderLight::EnvSh,
-                ][pick(
-                    "light",
-                    &light,
-                    &["point", "env-prefiltered", "env-sh"],
-                )?],
+                ][pick("light", &light, &["point", "env-prefiltered", "env-sh"])?],
             };
             let stage =
                 [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];
