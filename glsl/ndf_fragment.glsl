@@ -34,7 +34,7 @@ void ndf_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 
 #ifdef NDF_LIGHT_ENV
     ndf_env_texel(t, l, diffuse, specular);
 #else
-    ndf_texel(t, l, h, diffuse, specular);
+    ndf_shade_texel(t, l, h, diffuse, specular);
 #endif
 }
 
