@@ -608,6 +608,63 @@ mod tests {
     }
 
     #[test]
+    fn environment_lighting_is_one_define_and_refuses_what_it_lacks() {
+        let b = bake_with(
+            &map(),
+            Method::Vmf,
+            &BakeOptions {
+                lobes: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let point = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(!point.contains("#define NDF_LIGHT_ENV") && !point.contains("void ndf_env_texel("));
+        for (light, define) in [
+            (
+                ShaderLight::EnvPrefiltered,
+                "#define NDF_LIGHT_ENV_PREFILTERED 1",
+            ),
+            (ShaderLight::EnvSh, "#define NDF_LIGHT_ENV_SH 1"),
+        ] {
+            let o = ShaderOptions {
+                light,
+                ..Default::default()
+            };
+            let src = source(&b, Stage::Fragment, &o).unwrap();
+            assert!(src.contains(define) && src.contains("#define NDF_LIGHT_ENV 1"));
+            assert!(src.contains("void ndf_env_texel("));
+            // The point-light shader is the same text up to the defines and the env file.
+            let stripped = src
+                .replace(ENV, "")
+                .lines()
+                .filter(|l| !l.starts_with("#define NDF_LIGHT_ENV"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            assert_eq!(stripped, point.lines().collect::<Vec<_>>().join("\n"));
+            let toksvig = bake(&map(), Method::Toksvig);
+            assert!(
+                source(&toksvig, Stage::Fragment, &o)
+                    .unwrap()
+                    .contains("#define NDF_R_MAX")
+            );
+            for refused in [
+                bake(&map(), Method::Olano),
+                bake_with(&map(), Method::Sh, &BakeOptions::default()).unwrap(),
+            ] {
+                assert!(matches!(
+                    source(&refused, Stage::Fragment, &o),
+                    Err(Error::InvalidOption(_))
+                ));
+            }
+            for brdf in [ShaderBrdf::TorranceSparrow, ShaderBrdf::Tabulated] {
+                let o = ShaderOptions { brdf, ..o };
+                assert!(source(&b, Stage::Fragment, &o).is_err());
+            }
+        }
+    }
+
+    #[test]
     fn unorm_formats_undo_the_bias_of_signed_channels_only() {
         let mut b = bake(&map(), Method::Toksvig);
         b.format = Format::Unorm8;
