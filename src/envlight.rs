@@ -60,7 +60,7 @@ pub struct EnvLight {
     prefiltered: Prefiltered,
     sh: Vec<f64>,
     reflected: ReflectedTable,
-    energy: EnergyTables,
+    energy: &'static EnergyTables,
 }
 
 impl EnvLight {
@@ -72,7 +72,7 @@ impl EnvLight {
             prefiltered: Prefiltered::new(&radiance),
             sh: projection::project(&radiance, ENV_LMAX),
             reflected: ReflectedTable::new(&radiance, ENV_LMAX),
-            energy: EnergyTables::new(),
+            energy: energy_tables(),
             radiance,
         }
     }
@@ -344,6 +344,13 @@ fn bp_param(i: usize) -> f64 {
 
 fn ggx_param(i: usize) -> f64 {
     10f64.powf(-3.0 + 3.0 * i as f64 / (ENERGY_PARAM - 1) as f64)
+}
+
+/// The lobe-energy tables, computed once per process: they depend on no environment (the
+/// same values every [`EnvLight`] used to compute for itself).
+fn energy_tables() -> &'static EnergyTables {
+    static TABLES: std::sync::OnceLock<EnergyTables> = std::sync::OnceLock::new();
+    TABLES.get_or_init(EnergyTables::new)
 }
 
 impl EnergyTables {

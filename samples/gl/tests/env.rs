@@ -91,6 +91,7 @@ fn bakes() -> Vec<Bake> {
 }
 
 /// The CPU twin of the probe at `uv`, `lod`.
+#[allow(clippy::too_many_arguments)]
 fn cpu(
     light: &EnvLight,
     bake: &Bake,
