@@ -27,6 +27,17 @@ int ndf_max_level() {
     return int(floor(log2(float(max(size.x, size.y)))));
 }
 
+// The shading of one texel: the method's (ndf_shade_texel) under the point light l with half
+// vector h, or with NDF_LIGHT_ENV the environment's (ndf_env.glsl; l then carries the view, h is
+// unused, and the g factor is applied per lobe).
+void ndf_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+#ifdef NDF_LIGHT_ENV
+    ndf_env_texel(t, l, diffuse, specular);
+#else
+    ndf_shade_texel(t, l, h, diffuse, specular);
+#endif
+}
+
 #ifdef NDF_MANUAL
 // Texel coordinates wrapped (REPEAT) or clamped (CLAMP_TO_EDGE) like the sampler would.
 ivec2 ndf_address(ivec2 q, ivec2 size) {
@@ -54,7 +65,7 @@ void ndf_shade_level(vec2 uv, int level, vec3 l, vec3 h, out vec3 diffuse, out v
         ndf_fetch_texel(ndf_address(ivec2(i0) + o, size), level, t);
         vec3 d;
         vec3 s;
-        ndf_shade_texel(t, l, h, d, s);
+        ndf_texel(t, l, h, d, s);
         diffuse += w * d;
         specular += w * s;
     }
@@ -102,7 +113,7 @@ void ndf_shade(vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse, out vec3 sp
 #else
     vec4 t[NDF_TEXTURES];
     ndf_fetch_lod(uv, lod, t);
-    ndf_shade_texel(t, l, h, diffuse, specular);
+    ndf_texel(t, l, h, diffuse, specular);
 #endif
 }
 
@@ -113,11 +124,13 @@ void ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, out vec3 dif
 #ifdef NDF_ANISO
     vec4 t[NDF_TEXTURES];
     ndf_fetch_aniso(uv, dx, dy, t);
-    ndf_shade_texel(t, l, h, diffuse, specular);
+    ndf_texel(t, l, h, diffuse, specular);
 #else
     ndf_shade(uv, ndf_lod(dx, dy, vec2(textureSize(ndf_tex0, 0))), l, h, diffuse, specular);
 #endif
+#ifndef NDF_LIGHT_ENV
     specular *= ndf_g(l, h);
+#endif
 }
 
 #ifdef NDF_PROBE
@@ -128,15 +141,25 @@ uniform vec2 ndf_probe_dy;
 #else
 uniform float ndf_probe_lod;   // level of detail
 #endif
+#ifdef NDF_LIGHT_ENV
+uniform vec3 ndf_probe_v;      // view direction, tangent = environment frame, unit
+#else
 uniform vec3 ndf_probe_l;      // light direction, tangent space, unit
 uniform vec3 ndf_probe_h;      // half vector, tangent space, unit
+#endif
 uniform int ndf_probe_channel; // colour channel written (0, 1, 2)
 
 void main() {
     vec3 d;
     vec3 s;
     vec2 uv = gl_FragCoord.xy / ndf_probe_size;
+#if defined(NDF_LIGHT_ENV)
 #ifdef NDF_ANISO
+    ndf_shade_footprint(uv, ndf_probe_dx, ndf_probe_dy, ndf_probe_v, ndf_probe_v, d, s);
+#else
+    ndf_shade(uv, ndf_probe_lod, ndf_probe_v, ndf_probe_v, d, s);
+#endif
+#elif defined(NDF_ANISO)
     ndf_shade_footprint(uv, ndf_probe_dx, ndf_probe_dy, ndf_probe_l, ndf_probe_h, d, s);
 #else
     ndf_shade(uv, ndf_probe_lod, ndf_probe_l, ndf_probe_h, d, s);
@@ -157,11 +180,24 @@ uniform vec4 ndf_light;        // w = 0: direction towards the light; w = 1: poi
 uniform vec3 ndf_light_color;  // radiance scale (point lights fall off with 1/d^2)
 uniform vec3 ndf_kd;           // K_d
 uniform vec3 ndf_ks;           // K_s
+#ifdef NDF_LIGHT_ENV
+uniform mat3 ndf_env_rotation; // world -> environment frame (a rotation)
+#endif
 
 void main() {
     vec3 n = normalize(ndf_v_normal);
     vec3 tg = normalize(ndf_v_tangent.xyz - n * dot(n, ndf_v_tangent.xyz));
     vec3 bt = (ndf_v_tangent.w < 0.0 ? -1.0 : 1.0) * cross(n, tg);
+#ifdef NDF_LIGHT_ENV
+    // Lit by the environment: ndf_light_color scales its radiance, ndf_light is unused.
+    ndf_env_frame = ndf_env_rotation * mat3(tg, bt, n);
+    vec3 vw = normalize(ndf_camera_pos - ndf_v_position);
+    vec3 v = vec3(dot(vw, tg), dot(vw, bt), dot(vw, n));
+    vec3 d;
+    vec3 s;
+    ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), v, v, d, s);
+    ndf_out = vec4(ndf_light_color * (ndf_kd * d + ndf_ks * s), 1.0);
+#else
     vec3 to_light = ndf_light.w == 0.0 ? ndf_light.xyz : ndf_light.xyz - ndf_v_position;
     float falloff = ndf_light.w == 0.0 ? 1.0 : 1.0 / max(dot(to_light, to_light), 1e-12);
     vec3 lw = normalize(to_light);
@@ -173,5 +209,6 @@ void main() {
     vec3 s;
     ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), l, h, d, s);
     ndf_out = vec4(ndf_light_color * falloff * (ndf_kd * d + ndf_ks * s), 1.0);
+#endif
 }
 #endif

@@ -171,6 +171,12 @@ typedef uint32_t ndf_status;
 typedef struct ndf_bake ndf_bake;
 
 /**
+ * An environment prepared for lighting (opaque): its luminance's SH coefficients, prefiltered
+ * levels and `L′` table. Released with `ndf_environment_free`.
+ */
+typedef struct ndf_environment ndf_environment;
+
+/**
  * A BRDF (opaque): made by `ndf_material_new`, released by `ndf_material_free`. It never changes;
  * any number of threads may use it at once.
  */
@@ -554,6 +560,11 @@ typedef uint32_t ndf_vmf_diffuse;
 typedef uint32_t ndf_sh_diffuse;
 
 /**
+ * What lights the surface in a shader: one of the `NDF_LIGHT_*` values.
+ */
+typedef uint32_t ndf_light;
+
+/**
  * Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
  */
 typedef struct ndf_shader_options {
@@ -602,6 +613,12 @@ typedef struct ndf_shader_options {
    * SH bakes: the diffuse term, `NDF_SH_DIFFUSE_*`. Default `NDF_SH_DIFFUSE_MOMENTS`.
    */
   ndf_sh_diffuse sh_diffuse;
+  /**
+   * The lighting, `NDF_LIGHT_*`: a point light or an environment by one of its routes
+   * (plain, Toksvig, LEAN and vMF bakes; Lambert, Blinn-Phong or GGX; no colour). Default
+   * `NDF_LIGHT_POINT`.
+   */
+  ndf_light light;
 } ndf_shader_options;
 
 /**
@@ -772,6 +789,89 @@ typedef struct ndf_scene {
    */
   uint32_t budget_fetches;
 } ndf_scene;
+
+/**
+ * What to do with NaN, infinite and negative texels: one of the `NDF_BAD_TEXELS_*` values.
+ */
+typedef uint32_t ndf_bad_texels;
+
+/**
+ * How an environment is read. Initialize with `ndf_env_options_default()`.
+ */
+typedef struct ndf_env_options {
+  /**
+   * `sizeof(ndf_env_options)`, set by `ndf_env_options_default()`.
+   */
+  size_t struct_size;
+  /**
+   * Rotation about the zenith in degrees (the radiance at azimuth φ moves to φ + yaw).
+   * Default 0.
+   */
+  double yaw_deg;
+  /**
+   * Radiance multiplier, finite and ≥ 0. Default 1.
+   */
+  double intensity;
+  /**
+   * `NDF_BAD_TEXELS_*`. Default `NDF_BAD_TEXELS_REPAIR`.
+   */
+  ndf_bad_texels bad_texels;
+} ndf_env_options;
+
+/**
+ * Sizes of what an environment hands out, for allocating the buffers.
+ */
+typedef struct ndf_environment_info {
+  /**
+   * Panorama width in texels (twice the height).
+   */
+  uint32_t width;
+  /**
+   * Panorama height in texels.
+   */
+  uint32_t height;
+  /**
+   * Texels repaired (NaN, infinite, negative set to 0).
+   */
+  uint64_t repaired;
+  /**
+   * Floats of `ndf_environment_sh`: 81 (l ≤ 8).
+   */
+  uint32_t sh_count;
+  /**
+   * Atlas width of `ndf_environment_prefiltered` (level 0's width).
+   */
+  uint32_t atlas_width;
+  /**
+   * Atlas height (the levels' heights summed).
+   */
+  uint32_t atlas_height;
+  /**
+   * Prefiltered levels; the level table has 3 × this many `uint32_t` (width, height, first
+   * row).
+   */
+  uint32_t level_count;
+  /**
+   * `κ_0 = W·H/π`: `LOD = ½ log2(κ_0/κ)` (uniform `ndf_env_kappa0`).
+   */
+  double kappa0;
+  /**
+   * Columns (81) and rows (256) of `ndf_environment_reflected`.
+   */
+  uint32_t reflected_columns;
+  /**
+   * Rows of `ndf_environment_reflected`.
+   */
+  uint32_t reflected_rows;
+  /**
+   * Columns (33) and rows (49) of `ndf_environment_energy`.
+   */
+  uint32_t energy_columns;
+  /**
+   * Rows of `ndf_environment_energy`.
+   */
+  uint32_t energy_rows;
+} ndf_environment_info;
 
 /**
  * +Y up (OpenGL, Blender, most CC0 libraries): green is the bitangent as stored. Default.
@@ -1096,6 +1196,33 @@ typedef struct ndf_scene {
  * `ndf_material_table()`.
  */
 #define NDF_BRDF_TABULATED 4
+
+/**
+ * One point or directional light (uniforms `ndf_light`, `ndf_light_color`). Default.
+ */
+#define NDF_LIGHT_POINT 0
+
+/**
+ * An environment, the specular term by one prefiltered lookup per lobe (`NDF_LIGHT_ENV_PREFILTERED`;
+ * data from `ndf_env_prefiltered` and `ndf_env_energy`, uniforms from `ndf_env_uniforms`).
+ */
+#define NDF_LIGHT_ENV_PREFILTERED 1
+
+/**
+ * An environment, the specular term by eq 26 with the `L′` table (`NDF_LIGHT_ENV_SH`; data
+ * from `ndf_env_reflected`, uniforms from `ndf_env_uniforms`).
+ */
+#define NDF_LIGHT_ENV_SH 2
+
+/**
+ * Set them to 0 and count them (`ndf_environment_info.repaired`). Default.
+ */
+#define NDF_BAD_TEXELS_REPAIR 0
+
+/**
+ * Fail with `NDF_STATUS_DECODE`, naming the first bad texel.
+ */
+#define NDF_BAD_TEXELS_REJECT 1
 
 #ifdef __cplusplus
 extern "C" {
@@ -1792,6 +1919,126 @@ ndf_status ndf_plan_bake_write(const struct ndf_plan *plan,
  * `plan` is NULL or a plan from this library not yet freed.
  */
 void ndf_plan_free(struct ndf_plan *plan);
+
+/**
+ * The default environment options: no rotation, intensity 1, bad texels repaired.
+ */
+struct ndf_env_options ndf_env_options_default(void);
+
+/**
+ * Reads an equirectangular environment from a Radiance `.hdr` or OpenEXR file (linear, 2:1,
+ * row 0 the zenith) and prepares it (about a second for 1024 × 512 on two cores).
+ * - `path`: NUL-terminated file name; `options`: from `ndf_env_options_default()`.
+ * - `env_out`: receives the environment, released with `ndf_environment_free`.
+ * - Fails with `NDF_STATUS_READ`, `_DECODE` (undecodable, truncated, or bad texels with
+ *   `NDF_BAD_TEXELS_REJECT`), `_DIMENSIONS` (not 2:1, empty, wider than 16384) or
+ *   `_INVALID_ARGUMENT` (intensity or yaw not finite, intensity < 0).
+ *
+ * # Safety
+ * Pointers are NULL or valid as described; `env_out` is writable.
+ */
+ndf_status ndf_environment_load_file(const char *path,
+                                     const struct ndf_env_options *options,
+                                     struct ndf_environment **env_out);
+
+/**
+ * Reads an environment from the bytes of a `.hdr` or OpenEXR file held in memory.
+ * - `data`, `length`: the file's bytes (`data` not NULL); `name`: NUL-terminated, named in
+ *   errors. Other arguments and failures as for `ndf_environment_load_file`.
+ *
+ * # Safety
+ * `data` is NULL or readable for `length` bytes; the other pointers as for
+ * `ndf_environment_load_file`.
+ */
+ndf_status ndf_environment_load_memory(const void *data,
+                                       size_t length,
+                                       const char *name,
+                                       const struct ndf_env_options *options,
+                                       struct ndf_environment **env_out);
+
+/**
+ * An environment from linear RGB floats, row-major from the zenith row, `width = 2·height`.
+ * - `rgb`: `width × height × 3` floats (`NDF_STATUS_SHORT_PIXELS` is impossible to detect: the
+ *   caller guarantees the length). Other arguments and failures as for
+ *   `ndf_environment_load_file`.
+ *
+ * # Safety
+ * `rgb` is NULL or readable for `width × height × 3` floats; the other pointers as for
+ * `ndf_environment_load_file`.
+ */
+ndf_status ndf_environment_from_rgb(uint32_t width,
+                                    uint32_t height,
+                                    const float *rgb,
+                                    const struct ndf_env_options *options,
+                                    struct ndf_environment **env_out);
+
+/**
+ * Releases an environment (NULL is ignored).
+ *
+ * # Safety
+ * `env` is NULL or a live environment, not used afterwards.
+ */
+void ndf_environment_free(struct ndf_environment *env);
+
+/**
+ * The sizes of what `env` hands out.
+ *
+ * # Safety
+ * `env` is NULL or live; `info_out` is NULL or writable.
+ */
+ndf_status ndf_environment_info_get(const struct ndf_environment *env,
+                                    struct ndf_environment_info *info_out);
+
+/**
+ * The luminance's SH coefficients `L_lm`, l ≤ 8, (l, m) order, environment frame (+Z up,
+ * real orthonormal basis without the Condon–Shortley phase): 81 floats into `out`
+ * (`capacity` floats; uniform `ndf_env_sh`).
+ *
+ * # Safety
+ * `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
+ */
+ndf_status ndf_environment_sh(const struct ndf_environment *env, float *out, size_t capacity);
+
+/**
+ * The prefiltered levels packed for upload as one `R32F` texture (`atlas_width ×
+ * atlas_height` floats, row-major from the top; sampler `ndf_env_atlas`, read with
+ * `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
+ * uniform `ndf_env_level` as floats). Both buffers are required.
+ *
+ * # Safety
+ * `env` is NULL or live; `atlas` is NULL or writable for `atlas_capacity` floats, `levels` for
+ * `levels_capacity` values.
+ */
+ndf_status ndf_environment_prefiltered(const struct ndf_environment *env,
+                                       float *atlas,
+                                       size_t atlas_capacity,
+                                       uint32_t *levels,
+                                       size_t levels_capacity);
+
+/**
+ * The `L′_lm(ω_o)` table of eq 26 (the SH route): `reflected_rows` (256 views, row
+ * `iθ·16 + iφ`) × `reflected_columns` (81) floats, an `R32F` texture (sampler
+ * `ndf_env_reflected`).
+ *
+ * # Safety
+ * `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
+ */
+ndf_status ndf_environment_reflected(const struct ndf_environment *env,
+                                     float *out,
+                                     size_t capacity);
+
+/**
+ * The prefiltered route's lobe-energy table of a BRDF family (`NDF_BRDF_BLINN_PHONG` or
+ * `NDF_BRDF_GGX`): `energy_rows` × `energy_columns` floats, an `R32F` texture (sampler
+ * `ndf_env_energy`). Other BRDFs: `NDF_STATUS_INVALID_ARGUMENT`.
+ *
+ * # Safety
+ * `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
+ */
+ndf_status ndf_environment_energy(const struct ndf_environment *env,
+                                  ndf_brdf brdf,
+                                  float *out,
+                                  size_t capacity);
 
 #ifdef __cplusplus
 }  // extern "C"

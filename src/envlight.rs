@@ -60,7 +60,7 @@ pub struct EnvLight {
     prefiltered: Prefiltered,
     sh: Vec<f64>,
     reflected: ReflectedTable,
-    energy: EnergyTables,
+    energy: &'static EnergyTables,
 }
 
 impl EnvLight {
@@ -72,7 +72,7 @@ impl EnvLight {
             prefiltered: Prefiltered::new(&radiance),
             sh: projection::project(&radiance, ENV_LMAX),
             reflected: ReflectedTable::new(&radiance, ENV_LMAX),
-            energy: EnergyTables::new(),
+            energy: energy_tables(),
             radiance,
         }
     }
@@ -95,6 +95,17 @@ impl EnvLight {
     /// The `L′_lm(ω_o)` table.
     pub fn reflected(&self) -> &ReflectedTable {
         &self.reflected
+    }
+
+    /// The prefiltered route's lobe-energy table of `brdf`'s family (Blinn-Phong or GGX):
+    /// [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values `E(c_o, p)`, row-major, what the shaders
+    /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones).
+    pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
+        match brdf {
+            Brdf::BlinnPhong { .. } => Some(&self.energy.blinn_phong),
+            Brdf::Ggx(_) => Some(&self.energy.ggx),
+            _ => None,
+        }
     }
 }
 
@@ -314,8 +325,11 @@ pub fn ground_truth(
 // Lobe energy (the prefiltered route's split sum)
 // ---------------------------------------------------------------------------------------------
 
-const ENERGY_COS: usize = 33;
-const ENERGY_PARAM: usize = 49;
+/// Columns of a lobe-energy table: `c_o = cos θ_o` from 0 to 1 in equal steps.
+pub const ENERGY_COS: usize = 33;
+/// Rows of a lobe-energy table: the lobe parameter (Blinn-Phong `log2 s' ∈ [−4, 20]`, GGX
+/// `log10 α' ∈ [−3, 0]`) in equal steps.
+pub const ENERGY_PARAM: usize = 49;
 
 /// `E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i` for a view at `cos θ_o = c_o`: Blinn-Phong over
 /// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.
@@ -330,6 +344,13 @@ fn bp_param(i: usize) -> f64 {
 
 fn ggx_param(i: usize) -> f64 {
     10f64.powf(-3.0 + 3.0 * i as f64 / (ENERGY_PARAM - 1) as f64)
+}
+
+/// The lobe-energy tables, computed once per process: they depend on no environment (the
+/// same values every [`EnvLight`] used to compute for itself).
+fn energy_tables() -> &'static EnergyTables {
+    static TABLES: std::sync::OnceLock<EnergyTables> = std::sync::OnceLock::new();
+    TABLES.get_or_init(EnergyTables::new)
 }
 
 impl EnergyTables {

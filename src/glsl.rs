@@ -41,6 +41,8 @@ pub const TAN2005: &str = include_str!("../glsl/ndf_tan2005.glsl");
 pub const SH: &str = include_str!("../glsl/ndf_sh.glsl");
 /// `glsl/ndf_baselines.glsl`: plain, Toksvig, LEAN and Olano–North.
 pub const BASELINES: &str = include_str!("../glsl/ndf_baselines.glsl");
+/// `glsl/ndf_env.glsl`: environment lighting, the SH and prefiltered routes (issue 16).
+pub const ENV: &str = include_str!("../glsl/ndf_env.glsl");
 /// `glsl/ndf_fragment.glsl`: sampling and the fragment entry point.
 pub const FRAGMENT: &str = include_str!("../glsl/ndf_fragment.glsl");
 /// `glsl/ndf_vertex.glsl`: the vertex entry point.
@@ -103,9 +105,40 @@ impl ShaderBrdf {
     }
 }
 
+/// What lights the surface: the point (or directional) light of the mesh and probe entry
+/// points, or an environment by one of [`crate::envlight::Route`]'s routes (`glsl/ndf_env.glsl`,
+/// its data and uniforms in [`crate::envgpu`]; CPU twin [`crate::envlight::shade`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum ShaderLight {
+    /// One light: uniforms `ndf_light`, `ndf_light_color` (probe: `ndf_probe_l`, `ndf_probe_h`).
+    #[default]
+    Point,
+    /// An environment, specular by one prefiltered lookup per lobe (`NDF_LIGHT_ENV_PREFILTERED`).
+    EnvPrefiltered,
+    /// An environment, specular by eq 26 with the `L′` table (`NDF_LIGHT_ENV_SH`).
+    EnvSh,
+}
+
+impl ShaderLight {
+    /// The environment lighting of `route`.
+    pub fn env(route: crate::envlight::Route) -> ShaderLight {
+        match route {
+            crate::envlight::Route::Prefiltered => ShaderLight::EnvPrefiltered,
+            crate::envlight::Route::Sh => ShaderLight::EnvSh,
+        }
+    }
+
+    /// Whether an environment lights the surface.
+    pub fn is_env(self) -> bool {
+        self != ShaderLight::Point
+    }
+}
+
 /// Options of a specialized shader.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ShaderOptions {
+    /// The lighting (`NDF_LIGHT_ENV_*`; default: the point light).
+    pub light: ShaderLight,
     /// The specular BRDF.
     pub brdf: ShaderBrdf,
     /// Hardware, manual or anisotropic filtering.
@@ -289,6 +322,30 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
                 .into(),
         ));
     }
+    if options.light.is_env() {
+        if !matches!(
+            spec.method,
+            Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf
+        ) {
+            return Err(Error::InvalidOption(format!(
+                "environment-lit shaders exist for plain, toksvig, lean and vmf bakes, not {}",
+                spec.method
+            )));
+        }
+        if !matches!(
+            options.brdf,
+            ShaderBrdf::BlinnPhong | ShaderBrdf::Lambert | ShaderBrdf::Ggx { .. }
+        ) {
+            return Err(Error::InvalidOption(
+                "environment lighting supports lambert, blinn-phong and ggx".into(),
+            ));
+        }
+        if options.color {
+            return Err(Error::InvalidOption(
+                "environment lighting shades one channel: no colour textures".into(),
+            ));
+        }
+    }
     let mut out = String::from("#version 330 core\n");
     out += &format!(
         "// ndfmap {} - {} shader for {}\n",
@@ -342,13 +399,24 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     if options.color {
         d("NDF_COLOR", "1");
     }
+    match options.light {
+        ShaderLight::Point => {}
+        ShaderLight::EnvPrefiltered => {
+            d("NDF_LIGHT_ENV", "1");
+            d("NDF_LIGHT_ENV_PREFILTERED", "1");
+        }
+        ShaderLight::EnvSh => {
+            d("NDF_LIGHT_ENV", "1");
+            d("NDF_LIGHT_ENV_SH", "1");
+        }
+    }
     if manual {
         d("NDF_MANUAL", "1");
     }
     if spec.addressing == Addressing::Clamp {
         d("NDF_CLAMP", "1");
     }
-    if spec.method == Method::Vmf {
+    if spec.method == Method::Vmf || (spec.method == Method::Toksvig && options.light.is_env()) {
         d(
             "NDF_R_MAX",
             &float_literal(crate::vmf::r_max(spec.format) as f32),
@@ -366,6 +434,9 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         Method::Sh => SH,
         _ => BASELINES,
     };
+    if options.light.is_env() {
+        out += ENV;
+    }
     out += FRAGMENT;
     Ok(out)
 }
@@ -534,6 +605,63 @@ mod tests {
                 .unwrap()
                 .contains(define)
         );
+    }
+
+    #[test]
+    fn environment_lighting_is_one_define_and_refuses_what_it_lacks() {
+        let b = bake_with(
+            &map(),
+            Method::Vmf,
+            &BakeOptions {
+                lobes: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let point = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(!point.contains("#define NDF_LIGHT_ENV") && !point.contains("void ndf_env_texel("));
+        for (light, define) in [
+            (
+                ShaderLight::EnvPrefiltered,
+                "#define NDF_LIGHT_ENV_PREFILTERED 1",
+            ),
+            (ShaderLight::EnvSh, "#define NDF_LIGHT_ENV_SH 1"),
+        ] {
+            let o = ShaderOptions {
+                light,
+                ..Default::default()
+            };
+            let src = source(&b, Stage::Fragment, &o).unwrap();
+            assert!(src.contains(define) && src.contains("#define NDF_LIGHT_ENV 1"));
+            assert!(src.contains("void ndf_env_texel("));
+            // The point-light shader is the same text up to the defines and the env file.
+            let stripped = src
+                .replace(ENV, "")
+                .lines()
+                .filter(|l| !l.starts_with("#define NDF_LIGHT_ENV"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            assert_eq!(stripped, point.lines().collect::<Vec<_>>().join("\n"));
+            let toksvig = bake(&map(), Method::Toksvig);
+            assert!(
+                source(&toksvig, Stage::Fragment, &o)
+                    .unwrap()
+                    .contains("#define NDF_R_MAX")
+            );
+            for refused in [
+                bake(&map(), Method::Olano),
+                bake_with(&map(), Method::Sh, &BakeOptions::default()).unwrap(),
+            ] {
+                assert!(matches!(
+                    source(&refused, Stage::Fragment, &o),
+                    Err(Error::InvalidOption(_))
+                ));
+            }
+            for brdf in [ShaderBrdf::TorranceSparrow, ShaderBrdf::Tabulated] {
+                let o = ShaderOptions { brdf, ..o };
+                assert!(source(&b, Stage::Fragment, &o).is_err());
+            }
+        }
     }
 
     #[test]

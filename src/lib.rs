@@ -25,6 +25,7 @@ pub mod budget;
 pub mod compress;
 pub mod container;
 pub mod em;
+pub mod envgpu;
 pub mod environment;
 pub mod envlight;
 pub mod error;

@@ -96,6 +96,7 @@ fn build(compiler: &str, flags: &[&str], source: &Path, link: Link, out: &Path) 
             cmd.arg("-L")
                 .arg(&lib)
                 .arg("-lndfmap")
+                .arg("-lm")
                 .arg(format!("-Wl,-rpath,{}", lib.display()));
         }
         Link::Static => {

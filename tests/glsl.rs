@@ -2,13 +2,16 @@
 //! counts 1, 3 and 8 (SH: l* = 0, 2, 8), every BRDF of the library (Blinn-Phong, eq 18,
 //! Lambert, GGX with and without its g factor, tabulated), colour on and off, hardware, manual
 //! and anisotropic sampling, both vMF diffuse terms, mesh and probe variants, float and
-//! unsigned-normalized formats, wrap and clamp — checked offline by Khronos' reference compiler
+//! unsigned-normalized formats, wrap and clamp, and the environment-lit specializations of
+//! issue 16 (`NDF_LIGHT_ENV_PREFILTERED`, `NDF_LIGHT_ENV_SH`) — checked offline by Khronos' reference compiler
 //! (`glslangValidator`, Debian `glslang-tools`, installed by scripts/test).
 //! The GL tests in `samples/gl` then run them on Mesa and compare with the CPU twin.
 
 use ndfmap::bake::Method;
 use ndfmap::format::Format;
-use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage, source_for};
+use ndfmap::glsl::{
+    Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage, source_for,
+};
 use ndfmap::ingest::Addressing;
 use ndfmap::methods::texture_ranges;
 use ndfmap::sh::ShDiffuse;
@@ -101,6 +104,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                     lmax: lobes,
                                 };
                                 let opts = ShaderOptions {
+                                    light: ShaderLight::Point,
                                     brdf,
                                     sampling,
                                     color,
@@ -125,6 +129,65 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                 out.push((name, spec, opts));
                             }
                         }
+                    }
+                }
+            }
+        }
+    }
+    // Issue 16: the environment-lit specializations (both routes) of plain, Toksvig, LEAN and
+    // vMF (J = 1, 3, 8), Lambert, Blinn-Phong and GGX with and without g, every sampling, mesh
+    // and probe, f32 and unorm8 (wrap and clamp).
+    for light in [ShaderLight::EnvPrefiltered, ShaderLight::EnvSh] {
+        for (method, lobes) in [
+            (Method::Plain, 0),
+            (Method::Toksvig, 0),
+            (Method::Lean, 0),
+            (Method::Vmf, 1),
+            (Method::Vmf, 3),
+            (Method::Vmf, 8),
+        ] {
+            for brdf in [
+                ShaderBrdf::BlinnPhong,
+                ShaderBrdf::Lambert,
+                ShaderBrdf::Ggx { g: false },
+                ShaderBrdf::Ggx { g: true },
+            ] {
+                for sampling in [
+                    Sampling::Hardware,
+                    Sampling::Manual,
+                    Sampling::Anisotropic(8),
+                ] {
+                    for probe in [false, true] {
+                        let format = if lobes == 3 && method != Method::Lean {
+                            Format::Unorm8
+                        } else {
+                            Format::F32
+                        };
+                        let spec = ShaderSpec {
+                            method,
+                            lobes,
+                            ranges: texture_ranges(method, lobes, false),
+                            format,
+                            aligned: false,
+                            addressing: if probe {
+                                Addressing::Clamp
+                            } else {
+                                Addressing::Wrap
+                            },
+                            lmax: 0,
+                        };
+                        let opts = ShaderOptions {
+                            light,
+                            brdf,
+                            sampling,
+                            probe,
+                            ..Default::default()
+                        };
+                        let name = format!(
+                            "env-{light:?}-{method}{lobes}-{brdf:?}-{sampling:?}-p{}-{format}",
+                            probe as u8
+                        );
+                        out.push((name, spec, opts));
                     }
                 }
             }

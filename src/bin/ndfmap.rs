@@ -170,6 +170,10 @@ enum Command {
         /// the GL-versus-CPU tests.
         #[arg(long)]
         probe: bool,
+        /// The lighting: point (one light), env-prefiltered or env-sh (an environment by that
+        /// route: plain, toksvig, lean and vmf; docs/environment.md).
+        #[arg(long, default_value = "point")]
+        light: String,
     },
     /// Measure error against run time for every method and storage format: texel-space and
     /// image-space error (supersampled ground truth, relative RMSE and FLIP), bake time, peak
@@ -1601,6 +1605,7 @@ fn run(cli: Cli) -> Result<u8> {
             addressing,
             stage,
             probe,
+            light,
         } => {
             let method: Method = method.parse()?;
             let mixture = matches!(method, Method::Vmf | Method::Tan2005);
@@ -1664,6 +1669,11 @@ fn run(cli: Cli) -> Result<u8> {
                 probe,
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
+                light: [
+                    ndfmap::glsl::ShaderLight::Point,
+                    ndfmap::glsl::ShaderLight::EnvPrefiltered,
+                    ndfmap::glsl::ShaderLight::EnvSh,
+                ][pick("light", &light, &["point", "env-prefiltered", "env-sh"])?],
             };
             let stage =
                 [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];

@@ -31,6 +31,8 @@ pub mod shader;
 pub mod brdf;
 
 pub mod plan;
+
+pub mod env;
 #[cfg(test)]
 mod tests;
 

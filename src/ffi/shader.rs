@@ -3,7 +3,7 @@
 
 use super::bake::{FORMATS, ndf_bake, ndf_format};
 use super::{Out, Outcome, arg, choose, fail, guard, guard_value, ndf_status, read_options};
-use crate::glsl::{Sampling, ShaderBrdf, ShaderOptions, ShaderSpec, Stage};
+use crate::glsl::{Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage};
 use crate::sh::ShDiffuse;
 use crate::shade::VmfDiffuse;
 use std::ffi::c_char;
@@ -59,6 +59,17 @@ pub const NDF_BRDF_GGX: ndf_brdf = 3;
 /// `ndf_material_table()`.
 pub const NDF_BRDF_TABULATED: ndf_brdf = 4;
 
+/// What lights the surface in a shader: one of the `NDF_LIGHT_*` values.
+pub type ndf_light = u32;
+/// One point or directional light (uniforms `ndf_light`, `ndf_light_color`). Default.
+pub const NDF_LIGHT_POINT: ndf_light = 0;
+/// An environment, the specular term by one prefiltered lookup per lobe (`NDF_LIGHT_ENV_PREFILTERED`;
+/// data from `ndf_env_prefiltered` and `ndf_env_energy`, uniforms from `ndf_env_uniforms`).
+pub const NDF_LIGHT_ENV_PREFILTERED: ndf_light = 1;
+/// An environment, the specular term by eq 26 with the `L′` table (`NDF_LIGHT_ENV_SH`; data
+/// from `ndf_env_reflected`, uniforms from `ndf_env_uniforms`).
+pub const NDF_LIGHT_ENV_SH: ndf_light = 2;
+
 /// Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
@@ -88,6 +99,10 @@ pub struct ndf_shader_options {
     pub probe: u32,
     /// SH bakes: the diffuse term, `NDF_SH_DIFFUSE_*`. Default `NDF_SH_DIFFUSE_MOMENTS`.
     pub sh_diffuse: ndf_sh_diffuse,
+    /// The lighting, `NDF_LIGHT_*`: a point light or an environment by one of its routes
+    /// (plain, Toksvig, LEAN and vMF bakes; Lambert, Blinn-Phong or GGX; no colour). Default
+    /// `NDF_LIGHT_POINT`.
+    pub light: ndf_light,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
@@ -106,6 +121,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         color: 0,
         probe: 0,
         sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
+        light: NDF_LIGHT_POINT,
     };
     guard_value(o, || o)
 }
@@ -148,6 +164,15 @@ unsafe fn shader(
             "sh_diffuse",
             o.sh_diffuse,
             &[ShDiffuse::Moments, ShDiffuse::Series],
+        )?,
+        light: choose(
+            "light",
+            o.light,
+            &[
+                ShaderLight::Point,
+                ShaderLight::EnvPrefiltered,
+                ShaderLight::EnvSh,
+            ],
         )?,
     };
     let format = choose("format", o.format, &FORMATS)?;

@@ -14,6 +14,7 @@
  */
 #include "ndfmap.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -142,6 +143,120 @@ static void shaders(const ndf_bake *bake) {
                (unsigned long long)fnv1a((const unsigned char *)source, written));
         free(source);
     }
+}
+
+/* Environment lighting (issue 16): a constant environment from RGB floats, whose SH, atlas and
+ * L' table are known in closed form (L_00 = sqrt(4 pi) L, every prefiltered texel L, L'_00 =
+ * sqrt(4 pi) L), the energy table, a bright single texel, errors, and the environment-lit
+ * shader source. No output lines: checked here. */
+static void environments(const ndf_bake *vmf) {
+    enum { EW = 32, EH = 16 };
+    static float rgb[EW * EH * 3];
+    ndf_env_options eo = ndf_env_options_default();
+    ndf_environment *env = NULL;
+    ndf_environment_info info;
+    float sh[81];
+    float *atlas, *table, *energy;
+    uint32_t *levels;
+    size_t i, n;
+    ndf_shader_options so = ndf_shader_options_default();
+    size_t size = 0, written = 0;
+    char *source;
+    for (i = 0; i < EW * EH * 3; i++) {
+        rgb[i] = 2.0f;
+    }
+    expect(ndf_environment_from_rgb(EW, EH, rgb, &eo, &env), NDF_STATUS_OK, "env from rgb");
+    if (env == NULL) {
+        return;
+    }
+    expect(ndf_environment_info_get(env, &info), NDF_STATUS_OK, "env info");
+    expect(ndf_environment_sh(env, sh, 80), NDF_STATUS_BUFFER_TOO_SMALL, "env sh short");
+    expect(ndf_environment_sh(env, sh, 81), NDF_STATUS_OK, "env sh");
+    if (info.sh_count != 81 || info.width != EW || fabs(sh[0] - 2.0 * sqrt(4.0 * 3.14159265358979)) > 1e-4) {
+        fprintf(stderr, "FAIL env sh %u %g\n", (unsigned)info.sh_count, sh[0]);
+        failures++;
+    }
+    /* l > 0 vanish up to the projection's 2x2 sub-samples per texel, which on this coarse
+     * 32 x 16 grid (11-degree texels) leave about 0.024 in the zonal even bands (0.3 % of L_00;
+     * below 1e-4 from 64 x 32 on, src/environment/projection.rs). */
+    for (i = 1; i < 81; i++) {
+        if (fabs(sh[i]) > 0.03) {
+            fprintf(stderr, "FAIL env sh[%lu] = %g\n", (unsigned long)i, sh[i]);
+            failures++;
+        }
+    }
+    n = (size_t)info.atlas_width * info.atlas_height;
+    atlas = (float *)malloc(n * sizeof(float));
+    levels = (uint32_t *)malloc(3 * info.level_count * sizeof(uint32_t));
+    expect(ndf_environment_prefiltered(env, atlas, n, levels, 3 * info.level_count), NDF_STATUS_OK,
+           "env prefiltered");
+    expect(ndf_environment_prefiltered(env, NULL, n, levels, 3 * info.level_count),
+           NDF_STATUS_NULL_ARGUMENT, "env prefiltered NULL");
+    for (i = 0; i < info.level_count; i++) {
+        uint32_t x, y;
+        for (y = 0; y < levels[3 * i + 1]; y++) {
+            for (x = 0; x < levels[3 * i]; x++) {
+                float v = atlas[(size_t)(levels[3 * i + 2] + y) * info.atlas_width + x];
+                if (fabs(v - 2.0f) > 1e-4) {
+                    fprintf(stderr, "FAIL env level %lu texel %g\n", (unsigned long)i, v);
+                    failures++;
+                    y = levels[3 * i + 1];
+                    break;
+                }
+            }
+        }
+    }
+    table = (float *)malloc((size_t)info.reflected_columns * info.reflected_rows * sizeof(float));
+    expect(ndf_environment_reflected(env, table, (size_t)info.reflected_columns * info.reflected_rows),
+           NDF_STATUS_OK, "env reflected");
+    for (i = 0; i < info.reflected_rows; i++) {
+        if (fabs(table[i * info.reflected_columns] - 2.0 * sqrt(4.0 * 3.14159265358979)) > 1e-3) {
+            fprintf(stderr, "FAIL env L'00 %g\n", table[i * info.reflected_columns]);
+            failures++;
+            break;
+        }
+    }
+    energy = (float *)malloc((size_t)info.energy_columns * info.energy_rows * sizeof(float));
+    expect(ndf_environment_energy(env, NDF_BRDF_GGX, energy,
+                                  (size_t)info.energy_columns * info.energy_rows),
+           NDF_STATUS_OK, "env energy");
+    expect(ndf_environment_energy(env, NDF_BRDF_TORRANCE_SPARROW, energy,
+                                  (size_t)info.energy_columns * info.energy_rows),
+           NDF_STATUS_INVALID_ARGUMENT, "env energy brdf");
+    free(energy);
+    free(table);
+    free(levels);
+    free(atlas);
+    ndf_environment_free(env);
+    ndf_environment_free(NULL);
+
+    /* Bad input: not 2:1, a NULL buffer, bytes that are no .hdr, unknown policy. */
+    env = NULL;
+    expect(ndf_environment_from_rgb(EW, EW, rgb, &eo, &env), NDF_STATUS_DIMENSIONS, "env 1:1");
+    expect(ndf_environment_from_rgb(EW, EH, NULL, &eo, &env), NDF_STATUS_NULL_ARGUMENT,
+           "env NULL rgb");
+    expect(ndf_environment_load_memory(rgb, 64, "junk.hdr", &eo, &env), NDF_STATUS_DECODE,
+           "env junk");
+    eo.bad_texels = 9;
+    expect(ndf_environment_from_rgb(EW, EH, rgb, &eo, &env), NDF_STATUS_INVALID_ARGUMENT,
+           "env policy");
+    if (env != NULL) {
+        fprintf(stderr, "FAIL env written on failure\n");
+        failures++;
+    }
+
+    /* The environment-lit vMF shader. */
+    so.light = NDF_LIGHT_ENV_SH;
+    expect(ndf_bake_shader_source_size(vmf, NDF_SHADER_STAGE_FRAGMENT, &so, &size), NDF_STATUS_OK,
+           "env shader size");
+    source = (char *)malloc(size);
+    expect(ndf_bake_shader_source(vmf, NDF_SHADER_STAGE_FRAGMENT, &so, source, size, &written),
+           NDF_STATUS_OK, "env shader");
+    if (strstr(source, "#define NDF_LIGHT_ENV_SH 1") == NULL) {
+        fprintf(stderr, "FAIL env shader define\n");
+        failures++;
+    }
+    free(source);
 }
 
 static int calls = 0;
@@ -344,6 +459,7 @@ int main(int argc, char **argv) {
     shaders(bakes[NDF_METHOD_VMF]);
     bad_input(map, bakes[NDF_METHOD_PLAIN], rgb);
     materials();
+    environments(bakes[NDF_METHOD_VMF]);
 
     for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_SH; m++) {
         ndf_bake_free(bakes[m]);

@@ -20,7 +20,9 @@
 //! `ndfmap::glsl` vertex and fragment shaders compiled, meshes drawn under a [`Lighting`];
 //! [`Scene::standard`] lists the views the regression renders (`tests/scenes.rs`) and the
 //! frame-time table use. `tests/shaders.rs` proves the shaders equal their CPU twin texel for
-//! texel. PBR bakes are drawn by a plain glTF metallic-roughness GGX shader with no ndfmap code
+//! texel. [`EnvTextures`] uploads an environment for the environment-lit shaders
+//! ([`ndfmap::glsl::ShaderLight`]) and [`BakeRenderer::draw_env`] draws with it
+//! (`tests/env.rs` proves those shaders equal their CPU twin). PBR bakes are drawn by a plain glTF metallic-roughness GGX shader with no ndfmap code
 //! ([`gltf`]; `tests/gltf.rs`), as an unmodified engine would draw them.
 //!
 //! A third route, [`Route::Window`], is a window: with the `window` feature,
@@ -89,6 +91,7 @@
 
 pub mod camera;
 pub mod context;
+pub mod env;
 pub mod gltf;
 pub mod mesh;
 pub mod present;
@@ -101,6 +104,7 @@ pub mod window;
 
 pub use camera::Camera;
 pub use context::{Gl, Route};
+pub use env::{EnvTextures, env_rotation};
 pub use glam;
 pub use glow;
 pub use mesh::{Mesh, MeshData, Vertex, draw_mesh};

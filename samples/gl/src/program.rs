@@ -155,6 +155,15 @@ impl Program {
         });
     }
 
+    /// Sets `mat3 name` (column-major, as glam stores it); ignored when absent.
+    pub fn set_mat3(&self, name: &str, m: &glam::Mat3) {
+        let columns = m.to_cols_array();
+        // SAFETY: as in `set_f32`; the slice holds the 9 floats of one matrix.
+        self.with_uniform(name, |g, l| unsafe {
+            g.uniform_matrix_3_f32_slice(Some(l), false, &columns)
+        });
+    }
+
     /// Sets `float name[N]` from `v` (N ≤ `v.len()` values are read by GL); ignored when absent.
     pub fn set_f32_array(&self, name: &str, v: &[f32]) {
         // SAFETY: as in `set_f32`; the location is the array's first element.

@@ -9,7 +9,7 @@ use crate::{BakeTextures, Camera, Error, Gl, Mesh, Program, RenderTarget, Result
 use glam::{Mat4, Vec3, Vec4};
 use ndfmap::bake::{Bake, Method};
 use ndfmap::brdf::Brdf;
-use ndfmap::glsl::{ShaderBrdf, ShaderOptions, Stage, source, uniforms};
+use ndfmap::glsl::{ShaderBrdf, ShaderLight, ShaderOptions, Stage, source, uniforms};
 use std::cell::RefCell;
 
 /// The BRDF's side of a program: its uniforms ([`ndfmap::glsl::uniforms`]: parameters and, for
@@ -96,6 +96,7 @@ pub struct BakeRenderer {
     binding: BrdfBinding,
     sh_lmax: Option<usize>,
     label: String,
+    light: ShaderLight,
 }
 
 impl BakeRenderer {
@@ -139,6 +140,7 @@ impl BakeRenderer {
             binding: BrdfBinding::default(),
             sh_lmax: (bake.method == Method::Sh).then(|| ndfmap::sh::lmax_of(bake)),
             label: bake.label(),
+            light: options.light,
         })
     }
 
@@ -170,6 +172,44 @@ impl BakeRenderer {
         self.textures.bind(p);
         camera.set_uniforms(p, model);
         p.set_vec4("ndf_light", lighting.light);
+        p.set_vec3("ndf_light_color", lighting.color);
+        p.set_vec3("ndf_kd", lighting.kd);
+        p.set_vec3("ndf_ks", lighting.ks);
+        draw_mesh(p, mesh, target)
+    }
+
+    /// Draws `mesh` like [`BakeRenderer::draw`], lit by the environment `env` turned by
+    /// `rotation` (world → environment frame, [`crate::env_rotation`]) instead of a light:
+    /// `lighting.color` scales the radiance, `lighting.light` is unused. The shader must have
+    /// been compiled with an environment [`ShaderLight`] (its route is the one drawn).
+    #[allow(clippy::too_many_arguments)]
+    pub fn draw_env(
+        &self,
+        mesh: &Mesh,
+        model: &Mat4,
+        camera: &Camera,
+        lighting: &Lighting,
+        env: &crate::EnvTextures,
+        rotation: &glam::Mat3,
+        target: &RenderTarget,
+    ) -> Result<()> {
+        let route = match self.light {
+            ShaderLight::Point => {
+                return Err(Error::Usage(
+                    "draw_env needs a shader compiled for environment lighting".into(),
+                ));
+            }
+            ShaderLight::EnvPrefiltered => ndfmap::envlight::Route::Prefiltered,
+            ShaderLight::EnvSh => ndfmap::envlight::Route::Sh,
+        };
+        let p = &self.program;
+        let unit = self.textures.len() as u32;
+        self.binding
+            .apply(&self.gl, p, &lighting.brdf, self.brdf, self.sh_lmax, unit)?;
+        self.textures.bind(p);
+        env.bind(p, unit + 1, &lighting.brdf, route);
+        camera.set_uniforms(p, model);
+        p.set_mat3("ndf_env_rotation", rotation);
         p.set_vec3("ndf_light_color", lighting.color);
         p.set_vec3("ndf_kd", lighting.kd);
         p.set_vec3("ndf_ks", lighting.ks);

@@ -1,7 +1,9 @@
 //! Regression renders: the standard scenes (`Scene::standard`: plane far, plane grazing under a
 //! point light, sphere under a directional light) drawn with the product shaders for plain,
 //! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), and
-//! the PBR bakes (isotropic and anisotropic) with the plain glTF GGX shader, through
+//! the PBR bakes (isotropic and anisotropic) with the plain glTF GGX shader, and (issue 16) the
+//! grazing plane and the sphere lit by the generated sky through both environment routes
+//! (`env-{prefiltered,sh}-*`, Toksvig and vMF J = 4 unaligned), through
 //! EGL and through OSMesa, against the reference images in `tests/reference/`.
 //!
 //! Images are compared after the same tone mapping the references are stored with
@@ -18,7 +20,7 @@
 
 use ndfmap::bake::{BakeOptions, Method, PbrOptions};
 use ndfmap::brdf::{Brdf, Ggx};
-use ndfmap::glsl::{ShaderBrdf, ShaderOptions};
+use ndfmap::glsl::{ShaderBrdf, ShaderLight, ShaderOptions};
 use ndfmap::methods::{bake, bake_with};
 use ndfmap_gl::{BakeRenderer, Gl, Route, Scene, tone_map};
 use std::path::{Path, PathBuf};
@@ -110,6 +112,69 @@ fn file_stem(scene: &Scene, renderer: &BakeRenderer) -> String {
     format!("{}-{}", scene.name, renderer.label().replace(' ', "-"))
 }
 
+/// Compares `pixels` with the reference `stem.png` (or writes it when blessing), pushing a
+/// failure with the images written out on a mismatch.
+fn compare(route: Route, stem: &str, pixels: &[[f32; 4]], bless: bool, failures: &mut Vec<String>) {
+    assert!(
+        pixels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+        "{route} {stem}: non-finite or negative radiance"
+    );
+    let actual = to_image(pixels, SIZE);
+    let path = reference_dir().join(format!("{stem}.png"));
+    if bless {
+        std::fs::create_dir_all(reference_dir()).unwrap();
+        actual.save(&path).unwrap();
+        return;
+    }
+    let reference = image::open(&path)
+        .unwrap_or_else(|e| panic!("{}: {e} (NDFMAP_BLESS=1 creates it)", path.display()))
+        .into_rgb16();
+    let (mut se, mut n) = (0.0f64, 0usize);
+    for (a, b) in actual.as_raw().iter().zip(reference.as_raw()) {
+        let d = (*a as f64 - *b as f64) / 65535.0;
+        se += d * d;
+        n += 1;
+    }
+    let rmse = (se / n as f64).sqrt();
+    let (ra, rr) = (to_rgb8(&actual), to_rgb8(&reference));
+    let flip_map = nv_flip::flip(
+        nv_flip::FlipImageRgb8::with_data(SIZE, SIZE, &rr),
+        nv_flip::FlipImageRgb8::with_data(SIZE, SIZE, &ra),
+        nv_flip::DEFAULT_PIXELS_PER_DEGREE,
+    );
+    let flip = nv_flip::FlipPool::from_image(&flip_map).mean();
+    println!("{route} {stem:<28} RMSE {rmse:.2e}  FLIP {flip:.4}");
+    if rmse > MAX_RMSE || flip > MAX_FLIP {
+        let out = output_dir();
+        std::fs::create_dir_all(&out).unwrap();
+        let base = out.join(format!("{route}-{stem}"));
+        actual.save(base.with_extension("actual.png")).unwrap();
+        reference
+            .save(base.with_extension("reference.png"))
+            .unwrap();
+        let diff = image::ImageBuffer::from_fn(SIZE, SIZE, |x, y| {
+            let (a, b) = (actual.get_pixel(x, y), reference.get_pixel(x, y));
+            image::Rgb(
+                [0, 1, 2]
+                    .map(|c| ((a[c] as i32 - b[c] as i32).unsigned_abs() * 8).min(65535) as u16),
+            )
+        });
+        diff.save(base.with_extension("diff.png")).unwrap();
+        failures.push(format!(
+            "{stem}: RMSE {rmse:.2e} (max {MAX_RMSE:.2e}), FLIP {flip:.4} (max \
+                     {MAX_FLIP}); images in {}.*.png",
+            base.display()
+        ));
+    }
+}
+
+fn in_routes() -> [ndfmap::envlight::Route; 2] {
+    [
+        ndfmap::envlight::Route::Prefiltered,
+        ndfmap::envlight::Route::Sh,
+    ]
+}
+
 fn run(route: Route) {
     if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
         println!("skipped: NDFMAP_SKIP_GL=1");
@@ -126,57 +191,60 @@ fn run(route: Route) {
                 scene.lighting.brdf = b.clone();
             }
             let pixels = scene.render(&gl, r, SIZE).unwrap();
-            assert!(
-                pixels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
-                "{route} {}: non-finite or negative radiance",
-                file_stem(&scene, r)
-            );
-            let actual = to_image(&pixels, SIZE);
             let stem = file_stem(&scene, r);
-            let path = reference_dir().join(format!("{stem}.png"));
-            if bless {
-                std::fs::create_dir_all(reference_dir()).unwrap();
-                actual.save(&path).unwrap();
-                continue;
-            }
-            let reference = image::open(&path)
-                .unwrap_or_else(|e| panic!("{}: {e} (NDFMAP_BLESS=1 creates it)", path.display()))
-                .into_rgb16();
-            let (mut se, mut n) = (0.0f64, 0usize);
-            for (a, b) in actual.as_raw().iter().zip(reference.as_raw()) {
-                let d = (*a as f64 - *b as f64) / 65535.0;
-                se += d * d;
-                n += 1;
-            }
-            let rmse = (se / n as f64).sqrt();
-            let (ra, rr) = (to_rgb8(&actual), to_rgb8(&reference));
-            let flip_map = nv_flip::flip(
-                nv_flip::FlipImageRgb8::with_data(SIZE, SIZE, &rr),
-                nv_flip::FlipImageRgb8::with_data(SIZE, SIZE, &ra),
-                nv_flip::DEFAULT_PIXELS_PER_DEGREE,
-            );
-            let flip = nv_flip::FlipPool::from_image(&flip_map).mean();
-            println!("{route} {stem:<28} RMSE {rmse:.2e}  FLIP {flip:.4}");
-            if rmse > MAX_RMSE || flip > MAX_FLIP {
-                let out = output_dir();
-                std::fs::create_dir_all(&out).unwrap();
-                let base = out.join(format!("{route}-{stem}"));
-                actual.save(base.with_extension("actual.png")).unwrap();
-                reference
-                    .save(base.with_extension("reference.png"))
-                    .unwrap();
-                let diff = image::ImageBuffer::from_fn(SIZE, SIZE, |x, y| {
-                    let (a, b) = (actual.get_pixel(x, y), reference.get_pixel(x, y));
-                    image::Rgb([0, 1, 2].map(|c| {
-                        ((a[c] as i32 - b[c] as i32).unsigned_abs() * 8).min(65535) as u16
-                    }))
-                });
-                diff.save(base.with_extension("diff.png")).unwrap();
-                failures.push(format!(
-                    "{stem}: RMSE {rmse:.2e} (max {MAX_RMSE:.2e}), FLIP {flip:.4} (max \
-                     {MAX_FLIP}); images in {}.*.png",
-                    base.display()
-                ));
+            compare(route, &stem, &pixels, bless, &mut failures);
+        }
+    }
+    // Issue 16: the sphere and the grazing plane lit by the generated sky (sun included), by
+    // both environment routes, for Toksvig and vMF J = 4 unaligned (manual sampling).
+    let sky = ndfmap::environment::Sky {
+        width: 128,
+        ..Default::default()
+    }
+    .render()
+    .unwrap();
+    let light = ndfmap::envlight::EnvLight::new(sky.luminance());
+    let env = ndfmap_gl::EnvTextures::upload(&gl, &light).unwrap();
+    let map = ndfmap::procedural::generate(128, 3).map;
+    let env_bakes = [
+        bake(&map, Method::Toksvig),
+        bake_with(
+            &map,
+            Method::Vmf,
+            &BakeOptions {
+                lobes: 4,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
+    ];
+    let rotation = ndfmap_gl::env_rotation(0.6);
+    for env_route in in_routes() {
+        for b in &env_bakes {
+            let options = ShaderOptions {
+                light: ShaderLight::env(env_route),
+                ..ShaderOptions::default()
+            };
+            let r = BakeRenderer::new(&gl, b, &options).unwrap();
+            for standard in Scene::standard().into_iter().skip(1) {
+                let mut scene = standard.clone();
+                scene.lighting.color = glam::Vec3::splat(0.25);
+                let target = ndfmap_gl::RenderTarget::new(&gl, SIZE, SIZE).unwrap();
+                target.clear([0.0, 0.0, 0.0, 1.0]);
+                let mesh = scene.shape.mesh(&gl).unwrap();
+                r.draw_env(
+                    &mesh,
+                    &glam::Mat4::IDENTITY,
+                    &scene.camera,
+                    &scene.lighting,
+                    &env,
+                    &rotation,
+                    &target,
+                )
+                .unwrap();
+                let pixels = ndfmap_gl::read_rgba_f32(&target).unwrap();
+                let stem = format!("env-{}-{}", env_route.name(), file_stem(&scene, &r));
+                compare(route, &stem, &pixels, bless, &mut failures);
             }
         }
     }

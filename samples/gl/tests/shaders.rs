@@ -116,6 +116,7 @@ fn aniso_derivatives(level: usize, size: (u32, u32)) -> (DVec2, DVec2) {
 fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
     let bake = &case.bake;
     let options = ShaderOptions {
+        light: Default::default(),
         brdf: ShaderBrdf::of(&case.brdf),
         sampling: case.sampling,
         color: case.color,

@@ -1,0 +1,289 @@
+// ndf_env.glsl - environment lighting (Han et al. 2007 Sec 8, eqs 24-26; the prefiltered lookups
+// of the Gaussian-mixture paper's Sec 4). Included after the method file when NDF_LIGHT_ENV_SH or
+// NDF_LIGHT_ENV_PREFILTERED is defined; CPU twin: envlight::shade (every clamp and table lookup
+// below is the CPU's, in the same order). Data: src/envgpu.rs (an R32F equirectangular atlas of
+// the prefiltered levels read with texelFetch, the L' table, the lobe-energy table).
+//
+// Per texel the method gives isotropic lobes (alpha, mu, |r|, var = 1/kappa; var = 0 is kappa =
+// infinity): plain one lobe of var 0; Toksvig |r| = |m| and Banerjee's kappa; LEAN the mean of
+// its two slope variances and |r| = A(kappa); vMF the decoded lobes of Algorithm 2. Then
+//   diffuse (eq 25)  alpha sum_{l<=2} rhoL_l A_l sum_m L_lm Y_lm(mu), A_1 = |r|,
+//                    A_2 = max(1 - 3|r| var, 0), clamped at 0 per lobe;
+//   specular         per lobe facing the view (co = v.mu > 0), r = 2 co mu - v, times g(r, mu):
+//     prefiltered    the BRDF widened by the lobe (s' = s/(1 + s var); GGX alpha', exponent
+//                    2/alpha'^2 - 2), the environment convolved with a vMF of kappa_i = s'/4 at r
+//                    (LOD = 1/2 log2(kappa_0/kappa_i)) times the lobe energy E(co, s') (table);
+//     SH (eq 26)     max(sum_l rho_l e^{-l^2 var/2} sum_m L'_lm(v) Y_lm(mu), 0) co.
+// Directions: lobes and the view are in the tangent frame; ndf_env_frame (set by the entry point:
+// the identity in the probe, tangent -> environment frame on meshes) turns them into the
+// environment's frame for the lookups. The g factor uses tangent-frame directions.
+
+const int NDF_ENV_LMAX = 8;
+const int NDF_ENV_COUNT = 81;
+const int NDF_ENV_MAX_LEVELS = 16;
+const int NDF_ENV_GRID = 16;        // projection::REFLECTED_GRID
+const int NDF_ENV_ENERGY_COS = 33;  // envlight::ENERGY_COS
+const int NDF_ENV_ENERGY_PARAM = 49;
+
+uniform float ndf_env_sh[NDF_ENV_COUNT];  // L_lm, environment frame
+mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry point sets it)
+
+#if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
+uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
+uniform sampler2D ndf_env_energy;   // lobe energy, ENERGY_PARAM rows x ENERGY_COS columns
+uniform float ndf_env_kappa0;
+uniform float ndf_env_level_count;
+uniform float ndf_env_level[3 * NDF_ENV_MAX_LEVELS];  // width, height, first row
+
+// Bilinear lookup of level k at direction d (CPU: Radiance::bilinear): wrap in phi, clamp rows.
+float ndf_env_bilinear(int k, vec3 d) {
+    int w = int(ndf_env_level[3 * k]);
+    int h = int(ndf_env_level[3 * k + 1]);
+    int row = int(ndf_env_level[3 * k + 2]);
+    d = ndf_normalize_or_z(d);
+    float u = (atan(d.y, d.x) + NDF_PI) / (2.0 * NDF_PI);
+    float v = acos(clamp(d.z, -1.0, 1.0)) / NDF_PI;
+    float fu = u * float(w) - 0.5;
+    float fv = v * float(h) - 0.5;
+    float x0 = floor(fu);
+    float y0 = floor(fv);
+    float tx = fu - x0;
+    float ty = fv - y0;
+    int xi = int(x0);
+    int yi = int(y0);
+    int xa = xi - w * int(floor(float(xi) / float(w)));
+    int xb = (xa + 1) - w * ((xa + 1) / w);
+    int ya = clamp(yi, 0, h - 1) + row;
+    int yb = clamp(yi + 1, 0, h - 1) + row;
+    float a = texelFetch(ndf_env_atlas, ivec2(xa, ya), 0).r;
+    float b = texelFetch(ndf_env_atlas, ivec2(xb, ya), 0).r;
+    float c = texelFetch(ndf_env_atlas, ivec2(xa, yb), 0).r;
+    float e = texelFetch(ndf_env_atlas, ivec2(xb, yb), 0).r;
+    return (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * e);
+}
+
+// The environment convolved with a normalized vMF lobe of concentration kappa about d
+// (CPU: Prefiltered::lod, Prefiltered::lookup).
+float ndf_env_lookup(vec3 d, float kappa) {
+    float last = ndf_env_level_count - 1.0;
+    float lod;
+    if (isnan(kappa) || kappa >= ndf_env_kappa0) {
+        lod = 0.0;
+    } else if (kappa <= 0.0) {
+        lod = last;
+    } else {
+        lod = clamp(0.5 * log2(ndf_env_kappa0 / kappa), 0.0, last);
+    }
+    int i = int(floor(lod));
+    float t = lod - float(i);
+    float a = ndf_env_bilinear(i, d);
+    if (t <= 0.0 || float(i + 1) >= ndf_env_level_count) return a;
+    return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
+}
+
+// Bilinear lookup of the energy table at fractional row pi and c_o (CPU: EnergyTables::lookup).
+float ndf_env_energy_at(float pi, float co) {
+    pi = clamp(pi, 0.0, float(NDF_ENV_ENERGY_PARAM - 1));
+    float ci = clamp(co, 0.0, 1.0) * float(NDF_ENV_ENERGY_COS - 1);
+    int p0 = int(floor(pi));
+    int c0 = int(floor(ci));
+    int p1 = min(p0 + 1, NDF_ENV_ENERGY_PARAM - 1);
+    int c1 = min(c0 + 1, NDF_ENV_ENERGY_COS - 1);
+    float fp = pi - float(p0);
+    float fc = ci - float(c0);
+    float a = texelFetch(ndf_env_energy, ivec2(c0, p0), 0).r;
+    float b = texelFetch(ndf_env_energy, ivec2(c1, p0), 0).r;
+    float c = texelFetch(ndf_env_energy, ivec2(c0, p1), 0).r;
+    float e = texelFetch(ndf_env_energy, ivec2(c1, p1), 0).r;
+    return (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+}
+#endif
+
+#if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
+uniform sampler2D ndf_env_reflected;          // L'_lm: 81 columns x 256 views
+uniform float ndf_env_rho[NDF_ENV_LMAX + 1];  // the BRDF's rho_l, l <= 8
+
+// L'_lm(v) bilinear in (theta_o, phi_o) on the view grid (CPU: ReflectedTable::at).
+void ndf_env_reflected_at(vec3 v, out float lp[NDF_ENV_COUNT]) {
+    v = ndf_normalize_or_z(v);
+    float step_t = 0.5 * NDF_PI / float(NDF_ENV_GRID - 1);
+    float t = clamp(acos(clamp(v.z, 0.0, 1.0)) / step_t, 0.0, float(NDF_ENV_GRID - 1));
+    float p = (atan(v.y, v.x) + NDF_PI) / (2.0 * NDF_PI) * float(NDF_ENV_GRID);
+    float t0f = floor(t);
+    float p0f = floor(p);
+    float ft = t - t0f;
+    float fp = p - p0f;
+    int t0 = int(t0f);
+    int t1 = min(t0 + 1, NDF_ENV_GRID - 1);
+    int p0 = int(p0f);
+    p0 = p0 - NDF_ENV_GRID * int(floor(float(p0) / float(NDF_ENV_GRID)));
+    int p1 = (p0 + 1) - NDF_ENV_GRID * ((p0 + 1) / NDF_ENV_GRID);
+    int r00 = t0 * NDF_ENV_GRID + p0;
+    int r01 = t0 * NDF_ENV_GRID + p1;
+    int r10 = t1 * NDF_ENV_GRID + p0;
+    int r11 = t1 * NDF_ENV_GRID + p1;
+    float w00 = (1.0 - ft) * (1.0 - fp);
+    float w01 = (1.0 - ft) * fp;
+    float w10 = ft * (1.0 - fp);
+    float w11 = ft * fp;
+    for (int k = 0; k < NDF_ENV_COUNT; ++k) {
+        lp[k] = w00 * texelFetch(ndf_env_reflected, ivec2(k, r00), 0).r
+              + w01 * texelFetch(ndf_env_reflected, ivec2(k, r01), 0).r
+              + w10 * texelFetch(ndf_env_reflected, ivec2(k, r10), 0).r
+              + w11 * texelFetch(ndf_env_reflected, ivec2(k, r11), 0).r;
+    }
+}
+#endif
+
+// Real spherical harmonics Y_lm(d), l <= 8 (CPU: harmonics::eval_into; the recurrences of
+// ndf_sh.glsl at the environment's band limit).
+void ndf_env_basis(vec3 d, out float y[NDF_ENV_COUNT]) {
+    d = ndf_normalize_or_z(d);
+    float c = 1.0;
+    float s = 0.0;
+    float pmm = 0.28209479177387814;
+    for (int m = 0; m <= NDF_ENV_LMAX; ++m) {
+        if (m > 0) {
+            pmm *= sqrt(float(2 * m + 1) / float(2 * m));
+            float cn = d.x * c - d.y * s;
+            s = d.x * s + d.y * c;
+            c = cn;
+        }
+        float mf = float(m);
+        float p0 = pmm;
+        float p1 = 0.0;
+        for (int l = m; l <= NDF_ENV_LMAX; ++l) {
+            float p;
+            if (l == m) {
+                p = pmm;
+            } else if (l == m + 1) {
+                p = sqrt(2.0 * mf + 3.0) * d.z * pmm;
+                p1 = p;
+            } else {
+                float lf = float(l);
+                float a = sqrt((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf));
+                float b = sqrt(((lf - 1.0) * (lf - 1.0) - mf * mf) /
+                               (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0));
+                p = a * (d.z * p1 - b * p0);
+                p0 = p1;
+                p1 = p;
+            }
+            int centre = l * l + l;
+            if (m == 0) {
+                y[centre] = p;
+            } else {
+                y[centre + m] = 1.4142135623730951 * p * c;
+                y[centre - m] = 1.4142135623730951 * p * s;
+            }
+        }
+    }
+}
+
+// A(kappa) = coth kappa - 1/kappa, the vMF's mean resultant length (CPU: vmf::a_kappa).
+float ndf_env_a_kappa(float kappa) {
+    if (!(kappa > 0.0)) return 0.0;
+    if (kappa < 1.0) {
+        float k2 = kappa * kappa;
+        float d = 27.0;
+        for (float odd = 25.0; odd >= 3.0; odd -= 2.0) d = odd + k2 / d;
+        return kappa / d;
+    }
+    float e = exp(-2.0 * kappa);
+    return 1.0 - 1.0 / kappa + 2.0 * e / (1.0 - e);
+}
+
+// One lobe's contribution (CPU: envlight::shade's loop body); v in the tangent frame.
+void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
+#if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
+                  float lp[NDF_ENV_COUNT],
+#endif
+                  inout float diffuse, inout float specular) {
+    float y[NDF_ENV_COUNT];
+    ndf_env_basis(ndf_env_frame * mu, y);
+    // Eq 25 (CPU: diffuse_lobe).
+    float a[3] = float[](1.0, r, max(1.0 - 3.0 * r * min(var, 1e12), 0.0));
+    const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
+    float dsum = 0.0;
+    for (int l = 0; l < 3; ++l) {
+        float band = 0.0;
+        for (int k = l * l; k < (l + 1) * (l + 1); ++k) band += ndf_env_sh[k] * y[k];
+        dsum += lambert[l] * a[l] * band;
+    }
+    diffuse += alpha * max(dsum, 0.0);
+#ifndef NDF_BRDF_LAMBERT
+    float co = dot(v, mu);
+    if (!(co > 0.0)) return;
+    vec3 r_dir = 2.0 * co * mu - v;
+    float g = ndf_g(r_dir, mu);
+    float vv = min(var, 1e6);
+    float spec;
+#ifdef NDF_LIGHT_ENV_PREFILTERED
+#if defined(NDF_BRDF_GGX)
+    float aw = min(sqrt(ndf_alpha * ndf_alpha + ndf_ggx_c * max(vv, 0.0)), 1.0);
+    float kh = max(2.0 / (aw * aw) - 2.0, 1e-3);
+    float e = ndf_env_energy_at((log2(max(aw, 1e-30)) / log2(10.0) + 3.0) / 3.0 *
+                                float(NDF_ENV_ENERGY_PARAM - 1), co);
+#else
+    float kh = ndf_s / (1.0 + ndf_s * vv);
+    float e = ndf_env_energy_at((log2(max(kh, 1e-30)) + 4.0) / 24.0 *
+                                float(NDF_ENV_ENERGY_PARAM - 1), co);
+#endif
+    spec = ndf_env_lookup(ndf_env_frame * r_dir, 0.25 * kh) * e;
+#else
+    float sum = 0.0;
+    for (int l = 0; l <= NDF_ENV_LMAX; ++l) {
+        float att = exp(-0.5 * float(l * l) * var);
+        float band = 0.0;
+        for (int k = l * l; k < (l + 1) * (l + 1); ++k) band += lp[k] * y[k];
+        sum += ndf_env_rho[l] * att * band;
+    }
+    spec = max(sum, 0.0) * co;
+#endif
+    specular += alpha * spec * g;
+#endif
+}
+
+// Environment-lit shading of one texel for the view v (tangent frame): (diffuse, specular) in
+// every colour channel (CPU: envlight::shade).
+void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 specular) {
+    float d = 0.0;
+    float s = 0.0;
+#if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
+    float lp[NDF_ENV_COUNT];
+    ndf_env_reflected_at(ndf_env_frame * v, lp);
+#define NDF_ENV_LP lp,
+#else
+#define NDF_ENV_LP
+#endif
+#if defined(NDF_METHOD_PLAIN)
+    ndf_env_lobe(1.0, ndf_normalize_or_z(t[0].xyz), 1.0, 0.0, v, NDF_ENV_LP d, s);
+#elif defined(NDF_METHOD_TOKSVIG)
+    vec3 m = t[0].xyz;
+    float len = length(m);
+    vec3 mu = len > 1e-12 ? m / len : vec3(0.0, 0.0, 1.0);
+    float r = min(min(len, 1.0), NDF_R_MAX);
+    // Banerjee's kappa of the clamped |r| (vmf::kappa_from_r), as a variance.
+    // Unclamped here (r = 0: kappa = 0); ndf_env_lobe clamps as the CPU's Lobe does.
+    float var = r > 0.0 ? (1.0 - r) * (1.0 + r) / (r * (3.0 - r * r)) : 1e30;
+    ndf_env_lobe(1.0, mu, r, var, v, NDF_ENV_LP d, s);
+#elif defined(NDF_METHOD_LEAN)
+    vec2 b = t[0].xy;
+    float vx = max(t[0].z - b.x * b.x, 0.0);
+    float vy = max(t[0].w - b.y * b.y, 0.0);
+    vec3 mu = normalize(vec3(b, 1.0));
+    float var = 0.5 * (vx + vy);
+    float r = var > 0.0 ? ndf_env_a_kappa(1.0 / var) : 1.0;
+    ndf_env_lobe(1.0, mu, r, var, v, NDF_ENV_LP d, s);
+#elif defined(NDF_METHOD_VMF)
+    for (int j = 0; j < NDF_LOBES; ++j) {
+        float alpha;
+        vec3 mu;
+        float var;
+        float rlen;
+        if (!ndf_vmf_decode(t[j], alpha, mu, var, rlen)) continue;
+        ndf_env_lobe(alpha, mu, min(rlen, NDF_R_MAX), var, v, NDF_ENV_LP d, s);
+    }
+#endif
+    diffuse = vec3(d);
+    specular = vec3(s);
+}
