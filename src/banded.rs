@@ -81,7 +81,7 @@ impl Bands {
             fine -= 1;
         }
         let step = 1u32 << fine;
-        let rows = (BAND_TEXELS / width.max(1) as u64).clamp(1, u32::MAX as u64) as u32;
+        let rows = (BAND_TEXELS / width.max(1) as u64).clamp(1, height.max(1) as u64) as u32;
         Bands {
             fine,
             band_rows: rows.div_ceil(step) * step,
@@ -788,12 +788,18 @@ pub fn estimate_peak_bytes(
     let coarse_texels = texels >> (2 * bands.fine.min(31) as u64);
     let colour = if color { 2 } else { 0 };
     let coarse = coarse_texels * 16 * j * (4 + 3 + colour);
-    let band = bands.band_rows as u64 * width as u64 * 16 * j * 4 * (1 + color as u64);
+    // Fine levels 1..m−1 of a band (unaligned again, aligned, kept row) and level 0's piece.
+    let band = if bands.fine >= 2 {
+        bands.band_rows.min(height) as u64 * width as u64 * 16 * j * (1 + color as u64)
+    } else {
+        0
+    };
+    let piece = FINEST_CHUNK as u64 * 16 * j * 3 * (1 + color as u64);
     crate::methods::PEAK_FIXED_BYTES
         .saturating_add(source)
         .saturating_add(coarse)
         .saturating_add(band)
-        .saturating_add(32 << 20)
+        .saturating_add(piece)
 }
 
 /// Writes the rows to one file per texture: KTX2 and DDS files at their final layout
@@ -804,9 +810,12 @@ struct FileSink {
     ranges: Vec<[crate::format::ValueRange; 4]>,
     names: Vec<&'static str>,
     format: Format,
-    /// Reused encode buffer.
-    buffer: Vec<[f32; 4]>,
+    /// Level widths.
+    widths: Vec<u32>,
 }
+
+/// Texels a [`FileSink`] encodes and writes per piece.
+const WRITE_CHUNK: usize = 1 << 14;
 
 impl RowSink for FileSink {
     fn rows(
@@ -829,16 +838,30 @@ impl RowSink for FileSink {
                 crate::pack::F16_MAX
             )));
         }
-        // The values the format holds, as `pack::quantize_into` rounds them.
-        self.buffer.clear();
-        self.buffer.extend(texels.iter().map(|t| {
-            let mut t = *t;
-            for (c, v) in t.iter_mut().enumerate() {
-                *v = crate::pack::round_trip(*v, ranges[c], self.format);
-            }
-            t
-        }));
-        self.files[texture].write_rows(level, first_row, &self.buffer)
+        // The values the format holds, as `pack::quantize_into` rounds them, encoded and
+        // written in pieces of whole rows in parallel (positional writes: any order).
+        let w = self.widths[level] as usize;
+        let rows = (WRITE_CHUNK / w).max(1);
+        let (file, format) = (&self.files[texture], self.format);
+        texels
+            .par_chunks(rows * w)
+            .enumerate()
+            .map(|(i, chunk)| {
+                let rounded: Vec<[f32; 4]> = chunk
+                    .iter()
+                    .map(|t| {
+                        let mut t = *t;
+                        for (c, v) in t.iter_mut().enumerate() {
+                            *v = crate::pack::round_trip(*v, ranges[c], format);
+                        }
+                        t
+                    })
+                    .collect();
+                file.write_rows(level, first_row + (i * rows) as u32, &rounded)
+            })
+            .collect::<Vec<Result<()>>>()
+            .into_iter()
+            .collect()
     }
 }
 
@@ -926,7 +949,7 @@ pub fn write_folder(
             ranges: bake.textures.iter().map(|t| t.ranges).collect(),
             names: bake.textures.iter().map(|t| t.name).collect(),
             format,
-            buffer: Vec::new(),
+            widths: bake.sizes.iter().map(|s| s.0).collect(),
         };
         crate::bake::run_with_progress(progress, |progress| {
             progress.report(0.0)?;
