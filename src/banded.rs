@@ -767,13 +767,14 @@ pub fn bake_in_bands(
 
 /// Peak memory of [`write_folder`] for a `width × height` map (`color`: with a feature image;
 /// `compact`: the normals kept as 8-bit samples, else decoded), in bytes: what the budget
-/// checks (module `budget`) and `batch` admits by. The source (3 or 12 bytes per texel, 16
-/// more with colour, and the decoded file while a [`NormalMap`] is made: 4 more), the coarse
-/// levels (the unaligned pass's level m and coarser, 4/3 × 16 J bytes per level-m texel, and
-/// the aligned pass's level m, its parent and the unaligned fits being replaced: 3 × 16 J,
-/// colours 2 × 16 J more), a band (its levels, 4 × 16 J per finest texel of the band,
-/// doubled for colour), the writers' buffers and [`crate::methods::PEAK_FIXED_BYTES`].
-/// Calibrated against measured peaks (docs/scale.md).
+/// checks (module `budget`) and `batch` admits by. The source (3 bytes per texel compact, 16
+/// decoded: the vectors and the decoded file while a [`NormalMap`] is made; 16 more with
+/// colour), the coarse levels (the unaligned pass's level m and coarser, 4/3 × 16 J bytes per
+/// level-m texel, while the aligned level m, 16 J, and its parent, 16 J / 4, are held, both
+/// doubled by colours), a band of fine levels 1..m−1 (16 J per finest texel of the band,
+/// doubled for colour), level 0's piece and [`crate::methods::PEAK_FIXED_BYTES`]. Measured
+/// peaks lie below it (docs/scale.md: 1024² J = 6 aligned colour 153 MiB of an estimated
+/// 228).
 pub fn estimate_peak_bytes(
     width: u32,
     height: u32,
@@ -786,8 +787,9 @@ pub fn estimate_peak_bytes(
     let j = options.lobes as u64;
     let source = texels * (if compact { 3 } else { 16 } + if color { 16 } else { 0 });
     let coarse_texels = texels >> (2 * bands.fine.min(31) as u64);
-    let colour = if color { 2 } else { 0 };
-    let coarse = coarse_texels * 16 * j * (4 + 3 + colour);
+    // Unaligned levels ≥ m (4/3 of level m) while the aligned level m (and its colours) is
+    // fitted from its parent (1/4 of it): in twelfths, 16 + 15 (1 + colour).
+    let coarse = coarse_texels * 16 * j * (16 + 15 * (1 + color as u64)) / 12;
     // Fine levels 1..m−1 of a band (unaligned again, aligned, kept row) and level 0's piece.
     let band = if bands.fine >= 2 {
         bands.band_rows.min(height) as u64 * width as u64 * 16 * j * (1 + color as u64)

@@ -348,3 +348,24 @@ fn bad_bands_and_methods_are_refused_before_any_work() {
     assert_eq!(Bands::for_size(16384, 16384).fine, 3);
     assert_eq!(Bands::for_size(1024, 1024).fine, 1);
 }
+
+#[test]
+fn the_budget_estimate_lies_above_the_measured_peaks() {
+    // docs/scale.md: whole `ndfmap bake` command (decoded source, colour) and `ndfmap bench
+    // --scale` (compact source, no colour), MiB.
+    let o = options(6, Some(1.0), FitMode::Balanced);
+    let measured: [(u32, bool, bool, u64); 2] = [(1024, true, false, 153), (1024, false, true, 89)];
+    for (size, color, compact, mib) in measured {
+        let bands = Bands::for_size(size, size);
+        let e = ndfmap::banded::estimate_peak_bytes(size, size, &o, color, compact, bands);
+        assert!(
+            e > (mib << 20) * 11 / 10,
+            "{size}: {} MiB estimated, {mib} measured",
+            e >> 20
+        );
+    }
+    // 16384² compact, no colour: under the 3 GiB.
+    let bands = Bands::for_size(16384, 16384);
+    let e = ndfmap::banded::estimate_peak_bytes(16384, 16384, &o, false, true, bands);
+    assert!(e < 3 << 30, "{} MiB", e >> 20);
+}

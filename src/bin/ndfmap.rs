@@ -62,7 +62,7 @@ enum Command {
         #[arg(long)]
         quality: bool,
         /// Measure the bounded-memory (banded, streamed) bake instead (docs/scale.md): vMF,
-        /// the first `--lobes`, aligned C = 1, balanced, no colour, written as f16 KTX2 to a
+        /// the first `--lobes`, aligned C = 1, balanced (or the one `--modes` given), no colour, written as f16 KTX2 to a
         /// temporary folder (deleted) from the built-in 1024² sample tiled to each size
         /// (`--sizes`: up to 1024, or multiples of 1024 up to 16384), kept as 8-bit samples:
         /// seconds, CPU µs per texel and its ratio to the first size, peak RSS and the
@@ -1708,12 +1708,13 @@ fn run(cli: Cli) -> Result<u8> {
             untiled_max,
         } => {
             if scale {
-                bench_scale(
-                    &sizes,
-                    lobes.first().copied().unwrap_or(6),
-                    untiled_max,
-                    json,
-                )?;
+                // One mode given: that one; else (the default list) balanced.
+                let mode = match modes.as_slice() {
+                    [one] => one.parse()?,
+                    _ => FitMode::Balanced,
+                };
+                let lobes = lobes.first().copied().unwrap_or(6);
+                bench_scale(&sizes, lobes, mode, untiled_max, json)?;
                 return Ok(status);
             }
             let mut grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
@@ -1967,14 +1968,20 @@ fn same_files(a: &Path, b: &Path) -> std::io::Result<bool> {
 }
 
 /// `ndfmap bench --scale`: the banded bake's time and peak memory per size (docs/scale.md).
-fn bench_scale(sizes: &[u32], lobes: usize, untiled_max: u32, json: bool) -> Result<()> {
+fn bench_scale(
+    sizes: &[u32],
+    lobes: usize,
+    mode: FitMode,
+    untiled_max: u32,
+    json: bool,
+) -> Result<()> {
     use ndfmap::banded::{Bands, CompactSource, Map};
     use ndfmap::container::Container;
     use ndfmap::ingest::{CompactNormals, Samples};
     let options = BakeOptions {
         lobes,
         align: Some(1.0),
-        mode: FitMode::Balanced,
+        mode,
         ..BakeOptions::default()
     };
     let threads = rayon::current_num_threads();
@@ -1991,7 +1998,8 @@ fn bench_scale(sizes: &[u32], lobes: usize, untiled_max: u32, json: bool) -> Res
     std::fs::create_dir_all(&tmp.0).map_err(io)?;
     if !json {
         println!(
-            "{threads} threads; vMF J = {lobes} aligned C = 1 balanced, f16 KTX2, built-in 1024² sample tiled"
+            "{threads} threads; vMF J = {lobes} aligned C = 1 {}, f16 KTX2, built-in 1024² sample tiled",
+            mode.name()
         );
         println!(
             "{:>6} {:>8} {:>5} {:>6} {:>9} {:>8} {:>12} {:>7} {:>9} {:>13} {:>9}",
