@@ -354,7 +354,13 @@ fn the_budget_estimate_lies_above_the_measured_peaks() {
     // docs/scale.md: whole `ndfmap bake` command (decoded source, colour) and `ndfmap bench
     // --scale` (compact source, no colour), MiB.
     let o = options(6, Some(1.0), FitMode::Balanced);
-    let measured: [(u32, bool, bool, u64); 2] = [(1024, true, false, 153), (1024, false, true, 89)];
+    let measured: [(u32, bool, bool, u64); 5] = [
+        (1024, true, false, 153),
+        (1024, false, true, 89),
+        (2048, false, true, 320),
+        (4096, false, true, 1112),
+        (8192, false, true, 1257),
+    ];
     for (size, color, compact, mib) in measured {
         let bands = Bands::for_size(size, size);
         let e = ndfmap::banded::estimate_peak_bytes(size, size, &o, color, compact, bands);
