@@ -918,6 +918,43 @@ pub fn write_folder(
         message: e.to_string(),
     })?;
     crate::output::write_folder(dir, |staging| {
+        // Errors name the final files, not their staging copies.
+        let fill = |staging: &Path| {
+            fill_staging(
+                staging, dir, map, method, options, format, container, bands, &bake, &manifest,
+                json, progress,
+            )
+        };
+        fill(staging).map_err(|e| match e {
+            Error::Write { path, message } => Error::Write {
+                path: path
+                    .strip_prefix(staging)
+                    .map_or(path.clone(), |rest| dir.join(rest)),
+                message,
+            },
+            other => other,
+        })
+    })?;
+    Ok(dir.join(MANIFEST))
+}
+
+/// [`write_folder`]'s work inside the staging folder.
+#[allow(clippy::too_many_arguments)]
+fn fill_staging(
+    staging: &Path,
+    dir: &Path,
+    map: &Map,
+    method: Method,
+    options: &BakeOptions,
+    format: Format,
+    container: Container,
+    bands: Bands,
+    bake: &Bake,
+    manifest: &crate::output::Manifest,
+    json: String,
+    progress: &mut (dyn FnMut(f32) -> bool + Send),
+) -> Result<()> {
+    {
         // The exr container spills to f32 KTX2 files first.
         let spill = container == Container::Exr;
         let mut layout = bake.clone();
@@ -988,6 +1025,5 @@ pub fn write_folder(
             path: dir.join(MANIFEST),
             message: e.to_string(),
         })
-    })?;
-    Ok(dir.join(MANIFEST))
+    }
 }
