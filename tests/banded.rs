@@ -343,7 +343,7 @@ fn bad_bands_and_methods_are_refused_before_any_work() {
     ] {
         let b = Bands::for_size(w, h);
         b.check(w, h).unwrap();
-        assert!(b.band_rows % (1 << b.fine) == 0);
+        assert!(b.band_rows.is_multiple_of(1 << b.fine));
     }
     assert_eq!(Bands::for_size(16384, 16384).fine, 3);
     assert_eq!(Bands::for_size(1024, 1024).fine, 1);

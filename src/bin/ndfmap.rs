@@ -2075,7 +2075,7 @@ fn bench_scale(
                     size,
                     size,
                     3,
-                    Samples::U8(&samples),
+                    Samples::U8(samples),
                     &ingest,
                 )?;
                 let b = bake_with(&full, Method::Vmf, &options)?;
