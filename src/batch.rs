@@ -704,7 +704,15 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
         return Ok(None);
     }
     let (w, h) = crate::ingest::probe_size_bytes(&job.input, &input)?;
-    let needed = crate::methods::estimate_peak_bytes(w, h, job.method, &options, color);
+    // Mixture bakes without block compression are baked in bands and streamed to their files
+    // (module `banded`: bounded memory, the same bytes); the others whole.
+    let banded = matches!(job.method, Method::Vmf | Method::Tan2005) && job.codec.is_none();
+    let needed = if banded {
+        let bands = crate::banded::Bands::for_size(w, h);
+        crate::banded::estimate_peak_bytes(w, h, &options, color, false, bands)
+    } else {
+        crate::methods::estimate_peak_bytes(w, h, job.method, &options, color)
+    };
     crate::budget::check(
         &format!("{}: a {} bake of {w}x{h}", job.input.display(), job.method),
         needed,
@@ -724,6 +732,20 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
             options: job.ingest,
             stats: map.stats().clone(),
         };
+        if banded {
+            return crate::banded::write_folder(
+                &crate::banded::Map::Full(&map),
+                job.method,
+                &options,
+                job.format,
+                job.container,
+                &job.output,
+                info,
+                Some(hash),
+                None,
+                &mut |_| true,
+            );
+        }
         let bake = crate::methods::bake_with(&map, job.method, &options)?;
         drop(map);
         let bake = crate::pack::quantize_into(bake, job.format)?;

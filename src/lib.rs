@@ -18,6 +18,7 @@
 //!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`).
 
 pub mod bake;
+pub mod banded;
 pub mod baseline;
 pub mod batch;
 pub mod brdf;

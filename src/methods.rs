@@ -124,8 +124,10 @@ impl PeakPerTexel {
     }
 }
 
-/// The vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or fast, any
-/// storage format). Measured peaks of the whole `ndfmap bake` command against the estimate
+/// The in-memory vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or
+/// fast, any storage format). `ndfmap bake` (module `batch`) bakes vMF and Tan 2005 without
+/// block compression in bands instead, estimated by `banded::estimate_peak_bytes` (1024² J = 6
+/// aligned colour: 153 MiB instead of the 349 below; docs/scale.md). Measured peaks of the whole `ndfmap bake` command against the estimate
 /// ([`estimate_peak_bytes`]), MiB, after issue 14's memory reductions (the 2048² map is the
 /// 1024² sample tiled 2 × 2):
 ///

@@ -39,6 +39,42 @@ use crate::vmf::{KAPPA_MAX, Lobe};
 use glam::Vec3;
 use rayon::prelude::*;
 
+/// Where a mixture bake reads the finest normals (and the feature image) from: a
+/// [`NormalMap`] (decoded vectors) or a compact map (`ingest::CompactNormals`, its samples
+/// decoded per texel into the same bits; module `banded`). Row-major texel indices.
+pub(crate) trait Source: Sync {
+    /// Width in texels.
+    fn width(&self) -> u32;
+    /// Height in texels.
+    fn height(&self) -> u32;
+    /// The unit normal of texel `i`.
+    fn normal(&self, i: usize) -> Vec3;
+    /// The feature (colour) of texel `i`, when the map has a feature image.
+    fn feature(&self, i: usize) -> Option<[f32; 4]>;
+    /// Whether the map has a feature image.
+    fn has_feature(&self) -> bool;
+}
+
+impl Source for NormalMap {
+    fn width(&self) -> u32 {
+        NormalMap::width(self)
+    }
+    fn height(&self) -> u32 {
+        NormalMap::height(self)
+    }
+    #[inline]
+    fn normal(&self, i: usize) -> Vec3 {
+        self.normals()[i]
+    }
+    #[inline]
+    fn feature(&self, i: usize) -> Option<[f32; 4]> {
+        NormalMap::feature(self).map(|f| f[i])
+    }
+    fn has_feature(&self) -> bool {
+        NormalMap::feature(self).is_some()
+    }
+}
+
 /// What the per-level driver needs of a mixture model: its components (vMF lobes, Tan's planar
 /// Gaussians), their one-texel EM, and their texture form.
 pub(crate) trait Model: Sync {
@@ -311,13 +347,13 @@ pub(crate) fn bake_tan2005(
 /// `texels[j][t]` and `colors[j][t]` (so [`assemble`] moves them without copying). Levels keep
 /// texels, not components: a finer or neighbouring texel's components are read back from its
 /// texels ([`Model::from_texel`]), 16 bytes per component instead of a component's 40.
-struct LevelFit {
+pub(crate) struct LevelFit {
     /// Per slot: `α_j y_j` of each texel (eq 22), when a feature image is present and the
     /// colours are wanted, as stored (f32).
-    colors: Option<Vec<Vec<[f32; 4]>>>,
+    pub(crate) colors: Option<Vec<Vec<[f32; 4]>>>,
     /// Per slot: the texel of each texel's component, as its EM encodes it, as stored (f32).
     /// Empty for a finest level that is only a placeholder (level 1 reads the normals).
-    texels: Vec<Vec<[f32; 4]>>,
+    pub(crate) texels: Vec<Vec<[f32; 4]>>,
 }
 
 /// One texel's fit: its components, their eq 22 colours `y_j`, and their texels, in fixed
@@ -341,17 +377,17 @@ impl<C: Copy> TexelFit<C> {
 }
 
 /// Per-thread working memory for gathering a texel's samples.
-struct Gather<M: Model> {
+pub(crate) struct Gather<M: Model> {
     /// The footprint's taps along x and y (reused).
     xs: Vec<(u32, f64)>,
     ys: Vec<(u32, f64)>,
-    normals: Vec<Vec3>,
+    pub(crate) normals: Vec<Vec3>,
     weights: Vec<f64>,
     features: Vec<[f32; 4]>,
     /// Leave the map's features out (the unaligned pass of an aligned bake keeps no colours,
     /// so gathering them and fitting eq 22 there would be wasted work).
     skip_features: bool,
-    candidates: Vec<M::C>,
+    pub(crate) candidates: Vec<M::C>,
     scratch: M::Scratch,
 }
 
@@ -377,9 +413,9 @@ impl<M: Model> Gather<M> {
     /// one normal per cell, at a position hashed from the texel and the cell (deterministic,
     /// jittered so that it cannot alias with a periodic map), stands for the cell with the
     /// cell's whole weight.
-    fn collect(
+    pub(crate) fn collect<S: Source>(
         &mut self,
-        map: &NormalMap,
+        map: &S,
         level: &LevelFootprints,
         x: u32,
         y: u32,
@@ -395,9 +431,9 @@ impl<M: Model> Gather<M> {
     }
 
     /// [`Gather::collect`] over the footprint's taps `xs × ys` of texel `(x, y)`.
-    fn collect_taps(
+    fn collect_taps<S: Source>(
         &mut self,
-        map: &NormalMap,
+        map: &S,
         (x, y): (u32, u32),
         xs: &[(u32, f64)],
         ys: &[(u32, f64)],
@@ -408,13 +444,13 @@ impl<M: Model> Gather<M> {
         self.features.clear();
         let w = map.width() as usize;
         let stride = sample_stride(xs.len() * ys.len(), cap);
-        let feature = map.feature().filter(|_| !self.skip_features);
+        let feature = map.has_feature() && !self.skip_features;
         let mut push = |fx: u32, fy: u32, weight: f64| {
             let i = fy as usize * w + fx as usize;
-            self.normals.push(map.normals()[i]);
+            self.normals.push(map.normal(i));
             self.weights.push(weight);
-            if let Some(f) = feature {
-                self.features.push(f[i]);
+            if feature && let Some(f) = map.feature(i) {
+                self.features.push(f);
             }
         };
         if stride == 1 {
@@ -445,7 +481,7 @@ impl<M: Model> Gather<M> {
     /// The maximum-likelihood mixture when there are no more samples than components: one
     /// component per normal, `α = w_i / Σw`, as sharp as storable (what EM converges to,
     /// without running it; level 1 of a power-of-two map, 4 normals per texel, is all this).
-    fn one_per_normal(&self) -> TexelFit<M::C> {
+    pub(crate) fn one_per_normal(&self) -> TexelFit<M::C> {
         let total: f64 = self.weights.iter().sum();
         let mut out = TexelFit::empty(M::EMPTY);
         for (i, (&n, &w)) in self.normals.iter().zip(&self.weights).enumerate() {
@@ -459,13 +495,13 @@ impl<M: Model> Gather<M> {
     }
 
     /// The smallest weight fraction `w_i / Σ w` among the collected samples (1 when none).
-    fn min_alpha(&self) -> f64 {
+    pub(crate) fn min_alpha(&self) -> f64 {
         let total: f64 = self.weights.iter().sum();
         self.weights.iter().fold(1.0_f64, |m, &w| m.min(w / total))
     }
 
     /// Runs the model's EM on the collected samples.
-    fn fit(
+    pub(crate) fn fit(
         &mut self,
         init: &[M::C],
         pass: (&BakeOptions, &EmOptions),
@@ -553,7 +589,7 @@ fn sample_stride(taps: usize, cap: Option<usize>) -> usize {
 }
 
 /// `count` planes of `len` texels each, empty (reserved) or zeroed.
-fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]>> {
+pub(crate) fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]>> {
     (0..count)
         .map(|_| {
             if zeroed {
@@ -568,7 +604,7 @@ fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]>> {
 impl LevelFit {
     /// An empty level of `texels` texels of `j` components, to be filled by [`LevelFit::push`],
     /// with colour planes when `colors`.
-    fn with_capacity(texels: usize, j: usize, colors: bool) -> Self {
+    pub(crate) fn with_capacity(texels: usize, j: usize, colors: bool) -> Self {
         LevelFit {
             colors: colors.then(|| planes(j, texels, false)),
             texels: planes(j, texels, false),
@@ -576,7 +612,7 @@ impl LevelFit {
     }
 
     /// The J components of texel `t`, read back from their texels.
-    fn components<M: Model>(&self, t: usize, j: usize) -> [M::C; MAX_LOBES] {
+    pub(crate) fn components<M: Model>(&self, t: usize, j: usize) -> [M::C; MAX_LOBES] {
         let mut out = [M::EMPTY; MAX_LOBES];
         for (o, plane) in out.iter_mut().zip(&self.texels).take(j) {
             *o = M::from_texel(plane[t]);
@@ -585,7 +621,7 @@ impl LevelFit {
     }
 
     /// Appends one texel's result (colours become `α_j y_j`).
-    fn push<M: Model>(&mut self, fit: &TexelFit<M::C>) {
+    pub(crate) fn push<M: Model>(&mut self, fit: &TexelFit<M::C>) {
         if let Some(dst) = self.colors.as_mut() {
             for ((plane, c), y) in dst.iter_mut().zip(&fit.comps).zip(&fit.colors) {
                 plane.push(y.map(|v| (M::alpha(c) * v) as f32));
@@ -598,7 +634,7 @@ impl LevelFit {
 
     /// Stores texel `t`'s result (colours become `α_j y_j`) into a level made with zeroed
     /// planes.
-    fn set<M: Model>(&mut self, t: usize, fit: &TexelFit<M::C>) {
+    pub(crate) fn set<M: Model>(&mut self, t: usize, fit: &TexelFit<M::C>) {
         for (plane, v) in self.texels.iter_mut().zip(&fit.texels) {
             plane[t] = v.map(|v| v as f32);
         }
@@ -664,7 +700,7 @@ pub(crate) fn bake_vmf(
 
 /// Most lobes that pull a texel's lobe in the aligned pass: its left, upper-left, upper and
 /// upper-right neighbours and its parent.
-const ALIGN_NEIGHBOURS: usize = 5;
+pub(crate) const ALIGN_NEIGHBOURS: usize = 5;
 
 /// Largest tilt, in radians, that eq 29's pull may give a lobe of a texel that the aligned
 /// pass fits in closed form instead of by EM (well below what an f32 texel resolves at the
@@ -672,7 +708,7 @@ const ALIGN_NEIGHBOURS: usize = 5;
 const CLOSED_FORM_TILT: f64 = 1e-5;
 
 /// Texels fitted in parallel between two progress reports of the unaligned pass.
-const PROGRESS_CHUNK: u32 = 1 << 14;
+pub(crate) const PROGRESS_CHUNK: u32 = 1 << 14;
 
 /// The part of the whole bake that one pass over the levels covers: `(start, span)`.
 type Pass = (f64, f64);
@@ -692,7 +728,13 @@ pub(crate) fn bake_mixture<M: Model>(
         None => unaligned,
         Some(_) => top_down::<M>(map, options, &sizes, &unaligned, progress, (0.5, 0.5))?,
     };
-    Ok(assemble::<M>(map, options, sizes, fits))
+    Ok(assemble::<M>(
+        map.feature().is_some(),
+        map.addressing(),
+        options,
+        sizes,
+        fits,
+    ))
 }
 
 /// Unaligned: finest level up, each texel initialized from its children's components.
@@ -774,7 +816,7 @@ fn bottom_up<M: Model>(
 
 /// Index of the parent (next coarser level) texel containing the centre of `x` on an axis of
 /// `n` texels whose parent axis has `pn` texels.
-fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
+pub(crate) fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
     (((2 * x + 1) as u64 * pn as u64) / (2 * n as u64)) as u32
 }
 
@@ -832,7 +874,7 @@ fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> [Option<usize>; MAX
 }
 
 /// `own` components moved into the slots of `reference` ones ([`slot_order`]).
-fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] {
+pub(crate) fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] {
     let order = slot_order::<M>(own, reference);
     let mut out = [M::EMPTY; MAX_LOBES];
     for (o, i) in out.iter_mut().zip(order).take(own.len()) {
@@ -843,7 +885,11 @@ fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] 
 
 /// `fit` (of `j` components) with its components, colours and texels moved into the slots of
 /// `reference` ([`slot_order`]).
-fn into_slots<M: Model>(fit: &TexelFit<M::C>, j: usize, reference: &[M::C]) -> TexelFit<M::C> {
+pub(crate) fn into_slots<M: Model>(
+    fit: &TexelFit<M::C>,
+    j: usize,
+    reference: &[M::C],
+) -> TexelFit<M::C> {
     let order = slot_order::<M>(&fit.comps[..j], reference);
     let mut out = TexelFit::empty(M::EMPTY);
     for (s, i) in order.iter().enumerate().take(j) {
@@ -1042,9 +1088,12 @@ fn finest_slots<M: Model>(
     slots
 }
 
-/// Lays the fits out as textures: J component chains, then J colour chains `α·y`.
-fn assemble<M: Model>(
-    map: &NormalMap,
+/// Lays the fits out as textures: J component chains, then J colour chains `α·y` (with
+/// `color`). With no `fits`, the textures hold no levels: the bake's description, which a
+/// streamed bake's writers are made from (module `banded`).
+pub(crate) fn assemble<M: Model>(
+    color: bool,
+    addressing: crate::ingest::Addressing,
     options: &BakeOptions,
     sizes: Vec<(u32, u32)>,
     fits: Vec<LevelFit>,
@@ -1053,7 +1102,6 @@ fn assemble<M: Model>(
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
     let j = options.lobes;
-    let color = map.feature().is_some();
     let (unaligned, aligned) = M::passes(options);
     let mut textures: Vec<Texture> = M::NAMES
         .iter()
@@ -1089,7 +1137,7 @@ fn assemble<M: Model>(
         "align_strength": options.align,
         "align_form": (M::METHOD == Method::Vmf && options.align.is_some())
             .then(|| options.align_form.name()),
-        "color": map.feature().is_some(),
+        "color": color,
         "mode": (M::METHOD == Method::Vmf).then(|| options.mode.name()),
         "em_max_iterations": options.em.max_iterations,
         "em_tolerance": options.em.tolerance,
@@ -1103,7 +1151,7 @@ fn assemble<M: Model>(
         method: M::METHOD,
         sizes,
         textures,
-        addressing: map.addressing(),
+        addressing,
         lobes: j,
         parameters,
         format: Format::F32,

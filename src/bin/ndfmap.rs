@@ -61,6 +61,18 @@ enum Command {
         /// Measure fit quality instead of speed.
         #[arg(long)]
         quality: bool,
+        /// Measure the bounded-memory (banded, streamed) bake instead (docs/scale.md): vMF,
+        /// the first `--lobes`, aligned C = 1, balanced (or the one `--modes` given), no colour, written as f16 KTX2 to a
+        /// temporary folder (deleted) from the built-in 1024² sample tiled to each size
+        /// (`--sizes`: up to 1024, or multiples of 1024 up to 16384), kept as 8-bit samples:
+        /// seconds, CPU µs per texel and its ratio to the first size, peak RSS and the
+        /// budget's estimate; sizes up to `--untiled-max` are also baked untiled (in memory)
+        /// and the files compared byte for byte.
+        #[arg(long)]
+        scale: bool,
+        /// `--scale`: largest size also baked untiled for the byte comparison (0: none).
+        #[arg(long, default_value_t = 2048)]
+        untiled_max: u32,
         /// Normal maps to measure (instead of the built-in sample at `--sizes`).
         #[arg(long, value_delimiter = ',')]
         maps: Vec<PathBuf>,
@@ -1710,7 +1722,19 @@ fn run(cli: Cli) -> Result<u8> {
             maps,
             samples,
             levels,
+            scale,
+            untiled_max,
         } => {
+            if scale {
+                // One mode given: that one; else (the default list) balanced.
+                let mode = match modes.as_slice() {
+                    [one] => one.parse()?,
+                    _ => FitMode::Balanced,
+                };
+                let lobes = lobes.first().copied().unwrap_or(6);
+                bench_scale(&sizes, lobes, mode, untiled_max, json)?;
+                return Ok(status);
+            }
             let mut grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
             grid.lmax = lmax;
             if quality {
@@ -1904,6 +1928,234 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                 );
             }
             rows.push(row);
+        }
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).expect("rows serialize")
+        );
+    }
+    Ok(())
+}
+
+/// The 8-bit RGB samples of the built-in sample at `size` (≤ 1024), or of the 1024² sample
+/// tiled to `size` (a multiple of 1024), so that every size has the same content per texel.
+fn scale_samples(size: u32) -> Result<Vec<u8>> {
+    if !(8..=16384).contains(&size) || (size > 1024 && !size.is_multiple_of(1024)) {
+        return Err(Error::InvalidOption(format!(
+            "--sizes {size} (--scale: 8 to 1024, or a multiple of 1024 up to 16384)"
+        )));
+    }
+    let side = size.min(1024) as usize;
+    let tile = ndfmap::procedural::encode_rgb8(
+        ndfmap::procedural::generate(side as u32, 2007)
+            .map
+            .normals(),
+    );
+    let n = size as usize;
+    let mut out = Vec::with_capacity(n * n * 3);
+    for y in 0..n {
+        let row = &tile[(y % side) * side * 3..(y % side + 1) * side * 3];
+        for _ in 0..n / side {
+            out.extend_from_slice(row);
+        }
+    }
+    Ok(out)
+}
+
+/// Whether two folders hold the same files, byte for byte.
+fn same_files(a: &Path, b: &Path) -> std::io::Result<bool> {
+    let names = |d: &Path| -> std::io::Result<Vec<std::ffi::OsString>> {
+        let mut v = std::fs::read_dir(d)?
+            .map(|e| e.map(|e| e.file_name()))
+            .collect::<std::io::Result<Vec<_>>>()?;
+        v.sort();
+        Ok(v)
+    };
+    let (na, nb) = (names(a)?, names(b)?);
+    if na != nb {
+        return Ok(false);
+    }
+    for n in na {
+        if std::fs::read(a.join(&n))? != std::fs::read(b.join(&n))? {
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
+/// `ndfmap bench --scale`: the banded bake's time and peak memory per size (docs/scale.md).
+fn bench_scale(
+    sizes: &[u32],
+    lobes: usize,
+    mode: FitMode,
+    untiled_max: u32,
+    json: bool,
+) -> Result<()> {
+    use ndfmap::banded::{Bands, CompactSource, Map};
+    use ndfmap::container::Container;
+    use ndfmap::ingest::{CompactNormals, Samples};
+    let options = BakeOptions {
+        lobes,
+        align: Some(1.0),
+        mode,
+        ..BakeOptions::default()
+    };
+    let threads = rayon::current_num_threads();
+    let io = |e: std::io::Error| Error::InvalidOption(format!("bench temporary folder: {e}"));
+    /// The temporary folder, removed however the bench ends.
+    struct Scratch(PathBuf);
+    impl Drop for Scratch {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+    let tmp =
+        Scratch(std::env::temp_dir().join(format!("ndfmap-bench-scale-{}", std::process::id())));
+    std::fs::create_dir_all(&tmp.0).map_err(io)?;
+    if !json {
+        println!(
+            "{threads} threads; vMF J = {lobes} aligned C = 1 {}, f16 KTX2, built-in 1024² sample tiled",
+            mode.name()
+        );
+        println!(
+            "{:>6} {:>8} {:>5} {:>6} {:>9} {:>8} {:>12} {:>7} {:>9} {:>13} {:>9}",
+            "size",
+            "bake",
+            "fine",
+            "band",
+            "seconds",
+            "CPU s",
+            "CPU µs/texel",
+            "ratio",
+            "peak MiB",
+            "estimate MiB",
+            "= untiled"
+        );
+    }
+    let mut rows = Vec::new();
+    let mut first_per_texel = None;
+    for &size in sizes {
+        let samples = scale_samples(size)?;
+        let ingest = IngestOptions::default();
+        let compact =
+            CompactNormals::from_samples("sample", size, size, 3, Samples::U8(&samples), &ingest)?;
+        // The decoded samples are kept only for the untiled bake.
+        let samples = (size <= untiled_max).then_some(samples);
+        let info = InputInfo {
+            path: None,
+            options: ingest,
+            stats: compact.stats().clone(),
+        };
+        let bands = Bands::for_size(size, size);
+        let banded_dir = tmp.0.join(format!("banded{size}"));
+        let untiled_dir = tmp.0.join(format!("untiled{size}"));
+        let measure =
+            |work: &mut dyn FnMut() -> Result<()>| -> Result<(f64, Option<f64>, Option<u64>)> {
+                reset_peak_memory();
+                let cpu = cpu_seconds();
+                let t = Instant::now();
+                work()?;
+                let seconds = t.elapsed().as_secs_f64();
+                let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
+                Ok((seconds, cpu, peak_memory()))
+            };
+        let map = Map::Compact(CompactSource {
+            normals: &compact,
+            feature: None,
+        });
+        let banded = measure(&mut || {
+            ndfmap::banded::write_folder(
+                &map,
+                Method::Vmf,
+                &options,
+                Format::F16,
+                Container::Ktx2,
+                &banded_dir,
+                info.clone(),
+                None,
+                Some(bands),
+                &mut |_| true,
+            )
+            .map(|_| ())
+        })?;
+        let mut configs = vec![(
+            "banded",
+            banded,
+            ndfmap::banded::estimate_peak_bytes(size, size, &options, false, true, bands),
+        )];
+        let mut identical = None;
+        if let Some(samples) = &samples {
+            let untiled = measure(&mut || {
+                let full = NormalMap::from_samples(
+                    "sample",
+                    size,
+                    size,
+                    3,
+                    Samples::U8(samples),
+                    &ingest,
+                )?;
+                let b = bake_with(&full, Method::Vmf, &options)?;
+                drop(full);
+                let b = ndfmap::pack::quantize_into(b, Format::F16)?;
+                ndfmap::container::write_bake(&b, info.clone(), &untiled_dir, Container::Ktx2, None)
+                    .map(|_| ())
+            })?;
+            identical = Some(same_files(&banded_dir, &untiled_dir).map_err(io)?);
+            let _ = std::fs::remove_dir_all(&untiled_dir);
+            configs.push((
+                "untiled",
+                untiled,
+                ndfmap::methods::estimate_peak_bytes(size, size, Method::Vmf, &options, false),
+            ));
+        }
+        let _ = std::fs::remove_dir_all(&banded_dir);
+        drop(compact);
+        drop(samples);
+        let texels = size as f64 * size as f64;
+        for (label, (seconds, cpu, peak), estimate) in configs {
+            let per_texel = cpu.map(|c| c * 1e6 / texels);
+            if label == "banded" && first_per_texel.is_none() {
+                first_per_texel = per_texel;
+            }
+            let ratio = per_texel.zip(first_per_texel).map(|(a, b)| a / b);
+            let (fine, band) = if label == "banded" {
+                (bands.fine.to_string(), bands.band_rows.to_string())
+            } else {
+                ("-".into(), "-".into())
+            };
+            let mib =
+                |b: Option<u64>| b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0));
+            let same = if label == "banded" {
+                identical.map_or("-".to_string(), |s| {
+                    if s { "yes" } else { "NO" }.to_string()
+                })
+            } else {
+                "-".into()
+            };
+            if !json {
+                println!(
+                    "{size:>6} {label:>8} {fine:>5} {band:>6} {seconds:>9.2} {:>8} {:>12} {:>7} {:>9} {:>13} {same:>9}",
+                    cpu.map_or("?".into(), |c| format!("{c:.1}")),
+                    per_texel.map_or("?".into(), |p| format!("{p:.3}")),
+                    ratio.map_or("?".into(), |r| format!("{r:.3}")),
+                    mib(peak),
+                    mib(Some(estimate)),
+                );
+            }
+            rows.push(serde_json::json!({
+                "size": size, "bake": label, "fine_levels": (label == "banded").then_some(bands.fine),
+                "band_rows": (label == "banded").then_some(bands.band_rows), "seconds": seconds,
+                "cpu_seconds": cpu, "cpu_us_per_texel": per_texel, "ratio_to_first": ratio,
+                "peak_bytes": peak, "estimate_bytes": estimate, "threads": threads,
+                "identical_to_untiled": if label == "banded" { identical } else { None },
+            }));
+        }
+        if identical == Some(false) {
+            return Err(Error::InvalidOption(format!(
+                "the banded bake of {size}x{size} differs from the untiled bake"
+            )));
         }
     }
     if json {

@@ -245,7 +245,13 @@ impl StreamedFile {
             .map(|(o, l)| o + l)
             .max()
             .unwrap_or(prefix.len() as u64);
-        let file = std::fs::File::create(path).map_err(write_err)?;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(path)
+            .map_err(write_err)?;
         file.set_len(end).map_err(write_err)?;
         write_at(&file, &prefix, 0).map_err(write_err)?;
         Ok(StreamedFile {
@@ -297,6 +303,57 @@ impl StreamedFile {
             path: self.path.clone(),
             message: e.to_string(),
         })
+    }
+}
+
+impl StreamedFile {
+    /// Reads back `rows` whole rows of `level` from `first_row` of an f32 file (what a bake
+    /// that spills rows before converting them, `banded::write_folder` for the exr container,
+    /// reads).
+    ///
+    /// # Errors
+    ///
+    /// [`Error::InvalidOption`] for another format or rows outside the level, [`Error::Write`]
+    /// (naming the file) when the read fails.
+    pub fn read_rows(&self, level: usize, first_row: u32, rows: u32) -> Result<Vec<[f32; 4]>> {
+        let Some(&(w, h)) = self.sizes.get(level) else {
+            return Err(Error::InvalidOption(format!("level {level} out of range")));
+        };
+        if self.format != Format::F32 || first_row as u64 + rows as u64 > h as u64 {
+            return Err(Error::InvalidOption(format!(
+                "rows {first_row}..+{rows} of level {level} ({w}x{h}) of an {} file",
+                self.format
+            )));
+        }
+        let texels = w as usize * rows as usize;
+        let mut bytes = vec![0u8; texels * 16];
+        let at = self.offsets[level] + first_row as u64 * w as u64 * 16;
+        read_at(&self.file, &mut bytes, at).map_err(|e| Error::Write {
+            path: self.path.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(bytes
+            .chunks_exact(16)
+            .map(|b| {
+                let v = |i: usize| f32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+                [v(0), v(4), v(8), v(12)]
+            })
+            .collect())
+    }
+}
+
+/// Reads exactly `bytes.len()` bytes at byte `offset` of `file`.
+fn read_at(file: &std::fs::File, bytes: &mut [u8], offset: u64) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::FileExt::read_exact_at(file, bytes, offset)
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Read, Seek, SeekFrom};
+        let mut f = file;
+        f.seek(SeekFrom::Start(offset))?;
+        f.read_exact(bytes)
     }
 }
 
