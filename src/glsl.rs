@@ -107,7 +107,7 @@ impl ShaderBrdf {
 
 /// What lights the surface: the point (or directional) light of the mesh and probe entry
 /// points, or an environment by one of [`crate::envlight::Route`]'s routes (`glsl/ndf_env.glsl`,
-/// its data and uniforms in [`crate::envgpu`]; CPU twin [`crate::envlight::shade`]).
+/// its data and uniforms packed by module `envgpu`; CPU twin [`crate::envlight::shade`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum ShaderLight {
     /// One light: uniforms `ndf_light`, `ndf_light_color` (probe: `ndf_probe_l`, `ndf_probe_h`).

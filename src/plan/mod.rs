@@ -642,7 +642,9 @@ fn candidates(scene: &Scene) -> Vec<Config> {
         .map(|b| b.suggested_lmax())
         .max()
         .unwrap_or(2);
-    let sh = (lmax <= 3).then(|| c(Method::Sh, 0, lmax, false));
+    // (Not under an environment alone: the environment shaders have no SH-bake variant.)
+    let env_only = scene.has_environment() && !scene.has_direct();
+    let sh = (lmax <= 3 && !env_only).then(|| c(Method::Sh, 0, lmax, false));
     for j in [1, 2, 3, 4, 6, 8] {
         if let Some(s) = sh
             && s.textures() <= j
@@ -803,10 +805,14 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
 
     // Colour.
     let color_measured = map.feature().map(color_variation);
-    let color = match color_measured {
-        Some(v) => v > COLOR_VARIATION,
-        None => scene.color.varies,
-    };
+    // An environment-only scene is shaded by the environment shaders, which shade one
+    // channel: its colour comes from the engine's albedo MIP chain, not from eq 22 textures.
+    let env_only = scene.has_environment() && !scene.has_direct();
+    let color = !env_only
+        && match color_measured {
+            Some(v) => v > COLOR_VARIATION,
+            None => scene.color.varies,
+        };
 
     // One vMF bake for the plan: every aligned vMF range reads the bake with the most lobes
     // any level needs (one bake instead of one per lobe count), and a range that needs fewer
@@ -1061,6 +1067,14 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
 
     // Colour decisions.
     let colour_line = match (color_measured, color) {
+        _ if env_only && (scene.color.varies || color_measured.is_some()) => format!(
+            "colour textures: left out: the environment shaders shade one channel (the \
+             engine's albedo MIP chain gives the colour){}",
+            color_measured.map_or(String::new(), |v| format!(
+                "; the albedo varies by {} RMS",
+                pct(v)
+            ))
+        ),
         (Some(v), false) => format!(
             "colour textures: left out: the albedo varies by {} RMS (≤ {}), a constant K_d \
              colour costs about that much error; saves {} bytes of the full configuration",
@@ -1117,12 +1131,19 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             "environment: measured under {} (its luminance; ground truth by MIS, {ENV_SAMPLES} \
              samples × {} views × {ENV_TEXELS} texels per level of each sample), shaded by the \
              prefiltered route (one prefiltered-environment lookup per lobe); the SH route is \
-             not used (it is exact only for the diffuse term)",
+             not used (it is exact only for the diffuse term); {}",
             scene
                 .environment
                 .as_deref()
                 .unwrap_or("the generated sky with a sun"),
-            crate::envlight::default_views().len()
+            crate::envlight::default_views().len(),
+            if scene.has_direct() {
+                "the shaders are the point-light specialization: one shader lit by both an \
+                 environment and point lights is not built, the engine draws the environment \
+                 pass with NDF_LIGHT_ENV_PREFILTERED"
+            } else {
+                "the shaders compile NDF_LIGHT_ENV_PREFILTERED and no point-light code"
+            }
         )
     } else {
         "environment code: left out (the scene has point/directional lights only)".into()
@@ -1340,6 +1361,11 @@ impl Plan {
                 _ => Sampling::Auto,
             },
             color: p.color,
+            light: if self.shader.environment && !self.scene.has_direct() {
+                crate::glsl::ShaderLight::EnvPrefiltered
+            } else {
+                crate::glsl::ShaderLight::Point
+            },
             ..ShaderOptions::default()
         }
     }
