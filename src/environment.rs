@@ -224,7 +224,9 @@ impl Environment {
     }
 }
 
-fn check_size(what: &str, width: u32, height: u32) -> Result<()> {
+/// Refuses an environment size that is empty, not 2:1 or wider than [`MAX_WIDTH`] (`what`
+/// names the input in the error).
+pub(crate) fn check_size(what: &str, width: u32, height: u32) -> Result<()> {
     let bad = |reason: &str| {
         Err(Error::Dimensions {
             what: what.to_string(),

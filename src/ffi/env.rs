@@ -205,6 +205,9 @@ pub unsafe extern "C" fn ndf_environment_from_rgb(
         }
         let opts = unsafe { env_options(options) }?;
         let out = Out::new(env_out, "env_out")?;
+        // The size is checked (2:1, not empty, not too wide) before `rgb` is read: the
+        // caller's buffer holds width × height × 3 floats only for the size it meant.
+        crate::environment::check_size("rgb buffer", width, height)?;
         let n = (width as usize)
             .checked_mul(height as usize)
             .filter(|&n| width <= crate::environment::MAX_WIDTH && n <= usize::MAX / 12)
