@@ -1,0 +1,173 @@
+//! Frame time of a plan against the full configuration (issue 18, "Evidence": frame time):
+//! for each `PLAN.json MAP` pair (plans from `ndfmap plan`), every part of the plan drawn with
+//! its own specialized shader (`Plan::shader_options`) and textures (its format, dropped lobes
+//! and colour, from its first level down to the coarsest), and the full configuration (vMF J = 8 aligned, f32, colour —
+//! a white albedo where the map has none) drawn with its shader, on the far and grazing plane
+//! views of `Scene::standard` (512²). A scene lit only by an environment is drawn by the
+//! environment route the plan compiles (`NDF_LIGHT_ENV_PREFILTERED`) under its environment;
+//! the full configuration then shades without colour (the environment shaders shade one
+//! channel), everything else by the scene's point light. The material is the scene's sharpest
+//! BRDF.
+//!
+//! Each part's frame is that of a view where every pixel falls in the part's level range: the
+//! plan's frame time is bounded by its costliest part's, which is what the table's "plan" row
+//! reports against the full configuration's. Draws go round robin over all renderers (3
+//! untimed, then `--frames`, default 15), each between two `glFinish` calls; medians, in one
+//! run.
+//!
+//! `cargo run --release -p ndfmap-gl --example plan_timings [egl|osmesa] [--frames N]
+//! PLAN.json MAP[,ALBEDO] [PLAN.json MAP[,ALBEDO] ...]`
+
+use ndfmap::bake::{Bake, Method};
+use ndfmap::glsl::{ShaderLight, ShaderOptions};
+use ndfmap::ingest::IngestOptions;
+use ndfmap::plan::{FULL, Plan};
+use ndfmap::{NormalMap, methods};
+use ndfmap_gl::{BakeRenderer, EnvTextures, Gl, RenderTarget, Route, Scene, env_rotation};
+use std::time::Instant;
+
+const SIZE: u32 = 512;
+const WARM_UP: usize = 3;
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let route = match args.first().map(String::as_str) {
+        Some("osmesa") => {
+            args.remove(0);
+            Route::OsMesa
+        }
+        Some("egl") => {
+            args.remove(0);
+            Route::Egl
+        }
+        _ => Route::Egl,
+    };
+    let mut frames = 15usize;
+    if let Some(i) = args.iter().position(|a| a == "--frames") {
+        frames = args.get(i + 1).ok_or("--frames N")?.parse()?;
+        args.drain(i..i + 2);
+    }
+    if args.is_empty() || args.len() % 2 != 0 {
+        return Err("give PLAN.json MAP pairs".into());
+    }
+    let gl = Gl::new(route)?;
+    println!(
+        "{route} ({}), {SIZE}² views, {frames} frames each (medians, ms)",
+        gl.renderer()
+    );
+    let target = RenderTarget::new(&gl, SIZE, SIZE)?;
+    let views: Vec<Scene> = Scene::standard()
+        .into_iter()
+        .filter(|s| s.name == "plane-far" || s.name == "plane-grazing")
+        .collect();
+    let meshes = views
+        .iter()
+        .map(|s| s.shape.mesh(&gl))
+        .collect::<Result<Vec<_>, _>>()?;
+    println!("| plan | view | full ms | plan ms (costliest part) | plan / full | parts ms |");
+    println!("|---|---|---|---|---|---|");
+    for pair in args.chunks(2) {
+        let text = std::fs::read_to_string(&pair[0])?;
+        let plan = Plan::from_json(&pair[0], &text)?;
+        // MAP or MAP,ALBEDO (the albedo a plan with colour textures was made with).
+        let (file, albedo) = match pair[1].split_once(',') {
+            Some((m, a)) => (m, Some(a)),
+            None => (pair[1].as_str(), None),
+        };
+        let opts = IngestOptions::default();
+        let mut map = NormalMap::load(std::path::Path::new(file), &opts)?;
+        if let Some(a) = albedo {
+            map = map.with_feature_file(std::path::Path::new(a), &opts)?;
+        }
+        plan.check_map(&map)?;
+        let env_only = plan.shader.environment && !plan.scene.has_direct();
+        let env = match plan.scene.environment_light()? {
+            Some(light) if env_only => Some(EnvTextures::upload(&gl, &light)?),
+            _ => None,
+        };
+        // The parts, with their specialized shaders; each part's textures hold its first
+        // level and every coarser one (a texture whose level 0 is the part's first level, as
+        // an engine binds it), so that a view's coarser pixels sample small levels as they
+        // do in the full configuration.
+        let chains = ndfmap::plan::bake_chains(&plan, &map)?;
+        let mut renderers = Vec::new();
+        for (i, (p, (mut bake, _))) in plan.parts.iter().zip(chains).enumerate() {
+            bake.sizes = bake.sizes[p.first..].to_vec();
+            for t in &mut bake.textures {
+                t.levels = t.levels[p.first..].to_vec();
+            }
+            renderers.push(BakeRenderer::new(&gl, &bake, &plan.shader_options(i))?);
+        }
+        // The full configuration.
+        if map.feature().is_none() && !env_only {
+            let n = map.normals().len();
+            map = map.with_feature(vec![[1.0; 4]; n])?;
+        }
+        let full: Bake = methods::bake_with(&map, Method::Vmf, &FULL.bake_options())?;
+        let full_options = ShaderOptions {
+            color: !env_only,
+            light: if env_only {
+                ShaderLight::EnvPrefiltered
+            } else {
+                ShaderLight::Point
+            },
+            ..plan.shader_options(0)
+        };
+        renderers.push(BakeRenderer::new(&gl, &full, &full_options)?);
+        let rotation = env_rotation(0.0);
+        for (scene, mesh) in views.iter().zip(&meshes) {
+            let mut lighting = scene.lighting.clone();
+            lighting.brdf = plan.scene.brdfs()[0].clone();
+            let mut times = vec![Vec::new(); renderers.len()];
+            for frame in 0..WARM_UP + frames {
+                for (r, t) in renderers.iter().zip(&mut times) {
+                    target.clear([0.0, 0.0, 0.0, 1.0]);
+                    gl.finish();
+                    let start = Instant::now();
+                    match &env {
+                        Some(env) => r.draw_env(
+                            mesh,
+                            &glam::Mat4::IDENTITY,
+                            &scene.camera,
+                            &lighting,
+                            env,
+                            &rotation,
+                            &target,
+                        )?,
+                        None => r.draw(
+                            mesh,
+                            &glam::Mat4::IDENTITY,
+                            &scene.camera,
+                            &lighting,
+                            &target,
+                        )?,
+                    }
+                    gl.finish();
+                    if frame >= WARM_UP {
+                        t.push(start.elapsed().as_secs_f64() * 1e3);
+                    }
+                }
+            }
+            let medians: Vec<f64> = times.iter_mut().map(|t| median(t)).collect();
+            let (full_ms, part_ms) = medians.split_last().ok_or("no renderer")?;
+            let worst = part_ms.iter().copied().fold(0.0, f64::max);
+            println!(
+                "| {} | {} | {full_ms:.2} | {worst:.2} | {:.2} | {} |",
+                pair[0],
+                scene.name,
+                worst / full_ms,
+                part_ms
+                    .iter()
+                    .map(|m| format!("{m:.2}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
+    Ok(())
+}
