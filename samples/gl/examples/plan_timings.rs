@@ -52,7 +52,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         frames = args.get(i + 1).ok_or("--frames N")?.parse()?;
         args.drain(i..i + 2);
     }
-    if args.is_empty() || args.len() % 2 != 0 {
+    if args.is_empty() || !args.len().is_multiple_of(2) {
         return Err("give PLAN.json MAP pairs".into());
     }
     let gl = Gl::new(route)?;
