@@ -8,60 +8,13 @@
 //! [`ndfmap::envgpu`]). [`env_rotation`] is the world → environment frame of the mesh shaders.
 
 use crate::program::Program;
-use crate::{Error, Gl, Result};
+use crate::texture::{FloatImage, FloatSampling, float_texture};
+use crate::{Gl, Result};
 use glam::Mat3;
-use glow::{HasContext, PixelUnpackData};
+use glow::HasContext;
 use ndfmap::brdf::Brdf;
 use ndfmap::envgpu::{self, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
 use ndfmap::envlight::{EnvLight, Route};
-
-/// Creates an `R32F` texture of `width × height` texels from `data` (row-major), filtering
-/// `NEAREST`, one level: a table the shaders read with `texelFetch`.
-fn r32f_texture(gl: &Gl, width: usize, height: usize, data: &[f32]) -> Result<glow::Texture> {
-    let g = gl.glow();
-    // SAFETY: the context is current on this thread while `gl` lives.
-    let max = unsafe { g.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as usize;
-    if width > max || height > max {
-        return Err(Error::Usage(format!(
-            "a {width} x {height} table exceeds GL_MAX_TEXTURE_SIZE = {max} (use a smaller \
-             environment)"
-        )));
-    }
-    debug_assert_eq!(data.len(), width * height);
-    // SAFETY: as above.
-    let texture =
-        unsafe { g.create_texture() }.map_err(|e| Gl::creation_error("glCreateTexture", e))?;
-    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    gl.with_texture_2d(texture, || {
-        // SAFETY: as above with `texture` bound; `bytes` holds width × height tightly packed
-        // f32 (unpack alignment 1).
-        unsafe {
-            g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, 0);
-            let nearest = glow::NEAREST as i32;
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, nearest);
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, nearest);
-            g.tex_image_2d(
-                glow::TEXTURE_2D,
-                0,
-                glow::R32F as i32,
-                width as i32,
-                height as i32,
-                0,
-                glow::RED,
-                glow::FLOAT,
-                PixelUnpackData::Slice(Some(&bytes)),
-            );
-        }
-    });
-    if let Err(e) = gl.check_error("environment table upload") {
-        // SAFETY: the texture was created above and is deleted once.
-        unsafe { g.delete_texture(texture) };
-        return Err(e);
-    }
-    Ok(texture)
-}
 
 /// An environment on the GPU (module docs).
 pub struct EnvTextures {
@@ -95,7 +48,13 @@ impl EnvTextures {
             ),
         ];
         for (w, h, data) in &tables {
-            match r32f_texture(gl, *w, *h, data) {
+            let image = FloatImage {
+                width: *w,
+                height: *h,
+                channels: 1,
+                data,
+            };
+            match float_texture(gl, image, FloatSampling::Fetch, "environment table upload") {
                 Ok(t) => made.push(t),
                 Err(e) => {
                     for t in made {
