@@ -138,3 +138,90 @@ pub fn env_rotation(yaw: f32) -> Mat3 {
     );
     Mat3::from_rotation_z(-yaw) * to_env
 }
+
+/// The panorama drawn behind an environment-lit scene: a full-screen pass that looks up the
+/// equirectangular RGB environment (bilinear, one level) in the direction of each pixel's view
+/// ray, turned into the environment's frame by the same rotation as the mesh shaders
+/// ([`env_rotation`]), so the background and the lighting agree at every yaw.
+pub struct EnvBackground {
+    gl: Gl,
+    program: Program,
+    texture: glow::Texture,
+}
+
+const BACKGROUND_FRAGMENT: &str = "#version 330 core
+in vec2 ndf_screen_uv;
+uniform mat4 ndf_inv_view_proj;   // clip -> world
+uniform mat3 ndf_env_rotation;    // world -> environment frame
+uniform sampler2D ndf_env_panorama;
+uniform vec3 ndf_env_scale;
+out vec4 ndf_out;
+const float NDF_PI = 3.14159265358979323846;
+void main() {
+    vec2 ndc = 2.0 * ndf_screen_uv - 1.0;
+    vec4 a = ndf_inv_view_proj * vec4(ndc, -1.0, 1.0);
+    vec4 b = ndf_inv_view_proj * vec4(ndc, 1.0, 1.0);
+    vec3 d = ndf_env_rotation * normalize(b.xyz / b.w - a.xyz / a.w);
+    // environment::Geometry::coordinates: u from azimuth -pi, v from the zenith.
+    float u = (atan(d.y, d.x) + NDF_PI) / (2.0 * NDF_PI);
+    float v = acos(clamp(d.z, -1.0, 1.0)) / NDF_PI;
+    ndf_out = vec4(ndf_env_scale * textureLod(ndf_env_panorama, vec2(u, v), 0.0).rgb, 1.0);
+}
+";
+
+impl EnvBackground {
+    /// Uploads `env`'s RGB texels (an `RGB32F` texture: 6 MB for 1024 × 512) and compiles the
+    /// pass.
+    pub fn new(gl: &Gl, env: &ndfmap::environment::Environment) -> Result<EnvBackground> {
+        let program = Program::fullscreen(gl, BACKGROUND_FRAGMENT)?;
+        let data: Vec<f32> = env.texels().iter().flatten().copied().collect();
+        let image = FloatImage {
+            width: env.width() as usize,
+            height: env.height() as usize,
+            channels: 3,
+            data: &data,
+        };
+        let texture = float_texture(
+            gl,
+            image,
+            FloatSampling::Equirectangular,
+            "environment background upload",
+        )?;
+        Ok(EnvBackground {
+            gl: gl.clone(),
+            program,
+            texture,
+        })
+    }
+
+    /// Draws the panorama seen by `camera` into `target` (every pixel; depth untouched), the
+    /// radiance multiplied by `scale`; draw it first, then the meshes.
+    pub fn draw(
+        &self,
+        camera: &crate::Camera,
+        rotation: &Mat3,
+        scale: glam::Vec3,
+        target: &crate::RenderTarget,
+    ) -> Result<()> {
+        let p = &self.program;
+        let g = self.gl.glow();
+        // SAFETY: the context is current while `self.gl` lives; the texture is alive while
+        // `self` is.
+        unsafe {
+            g.active_texture(glow::TEXTURE0);
+            g.bind_texture(glow::TEXTURE_2D, Some(self.texture));
+        }
+        p.set_i32("ndf_env_panorama", 0);
+        p.set_mat4("ndf_inv_view_proj", &camera.view_proj().inverse());
+        p.set_mat3("ndf_env_rotation", rotation);
+        p.set_vec3("ndf_env_scale", scale);
+        crate::draw_fullscreen(p, target)
+    }
+}
+
+impl Drop for EnvBackground {
+    fn drop(&mut self) {
+        // SAFETY: the context is current while `self.gl` lives; deleted once.
+        unsafe { self.gl.glow().delete_texture(self.texture) };
+    }
+}
