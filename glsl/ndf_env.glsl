@@ -135,49 +135,8 @@ void ndf_env_reflected_at(vec3 v, out float lp[NDF_ENV_COUNT]) {
 }
 #endif
 
-// Real spherical harmonics Y_lm(d), l <= 8 (CPU: harmonics::eval_into; the recurrences of
-// ndf_sh.glsl at the environment's band limit).
-void ndf_env_basis(vec3 d, out float y[NDF_ENV_COUNT]) {
-    d = ndf_normalize_or_z(d);
-    float c = 1.0;
-    float s = 0.0;
-    float pmm = 0.28209479177387814;
-    for (int m = 0; m <= NDF_ENV_LMAX; ++m) {
-        if (m > 0) {
-            pmm *= sqrt(float(2 * m + 1) / float(2 * m));
-            float cn = d.x * c - d.y * s;
-            s = d.x * s + d.y * c;
-            c = cn;
-        }
-        float mf = float(m);
-        float p0 = pmm;
-        float p1 = 0.0;
-        for (int l = m; l <= NDF_ENV_LMAX; ++l) {
-            float p;
-            if (l == m) {
-                p = pmm;
-            } else if (l == m + 1) {
-                p = sqrt(2.0 * mf + 3.0) * d.z * pmm;
-                p1 = p;
-            } else {
-                float lf = float(l);
-                float a = sqrt((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf));
-                float b = sqrt(((lf - 1.0) * (lf - 1.0) - mf * mf) /
-                               (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0));
-                p = a * (d.z * p1 - b * p0);
-                p0 = p1;
-                p1 = p;
-            }
-            int centre = l * l + l;
-            if (m == 0) {
-                y[centre] = p;
-            } else {
-                y[centre + m] = 1.4142135623730951 * p * c;
-                y[centre - m] = 1.4142135623730951 * p * s;
-            }
-        }
-    }
-}
+// ndf_env_basis(d, y): Y_lm(d), l <= 8, is ndf_sh_basis.glsl instantiated before this file
+// (ndfmap::glsl).
 
 // A(kappa) = coth kappa - 1/kappa, the vMF's mean resultant length (CPU: vmf::a_kappa).
 float ndf_env_a_kappa(float kappa) {

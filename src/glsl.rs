@@ -37,6 +37,10 @@ pub const COMMON: &str = include_str!("../glsl/ndf_common.glsl");
 pub const VMF: &str = include_str!("../glsl/ndf_vmf.glsl");
 /// `glsl/ndf_tan2005.glsl`: Tan et al. 2005's planar Gaussians.
 pub const TAN2005: &str = include_str!("../glsl/ndf_tan2005.glsl");
+/// `glsl/ndf_sh_basis.glsl`: the real SH basis by recurrence, a template instantiated by
+/// [`sh_basis`] before `ndf_sh.glsl` (`ndf_sh_eval`, l ≤ l*) and `ndf_env.glsl`
+/// (`ndf_env_basis`, l ≤ 8).
+pub const SH_BASIS: &str = include_str!("../glsl/ndf_sh_basis.glsl");
 /// `glsl/ndf_sh.glsl`: the spherical-harmonic NDF, eq 12.
 pub const SH: &str = include_str!("../glsl/ndf_sh.glsl");
 /// `glsl/ndf_baselines.glsl`: plain, Toksvig, LEAN and Olano–North.
@@ -428,17 +432,35 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     }
     out += COMMON;
     out += &bindings(spec, textures, manual);
-    out += match spec.method {
-        Method::Vmf => VMF,
-        Method::Tan2005 => TAN2005,
-        Method::Sh => SH,
-        _ => BASELINES,
-    };
+    match spec.method {
+        Method::Vmf => out += VMF,
+        Method::Tan2005 => out += TAN2005,
+        Method::Sh => {
+            out += &sh_basis("ndf_sh_eval", "NDF_SH_LMAX");
+            out += SH;
+        }
+        _ => out += BASELINES,
+    }
     if options.light.is_env() {
-        out += ENV;
+        out += &env_block();
     }
     out += FRAGMENT;
     Ok(out)
+}
+
+/// [`SH_BASIS`] instantiated as `void name(vec3 d, out float y[(lmax + 1)²])` (`lmax`: a
+/// literal or a macro defined before it).
+pub fn sh_basis(name: &str, lmax: &str) -> String {
+    format!(
+        "\n#define NDF_BASIS_NAME {name}\n#define NDF_BASIS_LMAX {lmax}\n{SH_BASIS}\
+         #undef NDF_BASIS_NAME\n#undef NDF_BASIS_LMAX\n"
+    )
+}
+
+/// What an environment [`ShaderLight`] appends after the method file: `ndf_env_basis`
+/// ([`sh_basis`] at l ≤ 8) and [`ENV`].
+fn env_block() -> String {
+    sh_basis("ndf_env_basis", "8") + ENV
 }
 
 /// The generated block: one sampler per texture read, and the fetch function (`textureLod` for
@@ -636,7 +658,7 @@ mod tests {
             assert!(src.contains("void ndf_env_texel("));
             // The point-light shader is the same text up to the defines and the env file.
             let stripped = src
-                .replace(ENV, "")
+                .replace(&env_block(), "")
                 .lines()
                 .filter(|l| !l.starts_with("#define NDF_LIGHT_ENV"))
                 .collect::<Vec<_>>()

@@ -2328,6 +2328,24 @@ struct ReportArgs {
     /// full configuration: about a minute).
     #[arg(long)]
     no_planner: bool,
+    /// Also light the plane views by this environment (Radiance .hdr or OpenEXR, 2:1, linear;
+    /// `sky`: the generated sky with its sun) and measure plain, Toksvig, LEAN, SH l* 2/4/8
+    /// and vMF (--lobes' largest, both routes) against a per-pixel Monte Carlo ground truth
+    /// (docs/environment.md); the material's BRDF must be lambert, blinn-phong or ggx.
+    #[arg(long)]
+    env: Option<String>,
+    /// Ground-truth MIS iterations per pixel under --env.
+    #[arg(long, default_value_t = 64)]
+    env_samples: usize,
+    /// Ground-truth sub-pixel normals per side (k × k per pixel) under --env.
+    #[arg(long, default_value_t = 4)]
+    env_subpixels: u32,
+    /// Environment rotation about the zenith, degrees (--env).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    env_yaw: f64,
+    /// Environment radiance multiplier (--env).
+    #[arg(long, default_value_t = 1.0)]
+    env_intensity: f64,
     /// Measure nothing: rewrite report.md and the plots from a report.json of an earlier run
     /// (with --frame-times, also replace its frame times).
     #[arg(long)]
@@ -2525,6 +2543,29 @@ fn report(a: ReportArgs) -> Result<()> {
         )));
     }
     let given_frame_times = load_frame_times(&a)?;
+    // The environment first: a bad file or BRDF fails before the long run.
+    let env = EnvArgs {
+        env: a.env.clone(),
+        env_route: Vec::new(),
+        env_yaw: a.env_yaw,
+        env_intensity: a.env_intensity,
+        env_samples: a.env_samples,
+        env_texels: 0,
+    }
+    .load(false)?;
+    if env.is_some() {
+        if a.env_samples == 0 || !(1..=16).contains(&a.env_subpixels) {
+            return Err(Error::InvalidOption(format!(
+                "--env-samples {} / --env-subpixels {} (expected samples > 0, subpixels 1 to 16)",
+                a.env_samples, a.env_subpixels
+            )));
+        }
+        ndfmap::envlight::check_brdf(
+            &brdf
+                .clone()
+                .unwrap_or(ndfmap::brdf::Brdf::BlinnPhong { s: a.s }),
+        )?;
+    }
     let options = ReportOptions {
         image_size: a.size,
         spp: a.spp,
@@ -2600,6 +2641,30 @@ fn report(a: ReportArgs) -> Result<()> {
             w.stop(&mut p.planner);
         }
         progress(Progress::Done);
+    }
+    if let Some((name, light)) = &env {
+        use ndfmap::report::env::{EnvImageOptions, EnvSection, measure};
+        let mut section = EnvSection {
+            environment: name.clone(),
+            options: EnvImageOptions {
+                subpixels: a.env_subpixels,
+                samples: a.env_samples,
+                lobes: a.lobes.iter().max().map(|&j| vec![j]).unwrap_or_default(),
+                ..EnvImageOptions::default()
+            },
+            brdf: options.material_brdf().to_string(),
+            ground_truth: Vec::new(),
+            rows: Vec::new(),
+            skipped: Vec::new(),
+        };
+        for input in &inputs {
+            bar.inc_length(1);
+            progress(Progress::Step(&format!("environment: {}", input.name)));
+            let scenes = ndfmap::report::views(&options, input.map.width());
+            measure(&input.name, &input.map, &scenes, light, &mut section)?;
+            progress(Progress::Done);
+        }
+        rep.env = Some(section);
     }
     bar.inc_length(1);
     progress(Progress::Step("frame times"));

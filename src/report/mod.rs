@@ -9,6 +9,7 @@
 //! before the next; only the ground-truth images of the current map are kept.
 
 pub mod cost;
+pub mod env;
 pub mod frame;
 pub mod pbr;
 pub mod planner;
@@ -500,6 +501,9 @@ pub struct Report {
     /// The planner section (issue 18), when run.
     #[serde(default)]
     pub planner: Option<planner::Section>,
+    /// The environment-lit image-space section (issue 16, `report --env`), when run.
+    #[serde(default)]
+    pub env: Option<env::EnvSection>,
 }
 
 impl Report {
@@ -1109,6 +1113,7 @@ pub fn run(
         frame_times: None,
         frame_times_note: None,
         planner: None,
+        env: None,
     })
 }
 
@@ -1389,6 +1394,9 @@ pub fn markdown(report: &Report, plots: &[String]) -> String {
     }
     if let Some(p) = &report.planner {
         s += &planner::markdown(p);
+    }
+    if let Some(e) = &report.env {
+        s += &env::markdown(e);
     }
     s += &gallery(report);
     if !plots.is_empty() {

@@ -8,60 +8,13 @@
 //! [`ndfmap::envgpu`]). [`env_rotation`] is the world → environment frame of the mesh shaders.
 
 use crate::program::Program;
-use crate::{Error, Gl, Result};
+use crate::texture::{FloatImage, FloatSampling, float_texture};
+use crate::{Gl, Result};
 use glam::Mat3;
-use glow::{HasContext, PixelUnpackData};
+use glow::HasContext;
 use ndfmap::brdf::Brdf;
 use ndfmap::envgpu::{self, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
 use ndfmap::envlight::{EnvLight, Route};
-
-/// Creates an `R32F` texture of `width × height` texels from `data` (row-major), filtering
-/// `NEAREST`, one level: a table the shaders read with `texelFetch`.
-fn r32f_texture(gl: &Gl, width: usize, height: usize, data: &[f32]) -> Result<glow::Texture> {
-    let g = gl.glow();
-    // SAFETY: the context is current on this thread while `gl` lives.
-    let max = unsafe { g.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as usize;
-    if width > max || height > max {
-        return Err(Error::Usage(format!(
-            "a {width} x {height} table exceeds GL_MAX_TEXTURE_SIZE = {max} (use a smaller \
-             environment)"
-        )));
-    }
-    debug_assert_eq!(data.len(), width * height);
-    // SAFETY: as above.
-    let texture =
-        unsafe { g.create_texture() }.map_err(|e| Gl::creation_error("glCreateTexture", e))?;
-    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    gl.with_texture_2d(texture, || {
-        // SAFETY: as above with `texture` bound; `bytes` holds width × height tightly packed
-        // f32 (unpack alignment 1).
-        unsafe {
-            g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, 0);
-            let nearest = glow::NEAREST as i32;
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, nearest);
-            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, nearest);
-            g.tex_image_2d(
-                glow::TEXTURE_2D,
-                0,
-                glow::R32F as i32,
-                width as i32,
-                height as i32,
-                0,
-                glow::RED,
-                glow::FLOAT,
-                PixelUnpackData::Slice(Some(&bytes)),
-            );
-        }
-    });
-    if let Err(e) = gl.check_error("environment table upload") {
-        // SAFETY: the texture was created above and is deleted once.
-        unsafe { g.delete_texture(texture) };
-        return Err(e);
-    }
-    Ok(texture)
-}
 
 /// An environment on the GPU (module docs).
 pub struct EnvTextures {
@@ -95,7 +48,13 @@ impl EnvTextures {
             ),
         ];
         for (w, h, data) in &tables {
-            match r32f_texture(gl, *w, *h, data) {
+            let image = FloatImage {
+                width: *w,
+                height: *h,
+                channels: 1,
+                data,
+            };
+            match float_texture(gl, image, FloatSampling::Fetch, "environment table upload") {
                 Ok(t) => made.push(t),
                 Err(e) => {
                     for t in made {
@@ -178,4 +137,91 @@ pub fn env_rotation(yaw: f32) -> Mat3 {
         glam::Vec3::new(0.0, -1.0, 0.0),
     );
     Mat3::from_rotation_z(-yaw) * to_env
+}
+
+/// The panorama drawn behind an environment-lit scene: a full-screen pass that looks up the
+/// equirectangular RGB environment (bilinear, one level) in the direction of each pixel's view
+/// ray, turned into the environment's frame by the same rotation as the mesh shaders
+/// ([`env_rotation`]), so the background and the lighting agree at every yaw.
+pub struct EnvBackground {
+    gl: Gl,
+    program: Program,
+    texture: glow::Texture,
+}
+
+const BACKGROUND_FRAGMENT: &str = "#version 330 core
+in vec2 ndf_screen_uv;
+uniform mat4 ndf_inv_view_proj;   // clip -> world
+uniform mat3 ndf_env_rotation;    // world -> environment frame
+uniform sampler2D ndf_env_panorama;
+uniform vec3 ndf_env_scale;
+out vec4 ndf_out;
+const float NDF_PI = 3.14159265358979323846;
+void main() {
+    vec2 ndc = 2.0 * ndf_screen_uv - 1.0;
+    vec4 a = ndf_inv_view_proj * vec4(ndc, -1.0, 1.0);
+    vec4 b = ndf_inv_view_proj * vec4(ndc, 1.0, 1.0);
+    vec3 d = ndf_env_rotation * normalize(b.xyz / b.w - a.xyz / a.w);
+    // environment::Geometry::coordinates: u from azimuth -pi, v from the zenith.
+    float u = (atan(d.y, d.x) + NDF_PI) / (2.0 * NDF_PI);
+    float v = acos(clamp(d.z, -1.0, 1.0)) / NDF_PI;
+    ndf_out = vec4(ndf_env_scale * textureLod(ndf_env_panorama, vec2(u, v), 0.0).rgb, 1.0);
+}
+";
+
+impl EnvBackground {
+    /// Uploads `env`'s RGB texels (an `RGB32F` texture: 6 MB for 1024 × 512) and compiles the
+    /// pass.
+    pub fn new(gl: &Gl, env: &ndfmap::environment::Environment) -> Result<EnvBackground> {
+        let program = Program::fullscreen(gl, BACKGROUND_FRAGMENT)?;
+        let data: Vec<f32> = env.texels().iter().flatten().copied().collect();
+        let image = FloatImage {
+            width: env.width() as usize,
+            height: env.height() as usize,
+            channels: 3,
+            data: &data,
+        };
+        let texture = float_texture(
+            gl,
+            image,
+            FloatSampling::Equirectangular,
+            "environment background upload",
+        )?;
+        Ok(EnvBackground {
+            gl: gl.clone(),
+            program,
+            texture,
+        })
+    }
+
+    /// Draws the panorama seen by `camera` into `target` (every pixel; depth untouched), the
+    /// radiance multiplied by `scale`; draw it first, then the meshes.
+    pub fn draw(
+        &self,
+        camera: &crate::Camera,
+        rotation: &Mat3,
+        scale: glam::Vec3,
+        target: &crate::RenderTarget,
+    ) -> Result<()> {
+        let p = &self.program;
+        let g = self.gl.glow();
+        // SAFETY: the context is current while `self.gl` lives; the texture is alive while
+        // `self` is.
+        unsafe {
+            g.active_texture(glow::TEXTURE0);
+            g.bind_texture(glow::TEXTURE_2D, Some(self.texture));
+        }
+        p.set_i32("ndf_env_panorama", 0);
+        p.set_mat4("ndf_inv_view_proj", &camera.view_proj().inverse());
+        p.set_mat3("ndf_env_rotation", rotation);
+        p.set_vec3("ndf_env_scale", scale);
+        crate::draw_fullscreen(p, target)
+    }
+}
+
+impl Drop for EnvBackground {
+    fn drop(&mut self) {
+        // SAFETY: the context is current while `self.gl` lives; deleted once.
+        unsafe { self.gl.glow().delete_texture(self.texture) };
+    }
 }

@@ -104,7 +104,7 @@ pub mod window;
 
 pub use camera::Camera;
 pub use context::{Gl, Route};
-pub use env::{EnvTextures, env_rotation};
+pub use env::{EnvBackground, EnvTextures, env_rotation};
 pub use glam;
 pub use glow;
 pub use mesh::{Mesh, MeshData, Vertex, draw_mesh};

@@ -264,6 +264,102 @@ impl Drop for BakeTextures {
     }
 }
 
+/// Row-major float texels for [`float_texture`]: `width × height` texels of `channels` (1: a
+/// table, 3: RGB), row 0 first (texture coordinate t = 0).
+pub(crate) struct FloatImage<'a> {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub data: &'a [f32],
+}
+
+/// How a [`float_texture`] is sampled.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(crate) enum FloatSampling {
+    /// A table read with `texelFetch`: filtering `NEAREST`, clamped.
+    Fetch,
+    /// An equirectangular image read with `texture`: bilinear, wrapping in s (azimuth),
+    /// clamped in t (the poles).
+    Equirectangular,
+}
+
+/// Creates a one-level `R32F` (`channels` 1) or `RGB32F` (3) texture from `image`, refused
+/// with [`Error::Usage`] when a side exceeds `GL_MAX_TEXTURE_SIZE`; `what` names the upload in
+/// a GL error (the texture is deleted then). The one float upload of the crate: BRDF tables,
+/// environment tables and atlas, environment backgrounds.
+pub(crate) fn float_texture(
+    gl: &Gl,
+    image: FloatImage<'_>,
+    sampling: FloatSampling,
+    what: &'static str,
+) -> Result<glow::Texture> {
+    let FloatImage {
+        width,
+        height,
+        channels,
+        data,
+    } = image;
+    let (internal, format) = match channels {
+        1 => (glow::R32F, glow::RED),
+        3 => (glow::RGB32F, glow::RGB),
+        n => return Err(Error::Usage(format!("{what}: {n} channels (1 or 3)"))),
+    };
+    if data.len() != width * height * channels {
+        return Err(Error::Usage(format!(
+            "{what}: {} floats for {width} x {height} x {channels}",
+            data.len()
+        )));
+    }
+    let g = gl.glow();
+    // SAFETY: the context is current on this thread while `gl` lives.
+    let max = unsafe { g.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as usize;
+    if width > max || height > max {
+        return Err(Error::Usage(format!(
+            "{what}: {width} x {height} exceeds GL_MAX_TEXTURE_SIZE = {max} (use a smaller \
+             environment)"
+        )));
+    }
+    // SAFETY: as above.
+    let texture =
+        unsafe { g.create_texture() }.map_err(|e| Gl::creation_error("glCreateTexture", e))?;
+    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
+    let (filter, wrap_s) = match sampling {
+        FloatSampling::Fetch => (glow::NEAREST, glow::CLAMP_TO_EDGE),
+        FloatSampling::Equirectangular => (glow::LINEAR, glow::REPEAT),
+    };
+    gl.with_texture_2d(texture, || {
+        // SAFETY: as above with `texture` bound; `bytes` holds width × height × channels
+        // tightly packed f32 (unpack alignment 1), checked above.
+        unsafe {
+            g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
+            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
+            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, 0);
+            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, filter as i32);
+            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, filter as i32);
+            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_S, wrap_s as i32);
+            let clamp = glow::CLAMP_TO_EDGE as i32;
+            g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_WRAP_T, clamp);
+            g.tex_image_2d(
+                glow::TEXTURE_2D,
+                0,
+                internal as i32,
+                width as i32,
+                height as i32,
+                0,
+                format,
+                glow::FLOAT,
+                PixelUnpackData::Slice(Some(&bytes)),
+            );
+        }
+    });
+    if let Err(e) = gl.check_error(what) {
+        // SAFETY: the texture was created above and is deleted once.
+        unsafe { g.delete_texture(texture) };
+        return Err(e);
+    }
+    Ok(texture)
+}
+
 /// A tabulated BRDF's table on the GPU ([`ndfmap::brdf::Tabulated::table`]): one `R32F`
 /// texture, `GRID` texels wide and `KAPPA_ROWS + 1` high, sampled by the shaders with
 /// `texelFetch` (filtering `NEAREST`, no MIP levels) through the sampler `ndf_brdf_table`.
@@ -276,42 +372,21 @@ impl TableTexture {
     /// Uploads `table`'s rows (computing them on first use).
     pub fn upload(gl: &Gl, table: &ndfmap::brdf::Tabulated) -> Result<TableTexture> {
         use ndfmap::brdf::tabulated::{GRID, KAPPA_ROWS};
-        let data = table.table();
-        let g = gl.glow();
-        // SAFETY: the context is current on this thread while `gl` lives.
-        let texture =
-            unsafe { g.create_texture() }.map_err(|e| Gl::creation_error("glCreateTexture", e))?;
-        let out = TableTexture {
+        let texture = float_texture(
+            gl,
+            FloatImage {
+                width: GRID,
+                height: KAPPA_ROWS + 1,
+                channels: 1,
+                data: table.table(),
+            },
+            FloatSampling::Fetch,
+            "BRDF table upload",
+        )?;
+        Ok(TableTexture {
             gl: gl.clone(),
             texture,
-        };
-        let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
-        gl.with_texture_2d(texture, || {
-            // SAFETY: as above with `texture` bound; `bytes` holds GRID × (KAPPA_ROWS + 1)
-            // tightly packed f32 (unpack alignment 1).
-            unsafe {
-                g.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
-                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_BASE_LEVEL, 0);
-                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAX_LEVEL, 0);
-                let nearest = glow::NEAREST as i32;
-                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MIN_FILTER, nearest);
-                g.tex_parameter_i32(glow::TEXTURE_2D, glow::TEXTURE_MAG_FILTER, nearest);
-                g.tex_image_2d(
-                    glow::TEXTURE_2D,
-                    0,
-                    glow::R32F as i32,
-                    GRID as i32,
-                    KAPPA_ROWS as i32 + 1,
-                    0,
-                    glow::RED,
-                    glow::FLOAT,
-                    PixelUnpackData::Slice(Some(&bytes)),
-                );
-            }
-            Ok::<_, Error>(())
-        })?;
-        gl.check_error("BRDF table upload")?;
-        Ok(out)
+        })
     }
 
     /// Binds the table to texture unit `unit` and sets `program`'s `ndf_brdf_table` to it.

@@ -3,7 +3,7 @@
 //! (`--compare`, the README picture).
 
 use crate::methods::{Bakes, MethodSpec};
-use crate::viewer::{Settings, Show, Viewer};
+use crate::viewer::{EnvInput, Settings, Show, Viewer};
 use ndfmap::bake::Method;
 use ndfmap_gl::{Gl, Route};
 use std::path::Path;
@@ -38,13 +38,14 @@ fn save_png(path: &Path, rgb: Vec<u8>, width: u32, height: u32) -> Result<(), St
 /// Renders one `width × height` frame of `settings` and writes it to `path`.
 pub fn screenshot(
     bakes: Bakes,
+    env: EnvInput,
     settings: Settings,
     width: u32,
     height: u32,
     path: &Path,
 ) -> Result<(), String> {
     let gl = context()?;
-    let mut viewer = Viewer::new(&gl, bakes, settings).map_err(|e| e.to_string())?;
+    let mut viewer = Viewer::new(&gl, bakes, settings, env).map_err(|e| e.to_string())?;
     let rgb = viewer.screenshot(width, height)?;
     save_png(path, rgb, width, height)?;
     println!(
@@ -63,6 +64,7 @@ pub fn screenshot(
 /// finest level) is right for every panel.
 pub fn compare(
     bakes: Bakes,
+    env: EnvInput,
     mut settings: Settings,
     methods: &[MethodSpec],
     width: u32,
@@ -70,10 +72,17 @@ pub fn compare(
     path: &Path,
 ) -> Result<(), String> {
     let gl = context()?;
+    if settings.env_lit
+        && let Some(m) = methods.iter().find(|m| !crate::viewer::env_capable(**m))
+    {
+        return Err(format!(
+            "{m}: the environment shaders draw plain, toksvig, lean and vmf"
+        ));
+    }
     settings.methods = methods.to_vec();
     settings.current = 0;
     settings.color = false;
-    let mut viewer = Viewer::new(&gl, bakes, settings).map_err(|e| e.to_string())?;
+    let mut viewer = Viewer::new(&gl, bakes, settings, env).map_err(|e| e.to_string())?;
     let mut panels = Vec::new();
     for i in 0..methods.len() {
         viewer.settings.current = i;

@@ -16,7 +16,7 @@ use ndfmap::format::Format;
 use ndfmap::{IngestOptions, NormalMap};
 use ndfmap_gl::glam::Vec3;
 use std::path::PathBuf;
-use viewer::{Settings, Show, ViewName};
+use viewer::{EnvInput, Settings, Show, ViewName};
 
 /// Keys of the window, also printed by `--help`.
 const KEYS: &str = "\
@@ -29,6 +29,10 @@ Window controls:
   ] / [             BRDF exponent s x2 / /2   T            Torrance-Sparrow / Blinn-Phong
                     (PBR methods: always GGX at --roughness)
   arrows            turn the light            F            f32 / f16 textures
+  E                 environment lighting on / off (the panorama as background; plain,
+                    toksvig, lean, vmf; Blinn-Phong, GGX)
+  left / right      (environment mode) turn the environment 15 deg about its zenith
+  H                 (environment mode) specular route: prefiltered / SH (eq 26)
   R                 reset the view            Esc, Q       quit
 The title shows the method, BRDF, reference passes and the method's draw time (glFinish).";
 
@@ -134,6 +138,69 @@ struct Cli {
     /// Window: quit after this many frames. Bench: timed frames per shader and view.
     #[arg(long)]
     frames: Option<u32>,
+    /// Start lit by this environment (equirectangular Radiance .hdr or OpenEXR, 2:1, linear;
+    /// e.g. the shared panoramas, read in place), `sky` for the generated sky with its sun
+    /// (the `E` key's default). The panorama is the background; the bake is lit by its
+    /// luminance.
+    #[arg(long)]
+    env: Option<String>,
+    /// Specular route under the environment: prefiltered (one lookup per lobe) or sh (eq 26).
+    #[arg(long, default_value = "prefiltered")]
+    env_route: ndfmap::envlight::Route,
+    /// Rotation of the environment about its zenith, degrees.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    env_yaw: f32,
+    /// Radiance multiplier of the environment.
+    #[arg(long, default_value_t = 1.0)]
+    env_intensity: f64,
+}
+
+/// The environment of environment mode: `--env FILE` loaded (with `--env-intensity`), or the
+/// generated sky (`--env sky`, or none: made when `E` is first pressed).
+fn load_env(cli: &Cli) -> Result<EnvInput, String> {
+    let options = ndfmap::environment::EnvOptions {
+        intensity: cli.env_intensity,
+        ..Default::default()
+    };
+    let sky = || -> Result<ndfmap::environment::Environment, String> {
+        let sky = ndfmap::environment::Sky {
+            width: 1024,
+            ..Default::default()
+        }
+        .render()
+        .map_err(|e| e.to_string())?;
+        ndfmap::environment::Environment::from_rgb(
+            "generated sky",
+            sky.width(),
+            sky.height(),
+            sky.texels().to_vec(),
+            &options,
+        )
+        .map_err(|e| e.to_string())
+    };
+    match cli.env.as_deref() {
+        None | Some("sky") => Ok(EnvInput {
+            name: "sky".into(),
+            environment: sky()?,
+        }),
+        Some(path) => {
+            let env = ndfmap::environment::load(std::path::Path::new(path), &options)
+                .map_err(|e| e.to_string())?;
+            if env.repaired() > 0 {
+                eprintln!(
+                    "ndfmap-viewer: {path}: {} NaN, infinite or negative texels set to 0",
+                    env.repaired()
+                );
+            }
+            let name = std::path::Path::new(path)
+                .file_stem()
+                .map_or(path.to_string(), |s| s.to_string_lossy().into_owned());
+            Ok(EnvInput {
+                name,
+                environment: env,
+            })
+        }
+    }
 }
 
 /// A perceptual roughness in [0, 1].
@@ -164,7 +231,7 @@ fn load_map(cli: &Cli) -> Result<NormalMap, String> {
 }
 
 /// The settings the command line asks for.
-fn settings(cli: &Cli) -> Settings {
+fn settings(cli: &Cli) -> Result<Settings, String> {
     let mut methods = cli.methods.clone();
     let mut current = 0;
     if let Some(m) = cli.method {
@@ -194,12 +261,17 @@ fn settings(cli: &Cli) -> Settings {
     s.color = !cli.no_color;
     s.format = cli.format;
     s.supersampling = cli.ss.max(1);
+    s.env_route = cli.env_route;
+    s.turn_env(cli.env_yaw.to_radians());
     s.show = match (cli.split, cli.reference) {
         (true, _) => Show::Split,
         (_, true) => Show::Reference,
         _ => Show::Method,
     };
-    s
+    if cli.env.is_some() {
+        s.set_env(true)?;
+    }
+    Ok(s)
 }
 
 fn run(cli: Cli) -> Result<(), String> {
@@ -223,7 +295,8 @@ fn run(cli: Cli) -> Result<(), String> {
     }
     let map = load_map(&cli)?;
     let bakes = Bakes::new(map, cli.align, cli.roughness);
-    let settings = settings(&cli);
+    let settings = settings(&cli)?;
+    let env = load_env(&cli)?;
     if cli.headless || cli.compare {
         let path = cli
             .screenshot
@@ -236,14 +309,15 @@ fn run(cli: Cli) -> Result<(), String> {
             } else {
                 cli.methods.clone()
             };
-            headless::compare(bakes, settings, &methods, w, h, path)
+            headless::compare(bakes, env, settings, &methods, w, h, path)
         } else {
             let (w, h) = cli.size.unwrap_or((1280, 720));
-            headless::screenshot(bakes, settings, w, h, path)
+            headless::screenshot(bakes, env, settings, w, h, path)
         }
     } else {
         window::run(
             bakes,
+            env,
             settings,
             cli.size.unwrap_or((1280, 720)),
             cli.frames,

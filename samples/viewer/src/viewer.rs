@@ -14,13 +14,15 @@
 use crate::methods::{BakeKey, Bakes, MethodSpec, PbrKind, finest_level_only};
 use ndfmap::bake::Method;
 use ndfmap::brdf::Brdf;
+use ndfmap::environment::Environment;
+use ndfmap::envlight::{EnvLight, Route};
 use ndfmap::format::Format;
-use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions};
+use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderLight, ShaderOptions};
 use ndfmap_gl::glam::{Mat4, Vec2, Vec3, Vec4};
 use ndfmap_gl::present::read_presented_rgb8;
 use ndfmap_gl::{
-    Accumulator, BakeRenderer, Camera, Destination, Gl, Layer, Lighting, Mesh, Presenter,
-    RenderTarget, Scene, Shape,
+    Accumulator, BakeRenderer, Camera, Destination, EnvBackground, EnvTextures, Gl, Layer,
+    Lighting, Mesh, Presenter, RenderTarget, Scene, Shape, env_rotation,
 };
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -160,8 +162,25 @@ pub struct Settings {
     pub supersampling: u32,
     /// Repetitions of the map per side of the plane, instead of the view's own.
     pub repeat: Option<f32>,
+    /// Environment lighting instead of the light (the `E` key, `--env`): the panorama as
+    /// background, the bake lit by it through [`Settings::env_route`].
+    pub env_lit: bool,
+    /// The environment route of the specular term (the `H` key).
+    pub env_route: Route,
+    /// Rotation of the environment about its zenith, radians (the arrow keys in environment
+    /// mode).
+    pub env_yaw: f32,
     /// The plane the `P` key brings back.
     plane: Shape,
+}
+
+/// Whether the environment shaders implement `spec` (`glsl/ndf_env.glsl`: plain, Toksvig,
+/// LEAN, vMF).
+pub fn env_capable(spec: MethodSpec) -> bool {
+    matches!(
+        spec.method,
+        Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf
+    )
 }
 
 impl Settings {
@@ -183,6 +202,9 @@ impl Settings {
             format: Format::F32,
             supersampling: 16,
             repeat: None,
+            env_lit: false,
+            env_route: Route::Prefiltered,
+            env_yaw: 0.0,
             plane: PLANE,
         }
     }
@@ -211,6 +233,47 @@ impl Settings {
         };
     }
 
+    /// Moves to the `step`-th next method (negative: previous); in environment mode only
+    /// through the methods the environment shaders implement ([`env_capable`]).
+    pub fn step_method(&mut self, step: isize) {
+        let n = self.methods.len() as isize;
+        let mut i = self.current as isize;
+        for _ in 0..n {
+            i = (i + step.signum()).rem_euclid(n);
+            if !self.env_lit || env_capable(self.methods[i as usize]) {
+                break;
+            }
+        }
+        self.current = i as usize;
+    }
+
+    /// Switches environment mode on or off; switching on moves to the next method the
+    /// environment shaders implement, and fails (nothing changed) when the list has none.
+    pub fn set_env(&mut self, on: bool) -> Result<(), String> {
+        if on && !env_capable(self.method()) {
+            let Some(i) = (1..=self.methods.len())
+                .map(|k| (self.current + k) % self.methods.len())
+                .find(|&i| env_capable(self.methods[i]))
+            else {
+                return Err(
+                    "environment lighting draws plain, toksvig, lean and vmf: none is in \
+                     --methods"
+                        .into(),
+                );
+            };
+            self.current = i;
+        }
+        self.env_lit = on;
+        Ok(())
+    }
+
+    /// Turns the environment by `d_yaw` radians about its zenith (kept in (−π, π]).
+    pub fn turn_env(&mut self, d_yaw: f32) {
+        use std::f32::consts::PI;
+        let y = (self.env_yaw + d_yaw + PI).rem_euclid(2.0 * PI) - PI;
+        self.env_yaw = if y <= -PI { PI } else { y };
+    }
+
     /// The current method.
     pub fn method(&self) -> MethodSpec {
         self.methods[self.current]
@@ -219,6 +282,7 @@ impl Settings {
     /// The BRDF of the current settings: GGX with Smith and Schlick (`α = sqrt(2/(s+2))`, the
     /// roughness of about the same width), the eq 18 lobe (`σ = sqrt(1/(2s))`), or Blinn-Phong;
     /// for a PBR method GGX with Smith and Schlick at the bakes' base α (`pbr_roughness²`).
+    /// Environment mode has no Torrance–Sparrow route: Blinn-Phong then.
     pub fn brdf(&self) -> Brdf {
         if self.method().method == Method::Pbr {
             Brdf::Ggx(ndfmap::brdf::Ggx {
@@ -230,7 +294,7 @@ impl Settings {
                 g: true,
                 ..ndfmap::brdf::Ggx::new((2.0 / (self.exponent + 2.0)).sqrt())
             })
-        } else if self.torrance_sparrow {
+        } else if self.torrance_sparrow && !self.env_lit {
             Brdf::TorranceSparrow {
                 sigma: (0.5 / self.exponent).sqrt(),
             }
@@ -239,11 +303,26 @@ impl Settings {
         }
     }
 
-    /// The lighting with the current BRDF.
+    /// The lighting with the current BRDF (environment mode: radiance scale 1, the
+    /// environment's own intensity).
     pub fn lighting(&self) -> Lighting {
         Lighting {
             brdf: self.brdf(),
+            color: if self.env_lit {
+                Vec3::ONE
+            } else {
+                self.lighting.color
+            },
             ..self.lighting.clone()
+        }
+    }
+
+    /// The shader lighting of the current settings.
+    pub fn shader_light(&self) -> ShaderLight {
+        if self.env_lit {
+            ShaderLight::env(self.env_route)
+        } else {
+            ShaderLight::Point
         }
     }
 
@@ -294,6 +373,8 @@ struct RendererKey {
     format: Format,
     /// Cut to the finest level (the reference).
     finest: bool,
+    /// Point light or an environment route.
+    light: ShaderLight,
 }
 
 /// The state a reference image was accumulated for: when any of it changes, it restarts.
@@ -304,6 +385,8 @@ struct ReferenceState {
     camera: Camera,
     lighting: Lighting,
     size: (u32, u32),
+    /// The environment's yaw (environment mode).
+    env_yaw: f32,
 }
 
 /// Targets of one image size.
@@ -348,6 +431,21 @@ pub struct FrameInfo {
     pub reference_passes: (u32, u32),
 }
 
+/// An environment on the GPU: the lighting tables and the background panorama.
+struct EnvGpu {
+    textures: EnvTextures,
+    background: EnvBackground,
+}
+
+/// The environment of the viewer's environment mode: given (`--env`), or the generated sky
+/// with its sun.
+pub struct EnvInput {
+    /// What the title calls it (a file name, or `sky`).
+    pub name: String,
+    /// The panorama.
+    pub environment: Environment,
+}
+
 /// The viewer: bakes, shaders, targets and the presentation pass on one context.
 pub struct Viewer {
     gl: Gl,
@@ -361,11 +459,20 @@ pub struct Viewer {
     reference_state: Option<ReferenceState>,
     /// The method drawn while the current one bakes.
     shown: Option<MethodSpec>,
+    /// The environment of environment mode.
+    env_input: EnvInput,
+    /// It on the GPU, made on the first environment-lit frame.
+    env: Option<EnvGpu>,
 }
 
 impl Viewer {
-    /// A viewer of `bakes` on `gl` with `settings`.
-    pub fn new(gl: &Gl, bakes: Bakes, settings: Settings) -> Result<Viewer, ndfmap_gl::Error> {
+    /// A viewer of `bakes` on `gl` with `settings`, lit in environment mode by `env_input`.
+    pub fn new(
+        gl: &Gl,
+        bakes: Bakes,
+        settings: Settings,
+        env_input: EnvInput,
+    ) -> Result<Viewer, ndfmap_gl::Error> {
         Ok(Viewer {
             gl: gl.clone(),
             presenter: Presenter::new(gl)?,
@@ -376,7 +483,26 @@ impl Viewer {
             targets: None,
             reference_state: None,
             shown: None,
+            env_input,
+            env: None,
         })
+    }
+
+    /// Prepares the environment on the GPU (first call: the SH projection, prefiltered levels and `L′` table of its luminance, a few seconds for
+    /// a 1024 × 512 panorama).
+    fn prepare_env(&mut self) -> Result<(), String> {
+        if self.env.is_some() {
+            return Ok(());
+        }
+        let env = &self.env_input.environment;
+        let light = EnvLight::new(env.luminance());
+        let textures = EnvTextures::upload(&self.gl, &light).map_err(|e| e.to_string())?;
+        let background = EnvBackground::new(&self.gl, env).map_err(|e| e.to_string())?;
+        self.env = Some(EnvGpu {
+            textures,
+            background,
+        });
+        Ok(())
     }
 
     /// The context.
@@ -386,7 +512,11 @@ impl Viewer {
 
     /// Whether the map's albedo is used as colour by `spec` under the current settings.
     fn uses_color(&self, spec: MethodSpec) -> bool {
-        self.settings.color && self.bakes.has_albedo() && spec.is_mixture()
+        // The environment routes shade one channel (luminance): no colour there.
+        self.settings.color
+            && !self.settings.env_lit
+            && self.bakes.has_albedo()
+            && spec.is_mixture()
     }
 
     /// The bake the current method needs.
@@ -451,6 +581,7 @@ impl Viewer {
             brdf: ShaderBrdf::of(&self.settings.brdf()),
             format: self.settings.format,
             finest,
+            light: self.settings.shader_light(),
         }
     }
 
@@ -479,6 +610,7 @@ impl Viewer {
                 Sampling::Auto
             },
             color: key.bake.color,
+            light: key.light,
             probe: false,
             ..ShaderOptions::default()
         };
@@ -531,10 +663,21 @@ impl Viewer {
         let shape = self.settings.shape;
         let spec = self.settings.method();
         let mut info = FrameInfo::default();
+        let env_lit = self.settings.env_lit;
+        if env_lit {
+            if !env_capable(spec) {
+                return Err(format!(
+                    "{spec}: the environment shaders draw plain, toksvig, lean and vmf"
+                ));
+            }
+            self.prepare_env()?;
+        }
+        let rotation = env_rotation(self.settings.env_yaw);
 
         // The method: the current one if ready, else the one shown before.
         let mut drawn = None;
-        for candidate in [Some(spec), self.shown].into_iter().flatten() {
+        let shown = self.shown.filter(|s| !env_lit || env_capable(*s));
+        for candidate in [Some(spec), shown].into_iter().flatten() {
             let key = self.renderer_key(self.method_key(candidate), false);
             if self.prepare(key)? {
                 drawn = Some(key);
@@ -559,12 +702,29 @@ impl Viewer {
             .expect("made")
             .1;
         targets.method.clear([0.0, 0.0, 0.0, 1.0]);
+        let env = self.env.as_ref().filter(|_| env_lit);
+        // One frame: the background and the mesh lit by the environment, or the mesh under
+        // the light.
+        let draw = |r: &BakeRenderer, camera: &Camera, t: &RenderTarget| match env {
+            Some(e) => {
+                e.background.draw(camera, &rotation, Vec3::ONE, t)?;
+                r.draw_env(
+                    mesh,
+                    &Mat4::IDENTITY,
+                    camera,
+                    &lighting,
+                    &e.textures,
+                    &rotation,
+                    t,
+                )
+            }
+            None => r.draw(mesh, &Mat4::IDENTITY, camera, &lighting, t),
+        };
         if let Some(key) = drawn {
             let r = &self.renderers[&key];
             self.gl.finish();
             let start = Instant::now();
-            r.draw(mesh, &Mat4::IDENTITY, &camera, &lighting, &targets.method)
-                .map_err(gl_err)?;
+            draw(r, &camera, &targets.method).map_err(gl_err)?;
             self.gl.finish();
             info.draw_ms = start.elapsed().as_secs_f64() * 1e3;
             info.drawn = Some(r.label().to_string());
@@ -579,6 +739,7 @@ impl Viewer {
             camera,
             lighting: lighting.clone(),
             size: (width, height),
+            env_yaw: if env_lit { self.settings.env_yaw } else { 0.0 },
         };
         let targets = self.targets.as_mut().expect("made above");
         if self.reference_state.as_ref() != Some(&state) {
@@ -602,7 +763,7 @@ impl Viewer {
             };
             targets
                 .reference
-                .add_pass(|t| r.draw(mesh, &Mat4::IDENTITY, &jittered, &lighting, t))
+                .add_pass(|t| draw(r, &jittered, t))
                 .map_err(gl_err)?;
             passes += 1;
         }
@@ -660,6 +821,14 @@ impl Viewer {
                 "no colour"
             }
         );
+        if s.env_lit {
+            line += &format!(
+                " | env {} {} yaw {:.0}°",
+                self.env_input.name,
+                s.env_route.name(),
+                s.env_yaw.to_degrees()
+            );
+        }
         if self.shown != Some(wanted) || self.baking() {
             line += &format!(" | baking {wanted}...");
         }
@@ -707,6 +876,46 @@ mod tests {
         assert!((after.truncate().length() - before.truncate().length()).abs() < 1e-4);
         s.turn_light(-0.3, 0.2);
         assert!((s.lighting.light - before).length() < 1e-4);
+    }
+
+    #[test]
+    fn environment_mode_steps_through_the_methods_it_draws() {
+        let methods: Vec<MethodSpec> = ["olano", "plain", "tan2005-4", "vmf6a"]
+            .iter()
+            .map(|m| m.parse().unwrap())
+            .collect();
+        let mut s = Settings::new(methods, ViewName::Sphere);
+        assert_eq!(s.method().to_string(), "olano");
+        s.set_env(true).unwrap();
+        assert!(s.env_lit && s.method().to_string() == "plain");
+        s.step_method(1);
+        assert_eq!(s.method().to_string(), "vmf6a");
+        s.step_method(1);
+        assert_eq!(s.method().to_string(), "plain");
+        s.step_method(-1);
+        assert_eq!(s.method().to_string(), "vmf6a");
+        s.set_env(false).unwrap();
+        s.step_method(1);
+        assert_eq!(s.method().to_string(), "olano");
+        // No method the environment shaders draw: refused, nothing changed.
+        let mut none = Settings::new(vec!["olano".parse().unwrap()], ViewName::Sphere);
+        assert!(none.set_env(true).is_err() && !none.env_lit);
+        // Torrance-Sparrow has no environment route: Blinn-Phong of the same exponent.
+        s.torrance_sparrow = true;
+        s.set_env(true).unwrap();
+        assert_eq!(s.brdf(), Brdf::BlinnPhong { s: 256.0 });
+    }
+
+    #[test]
+    fn environment_turns_wrap_around() {
+        use std::f32::consts::PI;
+        let mut s = Settings::new(MethodSpec::defaults(), ViewName::Far);
+        for _ in 0..30 {
+            s.turn_env(PI / 12.0);
+            assert!(s.env_yaw > -PI && s.env_yaw <= PI);
+        }
+        // 30 steps of 15 degrees: 450 = 90 degrees.
+        assert!((s.env_yaw - PI / 2.0).abs() < 1e-4, "{}", s.env_yaw);
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //! otherwise it waits for input.
 
 use crate::methods::Bakes;
-use crate::viewer::{Settings, Show, ViewName, Viewer};
+use crate::viewer::{EnvInput, Settings, Show, ViewName, Viewer};
+use ndfmap::envlight::Route;
 use ndfmap::format::Format;
 use ndfmap_gl::Destination;
 use ndfmap_gl::window::Window;
@@ -25,6 +26,8 @@ use winit::window::WindowId;
 const ORBIT_PER_PIXEL: f32 = 0.006;
 /// Radians the light turns per arrow key press.
 const LIGHT_STEP: f32 = 0.08;
+/// Radians the environment turns per arrow key press in environment mode (15°).
+const ENV_STEP: f32 = std::f32::consts::PI / 12.0;
 /// Time per frame given to reference passes while the reference accumulates.
 const REFERENCE_BUDGET: Duration = Duration::from_millis(40);
 /// How often a window waiting for a bake looks for it.
@@ -32,6 +35,7 @@ const BAKE_POLL: Duration = Duration::from_millis(100);
 
 struct App {
     bakes: Option<Bakes>,
+    env: Option<EnvInput>,
     settings: Settings,
     size: (u32, u32),
     frames_left: Option<u32>,
@@ -52,6 +56,7 @@ struct App {
 /// `screenshot`, if given, receives the window's last frame).
 pub fn run(
     bakes: Bakes,
+    env: EnvInput,
     settings: Settings,
     size: (u32, u32),
     frames: Option<u32>,
@@ -66,6 +71,7 @@ pub fn run(
         .unwrap_or(0);
     let mut app = App {
         bakes: Some(bakes),
+        env: Some(env),
         settings,
         size,
         frames_left: frames,
@@ -165,19 +171,28 @@ impl App {
         let s = self.settings_mut();
         match key {
             Key::Named(NamedKey::Escape) => event_loop.exit(),
+            // Environment mode: left/right turn the environment about its zenith.
+            Key::Named(NamedKey::ArrowLeft) if s.env_lit => s.turn_env(-ENV_STEP),
+            Key::Named(NamedKey::ArrowRight) if s.env_lit => s.turn_env(ENV_STEP),
             Key::Named(NamedKey::ArrowLeft) => s.turn_light(-LIGHT_STEP, 0.0),
             Key::Named(NamedKey::ArrowRight) => s.turn_light(LIGHT_STEP, 0.0),
             Key::Named(NamedKey::ArrowUp) => s.turn_light(0.0, LIGHT_STEP),
             Key::Named(NamedKey::ArrowDown) => s.turn_light(0.0, -LIGHT_STEP),
             Key::Character(_) => match character.as_str() {
                 "q" => event_loop.exit(),
-                "m" => {
-                    let n = s.methods.len();
-                    s.current = if shift {
-                        (s.current + n - 1) % n
-                    } else {
-                        (s.current + 1) % n
-                    };
+                "m" => s.step_method(if shift { -1 } else { 1 }),
+                "e" => {
+                    let on = !s.env_lit;
+                    if let Err(e) = s.set_env(on) {
+                        eprintln!("ndfmap-viewer: {e}");
+                        return false;
+                    }
+                }
+                "h" => {
+                    s.env_route = match s.env_route {
+                        Route::Prefiltered => Route::Sh,
+                        Route::Sh => Route::Prefiltered,
+                    }
                 }
                 d @ ("1" | "2" | "3" | "4" | "5" | "6" | "7" | "8") => {
                     let j = d.parse().expect("a digit");
@@ -253,7 +268,8 @@ impl ApplicationHandler for App {
             Err(e) => return self.fail(event_loop, e.to_string()),
         };
         let bakes = self.bakes.take().expect("resumed once");
-        match Viewer::new(&gl, bakes, self.settings.clone()) {
+        let env = self.env.take().expect("resumed once");
+        match Viewer::new(&gl, bakes, self.settings.clone(), env) {
             Ok(viewer) => {
                 println!("window: {} (OpenGL {:?})", gl.renderer(), gl.version());
                 window.winit().request_redraw();

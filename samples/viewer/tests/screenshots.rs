@@ -140,3 +140,59 @@ fn window_route_draws_into_the_window_under_an_x_server() {
     assert_eq!(img.dimensions(), (W, H));
     assert!(lit_fraction(&img) > 0.02, "the window's frame is black");
 }
+
+#[test]
+fn environment_mode_draws_the_panorama_behind_the_bake_it_lights() {
+    if skip_gl() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    let common = [
+        "--headless",
+        "--view",
+        "sphere",
+        "--env",
+        "sky",
+        "--method",
+        "toksvig",
+    ];
+    let run = |extra: &[&str], name: &str| {
+        viewer(&[&common[..], extra].concat(), &path(name));
+        load(&path(name))
+    };
+    let prefiltered = run(&["--env-route", "prefiltered"], "prefiltered.png");
+    let sh = run(&["--env-route", "sh"], "sh.png");
+    let turned = run(&["--env-yaw", "180"], "turned.png");
+    // The bottom corners look 30-40 degrees below the horizon, at the generated sky's constant
+    // ground radiance (0.18, 0.15, 0.12): the background is the panorama, tone-mapped like the
+    // rest of the image, whatever the route or the yaw.
+    let ground = [0.18f32, 0.15, 0.12].map(|v| (ndfmap_gl::tone_map(v) * 255.0).round() as i32);
+    for img in [&prefiltered, &sh, &turned] {
+        for x in [0, W - 1] {
+            let p = img.get_pixel(x, H - 1).0;
+            for c in 0..3 {
+                assert!(
+                    (p[c] as i32 - ground[c]).abs() <= 1,
+                    "ground pixel {p:?}, expected {ground:?}"
+                );
+            }
+            // The top corners see the sky just above the horizon: brighter and bluer.
+            let sky = img.get_pixel(x, 0).0;
+            assert!(sky[2] > p[2] + 40 && sky[2] >= sky[0], "sky pixel {sky:?}");
+        }
+    }
+    // The sphere in the middle is lit by the environment: the route and the yaw change it.
+    let middle = W / 2 - 8..W / 2 + 8;
+    assert!(lit_fraction(&prefiltered) > 0.5);
+    let d = difference(&prefiltered, &sh, middle.clone());
+    assert!(
+        d > 0.3,
+        "prefiltered and SH routes agree (mean difference {d})"
+    );
+    let d = difference(&prefiltered, &turned, middle);
+    assert!(
+        d > 1.0,
+        "turning the environment changes nothing (mean difference {d})"
+    );
+}
