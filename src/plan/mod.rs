@@ -53,6 +53,15 @@ pub const COLOR_VARIATION: f64 = 0.01;
 /// Side of the crops the planner measures (at most).
 pub const CROP: u32 = 128;
 
+/// Side of the small crops that stand for the finest levels (0 to [`FINE_LEVELS`] − 1) in
+/// place of the `CROP` ones: those levels hold most of a crop's texels, and an RMS over a few
+/// thousand texels from four places of the map predicts as well as one over tens of thousands
+/// from two (the whole-map check in `docs/planner.md`) at a fraction of the shading.
+pub const FINE_CROP: u32 = 32;
+
+/// Levels measured on the [`FINE_CROP`] crops.
+pub const FINE_LEVELS: usize = 3;
+
 /// One configuration the planner can choose for a level range.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Config {
@@ -274,8 +283,9 @@ pub fn directions(scene: &Scene) -> Vec<LightView> {
 /// The samples a plan measures: maps and, per map level, the map level it stands for.
 struct Samples {
     maps: Vec<(NormalMap, Vec<Option<usize>>)>,
-    /// How many of `maps` (the first ones) are crops standing for the same levels.
-    crops: usize,
+    /// Per map, how many maps stand for the same levels (they share the environment's
+    /// ground-truth texels).
+    share: Vec<usize>,
 }
 
 fn crop(map: &NormalMap, x0: u32, y0: u32, c: u32) -> Result<NormalMap> {
@@ -300,7 +310,10 @@ fn samples(map: &NormalMap, levels: usize) -> Result<Samples> {
     if w == c && h == c {
         let own = (0..levels).map(Some).collect();
         maps.push((map.clone(), own));
-        return Ok(Samples { maps, crops: 1 });
+        return Ok(Samples {
+            maps,
+            share: vec![1],
+        });
     }
     // Two crops: the top-left one and one near the centre, aligned to multiples of c.
     let positions = [(0, 0), ((w / 2 / c) * c, (h / 2 / c) * c)];
@@ -314,7 +327,29 @@ fn samples(map: &NormalMap, levels: usize) -> Result<Samples> {
             .collect();
         maps.push((m, stands));
     }
-    let crops = maps.len();
+    let mut share = vec![maps.len(); maps.len()];
+    // The finest levels on four small crops instead (when the map is large enough that they
+    // are fewer texels than the big crops' levels): the big crops stand for the rest.
+    if c >= 4 * FINE_CROP && w >= 2 * c && h >= 2 * c && levels > 0 {
+        for (_, stands) in &mut maps {
+            for s in stands.iter_mut().take(FINE_LEVELS) {
+                *s = None;
+            }
+        }
+        let f = FINE_CROP;
+        // Four places spread over the map (eighths), aligned to multiples of the crop.
+        let spots = [(1u32, 5u32), (5, 1), (3, 3), (7, 7)];
+        for (a, b) in spots {
+            let (x, y) = ((w / 8 * a / f) * f, (h / 8 * b / f) * f);
+            let m = crop(map, x.min(w - f), y.min(h - f), f)?;
+            let count = crate::pyramid::level_sizes(f, f).len();
+            let stands = (0..count)
+                .map(|k| (k < FINE_LEVELS && k < levels).then_some(k))
+                .collect();
+            maps.push((m, stands));
+            share.push(spots.len());
+        }
+    }
     // The coarser levels: the map subsampled with stride s (a power of two).
     if levels > crop_levels + 1 {
         let mut s = 1u32;
@@ -336,8 +371,9 @@ fn samples(map: &NormalMap, levels: usize) -> Result<Samples> {
             })
             .collect();
         maps.push((m, stands));
+        share.push(1);
     }
-    Ok(Samples { maps, crops })
+    Ok(Samples { maps, share })
 }
 
 /// A candidate's measured errors: per map level, (diffuse, specular) relative RMS, the
@@ -379,8 +415,9 @@ pub const ENV_TEXELS: usize = 48;
 pub struct EnvMeasure {
     /// The environment's luminance, ready to light with.
     pub light: crate::envlight::EnvLight,
-    /// Per sample map (in [`Samples`] order), its ground truth.
-    references: Vec<crate::envlight::Reference>,
+    /// Per sample map (in [`Samples`] order), its ground truth (`None` for a sample that
+    /// stands for none of the scene's levels).
+    references: Vec<Option<crate::envlight::Reference>>,
 }
 
 impl EnvMeasure {
@@ -393,7 +430,7 @@ impl EnvMeasure {
         light: crate::envlight::EnvLight,
         maps: &[&NormalMap],
         brdfs: &[Brdf],
-        first: &[usize],
+        first: &[Option<usize>],
         texels: &[usize],
     ) -> Result<EnvMeasure> {
         let references = maps
@@ -401,13 +438,17 @@ impl EnvMeasure {
             .zip(first)
             .zip(texels)
             .map(|((map, &first_level), &texels_per_level)| {
+                // A sample standing for none of the scene's levels is never measured.
+                let Some(first_level) = first_level else {
+                    return Ok(None);
+                };
                 let options = crate::envlight::EvalOptions {
                     first_level,
                     texels_per_level,
                     samples: ENV_SAMPLES,
                     ..Default::default()
                 };
-                crate::envlight::Reference::new(map, brdfs, &light, &options)
+                crate::envlight::Reference::new(map, brdfs, &light, &options).map(Some)
             })
             .collect::<Result<_>>()?;
         Ok(EnvMeasure { light, references })
@@ -421,7 +462,10 @@ impl EnvMeasure {
         bake: &Bake,
         levels: std::ops::RangeInclusive<usize>,
     ) -> Result<Vec<Option<(f64, f64)>>> {
-        environment_errors(&self.references[i], &self.light, bake, levels)
+        match &self.references[i] {
+            Some(r) => environment_errors(r, &self.light, bake, levels),
+            None => Ok(Vec::new()),
+        }
     }
 }
 
@@ -547,7 +591,7 @@ struct Measure<'a> {
     /// Per sample map, the exact footprint averages under the point/directional lights,
     /// computed once and scored against every candidate ([`crate::eval::Reference`]; empty
     /// for a scene lit only by an environment).
-    exact: Vec<crate::eval::Reference>,
+    exact: Vec<Option<crate::eval::Reference>>,
     /// The environment, when the scene has one.
     env: Option<EnvMeasure>,
     levels: usize,
@@ -599,7 +643,7 @@ impl Measure<'_> {
             };
             let last = stands.iter().rposition(inside).unwrap_or(first);
             let bake = edit(bake.clone())?;
-            let errors = match self.exact.get(i) {
+            let errors = match self.exact.get(i).and_then(Option::as_ref) {
                 Some(exact) => exact.evaluate_levels(&[&bake], first..=last),
                 None => Vec::new(),
             };
@@ -764,24 +808,15 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     let env = match scene.environment_light()? {
         Some(light) => {
             let maps: Vec<&NormalMap> = samples.maps.iter().map(|(m, _)| m).collect();
-            let first: Vec<usize> = samples
+            let first: Vec<Option<usize>> = samples
                 .maps
                 .iter()
-                .map(|(_, stands)| {
-                    stands
-                        .iter()
-                        .position(|l| l.is_some_and(|l| l >= range[0]))
-                        .unwrap_or(stands.len().saturating_sub(1))
-                })
+                .map(|(_, stands)| stands.iter().position(|l| l.is_some_and(|l| l >= range[0])))
                 .collect();
-            let texels: Vec<usize> = (0..maps.len())
-                .map(|i| {
-                    if i < samples.crops {
-                        ENV_TEXELS.div_ceil(samples.crops)
-                    } else {
-                        ENV_TEXELS
-                    }
-                })
+            let texels: Vec<usize> = samples
+                .share
+                .iter()
+                .map(|&n| ENV_TEXELS.div_ceil(n.max(1)))
                 .collect();
             Some(EnvMeasure::new(
                 light,
@@ -801,11 +836,10 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             .maps
             .iter()
             .map(|(map, stands)| {
-                let first = stands
+                stands
                     .iter()
                     .position(|l| l.is_some_and(|l| l >= range[0]))
-                    .unwrap_or(stands.len().saturating_sub(1));
-                crate::eval::Reference::new(map, &scene.brdfs(), &dirs, first)
+                    .map(|first| crate::eval::Reference::new(map, &scene.brdfs(), &dirs, first))
             })
             .collect()
     };
