@@ -102,8 +102,8 @@ impl EnvLight {
     /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones).
     pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
         match brdf {
-            Brdf::BlinnPhong { .. } => Some(&self.energy.blinn_phong),
-            Brdf::Ggx(_) => Some(&self.energy.ggx),
+            Brdf::BlinnPhong { .. } => Some(self.energy.blinn_phong_table()),
+            Brdf::Ggx(_) => Some(self.energy.ggx_table()),
             _ => None,
         }
     }
@@ -333,9 +333,11 @@ pub const ENERGY_PARAM: usize = 49;
 
 /// `E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i` for a view at `cos θ_o = c_o`: Blinn-Phong over
 /// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.
+/// Each family's table is computed on first use (a Lambert-only or GGX-only user never
+/// pays for the other's quadrature, about a second each on two cores).
 struct EnergyTables {
-    blinn_phong: Vec<f64>,
-    ggx: Vec<f64>,
+    blinn_phong: std::sync::OnceLock<Vec<f64>>,
+    ggx: std::sync::OnceLock<Vec<f64>>,
 }
 
 fn bp_param(i: usize) -> f64 {
@@ -353,26 +355,44 @@ fn energy_tables() -> &'static EnergyTables {
     TABLES.get_or_init(EnergyTables::new)
 }
 
+/// One family's table: `lobe(c, p)` over [`ENERGY_PARAM`] parameters `param(i)` (quadrature
+/// width `width(p)`) × [`ENERGY_COS`] view cosines.
+fn energy_table_of(
+    lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
+    param: fn(usize) -> f64,
+    width: fn(f64) -> f64,
+) -> Vec<f64> {
+    (0..ENERGY_PARAM * ENERGY_COS)
+        .into_par_iter()
+        .map(|k| {
+            let p = param(k / ENERGY_COS);
+            let co = k as f64 % ENERGY_COS as f64 / (ENERGY_COS - 1) as f64;
+            energy(&|c| lobe(c, p), width(p), co)
+        })
+        .collect()
+}
+
 impl EnergyTables {
     fn new() -> EnergyTables {
-        let build = |lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
-                     param: fn(usize) -> f64,
-                     width: fn(f64) -> f64| {
-            (0..ENERGY_PARAM * ENERGY_COS)
-                .into_par_iter()
-                .map(|k| {
-                    let p = param(k / ENERGY_COS);
-                    let co = k as f64 % ENERGY_COS as f64 / (ENERGY_COS - 1) as f64;
-                    energy(&|c| lobe(c, p), width(p), co)
-                })
-                .collect()
-        };
         EnergyTables {
-            blinn_phong: build(&|c, s| crate::brdf::blinn_phong(c, s), bp_param, |s| {
-                (1.0 / s.sqrt()).min(0.5 * PI)
-            }),
-            ggx: build(&|c, a| ggx(c, a), ggx_param, |a| a.min(0.5 * PI)),
+            blinn_phong: std::sync::OnceLock::new(),
+            ggx: std::sync::OnceLock::new(),
         }
+    }
+
+    /// The Blinn-Phong table (computed on first use).
+    fn blinn_phong_table(&self) -> &[f64] {
+        self.blinn_phong.get_or_init(|| {
+            energy_table_of(&|c, s| crate::brdf::blinn_phong(c, s), bp_param, |s| {
+                (1.0 / s.sqrt()).min(0.5 * PI)
+            })
+        })
+    }
+
+    /// The GGX table (computed on first use).
+    fn ggx_table(&self) -> &[f64] {
+        self.ggx
+            .get_or_init(|| energy_table_of(&|c, a| ggx(c, a), ggx_param, |a| a.min(0.5 * PI)))
     }
 
     /// Bilinear lookup: `table` over (param index, c_o).
@@ -389,12 +409,12 @@ impl EnergyTables {
 
     fn blinn_phong(&self, s: f64, co: f64) -> f64 {
         let pi = (s.max(1e-300).log2() + 4.0) / 24.0 * (ENERGY_PARAM - 1) as f64;
-        Self::lookup(&self.blinn_phong, pi, co)
+        Self::lookup(self.blinn_phong_table(), pi, co)
     }
 
     fn ggx(&self, a: f64, co: f64) -> f64 {
         let pi = (a.max(1e-300).log10() + 3.0) / 3.0 * (ENERGY_PARAM - 1) as f64;
-        Self::lookup(&self.ggx, pi, co)
+        Self::lookup(self.ggx_table(), pi, co)
     }
 }
 

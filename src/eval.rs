@@ -329,9 +329,22 @@ impl Reference {
     /// BRDFs, directions and first level. Every (direction, level, bake) is a task of its own:
     /// each sum still runs over its level's texels in order, so the results are the same.
     pub fn evaluate(&self, bakes: &[&Bake]) -> Vec<MethodError> {
+        self.evaluate_levels(bakes, self.first_level..=usize::MAX)
+    }
+
+    /// [`Reference::evaluate`] at the levels of `levels` only (and at or coarser than the
+    /// reference's first level; the other levels' errors are 0): what a planner measuring one
+    /// level range needs. The errors it gives are [`Reference::evaluate`]'s at those levels.
+    pub fn evaluate_levels(
+        &self,
+        bakes: &[&Bake],
+        levels: std::ops::RangeInclusive<usize>,
+    ) -> Vec<MethodError> {
         let (nl, ns) = (self.levels.len(), self.brdfs.len());
+        let from = self.first_level.max(*levels.start());
+        let to = (*levels.end()).min(nl.saturating_sub(1));
         let tasks: Vec<(usize, usize, usize)> = (0..self.directions.len())
-            .flat_map(|d| (self.first_level..nl).map(move |k| (d, k)))
+            .flat_map(|d| (from..=to).map(move |k| (d, k)))
             .flat_map(|(d, k)| (0..bakes.len()).map(move |b| (d, k, b)))
             .collect();
         let sums: Vec<Vec<[f64; 4]>> = tasks

@@ -53,24 +53,35 @@ pub const COLOR_VARIATION: f64 = 0.01;
 /// Side of the crops the planner measures (at most).
 pub const CROP: u32 = 128;
 
+/// Side of the small crops that stand for the finest levels (0 to [`FINE_LEVELS`] − 1) in
+/// place of the `CROP` ones: those levels hold most of a crop's texels, and an RMS over a few
+/// thousand texels from four places of the map predicts as well as one over tens of thousands
+/// from two (the whole-map check in `docs/planner.md`) at a fraction of the shading.
+pub const FINE_CROP: u32 = 32;
+
+/// Levels measured on the [`FINE_CROP`] crops.
+pub const FINE_LEVELS: usize = 3;
+
 /// One configuration the planner can choose for a level range.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Config {
     /// The method.
     pub method: Method,
-    /// vMF lobes J (0 for the others).
+    /// Mixture lobes J: vMF, or Tan 2005's Gaussians (0 for the others).
     pub lobes: usize,
     /// SH band limit l* (0 for the others).
     pub lmax: usize,
-    /// vMF: aligned lobes (hardware trilinear filtering).
+    /// vMF and Tan 2005: aligned lobes (hardware trilinear filtering).
     pub aligned: bool,
 }
 
 impl Config {
-    /// A label: `plain`, `toksvig`, `sh2`, `vmf3a`, `vmf8`.
+    /// A label: `plain`, `toksvig`, `lean`, `olano`, `sh2`, `tan2a`, `vmf3a`, `vmf8`.
     pub fn label(&self) -> String {
+        let a = if self.aligned { "a" } else { "" };
         match self.method {
-            Method::Vmf => format!("vmf{}{}", self.lobes, if self.aligned { "a" } else { "" }),
+            Method::Vmf => format!("vmf{}{a}", self.lobes),
+            Method::Tan2005 => format!("tan{}{a}", self.lobes),
             Method::Sh => format!("sh{}", self.lmax),
             m => m.name().to_string(),
         }
@@ -79,7 +90,7 @@ impl Config {
     /// Textures the method's shading reads (without colour).
     pub fn textures(&self) -> usize {
         match self.method {
-            Method::Vmf => self.lobes,
+            Method::Vmf | Method::Tan2005 => self.lobes,
             Method::Sh => crate::sh::texture_count(self.lmax),
             m => crate::methods::texture_layout(m, 0, false).len(),
         }
@@ -98,7 +109,7 @@ impl Config {
     /// Texture fetches per pixel of its shader (manual sampling reads 8 texels per texture).
     pub fn fetches(&self, color: bool) -> usize {
         let t = self.textures() * if color { 2 } else { 1 };
-        if self.method == Method::Vmf && !self.aligned {
+        if matches!(self.method, Method::Vmf | Method::Tan2005) && !self.aligned {
             8 * t
         } else {
             t
@@ -272,6 +283,9 @@ pub fn directions(scene: &Scene) -> Vec<LightView> {
 /// The samples a plan measures: maps and, per map level, the map level it stands for.
 struct Samples {
     maps: Vec<(NormalMap, Vec<Option<usize>>)>,
+    /// Per map, how many maps stand for the same levels (they share the environment's
+    /// ground-truth texels).
+    share: Vec<usize>,
 }
 
 fn crop(map: &NormalMap, x0: u32, y0: u32, c: u32) -> Result<NormalMap> {
@@ -296,7 +310,10 @@ fn samples(map: &NormalMap, levels: usize) -> Result<Samples> {
     if w == c && h == c {
         let own = (0..levels).map(Some).collect();
         maps.push((map.clone(), own));
-        return Ok(Samples { maps });
+        return Ok(Samples {
+            maps,
+            share: vec![1],
+        });
     }
     // Two crops: the top-left one and one near the centre, aligned to multiples of c.
     let positions = [(0, 0), ((w / 2 / c) * c, (h / 2 / c) * c)];
@@ -309,6 +326,29 @@ fn samples(map: &NormalMap, levels: usize) -> Result<Samples> {
             .map(|k| (k < levels).then_some(k))
             .collect();
         maps.push((m, stands));
+    }
+    let mut share = vec![maps.len(); maps.len()];
+    // The finest levels on four small crops instead (when the map is large enough that they
+    // are fewer texels than the big crops' levels): the big crops stand for the rest.
+    if c >= 4 * FINE_CROP && w >= 2 * c && h >= 2 * c && levels > 0 {
+        for (_, stands) in &mut maps {
+            for s in stands.iter_mut().take(FINE_LEVELS) {
+                *s = None;
+            }
+        }
+        let f = FINE_CROP;
+        // Four places spread over the map (eighths), aligned to multiples of the crop.
+        let spots = [(1u32, 5u32), (5, 1), (3, 3), (7, 7)];
+        for (a, b) in spots {
+            let (x, y) = ((w / 8 * a / f) * f, (h / 8 * b / f) * f);
+            let m = crop(map, x.min(w - f), y.min(h - f), f)?;
+            let count = crate::pyramid::level_sizes(f, f).len();
+            let stands = (0..count)
+                .map(|k| (k < FINE_LEVELS && k < levels).then_some(k))
+                .collect();
+            maps.push((m, stands));
+            share.push(spots.len());
+        }
     }
     // The coarser levels: the map subsampled with stride s (a power of two).
     if levels > crop_levels + 1 {
@@ -331,8 +371,9 @@ fn samples(map: &NormalMap, levels: usize) -> Result<Samples> {
             })
             .collect();
         maps.push((m, stands));
+        share.push(1);
     }
-    Ok(Samples { maps })
+    Ok(Samples { maps, share })
 }
 
 /// A candidate's measured errors: per map level, (diffuse, specular) relative RMS, the
@@ -374,39 +415,57 @@ pub const ENV_TEXELS: usize = 48;
 pub struct EnvMeasure {
     /// The environment's luminance, ready to light with.
     pub light: crate::envlight::EnvLight,
-    /// Per sample map (in [`Samples`] order), its ground truth.
-    references: Vec<crate::envlight::Reference>,
+    /// Per sample map (in [`Samples`] order), its ground truth (`None` for a sample that
+    /// stands for none of the scene's levels).
+    references: Vec<Option<crate::envlight::Reference>>,
 }
 
 impl EnvMeasure {
     /// The ground truth of `maps` under `light` for `brdfs` (the views of
-    /// [`crate::envlight::default_views`], [`ENV_TEXELS`] texels per level, [`ENV_SAMPLES`]
-    /// samples).
+    /// [`crate::envlight::default_views`], [`ENV_SAMPLES`] samples), from level `first[i]` of
+    /// map i on, `texels[i]` texels per level (the crops standing for the same levels share
+    /// [`ENV_TEXELS`] between them: measuring each with all of them computed the same level's
+    /// ground truth once per crop, the planner's costliest step under an environment).
     fn new(
         light: crate::envlight::EnvLight,
         maps: &[&NormalMap],
         brdfs: &[Brdf],
-        first: &[usize],
+        first: &[Option<usize>],
+        texels: &[usize],
     ) -> Result<EnvMeasure> {
         let references = maps
             .iter()
             .zip(first)
-            .map(|(map, &first_level)| {
+            .zip(texels)
+            .map(|((map, &first_level), &texels_per_level)| {
+                // A sample standing for none of the scene's levels is never measured.
+                let Some(first_level) = first_level else {
+                    return Ok(None);
+                };
                 let options = crate::envlight::EvalOptions {
                     first_level,
-                    texels_per_level: ENV_TEXELS,
+                    texels_per_level,
                     samples: ENV_SAMPLES,
                     ..Default::default()
                 };
-                crate::envlight::Reference::new(map, brdfs, &light, &options)
+                crate::envlight::Reference::new(map, brdfs, &light, &options).map(Some)
             })
             .collect::<Result<_>>()?;
         Ok(EnvMeasure { light, references })
     }
 
-    /// [`environment_errors`] of `bake` against sample map `i`'s reference.
-    fn errors(&self, i: usize, bake: &Bake) -> Result<Vec<Option<(f64, f64)>>> {
-        environment_errors(&self.references[i], &self.light, bake, 0..=usize::MAX)
+    /// [`environment_errors`] of `bake` against sample map `i`'s reference, at the sample
+    /// map's levels `levels`.
+    fn errors(
+        &self,
+        i: usize,
+        bake: &Bake,
+        levels: std::ops::RangeInclusive<usize>,
+    ) -> Result<Vec<Option<(f64, f64)>>> {
+        match &self.references[i] {
+            Some(r) => environment_errors(r, &self.light, bake, levels),
+            None => Ok(Vec::new()),
+        }
     }
 }
 
@@ -529,7 +588,10 @@ impl<'a> WholeMap<'a> {
 struct Measure<'a> {
     samples: &'a Samples,
     brdfs: Vec<Brdf>,
-    directions: Vec<LightView>,
+    /// Per sample map, the exact footprint averages under the point/directional lights,
+    /// computed once and scored against every candidate ([`crate::eval::Reference`]; empty
+    /// for a scene lit only by an environment).
+    exact: Vec<Option<crate::eval::Reference>>,
     /// The environment, when the scene has one.
     env: Option<EnvMeasure>,
     levels: usize,
@@ -558,39 +620,38 @@ impl Measure<'_> {
     /// Measures `config`'s sample bakes after `edit` (quantizing, dropping lobes), at map
     /// levels `from` and coarser.
     fn run(&self, config: Config, edit: &dyn Fn(Bake) -> Result<Bake>) -> Result<Measured> {
-        self.run_from(config, edit, self.from)
+        self.run_from(config, edit, self.from, usize::MAX)
     }
 
-    /// [`Measure::run`] at map levels `from` and coarser only (a level range's own checks).
+    /// [`Measure::run`] at map levels `from..=to` only (a level range's own checks; the
+    /// other levels are unmeasured).
     fn run_from(
         &self,
         config: Config,
         edit: &dyn Fn(Bake) -> Result<Bake>,
         from: usize,
+        to: usize,
     ) -> Result<Measured> {
         // Per map level: Σ squared relative errors over samples, count.
         let mut acc = vec![(0.0f64, 0.0f64, 0usize); self.levels];
         let mut alpha_max = vec![Vec::<f64>::new(); self.levels];
         let bakes = self.bakes(config)?;
-        for (i, ((map, stands), bake)) in self.samples.maps.iter().zip(bakes.iter()).enumerate() {
-            let first = stands
-                .iter()
-                .position(|l| l.is_some_and(|l| l >= from))
-                .unwrap_or(stands.len());
-            if first == stands.len() {
+        for (i, ((_, stands), bake)) in self.samples.maps.iter().zip(bakes.iter()).enumerate() {
+            let inside = |l: &Option<usize>| l.is_some_and(|l| (from..=to).contains(&l));
+            let Some(first) = stands.iter().position(inside) else {
                 continue;
-            }
-            let bake = edit(bake.clone())?;
-            let errors = if self.directions.is_empty() {
-                Vec::new()
-            } else {
-                crate::eval::evaluate_from(map, &[&bake], &self.brdfs, &self.directions, first)
             };
-            let env = match &self.env {
-                Some(env) => env.errors(i, &bake)?,
+            let last = stands.iter().rposition(inside).unwrap_or(first);
+            let bake = edit(bake.clone())?;
+            let errors = match self.exact.get(i).and_then(Option::as_ref) {
+                Some(exact) => exact.evaluate_levels(&[&bake], first..=last),
                 None => Vec::new(),
             };
-            for (k, level) in stands.iter().enumerate().skip(first) {
+            let env = match &self.env {
+                Some(env) => env.errors(i, &bake, first..=last)?,
+                None => Vec::new(),
+            };
+            for (k, level) in stands.iter().enumerate().take(last + 1).skip(first) {
                 let Some(level) = *level else { continue };
                 let (ed, es) = env.get(k).copied().flatten().unwrap_or((0.0, 0.0));
                 let d = errors
@@ -622,7 +683,11 @@ impl Measure<'_> {
     }
 }
 
-/// The candidates, cheapest first (fewest textures; at equal count the cheaper shading).
+/// The candidates, cheapest first (fewest textures; at equal count the cheaper shading: the
+/// moment baselines LEAN (2 textures) and Olano–North (3) before the vMF mixture of as many
+/// textures, Tan 2005's aligned Gaussian mixtures (J = 2, 4) after it — the paper's Fig 6 has
+/// vMF ahead at equal lobe count). Under an environment only the methods its routes shade
+/// (`envlight::check_method`: plain, Toksvig, LEAN, vMF, SH) are candidates.
 fn candidates(scene: &Scene) -> Vec<Config> {
     let c = |method, lobes, lmax, aligned| Config {
         method,
@@ -645,6 +710,7 @@ fn candidates(scene: &Scene) -> Vec<Config> {
     // (Not under an environment alone: the environment shaders have no SH-bake variant.)
     let env_only = scene.has_environment() && !scene.has_direct();
     let sh = (lmax <= 3 && !env_only).then(|| c(Method::Sh, 0, lmax, false));
+    let env = scene.has_environment();
     for j in [1, 2, 3, 4, 6, 8] {
         if let Some(s) = sh
             && s.textures() <= j
@@ -652,7 +718,16 @@ fn candidates(scene: &Scene) -> Vec<Config> {
         {
             out.push(s);
         }
+        if j == 2 {
+            out.push(c(Method::Lean, 0, 0, false));
+        }
+        if j == 3 && !env {
+            out.push(c(Method::Olano, 0, 0, false));
+        }
         out.push(c(Method::Vmf, j, 0, true));
+        if (j == 2 || j == 4) && !env {
+            out.push(c(Method::Tan2005, j, 0, true));
+        }
     }
     if let Some(s) = sh
         && !out.contains(&s)
@@ -733,24 +808,45 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     let env = match scene.environment_light()? {
         Some(light) => {
             let maps: Vec<&NormalMap> = samples.maps.iter().map(|(m, _)| m).collect();
-            let first: Vec<usize> = samples
+            let first: Vec<Option<usize>> = samples
                 .maps
                 .iter()
-                .map(|(_, stands)| {
-                    stands
-                        .iter()
-                        .position(|l| l.is_some_and(|l| l >= range[0]))
-                        .unwrap_or(stands.len().saturating_sub(1))
-                })
+                .map(|(_, stands)| stands.iter().position(|l| l.is_some_and(|l| l >= range[0])))
                 .collect();
-            Some(EnvMeasure::new(light, &maps, &scene.brdfs(), &first)?)
+            let texels: Vec<usize> = samples
+                .share
+                .iter()
+                .map(|&n| ENV_TEXELS.div_ceil(n.max(1)))
+                .collect();
+            Some(EnvMeasure::new(
+                light,
+                &maps,
+                &scene.brdfs(),
+                &first,
+                &texels,
+            )?)
         }
         None => None,
+    };
+    let dirs = directions(scene);
+    let exact = if dirs.is_empty() {
+        Vec::new()
+    } else {
+        samples
+            .maps
+            .iter()
+            .map(|(map, stands)| {
+                stands
+                    .iter()
+                    .position(|l| l.is_some_and(|l| l >= range[0]))
+                    .map(|first| crate::eval::Reference::new(map, &scene.brdfs(), &dirs, first))
+            })
+            .collect()
     };
     let m = Measure {
         samples: &samples,
         brdfs: scene.brdfs(),
-        directions: directions(scene),
+        exact,
         env,
         levels: measure_levels,
         from: range[0],
@@ -889,6 +985,9 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         };
         let mut e = err(&meas);
         let mut last = meas.clone();
+        // A range whose configuration already misses a target cannot meet it with fewer
+        // lobes or narrower storage (both only add error): neither is measured.
+        let misses = !targets_ok(&meas);
         let left = 2 * FULL.lobes - p.config.textures();
         decisions.push(format!(
             "levels {}-{}: {} ({} texture{}, {} fetch{} per pixel): predicted at most {} \
@@ -950,12 +1049,26 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             let light = order.iter().filter(|&&j| amax[j] <= DROP_ALPHA).count();
             let mut n = light.max(p.config.lobes.saturating_sub(wanted.max(1)));
             n = n.min(p.config.lobes - 1);
+            if misses {
+                n = 0;
+            }
+            // Dropping a lobe removes its weight, so the error grows with every lobe dropped:
+            // when dropping the lightest one alone misses the target, so does dropping more
+            // (one measurement instead of n).
+            if n > 1 {
+                let d1 = vec![order[0]];
+                let one =
+                    m.run_from(p.config, &move |b| Ok(drop_lobes(b, &d1)), p.first, p.last)?;
+                if !targets_ok(&one) {
+                    n = 0;
+                }
+            }
             let mut done = false;
             while n > 0 {
                 let mut drop = order[..n].to_vec();
                 drop.sort_unstable();
                 let d2 = drop.clone();
-                let dm = m.run_from(p.config, &move |b| Ok(drop_lobes(b, &d2)), p.first)?;
+                let dm = m.run_from(p.config, &move |b| Ok(drop_lobes(b, &d2)), p.first, p.last)?;
                 let ed = err(&dm);
                 if targets_ok(&dm) {
                     decisions.push(format!(
@@ -996,20 +1109,33 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 n -= 1;
             }
             if !done {
-                decisions.push(format!(
-                    "levels {}-{}: all {} lobes kept (dropping even the lightest, largest α \
-                     {:.3}, is predicted above the target)",
-                    p.first,
-                    p.last,
-                    p.config.lobes,
-                    amax.iter().copied().fold(f64::INFINITY, f64::min)
-                ));
+                decisions.push(if misses {
+                    format!(
+                        "levels {}-{}: all {} lobes kept (the range misses its target with \
+                         every lobe)",
+                        p.first, p.last, p.config.lobes
+                    )
+                } else {
+                    format!(
+                        "levels {}-{}: all {} lobes kept (dropping even the lightest, largest \
+                         α {:.3}, is predicted above the target)",
+                        p.first,
+                        p.last,
+                        p.config.lobes,
+                        amax.iter().copied().fold(f64::INFINITY, f64::min)
+                    )
+                });
             }
         }
         // Storage format: the narrowest whose predicted error still meets the target.
         let mut format = Format::F32;
         let mut format_err = e;
-        for f in [Format::Unorm8, Format::Unorm16, Format::F16] {
+        let narrower: &[Format] = if misses {
+            &[]
+        } else {
+            &[Format::Unorm8, Format::Unorm16, Format::F16]
+        };
+        for &f in narrower {
             let ranges = crate::methods::texture_ranges(
                 p.config.method,
                 if p.config.method == Method::Sh {
@@ -1027,6 +1153,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 p.config,
                 &move |b| crate::pack::quantize_into(drop_lobes(b, &dropped), f),
                 p.first,
+                p.last,
             )?;
             if targets_ok(&q) {
                 format = f;
@@ -1045,7 +1172,9 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 - bytes(w, h, [p.first, p.last], tex, format),
             pct(format_err),
             pct(e),
-            if format == Format::F32 {
+            if misses {
+                " — the range misses its target already: no narrower format is tried"
+            } else if format == Format::F32 {
                 " — κ needs f32 here: every narrower format misses the target"
             } else {
                 ""
@@ -1330,7 +1459,7 @@ impl Plan {
         let p = &self.parts[i];
         let lobes = p.textures();
         let (layout_n, lobes_field) = match p.config.method {
-            Method::Vmf => (lobes, lobes),
+            Method::Vmf | Method::Tan2005 => (lobes, lobes),
             Method::Sh => (p.config.lmax, 0),
             _ => (0, 0),
         };
@@ -1761,6 +1890,84 @@ error = 0.05
         }
         // The matte scene needs fewer textures than the glossy one.
         assert!(fetches[1] < fetches[0], "{fetches:?}");
+    }
+
+    #[test]
+    fn lean_olano_and_tan2005_are_candidates_and_plans_carry_them() {
+        // The candidate set: the moment baselines and Tan 2005 where the scene's light can
+        // shade them (the environment routes shade LEAN, not Olano–North or Tan 2005).
+        let glossy = scene(GLOSSY);
+        let c = candidates(&glossy);
+        let has = |c: &[Config], m: Method, j: usize| {
+            c.iter()
+                .any(|x| x.method == m && x.lobes == j && (m != Method::Tan2005 || x.aligned))
+        };
+        for (m, j) in [
+            (Method::Lean, 0),
+            (Method::Olano, 0),
+            (Method::Tan2005, 2),
+            (Method::Tan2005, 4),
+        ] {
+            assert!(has(&c, m, j), "{m} {j}: {c:?}");
+        }
+        // Cheapest first: LEAN (2 textures) before vmf3a, Olano (3) before vmf4a.
+        let at = |m: Method, j: usize| c.iter().position(|x| x.method == m && x.lobes == j);
+        assert!(at(Method::Lean, 0) < at(Method::Vmf, 3));
+        assert!(at(Method::Olano, 0) < at(Method::Vmf, 4));
+        assert!(at(Method::Vmf, 2) < at(Method::Tan2005, 2));
+        let matte = candidates(&scene(MATTE));
+        assert!(has(&matte, Method::Lean, 0));
+        assert!(!has(&matte, Method::Olano, 0) && !has(&matte, Method::Tan2005, 2));
+
+        // A plan whose one part is each of them: the plan file round-trips, `bake --plan`
+        // bakes exactly that method's textures (against a direct bake, f32: bit for bit), and
+        // the part's shader is that method's, with one sampler per texture, hardware-filtered.
+        let map = crate::procedural::generate(64, 3).map;
+        let base = plan(&map, &glossy, None).unwrap();
+        for config in c.iter().filter(|x| {
+            matches!(x.method, Method::Lean | Method::Olano | Method::Tan2005) && x.lobes <= 2
+        }) {
+            let mut p = base.clone();
+            p.parts = vec![Part {
+                first: p.levels[0],
+                last: p.levels[1],
+                config: *config,
+                dropped: Vec::new(),
+                format: Format::F32,
+                color: false,
+                color_format: Format::Unorm8,
+                predicted: 0.0,
+            }];
+            let p = Plan::from_json("p", &p.to_json()).unwrap();
+            assert_eq!(p.parts[0].config, *config);
+            let baked = execute(&p, &map).unwrap();
+            let direct =
+                crate::methods::bake_with(&map, config.method, &config.bake_options()).unwrap();
+            let (b, _) = &baked.parts[0];
+            assert_eq!(b.method, config.method);
+            assert_eq!(b.textures.len(), config.textures(), "{}", config.label());
+            for (t, d) in b.textures.iter().zip(&direct.textures) {
+                for (k, level) in t.levels.iter().enumerate() {
+                    assert_eq!(
+                        level,
+                        &d.levels[p.levels[0] + k],
+                        "{} level",
+                        config.label()
+                    );
+                }
+            }
+            let src = p.shader(0, map.addressing()).unwrap();
+            let define = match config.method {
+                Method::Lean => "NDF_METHOD_LEAN",
+                Method::Olano => "NDF_METHOD_OLANO",
+                _ => "NDF_METHOD_TAN2005",
+            };
+            assert!(src.contains(&format!("#define {define} 1")), "{src}");
+            assert!(!src.contains("#define NDF_MANUAL"), "{}", config.label());
+            let samplers = src.matches("uniform sampler2D ndf_tex").count();
+            assert_eq!(samplers, config.textures(), "{}", config.label());
+            assert_eq!(config.fetches(false), config.textures());
+        }
     }
 
     #[test]

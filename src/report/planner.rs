@@ -240,12 +240,133 @@ pub struct SceneRow {
 
 /// The report's planner section: the contrasting scenes planned and measured, and the scenes
 /// that could not be (with why).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Section {
     /// Scenes measured.
     pub rows: Vec<SceneRow>,
     /// `scene: error` of the scenes that failed.
     pub failed: Vec<String>,
+    /// Frame times of the plans against the full configuration, from
+    /// [`FRAME_TIMES_FILE`] (written by the GL example `plan_timings --json`): the main crate
+    /// cannot draw. `Err` says why there are none (absent, unreadable).
+    #[serde(default = "no_frame_times")]
+    pub frame_times: std::result::Result<FrameTimes, String>,
+}
+
+fn no_frame_times() -> std::result::Result<FrameTimes, String> {
+    Err("not read".into())
+}
+
+impl Default for Section {
+    fn default() -> Section {
+        Section {
+            rows: Vec::new(),
+            failed: Vec::new(),
+            frame_times: no_frame_times(),
+        }
+    }
+}
+
+/// The `format` field of a frame-times file.
+pub const FRAME_TIMES_FORMAT: &str = "ndfmap-plan-frame-times";
+
+/// Where the report looks for the plans' frame times: the file named by the environment
+/// variable `NDFMAP_PLAN_FRAME_TIMES`, else this file in the working directory.
+pub const FRAME_TIMES_FILE: &str = "plan_frame_times.json";
+
+/// One scene and view drawn by `plan_timings`: medians over its frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameTime {
+    /// The scene's name (the folder its `plan.json` lies in, `matte-far`).
+    pub scene: String,
+    /// The view (`plane-far`, `plane-grazing`).
+    pub view: String,
+    /// The full configuration's frame, ms.
+    pub full_ms: f64,
+    /// The plan's costliest part's frame, ms.
+    pub plan_ms: f64,
+    /// Every part's frame, ms.
+    pub parts_ms: Vec<f64>,
+}
+
+/// A frame-times file (`plan_timings --json FILE`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameTimes {
+    /// Always [`FRAME_TIMES_FORMAT`].
+    pub format: String,
+    /// The GL renderer they were measured on (`llvmpipe ...`).
+    pub device: String,
+    /// Frames drawn per renderer (medians over them).
+    pub frames: usize,
+    /// One per scene and view.
+    pub rows: Vec<FrameTime>,
+}
+
+impl FrameTimes {
+    /// The file's text (JSON).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).unwrap_or_default() + "\n"
+    }
+
+    /// Parses a frame-times file; [`crate::Error::InvalidOption`] when it is not one or holds
+    /// a time that is not a positive number.
+    pub fn from_json(name: &str, text: &str) -> Result<FrameTimes> {
+        let bad = |why: String| crate::Error::InvalidOption(format!("frame times {name}: {why}"));
+        let t: FrameTimes = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
+        if t.format != FRAME_TIMES_FORMAT {
+            return Err(bad(format!(
+                "format '{}' (expected '{FRAME_TIMES_FORMAT}')",
+                t.format
+            )));
+        }
+        for r in &t.rows {
+            let ok = |v: f64| v.is_finite() && v > 0.0;
+            if !ok(r.full_ms) || !ok(r.plan_ms) || !r.parts_ms.iter().all(|&v| ok(v)) {
+                return Err(bad(format!(
+                    "{} {}: a frame time that is not a positive number",
+                    r.scene, r.view
+                )));
+            }
+        }
+        Ok(t)
+    }
+
+    /// Reads [`FRAME_TIMES_FILE`] (or `NDFMAP_PLAN_FRAME_TIMES`): `Err` says plainly why
+    /// there are none.
+    pub fn find() -> std::result::Result<FrameTimes, String> {
+        let path = std::env::var_os("NDFMAP_PLAN_FRAME_TIMES")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| std::path::PathBuf::from(FRAME_TIMES_FILE));
+        let name = path.display().to_string();
+        match std::fs::read_to_string(&path) {
+            Ok(text) => FrameTimes::from_json(&name, &text).map_err(|e| e.to_string()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(format!(
+                "no frame times: {name} is absent (write it with `cargo run --release -p \
+                 ndfmap-gl --example plan_timings -- --json {FRAME_TIMES_FILE} ...`, \
+                 docs/planner.md)"
+            )),
+            Err(e) => Err(format!("no frame times: {name}: {e}")),
+        }
+    }
+
+    /// The frame times of `scene`, per view: `far: plan / full ms (ratio)`.
+    pub fn cell(&self, scene: &str) -> Option<String> {
+        let cells: Vec<String> = self
+            .rows
+            .iter()
+            .filter(|r| r.scene == scene)
+            .map(|r| {
+                format!(
+                    "{}: {:.1} / {:.1} ({:.2})",
+                    r.view.strip_prefix("plane-").unwrap_or(&r.view),
+                    r.plan_ms,
+                    r.full_ms,
+                    r.plan_ms / r.full_ms
+                )
+            })
+            .collect();
+        (!cells.is_empty()).then(|| cells.join("; "))
+    }
 }
 
 /// Plans and measures every scene of [`SCENES`] for its map in `data` (a folder holding the
@@ -253,7 +374,10 @@ pub struct Section {
 /// whose map has one) where the map is absent. A scene that fails (a level range beyond a
 /// small sample) is listed with its error. `step` is told each scene's name.
 pub fn section(data: Option<&std::path::Path>, sample_side: u32, step: &dyn Fn(&str)) -> Section {
-    let mut out = Section::default();
+    let mut out = Section {
+        frame_times: FrameTimes::find(),
+        ..Section::default()
+    };
     let mut sample = None;
     for (name, text, file, albedo) in SCENES {
         step(name);
@@ -308,8 +432,8 @@ pub fn markdown(section: &Section) -> String {
         s += "No scene was measured.\n\n";
     } else {
         s += "| scene | map | plan | bytes plan / full | bake s plan / full | fetches plan / full \
-              | ALU plan / full | plan s | meets target | prediction factor |\n\
-              |---|---|---|---|---|---|---|---|---|---|\n";
+              | ALU plan / full | plan s | meets target | prediction factor | frame ms plan / full \
+              |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
         for r in &section.rows {
             let line = r.row.markdown(&r.scene);
             let first = line.lines().next().unwrap_or_default();
@@ -317,9 +441,26 @@ pub fn markdown(section: &Section) -> String {
             let rest = first
                 .strip_prefix(&format!("| {} |", r.scene))
                 .unwrap_or(first);
-            let _ = writeln!(s, "| {} | {} |{rest}", r.scene, r.map);
+            let frame = match &section.frame_times {
+                Ok(t) => t.cell(&r.scene).unwrap_or_else(|| "not measured".into()),
+                Err(_) => "n/a".into(),
+            };
+            let _ = writeln!(s, "| {} | {} |{rest} {frame} |", r.scene, r.map);
         }
         s += "\n";
+        match &section.frame_times {
+            Ok(t) => {
+                let _ = writeln!(
+                    s,
+                    "Frame times: `plan_timings` on {} ({} frames, medians; the plan's costliest \
+                     part against the full configuration over the whole plane view, 512²).\n",
+                    t.device, t.frames
+                );
+            }
+            Err(why) => {
+                let _ = writeln!(s, "Frame times absent — {why}.\n");
+            }
+        }
         for r in &section.rows {
             let _ = writeln!(s, "**{}** ({})", r.scene, r.map);
             let md = r.row.markdown(&r.scene);
@@ -336,6 +477,86 @@ pub fn markdown(section: &Section) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frame_times_are_read_checked_and_shown_or_said_absent() {
+        let t = FrameTimes {
+            format: FRAME_TIMES_FORMAT.into(),
+            device: "llvmpipe".into(),
+            frames: 9,
+            rows: vec![
+                FrameTime {
+                    scene: "glossy-metal-close".into(),
+                    view: "plane-far".into(),
+                    full_ms: 25.0,
+                    plan_ms: 5.0,
+                    parts_ms: vec![5.0],
+                },
+                FrameTime {
+                    scene: "glossy-metal-close".into(),
+                    view: "plane-grazing".into(),
+                    full_ms: 40.0,
+                    plan_ms: 30.0,
+                    parts_ms: vec![30.0, 12.0],
+                },
+            ],
+        };
+        let back = FrameTimes::from_json("t", &t.to_json()).unwrap();
+        assert_eq!(back, t);
+        assert_eq!(
+            t.cell("glossy-metal-close").unwrap(),
+            "far: 5.0 / 25.0 (0.20); grazing: 30.0 / 40.0 (0.75)"
+        );
+        assert_eq!(t.cell("matte-far"), None);
+        // Not a frame-times file, another format, a time that is not positive.
+        assert!(FrameTimes::from_json("t", "{}").is_err());
+        let mut other = t.clone();
+        other.format = "ndfmap-plan".into();
+        assert!(FrameTimes::from_json("t", &other.to_json()).is_err());
+        let mut nan = t.clone();
+        nan.rows[1].parts_ms[1] = -1.0;
+        let e = FrameTimes::from_json("t", &nan.to_json())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("plane-grazing"), "{e}");
+        // The section shows them in a column, or says plainly that they are absent.
+        let row = PlannerRow {
+            plan: "L0-2 plain unorm8".into(),
+            plan_seconds: 0.2,
+            bytes: (1, 100),
+            bake_seconds: (0.1, 2.0),
+            fetches: (1, 16),
+            alu: (None, None),
+            levels: vec![(0, 0.1, 0.05, 0.05, 0.0)],
+            meets: true,
+            prediction_factor: 1.0,
+        };
+        let mut sec = Section {
+            rows: vec![SceneRow {
+                scene: "glossy-metal-close".into(),
+                map: "metal.jpg".into(),
+                row,
+            }],
+            failed: Vec::new(),
+            frame_times: Ok(t),
+        };
+        let md = markdown(&sec);
+        assert!(
+            md.contains("| 1.00 | far: 5.0 / 25.0 (0.20); grazing: 30.0 / 40.0 (0.75) |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("Frame times: `plan_timings` on llvmpipe (9 frames"),
+            "{md}"
+        );
+        sec.frame_times = Err("no frame times: plan_frame_times.json is absent".into());
+        let md = markdown(&sec);
+        assert!(md.contains("| 1.00 | n/a |"), "{md}");
+        assert!(
+            md.contains("Frame times absent — no frame times: plan_frame_times.json is absent"),
+            "{md}"
+        );
+    }
 
     #[test]
     fn the_section_plans_every_scene_that_fits_and_names_those_that_do_not() {

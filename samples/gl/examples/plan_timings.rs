@@ -16,12 +16,19 @@
 //! run.
 //!
 //! `cargo run --release -p ndfmap-gl --example plan_timings [egl|osmesa] [--frames N]
-//! PLAN.json MAP[,ALBEDO] [PLAN.json MAP[,ALBEDO] ...]`
+//! [--json FILE] PLAN.json MAP[,ALBEDO] [PLAN.json MAP[,ALBEDO] ...]`
+//!
+//! `--json FILE` also writes the medians as a frame-times file
+//! (`ndfmap::report::planner::FrameTimes`), each scene named by the folder its plan lies in
+//! (`ndfmap plan ... -o out/matte-far` gives `matte-far`): `ndfmap report` shows them in its
+//! planner section when the file is `plan_frame_times.json` in its working directory (or
+//! named by `NDFMAP_PLAN_FRAME_TIMES`).
 
 use ndfmap::bake::{Bake, Method};
 use ndfmap::glsl::{ShaderLight, ShaderOptions};
 use ndfmap::ingest::IngestOptions;
 use ndfmap::plan::{FULL, Plan};
+use ndfmap::report::planner::{FRAME_TIMES_FORMAT, FrameTime, FrameTimes};
 use ndfmap::{NormalMap, methods};
 use ndfmap_gl::{BakeRenderer, EnvTextures, Gl, RenderTarget, Route, Scene, env_rotation};
 use std::time::Instant;
@@ -52,6 +59,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         frames = args.get(i + 1).ok_or("--frames N")?.parse()?;
         args.drain(i..i + 2);
     }
+    let mut json = None;
+    if let Some(i) = args.iter().position(|a| a == "--json") {
+        json = Some(args.get(i + 1).ok_or("--json FILE")?.clone());
+        args.drain(i..i + 2);
+    }
     if args.is_empty() || !args.len().is_multiple_of(2) {
         return Err("give PLAN.json MAP pairs".into());
     }
@@ -69,10 +81,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .iter()
         .map(|s| s.shape.mesh(&gl))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut out = FrameTimes {
+        format: FRAME_TIMES_FORMAT.into(),
+        device: format!("{route} ({})", gl.renderer()),
+        frames,
+        rows: Vec::new(),
+    };
     println!("| plan | view | full ms | plan ms (costliest part) | plan / full | parts ms |");
     println!("|---|---|---|---|---|---|");
     for pair in args.chunks(2) {
         let text = std::fs::read_to_string(&pair[0])?;
+        let name = std::path::Path::new(&pair[0])
+            .parent()
+            .and_then(|d| d.file_name())
+            .map_or_else(|| pair[0].clone(), |d| d.to_string_lossy().into_owned());
         let plan = Plan::from_json(&pair[0], &text)?;
         // MAP or MAP,ALBEDO (the albedo a plan with colour textures was made with).
         let (file, albedo) = match pair[1].split_once(',') {
@@ -156,6 +178,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let medians: Vec<f64> = times.iter_mut().map(|t| median(t)).collect();
             let (full_ms, part_ms) = medians.split_last().ok_or("no renderer")?;
             let worst = part_ms.iter().copied().fold(0.0, f64::max);
+            out.rows.push(FrameTime {
+                scene: name.clone(),
+                view: scene.name.to_string(),
+                full_ms: *full_ms,
+                plan_ms: worst,
+                parts_ms: part_ms.to_vec(),
+            });
             println!(
                 "| {} | {} | {full_ms:.2} | {worst:.2} | {:.2} | {} |",
                 pair[0],
@@ -168,6 +197,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .join(", ")
             );
         }
+    }
+    if let Some(path) = json {
+        std::fs::write(&path, out.to_json())?;
+        println!("frame times written to {path}");
     }
     Ok(())
 }
