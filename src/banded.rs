@@ -32,7 +32,7 @@ use crate::container::{Container, StreamedFile};
 use crate::em::{EmOptions, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::format::Format;
-use crate::ingest::{Addressing, CompactNormals, NormalMap};
+use crate::ingest::{Addressing, CompactFeature, CompactNormals, NormalMap};
 use crate::mixture::{
     ALIGN_NEIGHBOURS, Gather, LevelFit, Model, PROGRESS_CHUNK, Source, TanModel, TexelFit,
     VmfModel, assemble, into_slots, match_slots, parent_of, planes,
@@ -120,8 +120,9 @@ impl Bands {
 pub struct CompactSource<'a> {
     /// The normals.
     pub normals: &'a CompactNormals,
-    /// The feature (colour) image, linear RGBA, row-major, one entry per texel.
-    pub feature: Option<&'a [[f32; 4]]>,
+    /// The feature (colour) image, kept as its samples (converted to linear RGBA per texel);
+    /// the normals' size.
+    pub feature: Option<&'a CompactFeature>,
 }
 
 impl Source for CompactSource<'_> {
@@ -137,7 +138,7 @@ impl Source for CompactSource<'_> {
     }
     #[inline]
     fn feature(&self, i: usize) -> Option<[f32; 4]> {
-        self.feature.map(|f| f[i])
+        self.feature.map(|f| f.texel(i))
     }
     fn has_feature(&self) -> bool {
         self.feature.is_some()
@@ -171,7 +172,34 @@ impl Map<'_> {
             Map::Compact(c) => c.normals.addressing(),
         }
     }
+    /// [`Error::FeatureSize`] when a compact map's feature image is not the normals' size.
+    fn check(&self) -> Result<()> {
+        match self {
+            Map::Compact(CompactSource {
+                normals,
+                feature: Some(f),
+            }) => f.check_size("feature", (normals.width(), normals.height())),
+            _ => Ok(()),
+        }
+    }
+    /// Bytes per texel the source holds (normals and feature image), as
+    /// [`estimate_peak_bytes`] counts them.
+    pub fn source_bytes(&self) -> u64 {
+        match self {
+            Map::Full(m) => DECODED_NORMAL_BYTES + m.feature().map_or(0, |_| DECODED_FEATURE_BYTES),
+            Map::Compact(c) => {
+                c.normals.bytes_per_texel() + c.feature.map_or(0, |f| f.bytes_per_texel())
+            }
+        }
+    }
 }
+
+/// Bytes per texel of decoded normals as [`estimate_peak_bytes`] counts them: a
+/// [`NormalMap`]'s vectors (12) and the decoded file while the map is made.
+pub const DECODED_NORMAL_BYTES: u64 = 16;
+
+/// Bytes per texel of a decoded feature image (linear RGBA f32).
+pub const DECODED_FEATURE_BYTES: u64 = 16;
 
 /// Where a banded bake sends its rows: texture `texture`'s rows `first_row..` of `level`,
 /// whole rows, row-major, f32 as baked. Every row of every level is sent exactly once.
@@ -757,6 +785,7 @@ pub fn bake_in_bands(
     options: &BakeOptions,
     bands: Bands,
 ) -> Result<Bake> {
+    map.check()?;
     crate::methods::check_options(method, options, map.color(), None)?;
     let mut sink = Collect(description(map, method, options));
     crate::bake::run_with_progress(&mut |_| true, |progress| {
@@ -766,10 +795,10 @@ pub fn bake_in_bands(
 }
 
 /// Peak memory of [`write_folder`] for a `width × height` map (`color`: with a feature image;
-/// `compact`: the normals kept as 8-bit samples, else decoded), in bytes: what the budget
-/// checks (module `budget`) and `batch` admits by. The source (3 bytes per texel compact, 16
-/// decoded: the vectors and the decoded file while a [`NormalMap`] is made; 16 more with
-/// colour), the coarse levels (the unaligned pass's level m and coarser, 4/3 × 16 J bytes per
+/// `source_bytes`: bytes per texel the normals and the feature image take as held,
+/// [`Map::source_bytes`]: 3 for 8-bit RGB samples kept compact, [`DECODED_NORMAL_BYTES`] for
+/// decoded normals, plus the feature's), in bytes: what the budget checks (module `budget`)
+/// and `batch` admits by. The source, the coarse levels (the unaligned pass's level m and coarser, 4/3 × 16 J bytes per
 /// level-m texel, while the aligned level m, 16 J, and its parent, 16 J / 4, are held, both
 /// doubled by colours), a band of fine levels 1..m−1 (16 J per finest texel of the band,
 /// doubled for colour), level 0's piece and [`crate::methods::PEAK_FIXED_BYTES`]. Measured
@@ -780,12 +809,12 @@ pub fn estimate_peak_bytes(
     height: u32,
     options: &BakeOptions,
     color: bool,
-    compact: bool,
+    source_bytes: u64,
     bands: Bands,
 ) -> u64 {
     let texels = width as u64 * height as u64;
     let j = options.lobes as u64;
-    let source = texels * (if compact { 3 } else { 16 } + if color { 16 } else { 0 });
+    let source = texels.saturating_mul(source_bytes);
     let coarse_texels = texels >> (2 * bands.fine.min(31) as u64);
     // Unaligned levels ≥ m (4/3 of level m) while the aligned level m (and its colours) is
     // fitted from its parent (1/4 of it), with a third of level m for slack: in twelfths,
@@ -896,6 +925,7 @@ pub fn write_folder(
 ) -> Result<PathBuf> {
     let (w, h) = map.size();
     let color = map.color();
+    map.check()?;
     crate::methods::check_options(method, options, color, Some(format))?;
     let lobes = options.lobes;
     crate::container::check(container, method, lobes, color, format, None)?;
@@ -903,7 +933,7 @@ pub fn write_folder(
     bands.check(w, h)?;
     crate::budget::check(
         &format!("a banded {method} bake of {w}x{h}"),
-        estimate_peak_bytes(w, h, options, color, matches!(map, Map::Compact(_)), bands),
+        estimate_peak_bytes(w, h, options, color, map.source_bytes(), bands),
         options.memory_limit,
     )?;
     let mut bake = description(map, method, options);

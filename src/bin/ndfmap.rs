@@ -2083,7 +2083,14 @@ fn bench_scale(
         let mut configs = vec![(
             "banded",
             banded,
-            ndfmap::banded::estimate_peak_bytes(size, size, &options, false, true, bands),
+            ndfmap::banded::estimate_peak_bytes(
+                size,
+                size,
+                &options,
+                false,
+                compact.bytes_per_texel(),
+                bands,
+            ),
         )];
         let mut identical = None;
         if let Some(samples) = &samples {
