@@ -102,6 +102,8 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                         Addressing::Wrap
                                     },
                                     lmax: lobes,
+                                    // Biased as block-compressed textures are, with f16.
+                                    biased: format == Format::F16 && lobes == 3,
                                 };
                                 let opts = ShaderOptions {
                                     light: ShaderLight::Point,

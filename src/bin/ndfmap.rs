@@ -1652,6 +1652,7 @@ fn run(cli: Cli) -> Result<u8> {
                 addressing: [Addressing::Wrap, Addressing::Clamp]
                     [pick("addressing", &addressing, &["wrap", "clamp"])?],
                 lmax: if method == Method::Sh { lmax } else { 0 },
+                biased: false,
             };
             let brdfs = [
                 ShaderBrdf::BlinnPhong,

@@ -1342,6 +1342,7 @@ impl Plan {
             aligned: p.config.aligned,
             addressing,
             lmax: p.config.lmax,
+            biased: false,
         }
     }
 
