@@ -177,6 +177,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                 Addressing::Wrap
                             },
                             lmax: 0,
+                            biased: false,
                         };
                         let opts = ShaderOptions {
                             light,
@@ -220,6 +221,7 @@ fn every_specialization_compiles_as_glsl_330_core() {
             aligned: true,
             addressing: Addressing::Wrap,
             lmax: 0,
+            biased: false,
         };
         let opts = ShaderOptions {
             probe,
