@@ -1281,7 +1281,7 @@ fn compact_features_convert_the_same_bits_as_normal_maps() {
                     w,
                     h,
                     3,
-                    Samples::U8(&vec![128u8, 128, 255].repeat((w * h) as usize)),
+                    Samples::U8(&[128u8, 128, 255].repeat((w * h) as usize)),
                     &opts,
                 )
                 .unwrap();
