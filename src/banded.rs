@@ -27,18 +27,14 @@
 //! texels of J components of 16 bytes, plus colours) and one band. [`Bands::for_size`] picks
 //! m so that level m has at most 2²² texels: m = 1 up to 4096², 3 at 16384².
 
-use crate::bake::{Bake, BakeOptions, CancelFlag, Method, Progress};
+use crate::bake::{Bake, BakeOptions, Method, Progress};
 use crate::container::{Container, StreamedFile};
-use crate::em::{EmOptions, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::format::Format;
-use crate::ingest::{Addressing, CompactNormals, NormalMap};
-use crate::mixture::{
-    ALIGN_NEIGHBOURS, Gather, LevelFit, Model, PROGRESS_CHUNK, Source, TanModel, TexelFit,
-    VmfModel, assemble, into_slots, match_slots, parent_of, planes,
-};
+use crate::ingest::{Addressing, CompactFeature, CompactNormals, NormalMap};
+use crate::mixture::{Levels, Model, Rows, Source, TanModel, VmfModel, assemble};
 use crate::output::{InputInfo, MANIFEST};
-use crate::pyramid::{AxisFootprints, LevelFootprints, level_sizes};
+use crate::pyramid::level_sizes;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -120,8 +116,9 @@ impl Bands {
 pub struct CompactSource<'a> {
     /// The normals.
     pub normals: &'a CompactNormals,
-    /// The feature (colour) image, linear RGBA, row-major, one entry per texel.
-    pub feature: Option<&'a [[f32; 4]]>,
+    /// The feature (colour) image, kept as its samples (converted to linear RGBA per texel);
+    /// the normals' size.
+    pub feature: Option<&'a CompactFeature>,
 }
 
 impl Source for CompactSource<'_> {
@@ -137,7 +134,7 @@ impl Source for CompactSource<'_> {
     }
     #[inline]
     fn feature(&self, i: usize) -> Option<[f32; 4]> {
-        self.feature.map(|f| f[i])
+        self.feature.map(|f| f.texel(i))
     }
     fn has_feature(&self) -> bool {
         self.feature.is_some()
@@ -171,7 +168,34 @@ impl Map<'_> {
             Map::Compact(c) => c.normals.addressing(),
         }
     }
+    /// [`Error::FeatureSize`] when a compact map's feature image is not the normals' size.
+    fn check(&self) -> Result<()> {
+        match self {
+            Map::Compact(CompactSource {
+                normals,
+                feature: Some(f),
+            }) => f.check_size("feature", (normals.width(), normals.height())),
+            _ => Ok(()),
+        }
+    }
+    /// Bytes per texel the source holds (normals and feature image), as
+    /// [`estimate_peak_bytes`] counts them.
+    pub fn source_bytes(&self) -> u64 {
+        match self {
+            Map::Full(m) => DECODED_NORMAL_BYTES + m.feature().map_or(0, |_| DECODED_FEATURE_BYTES),
+            Map::Compact(c) => {
+                c.normals.bytes_per_texel() + c.feature.map_or(0, |f| f.bytes_per_texel())
+            }
+        }
+    }
 }
+
+/// Bytes per texel of decoded normals as [`estimate_peak_bytes`] counts them: a
+/// [`NormalMap`]'s vectors (12) and the decoded file while the map is made.
+pub const DECODED_NORMAL_BYTES: u64 = 16;
+
+/// Bytes per texel of a decoded feature image (linear RGBA f32).
+pub const DECODED_FEATURE_BYTES: u64 = 16;
 
 /// Where a banded bake sends its rows: texture `texture`'s rows `first_row..` of `level`,
 /// whole rows, row-major, f32 as baked. Every row of every level is sent exactly once.
@@ -209,22 +233,7 @@ impl RowSink for Collect {
     }
 }
 
-/// Rows `y0..y0 + h` of a `w`-wide level: their fits.
-struct Rows {
-    y0: u32,
-    w: u32,
-    h: u32,
-    fit: LevelFit,
-}
-
 impl Rows {
-    /// The components of texel `(x, y)` (global row `y`, inside these rows).
-    fn components<M: Model>(&self, x: u32, y: u32, j: usize) -> [M::C; MAX_LOBES] {
-        debug_assert!(y >= self.y0 && y < self.y0 + self.h);
-        self.fit
-            .components::<M>(((y - self.y0) * self.w + x) as usize, j)
-    }
-
     /// Sends every plane to `sink` as `level`'s rows (components to textures 0..J, colours to
     /// J..2J).
     fn send(&self, sink: &mut dyn RowSink, level: usize, j: usize) -> Result<()> {
@@ -238,313 +247,25 @@ impl Rows {
         }
         Ok(())
     }
-
-    /// The last row alone.
-    fn last_row(&self) -> Rows {
-        let (w, h) = (self.w as usize, self.h as usize);
-        let cut = |p: &Vec<[f32; 4]>| p[(h - 1) * w..h * w].to_vec();
-        Rows {
-            y0: self.y0 + self.h - 1,
-            w: self.w,
-            h: 1,
-            fit: LevelFit {
-                colors: self
-                    .fit
-                    .colors
-                    .as_ref()
-                    .map(|c| c.iter().map(cut).collect()),
-                texels: self.fit.texels.iter().map(cut).collect(),
-            },
-        }
-    }
-
-    /// Appends `more`'s rows (the rows right below these).
-    fn append(&mut self, more: Rows) {
-        debug_assert_eq!(more.y0, self.y0 + self.h);
-        for (a, b) in self.fit.texels.iter_mut().zip(more.fit.texels) {
-            a.extend(b);
-        }
-        if let (Some(a), Some(b)) = (self.fit.colors.as_mut(), more.fit.colors) {
-            for (a, b) in a.iter_mut().zip(b) {
-                a.extend(b);
-            }
-        }
-        self.h += more.h;
-    }
 }
 
-/// What every level's fitting shares.
-struct Ctx<'a, M: Model, S: Source> {
-    src: &'a S,
-    options: &'a BakeOptions,
-    sizes: Vec<(u32, u32)>,
-    footprints: Vec<LevelFootprints>,
-    j: usize,
-    passes: (EmOptions, EmOptions),
-    cancel: &'a CancelFlag,
-    _model: std::marker::PhantomData<M>,
-}
-
-impl<M: Model, S: Source> Ctx<'_, M, S> {
-    /// Unaligned fits of rows `y0..y1` of level `k ≥ 1` (as `mixture::bottom_up`), children
-    /// from `prev` (level k − 1's rows covering them; the normals at k = 1), with colours when
-    /// `colors`.
-    fn unaligned_rows(
-        &self,
-        k: usize,
-        (y0, y1): (u32, u32),
-        prev: Option<&Rows>,
-        colors: bool,
-        progress: &mut dyn FnMut(f64) -> Result<()>,
-    ) -> Result<Rows> {
-        let j = self.j;
-        let (w, h) = self.sizes[k];
-        let (pw, ph) = self.sizes[k - 1];
-        let level = &self.footprints[k];
-        let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
-        let cap = self.options.mode.sample_cap((w * h) as usize);
-        let em = &self.passes.0;
-        let (src, options, cancel) = (self.src, self.options, self.cancel);
-        let fit_texel = |g: &mut Gather<M>, x: u32, y: u32| -> TexelFit<M::C> {
-            g.collect(src, level, x, y, cap);
-            if g.normals.len() <= j {
-                return g.one_per_normal();
-            }
-            g.candidates.clear();
-            for (py, wy) in cy.taps(y as usize) {
-                for (px, wx) in cx.taps(x as usize) {
-                    match prev {
-                        None => {
-                            let c = M::single(src.normal((py * pw + px) as usize));
-                            g.candidates.push(M::with_alpha(&c, wx * wy));
-                        }
-                        Some(prev) => {
-                            for c in prev.components::<M>(px, py, j).iter().take(j) {
-                                g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
-                            }
-                        }
-                    }
-                }
-            }
-            let mut init = [M::EMPTY; MAX_LOBES];
-            M::init_from_children(&g.candidates, &mut init[..j]);
-            g.fit(&init[..j], (options, em), None, cancel)
-        };
-        let count = (y1 - y0) * w;
-        let mut out = LevelFit::with_capacity(count as usize, j, colors);
-        for lo in (0..count).step_by(PROGRESS_CHUNK as usize) {
-            let hi = (lo + PROGRESS_CHUNK).min(count);
-            let results: Vec<TexelFit<M::C>> = (lo..hi)
-                .into_par_iter()
-                .map_init(Gather::<M>::default, |g, t| {
-                    (!cancel.is_cancelled()).then(|| fit_texel(g, t % w, y0 + t / w))
-                })
-                .collect::<Option<_>>()
-                .ok_or(Error::Cancelled)?;
-            for r in &results {
-                out.push::<M>(r);
-            }
-            progress(hi as f64 / count as f64)?;
-        }
-        Ok(Rows {
-            y0,
-            w,
-            h: y1 - y0,
-            fit: out,
-        })
+/// Sends level 0's rows `y0..y1` ([`Levels::finest_rows`], slots from `parent`) in pieces of
+/// at most [`FINEST_CHUNK`] texels.
+fn send_finest<M: Model, S: Source>(
+    fit: &Levels<M, S>,
+    (y0, y1): (u32, u32),
+    parent: Option<&Rows>,
+    sink: &mut dyn RowSink,
+) -> Result<()> {
+    let step = (FINEST_CHUNK / fit.sizes[0].0.max(1)).max(1);
+    let mut y = y0;
+    while y < y1 {
+        fit.cancel.check()?;
+        let end = (y + step).min(y1);
+        fit.finest_rows((y, end), parent).send(sink, 0, fit.j)?;
+        y = end;
     }
-
-    /// Aligned fits of rows `y0..y1` of level `k ≥ 1` (as `mixture::top_down`): `own` holds
-    /// their unaligned fits, `parent` level k + 1's rows covering them (none at the coarsest
-    /// level), `above` the aligned row `y0 − 1` (none at row 0).
-    fn aligned_rows(
-        &self,
-        k: usize,
-        (y0, y1): (u32, u32),
-        own: &Rows,
-        parent: Option<&Rows>,
-        above: Option<&Rows>,
-        progress: &mut dyn FnMut(f64) -> Result<()>,
-    ) -> Result<Rows> {
-        let j = self.j;
-        let (w, h) = self.sizes[k];
-        let level = &self.footprints[k];
-        let cap = self.options.mode.sample_cap((w * h) as usize);
-        let em = &self.passes.1;
-        let (src, options, cancel) = (self.src, self.options, self.cancel);
-        let parent_size = self.sizes.get(k + 1).copied();
-        let parent_of_texel = |x: u32, y: u32| -> Option<[M::C; MAX_LOBES]> {
-            let (p, (pw, ph)) = (parent?, parent_size?);
-            Some(p.components::<M>(parent_of(x, w, pw), parent_of(y, h, ph), j))
-        };
-        let rows = y1 - y0;
-        let texels = (rows * w) as usize;
-        let mut out = LevelFit {
-            colors: src.has_feature().then(|| planes(j, texels, true)),
-            texels: planes(j, texels, true),
-        };
-        let wavefronts = w + 2 * (rows - 1);
-        for d in 0..wavefronts {
-            progress(d as f64 / wavefronts as f64)?;
-            // Local rows r with x = d − 2r in [0, w).
-            let r_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
-            let r_hi = (d / 2).min(rows - 1);
-            if r_lo > r_hi {
-                continue;
-            }
-            let done = &out;
-            let results: Vec<(u32, u32, TexelFit<M::C>)> = (r_lo..=r_hi)
-                .into_par_iter()
-                .map_init(Gather::<M>::default, |g, r| {
-                    if cancel.is_cancelled() {
-                        return None;
-                    }
-                    let (x, y) = (d - 2 * r, y0 + r);
-                    let parent = parent_of_texel(x, y);
-                    g.collect(src, level, x, y, cap);
-                    if g.normals.len() <= j && M::closed_form_when_aligned(options, g.min_alpha()) {
-                        let fit = g.one_per_normal();
-                        let fit = match &parent {
-                            Some(p) => into_slots::<M>(&fit, j, &p[..j]),
-                            None => fit,
-                        };
-                        return Some((x, r, fit));
-                    }
-                    let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
-                    let mut count = 0;
-                    let (xi, yi) = (x as i64, y as i64);
-                    for (a, b) in [
-                        (xi - 1, yi),
-                        (xi - 1, yi - 1),
-                        (xi, yi - 1),
-                        (xi + 1, yi - 1),
-                    ] {
-                        if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
-                            let (a, b) = (a as u32, b as u32);
-                            pulls[count] = if b >= y0 {
-                                done.components::<M>(((b - y0) * w + a) as usize, j)
-                            } else {
-                                above
-                                    .expect("the row above a band is kept")
-                                    .components::<M>(a, b, j)
-                            };
-                            count += 1;
-                        }
-                    }
-                    let own = own.components::<M>(x, y, j);
-                    let init = match &parent {
-                        Some(p) => {
-                            pulls[count] = *p;
-                            count += 1;
-                            match_slots::<M>(&own[..j], &p[..j])
-                        }
-                        None => own,
-                    };
-                    let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
-                    for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
-                        *n = &p[..j];
-                    }
-                    Some((
-                        x,
-                        r,
-                        g.fit(
-                            &init[..j],
-                            (options, em),
-                            Some(&neighbours[..count]),
-                            cancel,
-                        ),
-                    ))
-                })
-                .collect::<Option<_>>()
-                .ok_or(Error::Cancelled)?;
-            for (x, r, fit) in &results {
-                out.set::<M>((r * w + x) as usize, fit);
-            }
-        }
-        Ok(Rows {
-            y0,
-            w,
-            h: rows,
-            fit: out,
-        })
-    }
-
-    /// Sends level 0's rows `y0..y1` ([`Ctx::finest_rows`]) in pieces of at most
-    /// [`FINEST_CHUNK`] texels.
-    fn send_finest(
-        &self,
-        (y0, y1): (u32, u32),
-        parent: Option<&Rows>,
-        sink: &mut dyn RowSink,
-    ) -> Result<()> {
-        let step = (FINEST_CHUNK / self.sizes[0].0.max(1)).max(1);
-        let mut y = y0;
-        while y < y1 {
-            self.cancel.check()?;
-            let end = (y + step).min(y1);
-            self.finest_rows((y, end), parent).send(sink, 0, self.j)?;
-            y = end;
-        }
-        Ok(())
-    }
-
-    /// Level 0's rows `y0..y1`: each normal as one component, in slot 0 (unaligned, or
-    /// without a parent) or in the slot of the parent's component that explains it best (as
-    /// `mixture::top_down`), with its feature as colour.
-    fn finest_rows(&self, (y0, y1): (u32, u32), parent: Option<&Rows>) -> Rows {
-        let j = self.j;
-        let (w, h) = self.sizes[0];
-        let parent_size = self.sizes.get(1).copied();
-        let texels = ((y1 - y0) * w) as usize;
-        let base = (y0 * w) as usize;
-        let src = self.src;
-        let slots: Vec<u8> = (0..texels)
-            .into_par_iter()
-            .map(|t| {
-                let (Some(p), Some((pw, ph))) = (parent, parent_size) else {
-                    return 0;
-                };
-                let (x, y) = ((t % w as usize) as u32, y0 + (t / w as usize) as u32);
-                let comps = p.components::<M>(parent_of(x, w, pw), parent_of(y, h, ph), j);
-                let n = src.normal(base + t);
-                let mut best = (0, f64::NEG_INFINITY);
-                for (s, c) in comps.iter().enumerate().take(j) {
-                    let score = M::log_score_with(c, M::score_constants(c), n);
-                    if score > best.1 {
-                        best = (s, score);
-                    }
-                }
-                best.0 as u8
-            })
-            .collect();
-        let fill = |value: &(dyn Fn(usize) -> [f32; 4] + Sync)| -> Vec<Vec<[f32; 4]>> {
-            (0..j)
-                .map(|s| {
-                    slots
-                        .par_iter()
-                        .enumerate()
-                        .map(|(t, &slot)| {
-                            if slot as usize == s {
-                                value(t)
-                            } else {
-                                [0.0; 4]
-                            }
-                        })
-                        .collect()
-                })
-                .collect()
-        };
-        let texels = fill(&|t| M::texel(&M::single(src.normal(base + t))).map(|v| v as f32));
-        let colors = src
-            .has_feature()
-            .then(|| fill(&|t| src.feature(base + t).expect("the map has features")));
-        Rows {
-            y0,
-            w,
-            h: y1 - y0,
-            fit: LevelFit { colors, texels },
-        }
-    }
+    Ok(())
 }
 
 /// Bakes `model`'s mixture of `src` in `bands` (module docs), sending every row of every
@@ -565,19 +286,7 @@ fn bake_banded<M: Model, S: Source>(
     let color = src.has_feature();
     let j = options.lobes;
     let aligned = options.align.is_some();
-    let ctx = Ctx::<M, S> {
-        src,
-        options,
-        footprints: sizes
-            .iter()
-            .map(|&s| LevelFootprints::new((width, height), s))
-            .collect(),
-        sizes: sizes.clone(),
-        j,
-        passes: M::passes(options),
-        cancel: progress.cancel_flag(),
-        _model: std::marker::PhantomData,
-    };
+    let ctx = Levels::<M, S>::new(src, options, progress.cancel_flag());
     let band_count = height.div_ceil(bands.band_rows);
     let band = |b: u32, k: usize| -> (u32, u32) {
         let (lo, hi) = (b * bands.band_rows, ((b + 1) * bands.band_rows).min(height));
@@ -593,7 +302,7 @@ fn bake_banded<M: Model, S: Source>(
     };
     if levels == 1 {
         // A 1×1 map: one texel, its normal in slot 0.
-        ctx.send_finest((0, 1), None, sink)?;
+        send_finest(&ctx, (0, 1), None, sink)?;
         return Ok(());
     }
     let m = if levels >= 2 {
@@ -609,7 +318,7 @@ fn bake_banded<M: Model, S: Source>(
     if m == 1 {
         if !aligned {
             for b in 0..band_count {
-                ctx.send_finest(band(b, 0), None, sink)?;
+                send_finest(&ctx, band(b, 0), None, sink)?;
             }
         }
     } else {
@@ -617,7 +326,7 @@ fn bake_banded<M: Model, S: Source>(
         for b in 0..band_count {
             let mut prev: Option<Rows> = None;
             if !aligned {
-                ctx.send_finest(band(b, 0), None, sink)?;
+                send_finest(&ctx, band(b, 0), None, sink)?;
             }
             for k in 1..=m {
                 let rows =
@@ -700,7 +409,7 @@ fn bake_banded<M: Model, S: Source>(
             band_parent = Some(rows);
         }
         let p = band_parent.as_ref().unwrap_or(&level_m);
-        ctx.send_finest(band(b, 0), Some(p), sink)?;
+        send_finest(&ctx, band(b, 0), Some(p), sink)?;
         report(
             levels as f64 + (levels - m) as f64,
             (b + 1) as f64 / band_count as f64,
@@ -757,6 +466,7 @@ pub fn bake_in_bands(
     options: &BakeOptions,
     bands: Bands,
 ) -> Result<Bake> {
+    map.check()?;
     crate::methods::check_options(method, options, map.color(), None)?;
     let mut sink = Collect(description(map, method, options));
     crate::bake::run_with_progress(&mut |_| true, |progress| {
@@ -766,10 +476,10 @@ pub fn bake_in_bands(
 }
 
 /// Peak memory of [`write_folder`] for a `width × height` map (`color`: with a feature image;
-/// `compact`: the normals kept as 8-bit samples, else decoded), in bytes: what the budget
-/// checks (module `budget`) and `batch` admits by. The source (3 bytes per texel compact, 16
-/// decoded: the vectors and the decoded file while a [`NormalMap`] is made; 16 more with
-/// colour), the coarse levels (the unaligned pass's level m and coarser, 4/3 × 16 J bytes per
+/// `source_bytes`: bytes per texel the normals and the feature image take as held,
+/// [`Map::source_bytes`]: 3 for 8-bit RGB samples kept compact, [`DECODED_NORMAL_BYTES`] for
+/// decoded normals, plus the feature's), in bytes: what the budget checks (module `budget`)
+/// and `batch` admits by. The source, the coarse levels (the unaligned pass's level m and coarser, 4/3 × 16 J bytes per
 /// level-m texel, while the aligned level m, 16 J, and its parent, 16 J / 4, are held, both
 /// doubled by colours), a band of fine levels 1..m−1 (16 J per finest texel of the band,
 /// doubled for colour), level 0's piece and [`crate::methods::PEAK_FIXED_BYTES`]. Measured
@@ -780,12 +490,12 @@ pub fn estimate_peak_bytes(
     height: u32,
     options: &BakeOptions,
     color: bool,
-    compact: bool,
+    source_bytes: u64,
     bands: Bands,
 ) -> u64 {
     let texels = width as u64 * height as u64;
     let j = options.lobes as u64;
-    let source = texels * (if compact { 3 } else { 16 } + if color { 16 } else { 0 });
+    let source = texels.saturating_mul(source_bytes);
     let coarse_texels = texels >> (2 * bands.fine.min(31) as u64);
     // Unaligned levels ≥ m (4/3 of level m) while the aligned level m (and its colours) is
     // fitted from its parent (1/4 of it), with a third of level m for slack: in twelfths,
@@ -829,18 +539,7 @@ impl RowSink for FileSink {
         texels: &[[f32; 4]],
     ) -> Result<()> {
         let ranges = self.ranges[texture];
-        if self.format == Format::F16
-            && let Some(v) = texels
-                .iter()
-                .flatten()
-                .find(|v| v.abs() > crate::pack::F16_MAX)
-        {
-            return Err(Error::InvalidOption(format!(
-                "format f16 cannot hold texture '{}' level {level}: value {v} exceeds {}; use f32",
-                self.names[texture],
-                crate::pack::F16_MAX
-            )));
-        }
+        crate::pack::check_level(self.names[texture], level, texels, self.format)?;
         // The values the format holds, as `pack::quantize_into` rounds them, encoded and
         // written in pieces of whole rows in parallel (positional writes: any order).
         let w = self.widths[level] as usize;
@@ -850,16 +549,8 @@ impl RowSink for FileSink {
             .par_chunks(rows * w)
             .enumerate()
             .map(|(i, chunk)| {
-                let rounded: Vec<[f32; 4]> = chunk
-                    .iter()
-                    .map(|t| {
-                        let mut t = *t;
-                        for (c, v) in t.iter_mut().enumerate() {
-                            *v = crate::pack::round_trip(*v, ranges[c], format);
-                        }
-                        t
-                    })
-                    .collect();
+                let mut rounded = chunk.to_vec();
+                crate::pack::round_trip_texels(&mut rounded, ranges, format);
                 file.write_rows(level, first_row + (i * rows) as u32, &rounded)
             })
             .collect::<Vec<Result<()>>>()
@@ -896,6 +587,7 @@ pub fn write_folder(
 ) -> Result<PathBuf> {
     let (w, h) = map.size();
     let color = map.color();
+    map.check()?;
     crate::methods::check_options(method, options, color, Some(format))?;
     let lobes = options.lobes;
     crate::container::check(container, method, lobes, color, format, None)?;
@@ -903,7 +595,7 @@ pub fn write_folder(
     bands.check(w, h)?;
     crate::budget::check(
         &format!("a banded {method} bake of {w}x{h}"),
-        estimate_peak_bytes(w, h, options, color, matches!(map, Map::Compact(_)), bands),
+        estimate_peak_bytes(w, h, options, color, map.source_bytes(), bands),
         options.memory_limit,
     )?;
     let mut bake = description(map, method, options);

@@ -703,13 +703,27 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
         crate::output::tidy(&job.output)?;
         return Ok(None);
     }
-    let (w, h) = crate::ingest::probe_size_bytes(&job.input, &input)?;
+    let probe = crate::ingest::probe_bytes(&job.input, &input)?;
+    let (w, h) = (probe.width, probe.height);
     // Mixture bakes without block compression are baked in bands and streamed to their files
-    // (module `banded`: bounded memory, the same bytes); the others whole.
+    // (module `banded`: bounded memory, the same bytes), from the decoded 8/16-bit samples
+    // kept as they are (`ingest::CompactNormals`, `CompactFeature`); the others whole.
     let banded = matches!(job.method, Method::Vmf | Method::Tan2005) && job.codec.is_none();
     let needed = if banded {
         let bands = crate::banded::Bands::for_size(w, h);
-        crate::banded::estimate_peak_bytes(w, h, &options, color, false, bands)
+        let kept = |p: &crate::ingest::Probe, decoded: u64| {
+            if p.float {
+                decoded
+            } else {
+                p.bytes_per_texel as u64
+            }
+        };
+        let mut source = kept(&probe, crate::banded::DECODED_NORMAL_BYTES);
+        if let (Some(path), Some(bytes)) = (&job.feature, &feature) {
+            let f = crate::ingest::probe_bytes(path, bytes)?;
+            source += kept(&f, crate::banded::DECODED_FEATURE_BYTES);
+        }
+        crate::banded::estimate_peak_bytes(w, h, &options, color, source, bands)
     } else {
         crate::methods::estimate_peak_bytes(w, h, job.method, &options, color)
     };
@@ -721,6 +735,9 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
     budget.acquire(needed);
     let result = (|| {
         let name = job.input.display().to_string();
+        if banded {
+            return bake_banded_job(job, &options, &name, input, feature, hash);
+        }
         let mut map = NormalMap::load_memory(&name, &input, &job.ingest)?;
         drop(input);
         if let (Some(path), Some(bytes)) = (&job.feature, &feature) {
@@ -732,20 +749,6 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
             options: job.ingest,
             stats: map.stats().clone(),
         };
-        if banded {
-            return crate::banded::write_folder(
-                &crate::banded::Map::Full(&map),
-                job.method,
-                &options,
-                job.format,
-                job.container,
-                &job.output,
-                info,
-                Some(hash),
-                None,
-                &mut |_| true,
-            );
-        }
         let bake = crate::methods::bake_with(&map, job.method, &options)?;
         drop(map);
         let bake = crate::pack::quantize_into(bake, job.format)?;
@@ -760,6 +763,67 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
     })();
     budget.release(needed);
     result.map(Some)
+}
+
+/// The banded bake of a job (vMF or Tan 2005, no block compression): 8/16-bit inputs are kept
+/// as their decoded samples (`ingest::load_normals_compact`, `CompactFeature`), float ones
+/// decoded; the same files as from a decoded [`NormalMap`], byte for byte.
+fn bake_banded_job(
+    job: &Job,
+    options: &BakeOptions,
+    name: &str,
+    input: Vec<u8>,
+    feature: Option<Vec<u8>>,
+    hash: String,
+) -> Result<PathBuf> {
+    use crate::banded::{CompactSource, Map};
+    use crate::ingest::{CompactFeature, LoadedNormals, load_normals_compact};
+    let loaded = load_normals_compact(name, &input, &job.ingest)?;
+    drop(input);
+    let feature_name = job.feature.as_ref().map(|p| p.display().to_string());
+    let write = |map: &Map, stats| {
+        let info = InputInfo {
+            path: Some(name.to_string()),
+            options: job.ingest,
+            stats,
+        };
+        crate::banded::write_folder(
+            map,
+            job.method,
+            options,
+            job.format,
+            job.container,
+            &job.output,
+            info,
+            Some(hash.clone()),
+            None,
+            &mut |_| true,
+        )
+    };
+    match loaded {
+        LoadedNormals::Compact(normals) => {
+            let size = (normals.width(), normals.height());
+            let feature = match (&feature_name, feature) {
+                (Some(f), Some(bytes)) => {
+                    Some(CompactFeature::load_memory(f, &bytes, size, &job.ingest)?)
+                }
+                _ => None,
+            };
+            let stats = normals.stats_with(feature.as_ref());
+            let map = Map::Compact(CompactSource {
+                normals: &normals,
+                feature: feature.as_ref(),
+            });
+            write(&map, stats)
+        }
+        LoadedNormals::Decoded(mut map) => {
+            if let (Some(f), Some(bytes)) = (&feature_name, feature) {
+                map = map.with_feature_memory(f, &bytes, &job.ingest)?;
+            }
+            let stats = map.stats().clone();
+            write(&Map::Full(&map), stats)
+        }
+    }
 }
 
 #[cfg(test)]

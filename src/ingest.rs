@@ -285,37 +285,49 @@ impl NormalMap {
         feature: &mut [[f32; 4]],
         policy: BadNormals,
     ) -> Result<Self> {
-        let mut nan = BadCount::default();
-        let mut negative = BadCount::default();
-        for (i, texel) in feature.iter_mut().enumerate() {
-            if texel.iter().any(|v| !v.is_finite()) {
-                nan.note(i, self.width);
-                texel
-                    .iter_mut()
-                    .filter(|v| !v.is_finite())
-                    .for_each(|v| *v = 0.0);
-            }
-            if texel.iter().any(|v| *v < 0.0) {
-                negative.note(i, self.width);
-                texel.iter_mut().for_each(|v| *v = v.max(0.0));
-            }
-        }
-        if policy == BadNormals::Reject
-            && let Some((kind, (x, y))) =
-                first_bad(&[("NaN or infinite", nan), ("negative", negative)])
-        {
-            return Err(Error::BadFeatures {
-                what: what.to_string(),
-                count: nan.count + negative.count,
-                kind,
-                x,
-                y,
-            });
-        }
+        let (nan, negative) = repair_feature(what, self.width, feature, policy)?;
         self.stats.feature_nan = nan;
         self.stats.feature_negative = negative;
         Ok(self)
     }
+}
+
+/// Checks and repairs feature values of a map `width` wide (NaN or infinite → 0, negative → 0),
+/// counting both kinds; under [`BadNormals::Reject`] a bad value is [`Error::BadFeatures`].
+/// Returns the NaN and the negative counts.
+fn repair_feature(
+    what: &str,
+    width: u32,
+    feature: &mut [[f32; 4]],
+    policy: BadNormals,
+) -> Result<(BadCount, BadCount)> {
+    let mut nan = BadCount::default();
+    let mut negative = BadCount::default();
+    for (i, texel) in feature.iter_mut().enumerate() {
+        if texel.iter().any(|v| !v.is_finite()) {
+            nan.note(i, width);
+            texel
+                .iter_mut()
+                .filter(|v| !v.is_finite())
+                .for_each(|v| *v = 0.0);
+        }
+        if texel.iter().any(|v| *v < 0.0) {
+            negative.note(i, width);
+            texel.iter_mut().for_each(|v| *v = v.max(0.0));
+        }
+    }
+    if policy == BadNormals::Reject
+        && let Some((kind, (x, y))) = first_bad(&[("NaN or infinite", nan), ("negative", negative)])
+    {
+        return Err(Error::BadFeatures {
+            what: what.to_string(),
+            count: nan.count + negative.count,
+            kind,
+            x,
+            y,
+        });
+    }
+    Ok((nan, negative))
 }
 
 impl BadCount {
@@ -1123,6 +1135,18 @@ fn decode_bytes(
     purpose: Purpose,
     opts: &IngestOptions,
 ) -> Result<Decoded> {
+    decode_bytes_kept(path, bytes, purpose, opts, false)
+}
+
+/// [`decode_bytes`]; `compact`: the decoded 8/16-bit samples are what the caller keeps
+/// ([`CompactNormals`], [`CompactFeature`]), so the budget counts no converted copy for them.
+fn decode_bytes_kept(
+    path: &Path,
+    bytes: &[u8],
+    purpose: Purpose,
+    opts: &IngestOptions,
+    compact: bool,
+) -> Result<Decoded> {
     if bytes.is_empty() {
         return Err(decode_error(path, "the file is empty"));
     }
@@ -1135,6 +1159,7 @@ fn decode_bytes(
             file_bytes: bytes.len() as u64,
             purpose,
             limit: opts.memory_limit,
+            compact,
         };
         match format {
             Container::Exr => decode_exr(path, bytes, purpose, &budget),
@@ -1174,17 +1199,25 @@ struct Budget<'a> {
     file_bytes: u64,
     purpose: Purpose,
     limit: Option<u64>,
+    /// The caller keeps the decoded integer samples themselves (no converted copy).
+    compact: bool,
 }
 
 impl Budget<'_> {
     /// Checks a `width`×`height` image whose decoder holds `decoder_bytes` at its peak: the
-    /// file, the decoder's buffers, and the normals or features made from them.
-    fn check(&self, width: u32, height: u32, decoder_bytes: u64) -> Result<()> {
+    /// file, the decoder's buffers, and the normals or features made from them (none when the
+    /// caller keeps the samples: compact and not `float`).
+    fn check(&self, width: u32, height: u32, decoder_bytes: u64, float: bool) -> Result<()> {
         let texels = width as u64 * height as u64;
+        let kept = if self.compact && !float {
+            0
+        } else {
+            self.purpose.kept_bytes_per_texel()
+        };
         let needed = self
             .file_bytes
             .saturating_add(decoder_bytes)
-            .saturating_add(texels.saturating_mul(self.purpose.kept_bytes_per_texel()));
+            .saturating_add(texels.saturating_mul(kept));
         crate::budget::check(
             &format!("{} ({width}x{height})", self.path.display()),
             needed,
@@ -1217,7 +1250,16 @@ fn decode_image(
     let (width, height) = decoder.dimensions();
     check_dimensions(&what, width as u64, height as u64)?;
     // The pixel buffer, and as much again for the decoder's own (TIFF strips, PNG rows).
-    budget.check(width, height, decoder.total_bytes().saturating_mul(2))?;
+    let float = matches!(
+        decoder.color_type(),
+        image::ColorType::Rgb32F | image::ColorType::Rgba32F
+    );
+    budget.check(
+        width,
+        height,
+        decoder.total_bytes().saturating_mul(2),
+        float,
+    )?;
     let too_big = |e: image::ImageError| Error::Dimensions {
         what: what.clone(),
         width: width as u64,
@@ -1307,7 +1349,7 @@ fn decode_jpeg(path: &Path, bytes: &[u8], budget: &Budget) -> Result<Decoded> {
     decoder.set_options(options.jpeg_set_out_colorspace(out));
     // The output, and twice as much for a progressive file's coefficients (i16 per sample).
     let pixels = w as u64 * h as u64 * channels as u64;
-    budget.check(width, height, pixels.saturating_mul(3))?;
+    budget.check(width, height, pixels.saturating_mul(3), false)?;
     let data = decoder.decode().map_err(jpeg_error)?;
     if data.len() as u64 != pixels {
         return Err(decode_error(
@@ -1497,6 +1539,7 @@ fn decode_exr(path: &Path, bytes: &[u8], purpose: Purpose, budget: &Budget) -> R
         w as u32,
         h as u32,
         samples + header.max_block_byte_size() as u64,
+        true,
     )?;
     let data = read_exr_channels(bytes, &picked, (w, h)).map_err(exr_error)?;
     Ok(Decoded {
@@ -1739,8 +1782,28 @@ impl CompactNormals {
             }
         };
         let bits = samples_bits(samples);
-        let (layout, unorm, stats) =
-            source_layout(what, width, height, channels, samples, bits, opts)?;
+        Self::from_owned(what, width, height, channels, owned, bits, opts)
+    }
+
+    /// [`CompactNormals::from_samples`] keeping `owned` itself (integer samples; no copy).
+    fn from_owned(
+        what: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        owned: SampleBuf,
+        bits: u32,
+        opts: &IngestOptions,
+    ) -> Result<CompactNormals> {
+        let (layout, unorm, stats) = source_layout(
+            what,
+            width,
+            height,
+            channels,
+            owned.as_samples(),
+            bits,
+            opts,
+        )?;
         let mut map = CompactNormals {
             width,
             height,
@@ -1800,4 +1863,352 @@ impl CompactNormals {
     pub fn stats(&self) -> &IngestStats {
         &self.stats
     }
+}
+
+impl CompactNormals {
+    /// The statistics of the map with `feature` attached (as [`NormalMap::stats`] of a map
+    /// with that feature image: its repaired NaN and negative counts).
+    pub fn stats_with(&self, feature: Option<&CompactFeature>) -> IngestStats {
+        let mut stats = self.stats.clone();
+        if let Some(f) = feature {
+            stats.feature_nan = f.nan;
+            stats.feature_negative = f.negative;
+        }
+        stats
+    }
+
+    /// Bytes per texel the samples take (3 for 8-bit RGB, 6 for 16-bit RGB, 4 for RGBA8).
+    pub fn bytes_per_texel(&self) -> u64 {
+        let bytes = match self.samples {
+            SampleBuf::U8(_) => 1,
+            SampleBuf::U16(_) => 2,
+            SampleBuf::F32(_) => 4,
+        };
+        bytes * self.layout.channels as u64
+    }
+}
+
+/// A normal map read for a bounded-memory bake ([`load_normals_compact`]).
+#[derive(Debug, Clone)]
+pub enum LoadedNormals {
+    /// 8- or 16-bit samples, kept as they were decoded.
+    Compact(CompactNormals),
+    /// Float samples (OpenEXR, float TIFF), decoded to vectors.
+    Decoded(NormalMap),
+}
+
+/// Reads a normal map from the bytes of an image file as [`NormalMap::load_memory`] does, but
+/// keeps 8- and 16-bit images as their decoded samples ([`CompactNormals`]: the `image` or
+/// JPEG decoder's own buffer, 3 bytes per texel for 8-bit RGB, 6 for 16-bit RGB; no vectors
+/// are made), so a 16384² 8-bit map takes 768 MiB instead of `NormalMap`'s 3 GiB. 16-bit
+/// samples stay 16-bit: rounding them to 8 bits would change the normals, and the bake must
+/// equal the one from a `NormalMap` bit for bit. Float images are decoded to a [`NormalMap`]
+/// as before (their samples are as large as the vectors). Same errors and statistics as
+/// [`NormalMap::load_memory`]; the memory budget counts no converted copy for kept samples.
+pub fn load_normals_compact(
+    name: &str,
+    bytes: &[u8],
+    opts: &IngestOptions,
+) -> Result<LoadedNormals> {
+    let path = Path::new(name);
+    let decoded = decode_bytes_kept(path, bytes, Purpose::Normals, opts, true)?;
+    if matches!(decoded.samples, SampleBuf::F32(_)) {
+        return NormalMap::from_decoded(path, decoded, opts).map(LoadedNormals::Decoded);
+    }
+    if decoded.luma_alpha && opts.channels == Channels::Auto {
+        // The same refusal as the decoded path's.
+        return NormalMap::from_decoded(path, decoded, opts).map(LoadedNormals::Decoded);
+    }
+    CompactNormals::from_owned(
+        name,
+        decoded.width,
+        decoded.height,
+        decoded.channels,
+        decoded.samples,
+        decoded.bits,
+        opts,
+    )
+    .map(LoadedNormals::Compact)
+}
+
+/// A feature (colour) image kept as its 8- or 16-bit samples, each texel converted to linear
+/// RGBA when asked for, bit for bit as [`NormalMap::with_feature_samples`] converts it (sRGB
+/// decoding through a table of every sample value): 3 bytes per texel for 8-bit RGB instead
+/// of 16. Float images are held converted (16 bytes per texel). For the bounded-memory bake
+/// of large maps (module `banded`).
+#[derive(Debug, Clone)]
+pub struct CompactFeature {
+    width: u32,
+    height: u32,
+    texels: FeatureTexels,
+    nan: BadCount,
+    negative: BadCount,
+}
+
+/// How a [`CompactFeature`] holds its texels.
+#[derive(Debug, Clone)]
+enum FeatureTexels {
+    /// 8-bit samples with the colour and alpha value of every sample.
+    U8 {
+        samples: Vec<u8>,
+        channels: usize,
+        colour: Box<[f32; 256]>,
+        alpha: Box<[f32; 256]>,
+    },
+    /// 16-bit samples with the colour value of every sample (alpha is `c / 65535`).
+    U16 {
+        samples: Vec<u16>,
+        channels: usize,
+        colour: Vec<f32>,
+    },
+    /// Converted (float images).
+    Rgba(Vec<[f32; 4]>),
+}
+
+/// One texel of `channels` samples as RGBA: grey replicated, a missing alpha 1 (`to_rgba`).
+#[inline]
+fn texel_rgba<T: Copy>(px: &[T], colour: impl Fn(T) -> f32, alpha: impl Fn(T) -> f32) -> [f32; 4] {
+    match *px {
+        [g] => {
+            let g = colour(g);
+            [g, g, g, 1.0]
+        }
+        [g, a] => {
+            let g = colour(g);
+            [g, g, g, alpha(a)]
+        }
+        [r, g, b] => [colour(r), colour(g), colour(b), 1.0],
+        [r, g, b, a, ..] => [colour(r), colour(g), colour(b), alpha(a)],
+        [] => [0.0, 0.0, 0.0, 1.0],
+    }
+}
+
+impl CompactFeature {
+    /// Keeps `samples` (`channels` per texel, rows top first, `width × height`) as a feature
+    /// image read under `opts` ([`IngestOptions::feature_encoding`], and
+    /// [`IngestOptions::bad_normals`] for float values), as
+    /// [`NormalMap::with_feature_samples`] would attach it to a map of that size.
+    ///
+    /// # Errors
+    ///
+    /// Those of [`NormalMap::with_feature_samples`] (the size check is the caller's:
+    /// [`CompactFeature::check_size`]).
+    pub fn from_samples(
+        what: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        samples: Samples<'_>,
+        opts: &IngestOptions,
+    ) -> Result<CompactFeature> {
+        let owned = match samples {
+            Samples::U8(d) => SampleBuf::U8(d.to_vec()),
+            Samples::U16(d) => SampleBuf::U16(d.to_vec()),
+            Samples::F32(d) => SampleBuf::F32(d.to_vec()),
+        };
+        Self::from_owned(what, width, height, channels, owned, opts)
+    }
+
+    /// [`CompactFeature::from_samples`] keeping `owned` itself.
+    fn from_owned(
+        what: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        owned: SampleBuf,
+        opts: &IngestOptions,
+    ) -> Result<CompactFeature> {
+        let texel_count = check_buffer(what, width, height, channels, owned.as_samples())?;
+        let srgb = opts.feature_encoding == FeatureEncoding::Srgb;
+        let c = channels as usize;
+        let (texels, nan, negative) = match owned {
+            SampleBuf::U8(mut samples) => {
+                // Integer samples convert to finite values in [0, 1]: nothing to repair.
+                samples.truncate(texel_count * c);
+                let alpha: [f32; 256] = std::array::from_fn(|c| c as f32 / 255.0);
+                let colour = if srgb {
+                    alpha.map(srgb_to_linear)
+                } else {
+                    alpha
+                };
+                let texels = FeatureTexels::U8 {
+                    samples,
+                    channels: c,
+                    colour: Box::new(colour),
+                    alpha: Box::new(alpha),
+                };
+                (texels, BadCount::default(), BadCount::default())
+            }
+            SampleBuf::U16(mut samples) => {
+                samples.truncate(texel_count * c);
+                let alpha = |c: u16| c as f32 / 65535.0;
+                let colour = (0..=u16::MAX)
+                    .map(|c| {
+                        if srgb {
+                            srgb_to_linear(alpha(c))
+                        } else {
+                            alpha(c)
+                        }
+                    })
+                    .collect();
+                let texels = FeatureTexels::U16 {
+                    samples,
+                    channels: c,
+                    colour,
+                };
+                (texels, BadCount::default(), BadCount::default())
+            }
+            SampleBuf::F32(samples) => {
+                let mut rgba = convert_feature(
+                    c,
+                    Samples::F32(&samples),
+                    texel_count,
+                    opts.feature_encoding,
+                );
+                drop(samples);
+                let (nan, negative) = repair_feature(what, width, &mut rgba, opts.bad_normals)?;
+                (FeatureTexels::Rgba(rgba), nan, negative)
+            }
+        };
+        Ok(CompactFeature {
+            width,
+            height,
+            texels,
+            nan,
+            negative,
+        })
+    }
+
+    /// Reads a feature image from the bytes of an image file as
+    /// [`NormalMap::with_feature_memory`] does, keeping 8- and 16-bit samples, for a normal
+    /// map of `size` ([`Error::FeatureSize`] if the image's differs).
+    pub fn load_memory(
+        name: &str,
+        bytes: &[u8],
+        size: (u32, u32),
+        opts: &IngestOptions,
+    ) -> Result<CompactFeature> {
+        let path = Path::new(name);
+        let d = decode_bytes_kept(path, bytes, Purpose::Feature, opts, true)?;
+        let f = CompactFeature {
+            width: d.width,
+            height: d.height,
+            texels: FeatureTexels::Rgba(Vec::new()),
+            nan: BadCount::default(),
+            negative: BadCount::default(),
+        };
+        f.check_size(name, size)?;
+        Self::from_owned(name, d.width, d.height, d.channels, d.samples, opts)
+    }
+
+    /// [`Error::FeatureSize`] unless the image is `size` (the normal map's), as
+    /// [`NormalMap::with_feature_samples`] checks.
+    pub fn check_size(&self, what: &str, size: (u32, u32)) -> Result<()> {
+        if (self.width, self.height) != size {
+            return Err(Error::FeatureSize {
+                what: what.to_string(),
+                feature_width: self.width,
+                feature_height: self.height,
+                width: size.0,
+                height: size.1,
+            });
+        }
+        Ok(())
+    }
+
+    /// Width in texels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in texels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Bytes per texel the image takes as held.
+    pub fn bytes_per_texel(&self) -> u64 {
+        match &self.texels {
+            FeatureTexels::U8 { channels, .. } => *channels as u64,
+            FeatureTexels::U16 { channels, .. } => 2 * *channels as u64,
+            FeatureTexels::Rgba(_) => 16,
+        }
+    }
+
+    /// Linear RGBA of row-major texel `i` (as [`NormalMap::feature`]`()[i]`).
+    #[inline]
+    pub fn texel(&self, i: usize) -> [f32; 4] {
+        match &self.texels {
+            FeatureTexels::U8 {
+                samples,
+                channels,
+                colour,
+                alpha,
+            } => texel_rgba(
+                &samples[i * channels..(i + 1) * channels],
+                |c| colour[c as usize],
+                |c| alpha[c as usize],
+            ),
+            FeatureTexels::U16 {
+                samples,
+                channels,
+                colour,
+            } => texel_rgba(
+                &samples[i * channels..(i + 1) * channels],
+                |c| colour[c as usize],
+                |c| c as f32 / 65535.0,
+            ),
+            FeatureTexels::Rgba(t) => t[i],
+        }
+    }
+}
+
+/// What an image file's header says about the samples ingest would decode from it
+/// ([`probe_bytes`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Probe {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Bytes per texel of the decoded samples (channels × bytes per sample).
+    pub bytes_per_texel: u32,
+    /// Float samples (OpenEXR, float TIFF): decoded to vectors, not kept compact.
+    pub float: bool,
+}
+
+/// [`probe_size`] of a file read into `bytes`, with the decoded samples' size per texel: what
+/// a bake's memory estimate needs before anything is decoded.
+///
+/// # Errors
+///
+/// As [`probe_size`].
+pub fn probe_bytes(path: &Path, bytes: &[u8]) -> Result<Probe> {
+    let (width, height) = probe_size_bytes(path, bytes)?;
+    let (bytes_per_texel, float) = match container(path, bytes)? {
+        // At most four channels of f32 (ingest widens half floats).
+        Container::Exr => (16, true),
+        Container::Jpeg => (3, false),
+        Container::Image(f) => {
+            let probe = std::panic::catch_unwind(|| {
+                use image::ImageDecoder;
+                let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes));
+                reader.set_format(f);
+                reader.into_decoder().ok().map(|d| d.color_type())
+            })
+            .ok()
+            .flatten()
+            .ok_or_else(|| decode_error(path, "the decoder failed unexpectedly"))?;
+            (
+                u32::from(probe.bytes_per_pixel()),
+                matches!(probe, image::ColorType::Rgb32F | image::ColorType::Rgba32F),
+            )
+        }
+    };
+    Ok(Probe {
+        width,
+        height,
+        bytes_per_texel,
+        float,
+    })
 }

@@ -646,49 +646,6 @@ impl LevelFit {
     }
 }
 
-/// The finest level's fit: every texel's normal as one component in `slot_of(texel)`.
-fn finest_level<M: Model>(
-    map: &NormalMap,
-    j: usize,
-    slot_of: impl Fn(usize) -> usize + Sync,
-) -> LevelFit {
-    let slots: Vec<u8> = (0..map.normals().len())
-        .into_par_iter()
-        .map(|t| slot_of(t) as u8)
-        .collect();
-    // Plane s holds the texels whose slot is s; the others are empty (zero).
-    let fill = |value: &(dyn Fn(usize) -> [f32; 4] + Sync)| -> Vec<Vec<[f32; 4]>> {
-        (0..j)
-            .map(|s| {
-                slots
-                    .par_iter()
-                    .enumerate()
-                    .map(|(t, &slot)| {
-                        if slot as usize == s {
-                            value(t)
-                        } else {
-                            [0.0; 4]
-                        }
-                    })
-                    .collect()
-            })
-            .collect()
-    };
-    let texels = fill(&|t| M::texel(&M::single(map.normals()[t])).map(|v| v as f32));
-    // α = 1 in the slot: the colour texel is the feature itself.
-    let colors = map.feature().map(|f| fill(&|t| f[t]));
-    LevelFit { colors, texels }
-}
-
-/// The finest level of the unaligned pass of an aligned bake: nothing, since level 1 reads the
-/// normals directly and the aligned pass makes its own finest level.
-fn placeholder_level() -> LevelFit {
-    LevelFit {
-        colors: None,
-        texels: Vec::new(),
-    }
-}
-
 /// Bakes the vMF mixture of `map` (module docs).
 pub(crate) fn bake_vmf(
     map: &NormalMap,
@@ -700,7 +657,7 @@ pub(crate) fn bake_vmf(
 
 /// Most lobes that pull a texel's lobe in the aligned pass: its left, upper-left, upper and
 /// upper-right neighbours and its parent.
-pub(crate) const ALIGN_NEIGHBOURS: usize = 5;
+const ALIGN_NEIGHBOURS: usize = 5;
 
 /// Largest tilt, in radians, that eq 29's pull may give a lobe of a texel that the aligned
 /// pass fits in closed form instead of by EM (well below what an f32 texel resolves at the
@@ -708,25 +665,58 @@ pub(crate) const ALIGN_NEIGHBOURS: usize = 5;
 const CLOSED_FORM_TILT: f64 = 1e-5;
 
 /// Texels fitted in parallel between two progress reports of the unaligned pass.
-pub(crate) const PROGRESS_CHUNK: u32 = 1 << 14;
+const PROGRESS_CHUNK: u32 = 1 << 14;
 
-/// The part of the whole bake that one pass over the levels covers: `(start, span)`.
-type Pass = (f64, f64);
-
-/// Bakes a mixture model for `map`: unaligned, or aligned from the unaligned fits. Each level
-/// of a pass counts as an equal share of its progress (every level covers all normals).
+/// Bakes a mixture model for `map`, every level whole: unaligned (finest level up), or aligned
+/// from the unaligned fits (coarsest level down). The per-level fits are [`Levels`]', the ones
+/// module `banded` runs in row bands. Each level of a pass counts as an equal share of its
+/// progress (every level covers all normals).
 pub(crate) fn bake_mixture<M: Model>(
     map: &NormalMap,
     options: &BakeOptions,
     progress: &mut Progress,
 ) -> Result<Bake> {
     check(options)?;
-    let sizes = level_sizes(map.width(), map.height());
-    let first_pass = if options.align.is_some() { 0.5 } else { 1.0 };
-    let unaligned = bottom_up::<M>(map, options, &sizes, progress, (0.0, first_pass))?;
-    let fits = match options.align {
-        None => unaligned,
-        Some(_) => top_down::<M>(map, options, &sizes, &unaligned, progress, (0.5, 0.5))?,
+    let fit = Levels::<M, NormalMap>::new(map, options, progress.cancel_flag());
+    let sizes = fit.sizes.clone();
+    let levels = sizes.len();
+    let whole = |k: usize| (0, sizes[k].1);
+    let aligned = options.align.is_some();
+    // An aligned bake keeps the unaligned pass's texels (what the aligned pass starts from)
+    // but not its colours, nor its finest level (level 1 reads the normals; the aligned pass
+    // makes its own).
+    let colors = map.feature().is_some() && !aligned;
+    let span = if aligned { 0.5 } else { 1.0 };
+    let steps = levels.saturating_sub(1).max(1) as f64;
+    let mut unaligned = Vec::with_capacity(levels);
+    unaligned.push(if aligned {
+        Rows::empty(sizes[0].0)
+    } else {
+        fit.finest_rows(whole(0), None)
+    });
+    for k in 1..levels {
+        let prev = (k > 1).then(|| &unaligned[k - 1]);
+        let rows = fit.unaligned_rows(k, whole(k), prev, colors, &mut |f| {
+            progress.report(span * ((k - 1) as f64 + f) / steps)
+        })?;
+        unaligned.push(rows);
+    }
+    let fits: Vec<LevelFit> = if aligned {
+        let mut out: Vec<Option<Rows>> = (0..levels).map(|_| None).collect();
+        for k in (1..levels).rev() {
+            let parent = out.get(k + 1).and_then(Option::as_ref);
+            let done = (levels - 1 - k) as f64;
+            let rows = fit.aligned_rows(k, whole(k), &unaligned[k], parent, None, &mut |f| {
+                progress.report(0.5 + 0.5 * (done + f) / levels as f64)
+            })?;
+            out[k] = Some(rows);
+        }
+        out[0] = Some(fit.finest_rows(whole(0), out.get(1).and_then(Option::as_ref)));
+        out.into_iter()
+            .map(|r| r.expect("every level fitted").fit)
+            .collect()
+    } else {
+        unaligned.into_iter().map(|r| r.fit).collect()
     };
     Ok(assemble::<M>(
         map.feature().is_some(),
@@ -737,86 +727,183 @@ pub(crate) fn bake_mixture<M: Model>(
     ))
 }
 
-/// Unaligned: finest level up, each texel initialized from its children's components.
-fn bottom_up<M: Model>(
-    map: &NormalMap,
-    options: &BakeOptions,
-    sizes: &[(u32, u32)],
-    progress: &mut Progress,
-    (start, span): Pass,
-) -> Result<Vec<LevelFit>> {
-    let j = options.lobes;
-    let finest = (map.width(), map.height());
-    // An aligned bake keeps this pass's texels (what the aligned pass starts from) but not
-    // its colours.
-    let textures = options.align.is_none();
-    let colors = map.feature().is_some() && textures;
-    let (em, _) = M::passes(options);
-    let mut fits = vec![if textures {
-        finest_level::<M>(map, j, |_| 0)
-    } else {
-        placeholder_level()
-    }];
-    let steps = sizes.len().saturating_sub(1).max(1) as f64;
-    let cancel = progress.cancel_flag();
-    for k in 1..sizes.len() {
-        let (w, h) = sizes[k];
-        let (pw, ph) = sizes[k - 1];
-        let level = LevelFootprints::new(finest, (w, h));
+/// Rows `y0..y0 + h` of a `w`-wide level and their fits: a whole level (`y0` = 0) in the
+/// in-memory bake, a band of one in module `banded`.
+pub(crate) struct Rows {
+    pub(crate) y0: u32,
+    pub(crate) w: u32,
+    pub(crate) h: u32,
+    pub(crate) fit: LevelFit,
+}
+
+impl Rows {
+    /// No rows of a `w`-wide level (the unaligned pass's finest level in an aligned bake).
+    fn empty(w: u32) -> Rows {
+        Rows {
+            y0: 0,
+            w,
+            h: 0,
+            fit: LevelFit {
+                colors: None,
+                texels: Vec::new(),
+            },
+        }
+    }
+
+    /// The components of texel `(x, y)` (global row `y`, inside these rows).
+    pub(crate) fn components<M: Model>(&self, x: u32, y: u32, j: usize) -> [M::C; MAX_LOBES] {
+        debug_assert!(y >= self.y0 && y < self.y0 + self.h);
+        self.fit
+            .components::<M>(((y - self.y0) * self.w + x) as usize, j)
+    }
+
+    /// The last row alone.
+    pub(crate) fn last_row(&self) -> Rows {
+        let (w, h) = (self.w as usize, self.h as usize);
+        let cut = |p: &Vec<[f32; 4]>| p[(h - 1) * w..h * w].to_vec();
+        Rows {
+            y0: self.y0 + self.h - 1,
+            w: self.w,
+            h: 1,
+            fit: LevelFit {
+                colors: self
+                    .fit
+                    .colors
+                    .as_ref()
+                    .map(|c| c.iter().map(cut).collect()),
+                texels: self.fit.texels.iter().map(cut).collect(),
+            },
+        }
+    }
+
+    /// Appends `more`'s rows (the rows right below these).
+    pub(crate) fn append(&mut self, more: Rows) {
+        debug_assert_eq!(more.y0, self.y0 + self.h);
+        for (a, b) in self.fit.texels.iter_mut().zip(more.fit.texels) {
+            a.extend(b);
+        }
+        if let (Some(a), Some(b)) = (self.fit.colors.as_mut(), more.fit.colors) {
+            for (a, b) in a.iter_mut().zip(b) {
+                a.extend(b);
+            }
+        }
+        self.h += more.h;
+    }
+}
+
+/// The per-level fits of a mixture bake of `src`, for any rows of a level: what the in-memory
+/// bake ([`bake_mixture`], whole levels) and the banded bake (module `banded`, row bands)
+/// share. A texel's fit is a pure function of its inputs (its footprint's normals, its
+/// children's fits; aligned, its own unaligned fit and its parent's and visited neighbours'
+/// aligned fits), so any rows fitted here have the same bits whichever way a level is cut.
+pub(crate) struct Levels<'a, M: Model, S: Source> {
+    src: &'a S,
+    options: &'a BakeOptions,
+    /// Every level's size, finest first.
+    pub(crate) sizes: Vec<(u32, u32)>,
+    footprints: Vec<LevelFootprints>,
+    /// J, the components per texel.
+    pub(crate) j: usize,
+    passes: (EmOptions, EmOptions),
+    /// Polled between texels.
+    pub(crate) cancel: &'a CancelFlag,
+    _model: std::marker::PhantomData<M>,
+}
+
+impl<'a, M: Model, S: Source> Levels<'a, M, S> {
+    /// The levels of `src` under `options`, polling `cancel` between texels.
+    pub(crate) fn new(src: &'a S, options: &'a BakeOptions, cancel: &'a CancelFlag) -> Self {
+        let finest = (src.width(), src.height());
+        let sizes = level_sizes(finest.0, finest.1);
+        Levels {
+            src,
+            options,
+            footprints: sizes
+                .iter()
+                .map(|&s| LevelFootprints::new(finest, s))
+                .collect(),
+            sizes,
+            j: options.lobes,
+            passes: M::passes(options),
+            cancel,
+            _model: std::marker::PhantomData,
+        }
+    }
+
+    /// Unaligned fits of rows `y0..y1` of level `k ≥ 1`, each texel initialized from its
+    /// children's components: `prev` holds level k − 1's rows covering them (`None` at k = 1:
+    /// the normals), with colours when `colors`. `progress` gets the share done.
+    pub(crate) fn unaligned_rows(
+        &self,
+        k: usize,
+        (y0, y1): (u32, u32),
+        prev: Option<&Rows>,
+        colors: bool,
+        progress: &mut dyn FnMut(f64) -> Result<()>,
+    ) -> Result<Rows> {
+        let j = self.j;
+        let (w, h) = self.sizes[k];
+        let (pw, ph) = self.sizes[k - 1];
+        let level = &self.footprints[k];
         let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
-        let prev = &fits[k - 1];
-        let cap = options.mode.sample_cap((w * h) as usize);
-        let fit_texel = |g: &mut Gather<M>, t: u32| -> TexelFit<M::C> {
-            let (x, y) = (t % w, t / w);
+        let cap = self.options.mode.sample_cap((w * h) as usize);
+        let em = &self.passes.0;
+        let (src, options, cancel) = (self.src, self.options, self.cancel);
+        let fit_texel = |g: &mut Gather<M>, x: u32, y: u32| -> TexelFit<M::C> {
             g.skip_features = !colors;
-            g.collect(map, &level, x, y, cap);
+            g.collect(src, level, x, y, cap);
             if g.normals.len() <= j {
                 return g.one_per_normal();
             }
             g.candidates.clear();
             for (py, wy) in cy.taps(y as usize) {
                 for (px, wx) in cx.taps(x as usize) {
-                    let p = (py * pw + px) as usize;
-                    if k == 1 {
-                        let c = M::single(map.normals()[p]);
-                        g.candidates.push(M::with_alpha(&c, wx * wy));
-                    } else {
-                        for plane in &prev.texels[..j] {
-                            let c = M::from_texel(plane[p]);
-                            g.candidates.push(M::with_alpha(&c, M::alpha(&c) * wx * wy));
+                    match prev {
+                        None => {
+                            let c = M::single(src.normal((py * pw + px) as usize));
+                            g.candidates.push(M::with_alpha(&c, wx * wy));
+                        }
+                        Some(prev) => {
+                            for c in prev.components::<M>(px, py, j).iter().take(j) {
+                                g.candidates.push(M::with_alpha(c, M::alpha(c) * wx * wy));
+                            }
                         }
                     }
                 }
             }
             let mut init = [M::EMPTY; MAX_LOBES];
             M::init_from_children(&g.candidates, &mut init[..j]);
-            g.fit(&init[..j], (options, &em), None, cancel)
+            g.fit(&init[..j], (options, em), None, cancel)
         };
-        let mut out = LevelFit::with_capacity((w * h) as usize, j, colors);
-        for lo in (0..w * h).step_by(PROGRESS_CHUNK as usize) {
-            let hi = (lo + PROGRESS_CHUNK).min(w * h);
+        let count = (y1 - y0) * w;
+        let mut out = LevelFit::with_capacity(count as usize, j, colors);
+        for lo in (0..count).step_by(PROGRESS_CHUNK as usize) {
+            let hi = (lo + PROGRESS_CHUNK).min(count);
             // Workers poll the cancellation flag between texels.
             let results: Vec<TexelFit<M::C>> = (lo..hi)
                 .into_par_iter()
                 .map_init(Gather::<M>::default, |g, t| {
-                    (!cancel.is_cancelled()).then(|| fit_texel(g, t))
+                    (!cancel.is_cancelled()).then(|| fit_texel(g, t % w, y0 + t / w))
                 })
                 .collect::<Option<_>>()
                 .ok_or(Error::Cancelled)?;
             for r in &results {
                 out.push::<M>(r);
             }
-            let done = (k - 1) as f64 + hi as f64 / (w * h) as f64;
-            progress.report(start + span * done / steps)?;
+            progress(hi as f64 / count as f64)?;
         }
-        fits.push(out);
+        Ok(Rows {
+            y0,
+            w,
+            h: y1 - y0,
+            fit: out,
+        })
     }
-    Ok(fits)
 }
 
 /// Index of the parent (next coarser level) texel containing the centre of `x` on an axis of
 /// `n` texels whose parent axis has `pn` texels.
-pub(crate) fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
+fn parent_of(x: u32, n: u32, pn: u32) -> u32 {
     (((2 * x + 1) as u64 * pn as u64) / (2 * n as u64)) as u32
 }
 
@@ -874,7 +961,7 @@ fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> [Option<usize>; MAX
 }
 
 /// `own` components moved into the slots of `reference` ones ([`slot_order`]).
-pub(crate) fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] {
+fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] {
     let order = slot_order::<M>(own, reference);
     let mut out = [M::EMPTY; MAX_LOBES];
     for (o, i) in out.iter_mut().zip(order).take(own.len()) {
@@ -885,11 +972,7 @@ pub(crate) fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; 
 
 /// `fit` (of `j` components) with its components, colours and texels moved into the slots of
 /// `reference` ([`slot_order`]).
-pub(crate) fn into_slots<M: Model>(
-    fit: &TexelFit<M::C>,
-    j: usize,
-    reference: &[M::C],
-) -> TexelFit<M::C> {
+fn into_slots<M: Model>(fit: &TexelFit<M::C>, j: usize, reference: &[M::C]) -> TexelFit<M::C> {
     let order = slot_order::<M>(&fit.comps[..j], reference);
     let mut out = TexelFit::empty(M::EMPTY);
     for (s, i) in order.iter().enumerate().take(j) {
@@ -901,80 +984,66 @@ pub(crate) fn into_slots<M: Model>(
     out
 }
 
-/// Aligned: coarsest level down. Each texel starts from its own unaligned fit with its
-/// components matched to the parent's slots, then EM runs pulled towards the visited
-/// neighbours and the parent (eq 29 or eq 23 for vMF; Tan's prior for Gaussians). A texel
-/// with no more normals than components takes the closed form in the parent's slots when the
-/// model says the pull vanishes there ([`Model::closed_form_when_aligned`]).
-fn top_down<M: Model>(
-    map: &NormalMap,
-    options: &BakeOptions,
-    sizes: &[(u32, u32)],
-    unaligned: &[LevelFit],
-    progress: &mut Progress,
-    (start, span): Pass,
-) -> Result<Vec<LevelFit>> {
-    let j = options.lobes;
-    let finest = (map.width(), map.height());
-    let levels = sizes.len();
-    let (_, em) = M::passes(options);
-    let mut fits: Vec<Option<LevelFit>> = (0..levels).map(|_| None).collect();
-    let cancel = progress.cancel_flag();
-    for k in (0..levels).rev() {
-        let (w, h) = sizes[k];
-        let parent = fits.get(k + 1).and_then(|p| p.as_ref());
-        let parent_size = sizes.get(k + 1).copied();
+impl<M: Model, S: Source> Levels<'_, M, S> {
+    /// Aligned fits of rows `y0..y1` of level `k ≥ 1` (coarsest level down). Each texel starts
+    /// from its own unaligned fit (`own`, covering the rows) with its components matched to the
+    /// parent's slots (`parent`: level k + 1's rows covering them, none at the coarsest level),
+    /// then EM runs pulled towards the visited neighbours and the parent (eq 29 or eq 23 for
+    /// vMF; Tan's prior for Gaussians), in wavefronts `x + 2y`; `above` is the aligned row
+    /// `y0 − 1` (none at row 0). A texel with no more normals than components takes the closed
+    /// form in the parent's slots when the model says the pull vanishes there
+    /// ([`Model::closed_form_when_aligned`]).
+    pub(crate) fn aligned_rows(
+        &self,
+        k: usize,
+        (y0, y1): (u32, u32),
+        own: &Rows,
+        parent: Option<&Rows>,
+        above: Option<&Rows>,
+        progress: &mut dyn FnMut(f64) -> Result<()>,
+    ) -> Result<Rows> {
+        let j = self.j;
+        let (w, h) = self.sizes[k];
+        let level = &self.footprints[k];
+        let cap = self.options.mode.sample_cap((w * h) as usize);
+        let em = &self.passes.1;
+        let (src, options, cancel) = (self.src, self.options, self.cancel);
+        let parent_size = self.sizes.get(k + 1).copied();
         let parent_of_texel = |x: u32, y: u32| -> Option<[M::C; MAX_LOBES]> {
             let (p, (pw, ph)) = (parent?, parent_size?);
-            let i = (parent_of(y, h, ph) * pw + parent_of(x, w, pw)) as usize;
-            Some(p.components::<M>(i, j))
+            Some(p.components::<M>(parent_of(x, w, pw), parent_of(y, h, ph), j))
         };
-        if k == 0 {
-            // One normal per texel: it goes, unpulled, to the parent's component that explains
-            // it best (the E-step with the parent's components), so level 0 stays exact. A 1×1
-            // map has no parent and nothing to align: slot 0.
-            let slots = match (parent, parent_size) {
-                (Some(p), Some(size)) => finest_slots::<M>(map, p, size, j),
-                _ => vec![0; map.normals().len()],
-            };
-            let fit0 = finest_level::<M>(map, j, |t| slots[t] as usize);
-            fits[0] = Some(fit0);
-            continue;
-        }
-        let level = LevelFootprints::new(finest, (w, h));
-        let texels = (w * h) as usize;
-        let cap = options.mode.sample_cap(texels);
+        let rows = y1 - y0;
+        let texels = (rows * w) as usize;
         let mut out = LevelFit {
-            colors: map.feature().map(|_| planes(j, texels, true)),
+            colors: src.has_feature().then(|| planes(j, texels, true)),
             texels: planes(j, texels, true),
         };
-        // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
-        let wavefronts = w + 2 * (h - 1);
-        // One gathering buffer per worker for the whole level (a wavefront holds few texels:
+        // One gathering buffer per worker for all the rows (a wavefront holds few texels:
         // fresh buffers per wavefront would allocate per texel).
         let gathers = PerThread::<Gather<M>>::new();
+        // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
+        let wavefronts = w + 2 * (rows - 1);
         for d in 0..wavefronts {
-            let done = (levels - 1 - k) as f64 + d as f64 / wavefronts as f64;
-            progress.report(start + span * done / levels as f64)?;
-            // x = d − 2y must lie in [0, w): y > (d − w)/2 and y ≤ d/2.
-            let y_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
-            let y_hi = (d / 2).min(h - 1);
-            if y_lo > y_hi {
+            progress(d as f64 / wavefronts as f64)?;
+            // Local rows r with x = d − 2r in [0, w).
+            let r_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
+            let r_hi = (d / 2).min(rows - 1);
+            if r_lo > r_hi {
                 continue;
             }
             let done = &out;
             // Workers poll the cancellation flag between texels.
-            let results: Vec<(u32, u32, TexelFit<M::C>)> = (y_lo..=y_hi)
+            let results: Vec<(u32, u32, TexelFit<M::C>)> = (r_lo..=r_hi)
                 .into_par_iter()
-                .map(|y| {
+                .map(|r| {
                     gathers.with(|g| {
                         if cancel.is_cancelled() {
                             return None;
                         }
-                        let x = d - 2 * y;
-                        let t = (y * w + x) as usize;
+                        let (x, y) = (d - 2 * r, y0 + r);
                         let parent = parent_of_texel(x, y);
-                        g.collect(map, &level, x, y, cap);
+                        g.collect(src, level, x, y, cap);
                         if g.normals.len() <= j
                             && M::closed_form_when_aligned(options, g.min_alpha())
                         {
@@ -983,7 +1052,7 @@ fn top_down<M: Model>(
                                 Some(p) => into_slots::<M>(&fit, j, &p[..j]),
                                 None => fit,
                             };
-                            return Some((x, y, fit));
+                            return Some((x, r, fit));
                         }
                         // The previously visited neighbours and the parent pull (at most
                         // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
@@ -997,12 +1066,18 @@ fn top_down<M: Model>(
                             (xi + 1, yi - 1),
                         ] {
                             if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
-                                pulls[count] =
-                                    done.components::<M>(b as usize * w as usize + a as usize, j);
+                                let (a, b) = (a as u32, b as u32);
+                                pulls[count] = if b >= y0 {
+                                    done.components::<M>(((b - y0) * w + a) as usize, j)
+                                } else {
+                                    above
+                                        .expect("the row above the rows is kept")
+                                        .components::<M>(a, b, j)
+                                };
                                 count += 1;
                             }
                         }
-                        let own = unaligned[k].components::<M>(t, j);
+                        let own = own.components::<M>(x, y, j);
                         let init = match &parent {
                             Some(p) => {
                                 pulls[count] = *p;
@@ -1017,10 +1092,10 @@ fn top_down<M: Model>(
                         }
                         Some((
                             x,
-                            y,
+                            r,
                             g.fit(
                                 &init[..j],
-                                (options, &em),
+                                (options, em),
                                 Some(&neighbours[..count]),
                                 cancel,
                             ),
@@ -1029,63 +1104,97 @@ fn top_down<M: Model>(
                 })
                 .collect::<Option<_>>()
                 .ok_or(Error::Cancelled)?;
-            for (x, y, fit) in &results {
-                out.set::<M>((y * w + x) as usize, fit);
+            for (x, r, fit) in &results {
+                out.set::<M>((r * w + x) as usize, fit);
             }
         }
-        fits[k] = Some(out);
+        Ok(Rows {
+            y0,
+            w,
+            h: rows,
+            fit: out,
+        })
     }
-    Ok(fits
-        .into_iter()
-        .map(|f| f.expect("every level fitted"))
-        .collect())
-}
 
-/// The slot of every finest texel in the aligned pass: the component of its parent texel
-/// (read back from `parent`'s texels, a level of `(pw, ph)` texels) that scores its normal
-/// best, the first on ties (an empty component never wins unless all are). A parent's
-/// components and their score constants are decoded once per run of rows sharing a parent
-/// row, not once per finest texel; the result does not depend on the thread count.
-fn finest_slots<M: Model>(
-    map: &NormalMap,
-    parent: &LevelFit,
-    (pw, ph): (u32, u32),
-    j: usize,
-) -> Vec<u8> {
-    type Decoded<C> = ([C; MAX_LOBES], [[f64; 2]; MAX_LOBES]);
-    let (w, h) = (map.width(), map.height());
-    let mut slots = vec![0u8; map.normals().len()];
-    slots.par_chunks_mut(w as usize).enumerate().for_each_init(
-        || (u32::MAX, Vec::<Decoded<M::C>>::new()),
-        |(cached_row, decoded), (y, row)| {
-            let py = parent_of(y as u32, h, ph);
-            if *cached_row != py {
-                decoded.clear();
-                decoded.extend((0..pw).map(|px| {
-                    let comps = parent.components::<M>((py * pw + px) as usize, j);
-                    let mut k = [[0.0; 2]; MAX_LOBES];
-                    for (k, c) in k.iter_mut().zip(&comps).take(j) {
-                        *k = M::score_constants(c);
+    /// Level 0's rows `y0..y1`: each normal as one component, with its feature as colour, in
+    /// slot 0 (unaligned, or without a parent: a 1×1 map) or, aligned, unpulled in the slot of
+    /// the `parent` component (level 1's rows covering them) that scores it best (the E-step
+    /// with the parent's components; the first on ties, an empty component never winning unless
+    /// all are), so level 0 stays exact. A parent's components and their score constants are
+    /// decoded once per run of rows sharing a parent row; the result does not depend on the
+    /// thread count.
+    pub(crate) fn finest_rows(&self, (y0, y1): (u32, u32), parent: Option<&Rows>) -> Rows {
+        type Decoded<C> = ([C; MAX_LOBES], [[f64; 2]; MAX_LOBES]);
+        let j = self.j;
+        let (w, h) = self.sizes[0];
+        let texels = ((y1 - y0) * w) as usize;
+        let base = (y0 * w) as usize;
+        let src = self.src;
+        let mut slots = vec![0u8; texels];
+        if let (Some(p), Some(&(pw, ph))) = (parent, self.sizes.get(1)) {
+            slots.par_chunks_mut(w as usize).enumerate().for_each_init(
+                || (u32::MAX, Vec::<Decoded<M::C>>::new()),
+                |(cached_row, decoded), (r, row)| {
+                    let y = y0 + r as u32;
+                    let py = parent_of(y, h, ph);
+                    if *cached_row != py {
+                        decoded.clear();
+                        decoded.extend((0..pw).map(|px| {
+                            let comps = p.components::<M>(px, py, j);
+                            let mut k = [[0.0; 2]; MAX_LOBES];
+                            for (k, c) in k.iter_mut().zip(&comps).take(j) {
+                                *k = M::score_constants(c);
+                            }
+                            (comps, k)
+                        }));
+                        *cached_row = py;
                     }
-                    (comps, k)
-                }));
-                *cached_row = py;
-            }
-            let normals = &map.normals()[y * w as usize..][..w as usize];
-            for (x, (slot, &n)) in row.iter_mut().zip(normals).enumerate() {
-                let (comps, k) = &decoded[parent_of(x as u32, w, pw) as usize];
-                let mut best = (0, f64::NEG_INFINITY);
-                for (s, (c, &k)) in comps.iter().zip(k).enumerate().take(j) {
-                    let score = M::log_score_with(c, k, n);
-                    if score > best.1 {
-                        best = (s, score);
+                    let first = base + r * w as usize;
+                    for (x, slot) in row.iter_mut().enumerate() {
+                        let n = src.normal(first + x);
+                        let (comps, k) = &decoded[parent_of(x as u32, w, pw) as usize];
+                        let mut best = (0, f64::NEG_INFINITY);
+                        for (s, (c, &k)) in comps.iter().zip(k).enumerate().take(j) {
+                            let score = M::log_score_with(c, k, n);
+                            if score > best.1 {
+                                best = (s, score);
+                            }
+                        }
+                        *slot = best.0 as u8;
                     }
-                }
-                *slot = best.0 as u8;
-            }
-        },
-    );
-    slots
+                },
+            );
+        }
+        // Plane s holds the texels whose slot is s; the others are empty (zero).
+        let fill = |value: &(dyn Fn(usize) -> [f32; 4] + Sync)| -> Vec<Vec<[f32; 4]>> {
+            (0..j)
+                .map(|s| {
+                    slots
+                        .par_iter()
+                        .enumerate()
+                        .map(|(t, &slot)| {
+                            if slot as usize == s {
+                                value(t)
+                            } else {
+                                [0.0; 4]
+                            }
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let texels = fill(&|t| M::texel(&M::single(src.normal(base + t))).map(|v| v as f32));
+        // α = 1 in the slot: the colour texel is the feature itself.
+        let colors = src
+            .has_feature()
+            .then(|| fill(&|t| src.feature(base + t).expect("the map has features")));
+        Rows {
+            y0,
+            w,
+            h: y1 - y0,
+            fit: LevelFit { colors, texels },
+        }
+    }
 }
 
 /// Lays the fits out as textures: J component chains, then J colour chains `α·y` (with

@@ -69,15 +69,22 @@ pub fn check(bake: &Bake, texture: usize, format: Format) -> Result<()> {
             t.name, bake.method
         )));
     }
-    if format == Format::F16 {
-        for (k, level) in t.levels.iter().enumerate() {
-            if let Some(v) = level.iter().flatten().find(|v| v.abs() > F16_MAX) {
-                return Err(Error::InvalidOption(format!(
-                    "format f16 cannot hold texture '{}' level {k}: value {v} exceeds {F16_MAX}; use f32",
-                    t.name
-                )));
-            }
-        }
+    for (k, level) in t.levels.iter().enumerate() {
+        check_level(t.name, k, level, format)?;
+    }
+    Ok(())
+}
+
+/// Whether `format` can hold level `level` of the texture named `name` (`texels`): f16 needs
+/// every value within ±65504 (the error names the texture, the level and the value). What
+/// [`check`] applies to every level, and a streamed writer to each band of rows.
+pub fn check_level(name: &str, level: usize, texels: &[[f32; 4]], format: Format) -> Result<()> {
+    if format == Format::F16
+        && let Some(v) = texels.iter().flatten().find(|v| v.abs() > F16_MAX)
+    {
+        return Err(Error::InvalidOption(format!(
+            "format f16 cannot hold texture '{name}' level {level}: value {v} exceeds {F16_MAX}; use f32"
+        )));
     }
     Ok(())
 }
@@ -127,6 +134,17 @@ pub fn round_trip(v: f32, range: ValueRange, format: Format) -> f32 {
     }
 }
 
+/// Rounds `texels` (channels of range `ranges`) through `format` in place, each value on its
+/// own ([`round_trip`]): what [`quantize_into`] does to every level, and a streamed writer to
+/// each band of rows (module `banded`), so both store the same values.
+pub fn round_trip_texels(texels: &mut [[f32; 4]], ranges: [ValueRange; 4], format: Format) {
+    for texel in texels {
+        for (c, v) in texel.iter_mut().enumerate() {
+            *v = round_trip(*v, ranges[c], format);
+        }
+    }
+}
+
 /// The bake as a GPU sampling `format` textures sees it: every value rounded through the
 /// format, and [`Bake::format`] set so shading applies the format's clamps.
 pub fn quantize(bake: &Bake, format: Format) -> Result<Bake> {
@@ -144,13 +162,9 @@ pub fn quantize_into(mut bake: Bake, format: Format) -> Result<Bake> {
         let ranges = t.ranges;
         for level in &mut t.levels {
             // Each value on its own: the same result for any split and thread count.
-            level.par_chunks_mut(4096).for_each(|chunk| {
-                for texel in chunk {
-                    for (c, v) in texel.iter_mut().enumerate() {
-                        *v = round_trip(*v, ranges[c], format);
-                    }
-                }
-            });
+            level
+                .par_chunks_mut(4096)
+                .for_each(|chunk| round_trip_texels(chunk, ranges, format));
         }
     }
     bake.format = format;

@@ -15,7 +15,7 @@ use ndfmap::bake::{Bake, BakeOptions, FitMode, Method};
 use ndfmap::banded::{Bands, CompactSource, Map, bake_in_bands, write_folder};
 use ndfmap::container::{Container, write_bake_hashed};
 use ndfmap::format::Format;
-use ndfmap::ingest::{CompactNormals, IngestOptions, NormalMap, Samples};
+use ndfmap::ingest::{CompactFeature, CompactNormals, IngestOptions, NormalMap, Samples};
 use ndfmap::methods::bake_with;
 use ndfmap::output::InputInfo;
 use std::path::Path;
@@ -94,6 +94,16 @@ fn banded_bakes_are_bit_identical_to_untiled_bakes() {
     let full = decoded(w, h, &rgb).with_feature(albedo.clone()).unwrap();
     let plain = decoded(w, h, &rgb);
     let small = compact(w, h, &rgb);
+    let flat: Vec<f32> = albedo.iter().flatten().copied().collect();
+    let albedo_compact = CompactFeature::from_samples(
+        "albedo",
+        w,
+        h,
+        4,
+        Samples::F32(&flat),
+        &IngestOptions::default(),
+    )
+    .unwrap();
     let cases = [
         (
             "vmf J=6 aligned colour",
@@ -150,7 +160,7 @@ fn banded_bakes_are_bit_identical_to_untiled_bakes() {
             same(&b, &untiled, &format!("{what}, {bands:?}, decoded"));
             let c = CompactSource {
                 normals: &small,
-                feature: color.then_some(&albedo[..]),
+                feature: color.then_some(&albedo_compact),
             };
             let b = bake_in_bands(&Map::Compact(c), method, &o, bands).unwrap();
             same(&b, &untiled, &format!("{what}, {bands:?}, compact"));
@@ -363,7 +373,16 @@ fn the_budget_estimate_lies_above_the_measured_peaks() {
     ];
     for (size, color, compact, mib) in measured {
         let bands = Bands::for_size(size, size);
-        let e = ndfmap::banded::estimate_peak_bytes(size, size, &o, color, compact, bands);
+        let source = if compact {
+            3
+        } else {
+            ndfmap::banded::DECODED_NORMAL_BYTES
+        } + if color {
+            ndfmap::banded::DECODED_FEATURE_BYTES
+        } else {
+            0
+        };
+        let e = ndfmap::banded::estimate_peak_bytes(size, size, &o, color, source, bands);
         assert!(
             e > (mib << 20) * 11 / 10,
             "{size}: {} MiB estimated, {mib} measured",
@@ -372,6 +391,142 @@ fn the_budget_estimate_lies_above_the_measured_peaks() {
     }
     // 16384² compact, no colour: under the 3 GiB.
     let bands = Bands::for_size(16384, 16384);
-    let e = ndfmap::banded::estimate_peak_bytes(16384, 16384, &o, false, true, bands);
+    let e = ndfmap::banded::estimate_peak_bytes(16384, 16384, &o, false, 3, bands);
     assert!(e < 3 << 30, "{} MiB", e >> 20);
+    // 16384² from a 16-bit RGB PNG (6 bytes per texel kept): still under 3 GiB.
+    let e = ndfmap::banded::estimate_peak_bytes(16384, 16384, &o, false, 6, bands);
+    assert!(e < 3 << 30, "{} MiB", e >> 20);
+}
+
+/// `ndfmap bake`'s banded path (`batch::run`) keeps 8- and 16-bit inputs as their decoded
+/// samples (`ingest::load_normals_compact`, `CompactFeature`) instead of a `NormalMap`: its
+/// files and manifest must equal, byte for byte, those of the decoded, untiled path
+/// (`NormalMap::load_memory` + `with_feature_memory` + `bake_with` + `quantize` +
+/// `write_bake_hashed`), for an 8-bit RGB PNG with an sRGB 8-bit albedo, a 16-bit RGBA PNG
+/// with a 16-bit grey + alpha albedo, a JPEG with a linear RGBA8 albedo, and a float OpenEXR
+/// (kept decoded) with an 8-bit albedo.
+#[test]
+fn bakes_from_kept_samples_equal_bakes_from_decoded_files() {
+    use ndfmap::batch::{AlignSetting, RunOptions, Settings};
+    use ndfmap::ingest::{LoadedNormals, load_normals_compact};
+    let (w, h) = (40u32, 24u32);
+    let side = w.max(h);
+    let s = ndfmap::procedural::generate(side, 7);
+    let normal = |x: u32, y: u32| s.map.normals()[(y * side + x) as usize];
+    let albedo = |x: u32, y: u32| s.albedo[(y * side + x) as usize];
+    let dir = tempfile::tempdir().unwrap();
+    let p = |name: &str| dir.path().join(name);
+    let unorm = |v: f32, max: f32| ((v * 0.5 + 0.5) * max).round().clamp(0.0, max);
+    image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb(normal(x, y).to_array().map(|v| unorm(v, 255.0) as u8))
+    })
+    .save(p("n8.png"))
+    .unwrap();
+    image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb([0, 1, 2].map(|c| (albedo(x, y)[c] * 255.0).round() as u8))
+    })
+    .save(p("a8.png"))
+    .unwrap();
+    image::ImageBuffer::<image::Rgba<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+        let n = normal(x, y).to_array().map(|v| unorm(v, 65535.0) as u16);
+        image::Rgba([n[0], n[1], n[2], 65535 - (x * 97) as u16])
+    })
+    .save(p("n16.png"))
+    .unwrap();
+    image::ImageBuffer::<image::LumaA<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+        image::LumaA([(albedo(x, y)[1] * 65535.0) as u16, (y * 2000) as u16])
+    })
+    .save(p("a16.png"))
+    .unwrap();
+    image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb(normal(x, y).to_array().map(|v| unorm(v, 255.0) as u8))
+    })
+    .save(p("n.jpg"))
+    .unwrap();
+    image::RgbaImage::from_fn(w, h, |x, y| {
+        let a = albedo(x, y);
+        image::Rgba([
+            (a[0] * 255.0) as u8,
+            (a[1] * 255.0) as u8,
+            (a[2] * 255.0) as u8,
+            (x * 6) as u8,
+        ])
+    })
+    .save(p("a8a.png"))
+    .unwrap();
+    exr::prelude::write_rgb_file(p("n.exr"), w as usize, h as usize, |x, y| {
+        let n = normal(x as u32, y as u32);
+        (n.x, n.y, n.z)
+    })
+    .unwrap();
+    let cases = [
+        ("n8.png", "a8.png", "srgb", true),
+        ("n16.png", "a16.png", "srgb", true),
+        ("n.jpg", "a8a.png", "linear", true),
+        ("n.exr", "a8.png", "srgb", false),
+    ];
+    for (normals, feature, encoding, compact) in cases {
+        let out = dir.path().join("out");
+        let job = Settings {
+            path: Some(normals.into()),
+            feature: Some(feature.into()),
+            method: Some("vmf".into()),
+            lobes: Some(3),
+            align: Some(AlignSetting::Strength(1.0)),
+            mode: Some("fast".into()),
+            container: Some("ktx2".into()),
+            format: Some("f32".into()),
+            feature_encoding: Some(encoding.into()),
+            ..Settings::default()
+        }
+        .job(dir.path(), Some(&out), None)
+        .unwrap();
+        let name = job.input.display().to_string();
+        let bytes = std::fs::read(&job.input).unwrap();
+        let loaded = load_normals_compact(&name, &bytes, &job.ingest).unwrap();
+        assert_eq!(
+            matches!(loaded, LoadedNormals::Compact(_)),
+            compact,
+            "{normals}"
+        );
+        let outcomes = ndfmap::batch::run(
+            std::slice::from_ref(&job),
+            &RunOptions {
+                force: true,
+                ..RunOptions::default()
+            },
+            &|_| {},
+            &|_, _| {},
+        );
+        assert!(
+            matches!(outcomes[0], ndfmap::batch::Outcome::Baked { .. }),
+            "{normals}: {:?}",
+            outcomes[0]
+        );
+        // The decoded, untiled path.
+        let fname = job.feature.as_ref().unwrap().display().to_string();
+        let map = NormalMap::load_memory(&name, &bytes, &job.ingest)
+            .unwrap()
+            .with_feature_memory(&fname, &std::fs::read(&fname).unwrap(), &job.ingest)
+            .unwrap();
+        let bake = bake_with(&map, job.method, &job.options).unwrap();
+        let q = ndfmap::pack::quantize(&bake, job.format).unwrap();
+        let reference = dir.path().join("reference");
+        write_bake_hashed(
+            &q,
+            InputInfo {
+                path: Some(name),
+                options: job.ingest,
+                stats: map.stats().clone(),
+            },
+            &reference,
+            job.container,
+            None,
+            Some(job.hash().unwrap()),
+        )
+        .unwrap();
+        same_folders(&job.output, &reference, normals);
+        std::fs::remove_dir_all(&out).unwrap();
+        std::fs::remove_dir_all(&reference).unwrap();
+    }
 }

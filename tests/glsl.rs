@@ -102,6 +102,8 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                         Addressing::Wrap
                                     },
                                     lmax: lobes,
+                                    // Biased as block-compressed textures are, with f16.
+                                    biased: format == Format::F16 && lobes == 3,
                                 };
                                 let opts = ShaderOptions {
                                     light: ShaderLight::Point,
@@ -175,6 +177,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                 Addressing::Wrap
                             },
                             lmax: 0,
+                            biased: false,
                         };
                         let opts = ShaderOptions {
                             light,
@@ -218,6 +221,7 @@ fn every_specialization_compiles_as_glsl_330_core() {
             aligned: true,
             addressing: Addressing::Wrap,
             lmax: 0,
+            biased: false,
         };
         let opts = ShaderOptions {
             probe,

@@ -1227,3 +1227,86 @@ fn compact_normals_decode_the_same_bits_as_normal_maps() {
         }
     }
 }
+
+/// `CompactFeature` (the bounded-memory bake's colour image) converts each texel to exactly the
+/// bits `NormalMap::with_feature_samples` stores, with the same repair counts, for 8-, 16-bit
+/// and float samples, 1 to 4 channels, sRGB and linear; a wrong size is the same error.
+#[test]
+fn compact_features_convert_the_same_bits_as_normal_maps() {
+    use ndfmap::ingest::{BadNormals, CompactFeature, FeatureEncoding, Samples};
+    let (w, h) = (19u32, 11u32);
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let normals: Vec<glam::Vec3> = (0..w * h).map(|_| glam::Vec3::Z).collect();
+    for channels in 1u32..=4 {
+        let n = (w * h * channels) as usize;
+        let u8s: Vec<u8> = (0..n).map(|_| next() as u8).collect();
+        let u16s: Vec<u16> = (0..n).map(|_| next() as u16).collect();
+        // Floats with a negative and a NaN value to repair.
+        let mut f32s: Vec<f32> = (0..n).map(|_| (next() % 1000) as f32 / 700.0).collect();
+        f32s[1] = -0.5;
+        f32s[n - 1] = f32::NAN;
+        for encoding in [FeatureEncoding::Srgb, FeatureEncoding::Linear] {
+            for samples in [Samples::U8(&u8s), Samples::U16(&u16s), Samples::F32(&f32s)] {
+                let opts = ndfmap::IngestOptions {
+                    feature_encoding: encoding,
+                    bad_normals: BadNormals::Repair,
+                    ..Default::default()
+                };
+                let map = ndfmap::NormalMap::from_vectors(
+                    w,
+                    h,
+                    normals.clone(),
+                    Default::default(),
+                    BadNormals::Repair,
+                )
+                .unwrap()
+                .with_feature_samples("f", w, h, channels, samples, &opts)
+                .unwrap();
+                let c = CompactFeature::from_samples("f", w, h, channels, samples, &opts).unwrap();
+                for (i, t) in map.feature().unwrap().iter().enumerate() {
+                    assert_eq!(
+                        t.map(f32::to_bits),
+                        c.texel(i).map(f32::to_bits),
+                        "{channels} channels {encoding:?} texel {i}"
+                    );
+                }
+                let compact = ndfmap::ingest::CompactNormals::from_samples(
+                    "n",
+                    w,
+                    h,
+                    3,
+                    Samples::U8(&[128u8, 128, 255].repeat((w * h) as usize)),
+                    &opts,
+                )
+                .unwrap();
+                let stats = compact.stats_with(Some(&c));
+                assert_eq!(stats.feature_nan, map.stats().feature_nan);
+                assert_eq!(stats.feature_negative, map.stats().feature_negative);
+                let expected = matches!(samples, Samples::F32(_)) as u64;
+                assert_eq!(stats.feature_nan.count, expected);
+            }
+        }
+    }
+    let c = CompactFeature::from_samples("f", 2, 2, 3, Samples::U8(&[0; 12]), &Default::default())
+        .unwrap();
+    let full = ndfmap::NormalMap::from_vectors(
+        3,
+        2,
+        vec![glam::Vec3::Z; 6],
+        Default::default(),
+        BadNormals::Repair,
+    )
+    .unwrap()
+    .with_feature_samples("f", 2, 2, 3, Samples::U8(&[0; 12]), &Default::default())
+    .unwrap_err();
+    assert_eq!(
+        c.check_size("f", (3, 2)).unwrap_err().to_string(),
+        full.to_string()
+    );
+}

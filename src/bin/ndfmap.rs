@@ -1652,6 +1652,7 @@ fn run(cli: Cli) -> Result<u8> {
                 addressing: [Addressing::Wrap, Addressing::Clamp]
                     [pick("addressing", &addressing, &["wrap", "clamp"])?],
                 lmax: if method == Method::Sh { lmax } else { 0 },
+                biased: false,
             };
             let brdfs = [
                 ShaderBrdf::BlinnPhong,
@@ -2083,7 +2084,14 @@ fn bench_scale(
         let mut configs = vec![(
             "banded",
             banded,
-            ndfmap::banded::estimate_peak_bytes(size, size, &options, false, true, bands),
+            ndfmap::banded::estimate_peak_bytes(
+                size,
+                size,
+                &options,
+                false,
+                compact.bytes_per_texel(),
+                bands,
+            ),
         )];
         let mut identical = None;
         if let Some(samples) = &samples {

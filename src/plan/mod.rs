@@ -1471,6 +1471,7 @@ impl Plan {
             aligned: p.config.aligned,
             addressing,
             lmax: p.config.lmax,
+            biased: false,
         }
     }
 

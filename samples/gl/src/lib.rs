@@ -112,7 +112,7 @@ pub use present::{Accumulator, Destination, Layer, Presenter, tone_map};
 pub use program::{FULLSCREEN_VERTEX_SHADER, Program};
 pub use render::{BakeRenderer, BrdfBinding, Lighting, Scene, Shape};
 pub use target::{RenderTarget, draw_fullscreen, read_rgba_f32};
-pub use texture::{BakeTextures, TableTexture};
+pub use texture::{BakeTextures, Compression, TableTexture};
 #[cfg(feature = "window")]
 pub use winit;
 

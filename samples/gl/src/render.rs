@@ -111,6 +111,8 @@ impl BakeRenderer {
     /// Like [`BakeRenderer::new`], with textures uploaded already (e.g.
     /// [`BakeTextures::upload_ktx2`] from container files): `bake` describes them (method,
     /// lobes, format: what the shaders are specialized for); its texels are not read.
+    /// Block-compressed textures ([`BakeTextures::compression`]) get shaders that undo the
+    /// bias of signed channels, with the clamps of the textures' shading format.
     pub fn with_textures(
         gl: &Gl,
         bake: &Bake,
@@ -125,6 +127,18 @@ impl BakeRenderer {
         // A PBR bake has no ndfmap shader: an engine's plain GGX shader draws it.
         let (vertex, fragment) = if bake.method == Method::Pbr {
             crate::gltf::sources(bake, options.brdf, false)?
+        } else if textures.compression().is_some() {
+            // Block-compressed textures hold signed channels biased, in the codec's shading
+            // format (BC6H: f16 clamps, BC7/BC5/BC4: unorm8).
+            let spec = ndfmap::glsl::ShaderSpec {
+                format: textures.format(),
+                biased: true,
+                ..ndfmap::glsl::ShaderSpec::of(bake)
+            };
+            (
+                ndfmap::glsl::source_for(&spec, Stage::Vertex, options)?,
+                ndfmap::glsl::source_for(&spec, Stage::Fragment, options)?,
+            )
         } else {
             (
                 source(bake, Stage::Vertex, options)?,

@@ -41,6 +41,69 @@ pub fn gl_format(format: Format) -> (u32, u32) {
     }
 }
 
+/// A block-compressed texture format [`BakeTextures::upload_ktx2`] uploads (4×4 texel blocks,
+/// `GL_ARB_texture_compression_bptc` and `_rgtc`, core in GL 4.2 / 3.0). Signed channels are
+/// stored biased, `0.5 + 0.5·v` (module `ndfmap::compress`), so shaders undo the bias.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Compression {
+    /// BC4 (RGTC1): R, 8 bytes per block; G = B = 0, A = 1 as sampled.
+    Bc4,
+    /// BC5 (RGTC2): R and G, 16 bytes per block; B = 0, A = 1.
+    Bc5,
+    /// BC6H unsigned float (BPTC float): RGB half floats, 16 bytes per block; A = 1.
+    Bc6h,
+    /// BC7 (BPTC unorm): RGBA, 16 bytes per block.
+    Bc7,
+}
+
+impl Compression {
+    /// The GL internal format: `COMPRESSED_RED_RGTC1`, `COMPRESSED_RG_RGTC2`,
+    /// `COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT`, `COMPRESSED_RGBA_BPTC_UNORM`.
+    pub fn gl_internal_format(self) -> u32 {
+        match self {
+            Compression::Bc4 => glow::COMPRESSED_RED_RGTC1,
+            Compression::Bc5 => glow::COMPRESSED_RG_RGTC2,
+            Compression::Bc6h => glow::COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT,
+            Compression::Bc7 => glow::COMPRESSED_RGBA_BPTC_UNORM,
+        }
+    }
+
+    /// Bytes per 4×4 block.
+    pub fn block_bytes(self) -> usize {
+        match self {
+            Compression::Bc4 => 8,
+            _ => 16,
+        }
+    }
+
+    /// The storage format whose clamps the shaders apply to the sampled values
+    /// (`ndfmap::compress::Codec::shading_format`): f16 for BC6H, unorm8 for the others.
+    pub fn shading_format(self) -> Format {
+        match self {
+            Compression::Bc6h => Format::F16,
+            _ => Format::Unorm8,
+        }
+    }
+
+    /// Whether the context samples the format: RGTC is core since GL 3.0; BPTC since 4.2, or
+    /// with `GL_ARB_texture_compression_bptc` (Mesa's llvmpipe has both).
+    pub fn is_supported(self, gl: &Gl) -> bool {
+        let core = match self {
+            Compression::Bc4 | Compression::Bc5 => (3, 0),
+            Compression::Bc6h | Compression::Bc7 => (4, 2),
+        };
+        gl.version() >= core || gl.glow().supported_extensions().contains(self.extension())
+    }
+
+    /// The GL extension the format needs below GL 4.2 (BPTC) or 3.0 (RGTC).
+    pub fn extension(self) -> &'static str {
+        match self {
+            Compression::Bc4 | Compression::Bc5 => "GL_ARB_texture_compression_rgtc",
+            Compression::Bc6h | Compression::Bc7 => "GL_ARB_texture_compression_bptc",
+        }
+    }
+}
+
 /// The name of the sampler uniform for bake texture `index`: `ndf_tex{index}`.
 pub fn sampler_name(index: usize) -> String {
     format!("ndf_tex{index}")
@@ -51,6 +114,7 @@ pub struct BakeTextures {
     gl: Gl,
     textures: Vec<glow::Texture>,
     format: Format,
+    compression: Option<Compression>,
     sizes: Vec<(u32, u32)>,
 }
 
@@ -69,6 +133,7 @@ impl BakeTextures {
             gl: gl.clone(),
             textures: Vec::with_capacity(bake.textures.len()),
             format,
+            compression: None,
             sizes: bake.sizes.clone(),
         };
         let (internal, pixel_type) = gl_format(format);
@@ -119,8 +184,12 @@ impl BakeTextures {
     /// `ndfmap bake --container ktx2` writes them) straight into textures: each file is parsed
     /// by the `ktx2` crate and its levels are handed to `glTexImage2D` as they lie in the file,
     /// with the sampling state of [`BakeTextures::upload`] (`addressing` as the bake's). The
-    /// files must be uncompressed RGBA32F, RGBA16F, RGBA16 or RGBA8, all in one format, with
-    /// full MIP chains of the same size; anything else is an error and nothing is created.
+    /// files must be RGBA32F, RGBA16F, RGBA16 or RGBA8, or block-compressed BC7, BC6H (unsigned
+    /// float), BC5 or BC4 (`ndfmap bake --compress`; [`Compression`], uploaded with
+    /// `glCompressedTexImage2D`, the blocks as they lie in the file; [`BakeTextures::format`]
+    /// is then the codec's shading format and [`BakeTextures::compression`] says which), all in
+    /// one format, with full MIP chains of the same size; anything else (or a compressed format
+    /// the context lacks) is an error and nothing is created.
     pub fn upload_ktx2(gl: &Gl, files: &[&[u8]], addressing: Addressing) -> Result<BakeTextures> {
         let bad = |i: usize, what: String| Error::Usage(format!("KTX2 file {i}: {what}"));
         let mut readers = Vec::with_capacity(files.len());
@@ -132,13 +201,25 @@ impl BakeTextures {
             return Err(Error::Usage("no KTX2 file to upload".into()));
         };
         let h = first.header();
-        let format = match h.format {
-            Some(ktx2::Format::R32G32B32A32_SFLOAT) => Format::F32,
-            Some(ktx2::Format::R16G16B16A16_SFLOAT) => Format::F16,
-            Some(ktx2::Format::R16G16B16A16_UNORM) => Format::Unorm16,
-            Some(ktx2::Format::R8G8B8A8_UNORM) => Format::Unorm8,
+        let (format, compression) = match h.format {
+            Some(ktx2::Format::R32G32B32A32_SFLOAT) => (Format::F32, None),
+            Some(ktx2::Format::R16G16B16A16_SFLOAT) => (Format::F16, None),
+            Some(ktx2::Format::R16G16B16A16_UNORM) => (Format::Unorm16, None),
+            Some(ktx2::Format::R8G8B8A8_UNORM) => (Format::Unorm8, None),
+            Some(ktx2::Format::BC4_UNORM_BLOCK) => (Format::Unorm8, Some(Compression::Bc4)),
+            Some(ktx2::Format::BC5_UNORM_BLOCK) => (Format::Unorm8, Some(Compression::Bc5)),
+            Some(ktx2::Format::BC6H_UFLOAT_BLOCK) => (Format::F16, Some(Compression::Bc6h)),
+            Some(ktx2::Format::BC7_UNORM_BLOCK) => (Format::Unorm8, Some(Compression::Bc7)),
             other => return Err(bad(0, format!("format {other:?} is not uploaded here"))),
         };
+        if let Some(c) = compression
+            && !c.is_supported(gl)
+        {
+            return Err(Error::Usage(format!(
+                "this GL context cannot sample {c:?} textures (no {})",
+                c.extension()
+            )));
+        }
         let mut sizes = Vec::new();
         let (mut w, mut hgt) = (h.pixel_width, h.pixel_height.max(1));
         for _ in 0..h.level_count.max(1) {
@@ -158,7 +239,10 @@ impl BakeTextures {
             }
             for (k, level) in r.levels().enumerate() {
                 let (lw, lh) = sizes[k];
-                let need = lw as usize * lh as usize * 4 * format.channel_bytes();
+                let need = match compression {
+                    Some(c) => lw.div_ceil(4) as usize * lh.div_ceil(4) as usize * c.block_bytes(),
+                    None => lw as usize * lh as usize * 4 * format.channel_bytes(),
+                };
                 if level.data.len() != need {
                     return Err(bad(
                         i,
@@ -171,6 +255,7 @@ impl BakeTextures {
             gl: gl.clone(),
             textures: Vec::with_capacity(readers.len()),
             format,
+            compression,
             sizes: sizes.clone(),
         };
         let (internal, pixel_type) = gl_format(format);
@@ -189,6 +274,24 @@ impl BakeTextures {
                 set_mip_chain_parameters(gl, sizes.len(), wrap);
                 for (k, level) in r.levels().enumerate() {
                     let (lw, lh) = sizes[k];
+                    if let Some(c) = compression {
+                        // SAFETY: `level.data` holds the level's whole 4×4 blocks of `c`,
+                        // row by row of blocks (its length checked above), as
+                        // glCompressedTexImage2D reads them.
+                        unsafe {
+                            g.compressed_tex_image_2d(
+                                glow::TEXTURE_2D,
+                                k as i32,
+                                c.gl_internal_format() as i32,
+                                lw as i32,
+                                lh as i32,
+                                0,
+                                level.data.len() as i32,
+                                level.data,
+                            );
+                        }
+                        continue;
+                    }
                     // SAFETY: `level.data` holds lw·lh RGBA texels of `pixel_type`, tightly
                     // packed (checked above; KTX2 data is little-endian, as this host).
                     unsafe {
@@ -244,9 +347,15 @@ impl BakeTextures {
         self.textures[i]
     }
 
-    /// The storage format the textures were uploaded in.
+    /// The storage format the textures were uploaded in (for block-compressed textures, the
+    /// codec's shading format: [`Compression::shading_format`]).
     pub fn format(&self) -> Format {
         self.format
+    }
+
+    /// The block compression of the textures, if any ([`BakeTextures::upload_ktx2`]).
+    pub fn compression(&self) -> Option<Compression> {
+        self.compression
     }
 
     /// Width and height of every level, finest first (the bake's sizes).
