@@ -833,19 +833,7 @@ fn to_rgba<T: Copy>(
 ) -> Vec<[f32; 4]> {
     data.chunks_exact(channels)
         .take(texels)
-        .map(|px| match *px {
-            [g] => {
-                let g = colour(g);
-                [g, g, g, 1.0]
-            }
-            [g, a] => {
-                let g = colour(g);
-                [g, g, g, alpha(a)]
-            }
-            [r, g, b] => [colour(r), colour(g), colour(b), 1.0],
-            [r, g, b, a, ..] => [colour(r), colour(g), colour(b), alpha(a)],
-            [] => [0.0, 0.0, 0.0, 1.0],
-        })
+        .map(|px| texel_rgba(px, &colour, &alpha))
         .collect()
 }
 
@@ -1965,7 +1953,8 @@ enum FeatureTexels {
     Rgba(Vec<[f32; 4]>),
 }
 
-/// One texel of `channels` samples as RGBA: grey replicated, a missing alpha 1 (`to_rgba`).
+/// One texel of `channels` samples as RGBA: grey replicated, a missing alpha 1 (what
+/// `to_rgba` does per texel).
 #[inline]
 fn texel_rgba<T: Copy>(px: &[T], colour: impl Fn(T) -> f32, alpha: impl Fn(T) -> f32) -> [f32; 4] {
     match *px {
