@@ -367,6 +367,12 @@ impl Sky {
     /// total power `Σ L_sun·coverage·Ω_texel` is exactly `L_sun · 2π(1 − cos r)`, however small
     /// the disc is against a texel.
     pub fn render(&self) -> Result<Environment> {
+        self.render_with(&EnvOptions::default())
+    }
+
+    /// [`Sky::render`] read under `options` (yaw, intensity) as a loaded panorama would be:
+    /// what the CLI and the viewer use for `--env sky`.
+    pub fn render_with(&self, options: &EnvOptions) -> Result<Environment> {
         let w = self.width.max(2) & !1;
         let h = w / 2;
         check_size("generated sky", w, h)?;
@@ -447,7 +453,7 @@ impl Sky {
                 }
             }
         }
-        Environment::from_rgb("generated sky", w, h, texels, &EnvOptions::default())
+        Environment::from_rgb("generated sky", w, h, texels, options)
     }
 }
 

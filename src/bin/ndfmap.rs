@@ -338,14 +338,7 @@ impl EnvArgs {
             ..Default::default()
         };
         let env = if name == "sky" {
-            let sky = ndfmap::environment::Sky::default().render()?;
-            ndfmap::environment::Environment::from_rgb(
-                "generated sky",
-                sky.width(),
-                sky.height(),
-                sky.texels().to_vec(),
-                &options,
-            )?
+            ndfmap::environment::Sky::default().render_with(&options)?
         } else {
             ndfmap::environment::load(Path::new(name), &options)?
         };

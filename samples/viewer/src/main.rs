@@ -163,19 +163,11 @@ fn load_env(cli: &Cli) -> Result<EnvInput, String> {
         ..Default::default()
     };
     let sky = || -> Result<ndfmap::environment::Environment, String> {
-        let sky = ndfmap::environment::Sky {
+        ndfmap::environment::Sky {
             width: 1024,
             ..Default::default()
         }
-        .render()
-        .map_err(|e| e.to_string())?;
-        ndfmap::environment::Environment::from_rgb(
-            "generated sky",
-            sky.width(),
-            sky.height(),
-            sky.texels().to_vec(),
-            &options,
-        )
+        .render_with(&options)
         .map_err(|e| e.to_string())
     };
     match cli.env.as_deref() {
