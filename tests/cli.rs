@@ -425,3 +425,50 @@ fn pbr_report_without_filament_says_so() {
         assert!(text.contains(row), "{row} missing: {text}");
     }
 }
+
+#[test]
+fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
+    let tmp = std::env::temp_dir();
+    let before: Vec<_> = std::fs::read_dir(&tmp)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name())
+        .collect();
+    let run = ndfmap(&[
+        "bench", "--sizes", "32", "--lobes", "2", "--align", "none,1", "--modes", "fast", "--lmax",
+        "2", "--json",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&run.stdout).unwrap();
+    let vmf: Vec<_> = rows.iter().filter(|r| r["method"] == "vmf").collect();
+    // Two alignments, each baked in memory and streamed, in that order.
+    assert_eq!(vmf.len(), 4);
+    for pair in vmf.chunks(2) {
+        assert_eq!(pair[0]["bake"], "memory");
+        assert_eq!(pair[1]["bake"], "streamed");
+        assert_eq!(pair[0]["align"], pair[1]["align"]);
+        assert_eq!(pair[0]["texture_bytes_f32"], pair[1]["texture_bytes_f32"]);
+        for r in pair {
+            assert!(r["seconds"].as_f64().unwrap() > 0.0);
+            assert!(r["peak_bytes"].as_u64().unwrap_or(1) > 0);
+        }
+    }
+    // Toksvig and SH are baked in memory only.
+    assert!(
+        rows.iter()
+            .filter(|r| r["method"] != "vmf")
+            .all(|r| r["bake"] == "memory")
+    );
+    // The streamed bakes' temporary folder is gone.
+    let pid_dirs: Vec<_> = std::fs::read_dir(&tmp)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name())
+        .filter(|n| n.to_string_lossy().starts_with("ndfmap-bench-bake-") && !before.contains(n))
+        .collect();
+    assert!(pid_dirs.is_empty(), "left behind: {pid_dirs:?}");
+}

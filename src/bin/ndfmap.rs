@@ -1829,19 +1829,48 @@ fn reset_peak_memory() {
     let _ = std::fs::write("/proc/self/clear_refs", "5");
 }
 
-/// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo).
+/// A bench's temporary folder, removed however the bench ends.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    /// Creates `ndfmap-bench-<what>-<pid>` in the system's temporary folder.
+    fn new(what: &str) -> Result<Scratch> {
+        let dir = std::env::temp_dir().join(format!("ndfmap-bench-{what}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).map_err(bench_io_error)?;
+        Ok(Scratch(dir))
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A bench's temporary-folder I/O error as one clear line.
+fn bench_io_error(e: std::io::Error) -> Error {
+    Error::InvalidOption(format!("bench temporary folder: {e}"))
+}
+
+/// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo). Every
+/// configuration is timed twice: baked in memory (`methods::bake_with`, the library call, all
+/// levels held as f32 textures) and, for vMF, written the way `ndfmap bake` writes it (module
+/// `banded`: levels streamed to f32 EXR files as they are fitted, the same bytes), whose peak
+/// is what a user of the baker sees.
 fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
+    let tmp = Scratch::new("bake")?;
     let mut rows = Vec::new();
     let threads = rayon::current_num_threads();
     if !json {
         println!("{threads} threads; built-in sample with albedo; full MIP chain");
         println!(
-            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>10} {:>8} {:>12} {:>14} {:>10}",
+            "{:>6} {:>8} {:>6} {:>9} {:>8} {:>9} {:>10} {:>8} {:>12} {:>14} {:>10}",
             "size",
             "method",
             "lobes",
             "aligned",
             "mode",
+            "bake",
             "seconds",
             "CPU s",
             "peak MiB",
@@ -1874,15 +1903,27 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                 .filter(|o| o.lobes > 0)
                 .map(|o| (Method::Vmf, o)),
         );
+        let info = InputInfo {
+            path: None,
+            options: IngestOptions::default(),
+            stats: map.stats().clone(),
+        };
         for (method, options) in jobs {
-            reset_peak_memory();
-            let base = peak_memory();
-            let cpu = cpu_seconds();
-            let t = Instant::now();
-            let b = bake_with(&map, method, &options)?;
-            let seconds = t.elapsed().as_secs_f64();
-            let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
-            let peak = peak_memory();
+            /// One timed run: wall and CPU seconds and this process's peak RSS (after a reset)
+            /// with the peak before it.
+            fn timed<T>(
+                work: impl FnOnce() -> Result<T>,
+            ) -> Result<(T, f64, Option<f64>, Option<u64>, Option<u64>)> {
+                reset_peak_memory();
+                let base = peak_memory();
+                let cpu = cpu_seconds();
+                let t = Instant::now();
+                let out = work()?;
+                let seconds = t.elapsed().as_secs_f64();
+                let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
+                Ok((out, seconds, cpu, peak_memory(), base))
+            }
+            let (b, seconds, cpu, peak, base) = timed(|| bake_with(&map, method, &options))?;
             let texture_bytes: u64 = (0..b.textures.len())
                 .flat_map(|_| 0..b.level_count())
                 .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
@@ -1890,38 +1931,67 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             drop(b);
             // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
             let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
+            let mut runs = vec![("memory", seconds, cpu, peak, base, estimate)];
+            if method == Method::Vmf {
+                let dir = tmp.0.join(format!("{size}-{}", rows.len()));
+                let (_, seconds, cpu, peak, base) = timed(|| {
+                    ndfmap::banded::write_folder(
+                        &ndfmap::banded::Map::Full(&map),
+                        method,
+                        &options,
+                        Format::F32,
+                        ndfmap::container::Container::Exr,
+                        &dir,
+                        info.clone(),
+                        None,
+                        None,
+                        &mut |_| true,
+                    )
+                })?;
+                std::fs::remove_dir_all(&dir).map_err(bench_io_error)?;
+                let bands = ndfmap::banded::Bands::for_size(size, size);
+                // The bench's map is decoded (`ndfmap bake` of an 8-bit file keeps its
+                // samples, a few bytes per texel, so it peaks lower still).
+                let source =
+                    ndfmap::banded::DECODED_NORMAL_BYTES + ndfmap::banded::DECODED_FEATURE_BYTES;
+                let estimate =
+                    ndfmap::banded::estimate_peak_bytes(size, size, &options, true, source, bands);
+                runs.push(("streamed", seconds, cpu, peak, base, estimate));
+            }
             let lobes = match method {
                 Method::Vmf => options.lobes,
                 Method::Sh => options.lmax,
                 _ => 0,
             };
-            let row = serde_json::json!({
-                "size": size, "method": method, "lobes": lobes,
-                "align": options.align, "mode": options.mode, "seconds": seconds,
-                "cpu_seconds": cpu,
-                "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
-                "threads": threads, "texture_bytes_f32": texture_bytes,
-            });
-            if !json {
-                let mib = |b: Option<u64>| {
-                    b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
-                };
-                println!(
-                    "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {seconds:>10.3} {:>8} {:>12} {:>14} {:>10.1}",
-                    method.name(),
-                    options.align.map_or("no".into(), |c| format!("C={c}")),
-                    if method == Method::Vmf {
-                        options.mode.name()
-                    } else {
-                        "-"
-                    },
-                    cpu.map_or("?".into(), |c| format!("{c:.2}")),
-                    mib(peak),
-                    mib(Some(estimate)),
-                    texture_bytes as f64 / 1048576.0
-                );
+            for (bake, seconds, cpu, peak, base, estimate) in runs {
+                let row = serde_json::json!({
+                    "size": size, "method": method, "lobes": lobes,
+                    "align": options.align, "mode": options.mode, "bake": bake,
+                    "seconds": seconds, "cpu_seconds": cpu,
+                    "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
+                    "threads": threads, "texture_bytes_f32": texture_bytes,
+                });
+                if !json {
+                    let mib = |b: Option<u64>| {
+                        b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
+                    };
+                    println!(
+                        "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {bake:>9} {seconds:>10.3} {:>8} {:>12} {:>14} {:>10.1}",
+                        method.name(),
+                        options.align.map_or("no".into(), |c| format!("C={c}")),
+                        if method == Method::Vmf {
+                            options.mode.name()
+                        } else {
+                            "-"
+                        },
+                        cpu.map_or("?".into(), |c| format!("{c:.2}")),
+                        mib(peak),
+                        mib(Some(estimate)),
+                        texture_bytes as f64 / 1048576.0
+                    );
+                }
+                rows.push(row);
             }
-            rows.push(row);
         }
     }
     if json {
@@ -1997,17 +2067,8 @@ fn bench_scale(
         ..BakeOptions::default()
     };
     let threads = rayon::current_num_threads();
-    let io = |e: std::io::Error| Error::InvalidOption(format!("bench temporary folder: {e}"));
-    /// The temporary folder, removed however the bench ends.
-    struct Scratch(PathBuf);
-    impl Drop for Scratch {
-        fn drop(&mut self) {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-    let tmp =
-        Scratch(std::env::temp_dir().join(format!("ndfmap-bench-scale-{}", std::process::id())));
-    std::fs::create_dir_all(&tmp.0).map_err(io)?;
+    let io = bench_io_error;
+    let tmp = Scratch::new("scale")?;
     if !json {
         println!(
             "{threads} threads; vMF J = {lobes} aligned C = 1 {}, f16 KTX2, built-in 1024² sample tiled",
