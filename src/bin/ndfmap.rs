@@ -1852,6 +1852,38 @@ fn bench_io_error(e: std::io::Error) -> Error {
     Error::InvalidOption(format!("bench temporary folder: {e}"))
 }
 
+/// One timed run of a bench.
+struct Timing {
+    /// Wall seconds.
+    seconds: f64,
+    /// CPU seconds of the process (all threads).
+    cpu: Option<f64>,
+    /// Peak RSS during the run (after a reset).
+    peak: Option<u64>,
+    /// Peak RSS just after the reset: what the process held before the run.
+    base: Option<u64>,
+}
+
+/// Runs `work` once, timed (wall and CPU seconds, peak RSS after a reset).
+fn timed<T>(work: impl FnOnce() -> Result<T>) -> Result<(T, Timing)> {
+    reset_peak_memory();
+    let base = peak_memory();
+    let cpu = cpu_seconds();
+    let t = Instant::now();
+    let out = work()?;
+    let seconds = t.elapsed().as_secs_f64();
+    let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
+    Ok((
+        out,
+        Timing {
+            seconds,
+            cpu,
+            peak: peak_memory(),
+            base,
+        },
+    ))
+}
+
 /// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo). Every
 /// configuration is timed twice: baked in memory (`methods::bake_with`, the library call, all
 /// levels held as f32 textures) and, for vMF, written the way `ndfmap bake` writes it (module
@@ -1909,21 +1941,7 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             stats: map.stats().clone(),
         };
         for (method, options) in jobs {
-            /// One timed run: wall and CPU seconds and this process's peak RSS (after a reset)
-            /// with the peak before it.
-            fn timed<T>(
-                work: impl FnOnce() -> Result<T>,
-            ) -> Result<(T, f64, Option<f64>, Option<u64>, Option<u64>)> {
-                reset_peak_memory();
-                let base = peak_memory();
-                let cpu = cpu_seconds();
-                let t = Instant::now();
-                let out = work()?;
-                let seconds = t.elapsed().as_secs_f64();
-                let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
-                Ok((out, seconds, cpu, peak_memory(), base))
-            }
-            let (b, seconds, cpu, peak, base) = timed(|| bake_with(&map, method, &options))?;
+            let (b, memory) = timed(|| bake_with(&map, method, &options))?;
             let texture_bytes: u64 = (0..b.textures.len())
                 .flat_map(|_| 0..b.level_count())
                 .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
@@ -1931,10 +1949,10 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             drop(b);
             // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
             let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
-            let mut runs = vec![("memory", seconds, cpu, peak, base, estimate)];
+            let mut runs = vec![("memory", memory, estimate)];
             if method == Method::Vmf {
                 let dir = tmp.0.join(format!("{size}-{}", rows.len()));
-                let (_, seconds, cpu, peak, base) = timed(|| {
+                let (_, streamed) = timed(|| {
                     ndfmap::banded::write_folder(
                         &ndfmap::banded::Map::Full(&map),
                         method,
@@ -1956,14 +1974,20 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                     ndfmap::banded::DECODED_NORMAL_BYTES + ndfmap::banded::DECODED_FEATURE_BYTES;
                 let estimate =
                     ndfmap::banded::estimate_peak_bytes(size, size, &options, true, source, bands);
-                runs.push(("streamed", seconds, cpu, peak, base, estimate));
+                runs.push(("streamed", streamed, estimate));
             }
             let lobes = match method {
                 Method::Vmf => options.lobes,
                 Method::Sh => options.lmax,
                 _ => 0,
             };
-            for (bake, seconds, cpu, peak, base, estimate) in runs {
+            for (bake, run, estimate) in runs {
+                let Timing {
+                    seconds,
+                    cpu,
+                    peak,
+                    base,
+                } = run;
                 let row = serde_json::json!({
                     "size": size, "method": method, "lobes": lobes,
                     "align": options.align, "mode": options.mode, "bake": bake,
@@ -2106,21 +2130,11 @@ fn bench_scale(
         let bands = Bands::for_size(size, size);
         let banded_dir = tmp.0.join(format!("banded{size}"));
         let untiled_dir = tmp.0.join(format!("untiled{size}"));
-        let measure =
-            |work: &mut dyn FnMut() -> Result<()>| -> Result<(f64, Option<f64>, Option<u64>)> {
-                reset_peak_memory();
-                let cpu = cpu_seconds();
-                let t = Instant::now();
-                work()?;
-                let seconds = t.elapsed().as_secs_f64();
-                let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
-                Ok((seconds, cpu, peak_memory()))
-            };
         let map = Map::Compact(CompactSource {
             normals: &compact,
             feature: None,
         });
-        let banded = measure(&mut || {
+        let (_, banded) = timed(|| {
             ndfmap::banded::write_folder(
                 &map,
                 Method::Vmf,
@@ -2149,7 +2163,7 @@ fn bench_scale(
         )];
         let mut identical = None;
         if let Some(samples) = &samples {
-            let untiled = measure(&mut || {
+            let (_, untiled) = timed(|| {
                 let full = NormalMap::from_samples(
                     "sample",
                     size,
@@ -2176,7 +2190,10 @@ fn bench_scale(
         drop(compact);
         drop(samples);
         let texels = size as f64 * size as f64;
-        for (label, (seconds, cpu, peak), estimate) in configs {
+        for (label, run, estimate) in configs {
+            let Timing {
+                seconds, cpu, peak, ..
+            } = run;
             let per_texel = cpu.map(|c| c * 1e6 / texels);
             if label == "banded" && first_per_texel.is_none() {
                 first_per_texel = per_texel;
