@@ -865,6 +865,17 @@ enum SampleBuf {
     F32(Vec<f32>),
 }
 
+impl From<Samples<'_>> for SampleBuf {
+    /// An owned copy of borrowed samples.
+    fn from(samples: Samples<'_>) -> SampleBuf {
+        match samples {
+            Samples::U8(d) => SampleBuf::U8(d.to_vec()),
+            Samples::U16(d) => SampleBuf::U16(d.to_vec()),
+            Samples::F32(d) => SampleBuf::F32(d.to_vec()),
+        }
+    }
+}
+
 impl SampleBuf {
     fn as_samples(&self) -> Samples<'_> {
         match self {
@@ -1759,18 +1770,14 @@ impl CompactNormals {
         samples: Samples<'_>,
         opts: &IngestOptions,
     ) -> Result<CompactNormals> {
-        let owned = match samples {
-            Samples::U8(d) => SampleBuf::U8(d.to_vec()),
-            Samples::U16(d) => SampleBuf::U16(d.to_vec()),
-            Samples::F32(_) => {
-                return Err(Error::UnsupportedLayout {
-                    what: what.to_string(),
-                    layout: "float samples: compact maps hold 8- or 16-bit samples".into(),
-                });
-            }
-        };
+        if let Samples::F32(_) = samples {
+            return Err(Error::UnsupportedLayout {
+                what: what.to_string(),
+                layout: "float samples: compact maps hold 8- or 16-bit samples".into(),
+            });
+        }
         let bits = samples_bits(samples);
-        Self::from_owned(what, width, height, channels, owned, bits, opts)
+        Self::from_owned(what, width, height, channels, samples.into(), bits, opts)
     }
 
     /// [`CompactNormals::from_samples`] keeping `owned` itself (integer samples; no copy).
@@ -1990,12 +1997,7 @@ impl CompactFeature {
         samples: Samples<'_>,
         opts: &IngestOptions,
     ) -> Result<CompactFeature> {
-        let owned = match samples {
-            Samples::U8(d) => SampleBuf::U8(d.to_vec()),
-            Samples::U16(d) => SampleBuf::U16(d.to_vec()),
-            Samples::F32(d) => SampleBuf::F32(d.to_vec()),
-        };
-        Self::from_owned(what, width, height, channels, owned, opts)
+        Self::from_owned(what, width, height, channels, samples.into(), opts)
     }
 
     /// [`CompactFeature::from_samples`] keeping `owned` itself.
