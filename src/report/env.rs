@@ -155,14 +155,14 @@ fn shade_sampled(
     let manual = manual_sampling(&ShaderSpec::of(bake), &ShaderOptions::default());
     if !manual {
         let t = trilinear(bake, uv, lod_v);
-        return envlight::shade(light, light.sh(), bake, &t, view, brdf, route);
+        return envlight::shade(light, bake, &t, view, brdf, route);
     }
     let mut out = crate::brdf::Shading::default();
     let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
     for (level, lw) in level_weights(lod_v, bake.level_count()) {
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut texel);
-            let s = envlight::shade(light, light.sh(), bake, &texel, view, brdf, route);
+            let s = envlight::shade(light, bake, &texel, view, brdf, route);
             out.diffuse += lw * bw * s.diffuse;
             out.specular += lw * bw * s.specular;
         }

@@ -104,7 +104,7 @@ fn cpu(
 ) -> (f64, f64) {
     if !manual {
         let t = trilinear(bake, uv, lod);
-        let s = shade(light, light.sh(), bake, &t, v, brdf, route);
+        let s = shade(light, bake, &t, v, brdf, route);
         return (s.diffuse, s.specular);
     }
     let mut t = vec![[0.0f32; 4]; bake.textures.len()];
@@ -112,7 +112,7 @@ fn cpu(
     for (level, lw) in level_weights(lod, bake.level_count()) {
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut t);
-            let f = shade(light, light.sh(), bake, &t, v, brdf, route);
+            let f = shade(light, bake, &t, v, brdf, route);
             d += lw * bw * f.diffuse;
             s += lw * bw * f.specular;
         }
