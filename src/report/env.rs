@@ -273,7 +273,8 @@ pub fn markdown(s: &EnvSection) -> String {
         "\n## Environment lighting, image space\n\nEnvironment `{}`, material BRDF {}, \
          luminance. Ground truth per pixel: {}×{} sub-pixel normals, {} MIS iterations \
          (environment + BRDF samples); relative RMS % over the covered pixels, in brackets \
-         with the ground truth's measured noise taken out. Plane views only.\n",
+         with the ground truth's measured noise taken out. The sphere is shaded in each \
+         pixel's tangent frame.\n",
         s.environment, s.brdf, s.options.subpixels, s.options.subpixels, s.options.samples
     );
     let mut maps: Vec<&str> = s.ground_truth.iter().map(|g| g.map.as_str()).collect();
