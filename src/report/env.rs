@@ -144,6 +144,7 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
 
 /// The environment-lit shading of `bake` at `uv` and level of detail `lod_v`, sampled as its
 /// shader does (manual: every texel of the trilinear footprint shaded, then blended).
+#[allow(clippy::too_many_arguments)]
 fn shade_sampled(
     light: &EnvLight,
     bake: &Bake,

@@ -123,6 +123,7 @@ fn cpu(
 
 /// Renders one bake × BRDF × route at every level and a fractional LOD for every view; returns
 /// the largest error and the largest absolute error over the largest value.
+#[allow(clippy::too_many_arguments)]
 fn measure(
     gl: &Gl,
     env: &EnvTextures,
