@@ -14,6 +14,15 @@
 //                    2/alpha'^2 - 2), the environment convolved with a vMF of kappa_i = s'/4 at r
 //                    (LOD = 1/2 log2(kappa_0/kappa_i)) times the lobe energy E(co, s') (table);
 //     SH (eq 26)     max(sum_l rho_l e^{-l^2 var/2} sum_m L'_lm(v) Y_lm(mu), 0) co.
+// SH bakes (NDF_METHOD_SH, lit by NDF_LIGHT_ENV_SH only; c_lm the texel's coefficients, bands
+// Lambda_l = sqrt(4 pi/(2l+1))):
+//   diffuse          max(sum_{l<=min(l*,2)} rhoL_l/Lambda_l sum_m L^t_lm c_lm, 0),
+//   specular         max(sum_{l<=min(l*,8)} rho_l/Lambda_l sum_m L'^t_lm c_lm co, 0) g(r, nbar),
+//                    co = max(v.nbar, 0), nbar = normalize(c_11, c_1-1, c_10), r = 2 co nbar - v,
+// where L^t and L'^t are the environment's L_lm and L'_lm(ndf_env_frame v) rotated into the
+// tangent frame per fragment (ndf_env_rotate: z-y-z Euler angles of the frame, rotations about z
+// in closed form, the rotation by 90 deg about x a generated constant NDF_ENV_X90; CPU twin
+// projection::rotate_zyz). Exact on curved meshes, not only planes.
 // Directions: lobes and the view are in the tangent frame; ndf_env_frame (set by the entry point:
 // the identity in the probe, tangent -> environment frame on meshes) turns them into the
 // environment's frame for the lookups. The g factor uses tangent-frame directions.
@@ -151,6 +160,107 @@ float ndf_env_a_kappa(float kappa) {
     return 1.0 - 1.0 / kappa + 2.0 * e / (1.0 - e);
 }
 
+#ifdef NDF_METHOD_SH
+// Band-limited coefficients rotated about z by a (CPU: projection::rotate_z): each (m, -m) pair
+// turns by m a.
+void ndf_env_rotate_z(inout float c[NDF_ENV_COUNT], int lmax, float a) {
+    for (int l = 1; l <= lmax; ++l) {
+        int centre = l * l + l;
+        for (int m = 1; m <= l; ++m) {
+            float s = sin(float(m) * a);
+            float co = cos(float(m) * a);
+            float p = c[centre + m];
+            float q = c[centre - m];
+            c[centre + m] = p * co - q * s;
+            c[centre - m] = p * s + q * co;
+        }
+    }
+}
+
+// Each band times its block of NDF_ENV_X90, transposed for -90 deg (CPU: projection::rotate_x90).
+void ndf_env_rotate_x90(inout float c[NDF_ENV_COUNT], int lmax, bool transposed) {
+    int offset = 0;
+    float tmp[2 * NDF_ENV_LMAX + 1];
+    for (int l = 0; l <= lmax; ++l) {
+        int w = 2 * l + 1;
+        int b = l * l;
+        for (int i = 0; i < w; ++i) {
+            float acc = 0.0;
+            for (int j = 0; j < w; ++j) {
+                int k = transposed ? j * w + i : i * w + j;
+                acc += NDF_ENV_X90[offset + k] * c[b + j];
+            }
+            tmp[i] = acc;
+        }
+        for (int i = 0; i < w; ++i) c[b + i] = tmp[i];
+        offset += w * w;
+    }
+}
+
+// c turned by the rotation r, f'(d) = f(r^T d), l <= lmax (CPU: projection::rotate_zyz and
+// zyz_angles): r = Rz(alpha) Ry(beta) Rz(gamma), Ry(beta) = Rx(-90) Rz(beta) Rx(90).
+void ndf_env_rotate(inout float c[NDF_ENV_COUNT], int lmax, mat3 r) {
+    // r[j][i] is row i, column j.
+    float s = length(vec2(r[2][0], r[2][1]));
+    float alpha;
+    float beta;
+    float gamma;
+    if (s < 1e-6) {
+        alpha = 0.0;
+        beta = r[2][2] > 0.0 ? 0.0 : NDF_PI;
+        gamma = atan(r[0][1], r[2][2] > 0.0 ? r[0][0] : -r[0][0]);
+    } else {
+        alpha = atan(r[2][1], r[2][0]);
+        beta = atan(s, r[2][2]);
+        gamma = atan(r[1][2], -r[0][2]);
+    }
+    ndf_env_rotate_z(c, lmax, gamma);
+    ndf_env_rotate_x90(c, lmax, false);
+    ndf_env_rotate_z(c, lmax, beta);
+    ndf_env_rotate_x90(c, lmax, true);
+    ndf_env_rotate_z(c, lmax, alpha);
+}
+
+// An SH bake's texel lit by the environment (module header; CPU: envlight::shade_in).
+void ndf_env_sh_texel(vec4 t[NDF_TEXTURES], vec3 v,
+#ifndef NDF_BRDF_LAMBERT
+                      float lp[NDF_ENV_COUNT],
+#endif
+                      out float diffuse, out float specular) {
+    const int LD = NDF_SH_LMAX < 2 ? NDF_SH_LMAX : 2;
+    const int LS = NDF_SH_LMAX < NDF_ENV_LMAX ? NDF_SH_LMAX : NDF_ENV_LMAX;
+    const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
+    mat3 to_tangent = transpose(ndf_env_frame);
+    float c[NDF_ENV_COUNT];
+    for (int k = 0; k < NDF_ENV_COUNT; ++k) c[k] = k < (LD + 1) * (LD + 1) ? ndf_env_sh[k] : 0.0;
+    ndf_env_rotate(c, LD, to_tangent);
+    float d = 0.0;
+    for (int l = 0; l <= LD; ++l) {
+        float w = lambert[l] / sqrt(4.0 * NDF_PI / float(2 * l + 1));
+        for (int k = l * l; k < (l + 1) * (l + 1); ++k) d += w * c[k] * t[k >> 2][k & 3];
+    }
+    diffuse = max(d, 0.0);
+    specular = 0.0;
+#ifndef NDF_BRDF_LAMBERT
+    for (int k = 0; k < NDF_ENV_COUNT; ++k) c[k] = lp[k];
+    ndf_env_rotate(c, LS, to_tangent);
+    float sum = 0.0;
+    for (int l = 0; l <= LS; ++l) {
+        float w = ndf_sh_rho[l] / sqrt(4.0 * NDF_PI / float(2 * l + 1));
+        for (int k = l * l; k < (l + 1) * (l + 1); ++k) sum += w * c[k] * t[k >> 2][k & 3];
+    }
+#if NDF_SH_LMAX >= 1
+    vec3 nbar = ndf_normalize_or_z(vec3(t[0].w, t[0].y, t[0].z));
+#else
+    vec3 nbar = vec3(0.0, 0.0, 1.0);
+#endif
+    float co = max(dot(v, nbar), 0.0);
+    vec3 r = 2.0 * co * nbar - v;
+    specular = max(sum * co, 0.0) * ndf_g(r, nbar);
+#endif
+}
+#endif
+
 // One lobe's contribution (CPU: envlight::shade's loop body); v in the tangent frame.
 void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
@@ -233,6 +343,8 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
     float var = 0.5 * (vx + vy);
     float r = var > 0.0 ? ndf_env_a_kappa(1.0 / var) : 1.0;
     ndf_env_lobe(1.0, mu, r, var, v, NDF_ENV_LP d, s);
+#elif defined(NDF_METHOD_SH)
+    ndf_env_sh_texel(t, v, NDF_ENV_LP d, s);
 #elif defined(NDF_METHOD_VMF)
     for (int j = 0; j < NDF_LOBES; ++j) {
         float alpha;

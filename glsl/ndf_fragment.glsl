@@ -142,7 +142,8 @@ uniform vec2 ndf_probe_dy;
 uniform float ndf_probe_lod;   // level of detail
 #endif
 #ifdef NDF_LIGHT_ENV
-uniform vec3 ndf_probe_v;      // view direction, tangent = environment frame, unit
+uniform vec3 ndf_probe_v;      // view direction, tangent frame, unit
+uniform mat3 ndf_probe_frame;  // tangent -> environment frame; unset (zero): the identity
 #else
 uniform vec3 ndf_probe_l;      // light direction, tangent space, unit
 uniform vec3 ndf_probe_h;      // half vector, tangent space, unit
@@ -154,6 +155,7 @@ void main() {
     vec3 s;
     vec2 uv = gl_FragCoord.xy / ndf_probe_size;
 #if defined(NDF_LIGHT_ENV)
+    if (determinant(ndf_probe_frame) > 0.5) ndf_env_frame = ndf_probe_frame;
 #ifdef NDF_ANISO
     ndf_shade_footprint(uv, ndf_probe_dx, ndf_probe_dy, ndf_probe_v, ndf_probe_v, d, s);
 #else

@@ -615,7 +615,8 @@ typedef struct ndf_shader_options {
   ndf_sh_diffuse sh_diffuse;
   /**
    * The lighting, `NDF_LIGHT_*`: a point light or an environment by one of its routes
-   * (plain, Toksvig, LEAN and vMF bakes; Lambert, Blinn-Phong or GGX; no colour). Default
+   * (plain, Toksvig, LEAN, vMF and SH bakes, SH by `NDF_LIGHT_ENV_SH` only; Lambert,
+   * Blinn-Phong or GGX; no colour). Default
    * `NDF_LIGHT_POINT`.
    */
   ndf_light light;
@@ -1210,7 +1211,9 @@ typedef struct ndf_environment_info {
 
 /**
  * An environment, the specular term by eq 26 with the `L′` table (`NDF_LIGHT_ENV_SH`; data
- * from `ndf_env_reflected`, uniforms from `ndf_env_uniforms`).
+ * from `ndf_env_reflected`, uniforms from `ndf_env_uniforms`). The only environment lighting
+ * of SH bakes (`NDF_METHOD_SH`): the environment's `L_lm` and `L′_lm` are rotated per fragment
+ * into the tangent frame; they also read the BRDF's `ndf_sh_rho` as under a point light.
  */
 #define NDF_LIGHT_ENV_SH 2
 

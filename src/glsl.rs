@@ -335,12 +335,19 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     if options.light.is_env() {
         if !matches!(
             spec.method,
-            Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf
+            Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf | Method::Sh
         ) {
             return Err(Error::InvalidOption(format!(
-                "environment-lit shaders exist for plain, toksvig, lean and vmf bakes, not {}",
+                "environment-lit shaders exist for plain, toksvig, lean, vmf and sh bakes, not {}",
                 spec.method
             )));
+        }
+        if spec.method == Method::Sh && options.light != ShaderLight::EnvSh {
+            return Err(Error::InvalidOption(
+                "an sh bake is lit by the environment's SH (light env-sh), not by prefiltered \
+                 lookups"
+                    .into(),
+            ));
         }
         if !matches!(
             options.brdf,
@@ -448,7 +455,7 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         _ => out += BASELINES,
     }
     if options.light.is_env() {
-        out += &env_block();
+        out += &env_block(spec);
     }
     out += FRAGMENT;
     Ok(out)
@@ -464,9 +471,23 @@ pub fn sh_basis(name: &str, lmax: &str) -> String {
 }
 
 /// What an environment [`ShaderLight`] appends after the method file: `ndf_env_basis`
-/// ([`sh_basis`] at l ≤ 8) and [`ENV`].
-fn env_block() -> String {
-    sh_basis("ndf_env_basis", "8") + ENV
+/// ([`sh_basis`] at l ≤ 8), for SH bakes the constant `NDF_ENV_X90` (the band blocks of the
+/// rotation by 90° about x up to `min(l*, 8)`, [`crate::environment::projection::x90_blocks`],
+/// for the per-fragment rotation into the tangent frame), and [`ENV`].
+fn env_block(spec: &ShaderSpec) -> String {
+    let mut out = sh_basis("ndf_env_basis", "8");
+    if spec.method == Method::Sh {
+        let blocks =
+            crate::environment::projection::x90_blocks(spec.lmax.min(crate::envlight::ENV_LMAX));
+        let values: Vec<String> = blocks.iter().map(|&v| float_literal(v as f32)).collect();
+        let _ = writeln!(
+            out,
+            "const float NDF_ENV_X90[{}] = float[]({});",
+            values.len(),
+            values.join(", ")
+        );
+    }
+    out + ENV
 }
 
 /// The generated block: one sampler per texture read, and the fetch function (`textureLod` for
@@ -664,7 +685,7 @@ mod tests {
             assert!(src.contains("void ndf_env_texel("));
             // The point-light shader is the same text up to the defines and the env file.
             let stripped = src
-                .replace(&env_block(), "")
+                .replace(&env_block(&ShaderSpec::of(&b)), "")
                 .lines()
                 .filter(|l| !l.starts_with("#define NDF_LIGHT_ENV"))
                 .collect::<Vec<_>>()
@@ -676,14 +697,22 @@ mod tests {
                     .unwrap()
                     .contains("#define NDF_R_MAX")
             );
-            for refused in [
-                bake(&map(), Method::Olano),
-                bake_with(&map(), Method::Sh, &BakeOptions::default()).unwrap(),
-            ] {
-                assert!(matches!(
-                    source(&refused, Stage::Fragment, &o),
+            assert!(matches!(
+                source(&bake(&map(), Method::Olano), Stage::Fragment, &o),
+                Err(Error::InvalidOption(_))
+            ));
+            // SH bakes: the SH route only, with the rotation's constant table.
+            let sh = bake_with(&map(), Method::Sh, &BakeOptions::default()).unwrap();
+            match light {
+                ShaderLight::EnvSh => {
+                    let src = source(&sh, Stage::Fragment, &o).unwrap();
+                    assert!(src.contains("const float NDF_ENV_X90["));
+                    assert!(src.contains("ndf_env_sh_texel(t, v,"));
+                }
+                _ => assert!(matches!(
+                    source(&sh, Stage::Fragment, &o),
                     Err(Error::InvalidOption(_))
-                ));
+                )),
             }
             for brdf in [ShaderBrdf::TorranceSparrow, ShaderBrdf::Tabulated] {
                 let o = ShaderOptions { brdf, ..o };

@@ -196,6 +196,39 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
             }
         }
     }
+    // SH bakes under the SH route (per-fragment rotation into the tangent frame): l* = 0, 1, 2,
+    // 4, 8, 10, hardware and anisotropic sampling, mesh and probe.
+    for lmax in [0usize, 1, 2, 4, 8, 10] {
+        for brdf in [
+            ShaderBrdf::BlinnPhong,
+            ShaderBrdf::Lambert,
+            ShaderBrdf::Ggx { g: true },
+        ] {
+            for sampling in [Sampling::Hardware, Sampling::Anisotropic(4)] {
+                for probe in [false, true] {
+                    let spec = ShaderSpec {
+                        method: Method::Sh,
+                        lobes: 0,
+                        ranges: texture_ranges(Method::Sh, lmax, false),
+                        format: Format::F32,
+                        aligned: false,
+                        addressing: Addressing::Wrap,
+                        lmax,
+                        biased: false,
+                    };
+                    let opts = ShaderOptions {
+                        light: ShaderLight::EnvSh,
+                        brdf,
+                        sampling,
+                        probe,
+                        ..Default::default()
+                    };
+                    let name = format!("env-sh{lmax}-{brdf:?}-{sampling:?}-p{}", probe as u8);
+                    out.push((name, spec, opts));
+                }
+            }
+        }
+    }
     out
 }
 

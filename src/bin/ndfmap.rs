@@ -2407,8 +2407,8 @@ struct ReportArgs {
     /// full configuration: about a minute).
     #[arg(long)]
     no_planner: bool,
-    /// Also light the plane views by this environment (Radiance .hdr or OpenEXR, 2:1, linear;
-    /// `sky`: the generated sky with its sun) and measure plain, Toksvig, LEAN, SH l* 2/4/8
+    /// Also light the plane and sphere views by this environment (Radiance .hdr or OpenEXR, 2:1,
+    /// linear; `sky`: the generated sky with its sun) and measure plain, Toksvig, LEAN, SH l* 2/4/8
     /// and vMF (--lobes' largest, both routes) against a per-pixel Monte Carlo ground truth
     /// (docs/environment.md); the material's BRDF must be lambert, blinn-phong or ggx.
     #[arg(long)]

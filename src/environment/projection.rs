@@ -112,6 +112,102 @@ pub fn rotate(coeffs: &[f64], lmax: usize, r: DMat3) -> Vec<f64> {
     out
 }
 
+/// The band blocks of the rotation by +90° about x, `D(R_x(90°))` in [`rotate`]'s convention,
+/// for l ≤ `lmax`: band l's `(2l+1)²` entries row-major (row = output m, column = input m),
+/// bands one after another (`Σ (2l+1)²` numbers). What [`rotate_zyz`] and the shaders'
+/// per-fragment rotation (`glsl/ndf_env.glsl`, a generated constant) multiply by.
+pub fn x90_blocks(lmax: usize) -> Vec<f64> {
+    let lmax = lmax.min(MAX_LMAX);
+    let r = DMat3::from_rotation_x(0.5 * PI);
+    let mut out = Vec::new();
+    for l in 0..=lmax {
+        let w = 2 * l + 1;
+        let mut block = vec![0.0f64; w * w];
+        for j in 0..w {
+            // Column j: the rotated unit coefficient vector of (l, m = j − l).
+            let mut e = vec![0.0f64; count(lmax)];
+            e[l * l + j] = 1.0;
+            let col = rotate(&e, lmax, r);
+            for i in 0..w {
+                let v = col[l * l + i];
+                block[i * w + j] = if v.abs() < 1e-12 { 0.0 } else { v };
+            }
+        }
+        out.extend(block);
+    }
+    out
+}
+
+/// The z-y-z Euler angles `(α, β, γ)` of a rotation, `r = R_z(α) R_y(β) R_z(γ)`; in the two
+/// degenerate cases (`sin β` below 10⁻⁶) α = 0 and γ carries the rotation about z.
+pub fn zyz_angles(r: DMat3) -> (f64, f64, f64) {
+    let f = |i: usize, j: usize| r.col(j)[i];
+    let s = f(0, 2).hypot(f(1, 2));
+    if s < 1e-6 {
+        if f(2, 2) > 0.0 {
+            (0.0, 0.0, f(1, 0).atan2(f(0, 0)))
+        } else {
+            (0.0, PI, f(1, 0).atan2(-f(0, 0)))
+        }
+    } else {
+        (
+            f(1, 2).atan2(f(0, 2)),
+            s.atan2(f(2, 2)),
+            f(2, 1).atan2(-f(2, 0)),
+        )
+    }
+}
+
+/// Rotation of band-limited coefficients about z by `a` in [`rotate`]'s convention
+/// (`f′(d) = f(R_z(a)ᵀ d)`): each (m, −m) pair turns by m·a.
+fn rotate_z(c: &mut [f64], lmax: usize, a: f64) {
+    for l in 1..=lmax {
+        let centre = l * l + l;
+        for m in 1..=l {
+            let (s, co) = (m as f64 * a).sin_cos();
+            let (p, q) = (c[centre + m], c[centre - m]);
+            c[centre + m] = p * co - q * s;
+            c[centre - m] = p * s + q * co;
+        }
+    }
+}
+
+/// Multiplies each band by its block of `x90` ([`x90_blocks`]), transposed if `transpose`
+/// (the rotation by −90°).
+fn rotate_x90(c: &mut [f64], lmax: usize, x90: &[f64], transpose: bool) {
+    let mut offset = 0;
+    let mut tmp = [0.0f64; 2 * MAX_LMAX + 1];
+    for l in 0..=lmax {
+        let w = 2 * l + 1;
+        let band = &mut c[l * l..l * l + w];
+        for (i, t) in tmp.iter_mut().enumerate().take(w) {
+            *t = (0..w)
+                .map(|j| {
+                    let k = if transpose { j * w + i } else { i * w + j };
+                    x90[offset + k] * band[j]
+                })
+                .sum();
+        }
+        band.copy_from_slice(&tmp[..w]);
+        offset += w * w;
+    }
+}
+
+/// [`rotate`] by the z-y-z factorization `D(r) = D(R_z α) D(R_x −90°) D(R_z β) D(R_x 90°) D(R_z γ)`
+/// (`R_y(β) = R_x(−90°) R_z(β) R_x(90°)`): about `2 Σ (2l+1)²` multiplications instead of a
+/// quadrature, what the environment shaders do per fragment (`ndf_env_rotate` in
+/// `glsl/ndf_env.glsl`) and the CPU twin per pixel. `x90` is [`x90_blocks`] of at least `lmax`.
+pub fn rotate_zyz(coeffs: &[f64], lmax: usize, r: DMat3, x90: &[f64]) -> Vec<f64> {
+    let (a, b, g) = zyz_angles(r);
+    let mut c = coeffs[..count(lmax)].to_vec();
+    rotate_z(&mut c, lmax, g);
+    rotate_x90(&mut c, lmax, x90, false);
+    rotate_z(&mut c, lmax, b);
+    rotate_x90(&mut c, lmax, x90, true);
+    rotate_z(&mut c, lmax, a);
+    c
+}
+
 /// `L′_lm(ω_o)` (eq 26) on the grid of views (module docs), for the shader's texture and the
 /// CPU twin's interpolation.
 #[derive(Debug, Clone)]
@@ -251,6 +347,28 @@ mod tests {
             let a = eval(&cr, lmax, r * d);
             let b = eval(&c, lmax, d);
             assert!((a - b).abs() < 1e-10, "{a} {b}");
+        }
+    }
+
+    #[test]
+    fn zyz_rotation_equals_the_quadrature_rotation() {
+        let mut rng = Rng(23);
+        let lmax = 8;
+        let x90 = x90_blocks(lmax);
+        let c: Vec<f64> = (0..count(lmax)).map(|_| rng.normal()).collect();
+        let mut rotations: Vec<DMat3> = (0..6)
+            .map(|i| DMat3::from_axis_angle(rng.direction(), 0.4 + i as f64))
+            .collect();
+        // The degenerate Euler cases: about z only, and turned upside down.
+        rotations.push(DMat3::from_rotation_z(0.8));
+        rotations.push(DMat3::from_rotation_x(PI) * DMat3::from_rotation_z(-1.3));
+        rotations.push(DMat3::IDENTITY);
+        for r in rotations {
+            let exact = rotate(&c, lmax, r);
+            let fast = rotate_zyz(&c, lmax, r, &x90);
+            for (a, b) in exact.iter().zip(&fast) {
+                assert!((a - b).abs() < 1e-9, "{a} {b}");
+            }
         }
     }
 

@@ -67,7 +67,9 @@ pub const NDF_LIGHT_POINT: ndf_light = 0;
 /// data from `ndf_env_prefiltered` and `ndf_env_energy`, uniforms from `ndf_env_uniforms`).
 pub const NDF_LIGHT_ENV_PREFILTERED: ndf_light = 1;
 /// An environment, the specular term by eq 26 with the `L′` table (`NDF_LIGHT_ENV_SH`; data
-/// from `ndf_env_reflected`, uniforms from `ndf_env_uniforms`).
+/// from `ndf_env_reflected`, uniforms from `ndf_env_uniforms`). The only environment lighting
+/// of SH bakes (`NDF_METHOD_SH`): the environment's `L_lm` and `L′_lm` are rotated per fragment
+/// into the tangent frame; they also read the BRDF's `ndf_sh_rho` as under a point light.
 pub const NDF_LIGHT_ENV_SH: ndf_light = 2;
 
 /// Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
@@ -100,7 +102,8 @@ pub struct ndf_shader_options {
     /// SH bakes: the diffuse term, `NDF_SH_DIFFUSE_*`. Default `NDF_SH_DIFFUSE_MOMENTS`.
     pub sh_diffuse: ndf_sh_diffuse,
     /// The lighting, `NDF_LIGHT_*`: a point light or an environment by one of its routes
-    /// (plain, Toksvig, LEAN and vMF bakes; Lambert, Blinn-Phong or GGX; no colour). Default
+    /// (plain, Toksvig, LEAN, vMF and SH bakes, SH by `NDF_LIGHT_ENV_SH` only; Lambert,
+    /// Blinn-Phong or GGX; no colour). Default
     /// `NDF_LIGHT_POINT`.
     pub light: ndf_light,
 }

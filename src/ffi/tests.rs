@@ -1907,12 +1907,35 @@ fn environments_load_and_pack_for_upload() {
         };
         let mut size = 0;
         check!(ndf_bake_shader_source_size(vmf, 1, &so, &mut size) => InvalidArgument, "light");
+        // SH bakes: the SH route (the Rust source, with the per-fragment rotation's table);
+        // the prefiltered route is refused with a message naming the one to use.
         let sh = c_bake(map, NDF_METHOD_SH);
         let so = ndf_shader_options {
             light: NDF_LIGHT_ENV_SH,
             ..ndf_shader_options_default()
         };
-        check!(ndf_bake_shader_source_size(sh, 1, &so, &mut size) => InvalidArgument, "environment-lit");
+        let want = crate::glsl::source_for(
+            &crate::glsl::ShaderSpec::of(&(*sh).bake),
+            crate::glsl::Stage::Fragment,
+            &crate::glsl::ShaderOptions {
+                light: crate::glsl::ShaderLight::EnvSh,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        check!(ndf_bake_shader_source_size(sh, 1, &so, &mut size) => Ok, "");
+        let mut buf = vec![0 as c_char; size];
+        check!(ndf_bake_shader_source(sh, 1, &so, buf.as_mut_ptr(), size, &mut size) => Ok, "");
+        let got = CStr::from_ptr(buf.as_ptr()).to_str().unwrap();
+        assert_eq!(got, want);
+        assert!(
+            got.contains("const float NDF_ENV_X90[") && got.contains("#define NDF_LIGHT_ENV_SH 1")
+        );
+        let so = ndf_shader_options {
+            light: NDF_LIGHT_ENV_PREFILTERED,
+            ..ndf_shader_options_default()
+        };
+        check!(ndf_bake_shader_source_size(sh, 1, &so, &mut size) => InvalidArgument, "light env-sh");
         ndf_bake_free(sh);
         ndf_bake_free(vmf);
         ndf_normal_map_free(map);

@@ -7,10 +7,11 @@
 //! jittered sub-pixel rays hit, MIS of the environment and the BRDF), whose noise is measured
 //! from its samples and stated with the errors.
 //!
-//! Frames: the plane's tangent frame is the world frame (+Z up), which is the environment's
-//! frame, so the routes' lookups need no rotation. The sphere view is left out: the CPU twin
-//! shades in the environment's frame only (the shaders' per-fragment `ndf_env_frame` has no
-//! CPU counterpart yet).
+//! Frames: every pixel is shaded in the tangent frame its centre ray hits
+//! ([`crate::render::Hit::frame`], the same construction as the shaders' per-fragment frame),
+//! turned into the environment's frame (the render world: +Z up) by [`envlight::shade_in`] —
+//! the identity on the planes, every orientation on the sphere (SH bakes: the environment's
+//! `L_lm` and `L′_lm` rotated into that frame per pixel, as the shaders do per fragment).
 
 use crate::bake::{Bake, BakeOptions, Method};
 use crate::brdf::Brdf;
@@ -19,9 +20,9 @@ use crate::error::Result;
 use crate::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
 use crate::ingest::NormalMap;
 use crate::methods::bake_with;
-use crate::render::{Scene, Surface, nearest_normal, pixel_geometry};
+use crate::render::{Scene, nearest_normal, pixel_geometry};
 use crate::sample::{bilinear, level_weights, lod, trilinear};
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -143,11 +144,13 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
 
 /// The environment-lit shading of `bake` at `uv` and level of detail `lod_v`, sampled as its
 /// shader does (manual: every texel of the trilinear footprint shaded, then blended).
+#[allow(clippy::too_many_arguments)]
 fn shade_sampled(
     light: &EnvLight,
     bake: &Bake,
     uv: glam::DVec2,
     lod_v: f64,
+    frame: DMat3,
     view: DVec3,
     brdf: &Brdf,
     route: Route,
@@ -155,14 +158,14 @@ fn shade_sampled(
     let manual = manual_sampling(&ShaderSpec::of(bake), &ShaderOptions::default());
     if !manual {
         let t = trilinear(bake, uv, lod_v);
-        return envlight::shade(light, light.sh(), bake, &t, view, brdf, route);
+        return envlight::shade_in(light, frame, bake, &t, view, brdf, route);
     }
     let mut out = crate::brdf::Shading::default();
     let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
     for (level, lw) in level_weights(lod_v, bake.level_count()) {
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut texel);
-            let s = envlight::shade(light, light.sh(), bake, &texel, view, brdf, route);
+            let s = envlight::shade_in(light, frame, bake, &texel, view, brdf, route);
             out.diffuse += lw * bw * s.diffuse;
             out.specular += lw * bw * s.specular;
         }
@@ -170,7 +173,7 @@ fn shade_sampled(
     out
 }
 
-/// Measures `map` (named `name`) in the plane views among `scenes`, lit by `light` with the
+/// Measures `map` (named `name`) in `scenes` (planes and the sphere), lit by `light` with the
 /// scenes' material (its BRDF must be one the environment routes implement), and appends the
 /// ground truths, rows and skipped views to `section`. Deterministic for the options' seed,
 /// whatever the thread count.
@@ -185,13 +188,6 @@ pub fn measure(
     let configs = configs(map, &options)?;
     let size = (map.width(), map.height());
     for scene in scenes {
-        if !matches!(scene.surface, Surface::Plane { .. }) {
-            section.skipped.push(format!(
-                "{name} {}: not a plane (the CPU twin shades in the environment's frame only)",
-                scene.name
-            ));
-            continue;
-        }
         let material = &scene.material;
         envlight::check_brdf(&material.brdf)?;
         let brdfs = [material.brdf.clone()];
@@ -226,6 +222,10 @@ pub fn measure(
                     + (material.ks * e.specular_se[0]).powi(2))
                 .sqrt();
                 let lod_v = lod(g.duv_dx, g.duv_dy, size);
+                // The pixel's tangent frame (tangent → world = environment frame), the view in it.
+                let (ft, fb, fn_) = g.hit.frame();
+                let frame = DMat3::from_cols(ft, fb, fn_);
+                let view_t = frame.transpose() * view;
                 let values = configs
                     .iter()
                     .map(|c| {
@@ -234,7 +234,8 @@ pub fn measure(
                             &c.bake,
                             g.hit.uv,
                             lod_v,
-                            view,
+                            frame,
+                            view_t,
                             &material.brdf,
                             c.route,
                         );
@@ -273,7 +274,8 @@ pub fn markdown(s: &EnvSection) -> String {
         "\n## Environment lighting, image space\n\nEnvironment `{}`, material BRDF {}, \
          luminance. Ground truth per pixel: {}×{} sub-pixel normals, {} MIS iterations \
          (environment + BRDF samples); relative RMS % over the covered pixels, in brackets \
-         with the ground truth's measured noise taken out. Plane views only.\n",
+         with the ground truth's measured noise taken out. The sphere is shaded in each \
+         pixel's tangent frame.\n",
         s.environment, s.brdf, s.options.subpixels, s.options.subpixels, s.options.samples
     );
     let mut maps: Vec<&str> = s.ground_truth.iter().map(|g| g.map.as_str()).collect();
@@ -342,8 +344,8 @@ mod tests {
 
     /// A flat map under a constant environment: every route is exact up to its energy table's
     /// interpolation (1 %, `envlight`'s closed-form test), so each baseline's and the
-    /// prefiltered vMF's image error must sit within the ground truth's measured noise of it;
-    /// the sphere is skipped, and the run is deterministic.
+    /// prefiltered vMF's image error must sit within the ground truth's measured noise of it
+    /// (planes and sphere), and the run is deterministic.
     #[test]
     fn flat_map_under_a_constant_environment_is_within_the_noise() {
         let map = crate::NormalMap::from_vectors(
@@ -371,8 +373,8 @@ mod tests {
         };
         let mut a = section(options.clone());
         measure("flat", &map, &scenes, &light, &mut a).unwrap();
-        assert_eq!(a.skipped.len(), 1, "{:?}", a.skipped);
-        assert_eq!(a.ground_truth.len(), 2); // zoom1, grazing
+        assert!(a.skipped.is_empty(), "{:?}", a.skipped);
+        assert_eq!(a.ground_truth.len(), 3); // zoom1, grazing, sphere
         for g in &a.ground_truth {
             assert!(g.pixels > 20, "{g:?}");
             assert!(g.noise > 0.0 && g.noise < 0.03, "{g:?}");
@@ -396,5 +398,60 @@ mod tests {
         assert_eq!(a, b);
         let md = markdown(&a);
         assert!(md.contains("| vmf2 sh |") && md.contains("| *GT noise* |"));
+    }
+
+    /// A flat map on the sphere under a directional environment `1 + z + x/2` (bands 0 and
+    /// 1: Lambert's eq 25 is exact for it), diffuse only: every configuration in every pixel's own tangent
+    /// frame within the ground truth's noise (shaded in the environment's frame instead, the
+    /// sphere's sides would be off by tens of %).
+    #[test]
+    fn the_sphere_is_shaded_in_each_pixels_tangent_frame() {
+        let map = crate::NormalMap::from_vectors(
+            16,
+            16,
+            vec![glam::Vec3::Z; 256],
+            Default::default(),
+            Default::default(),
+        )
+        .unwrap();
+        let g = Radiance::geometry(64, 32);
+        let values: Vec<f32> = (0..32u32)
+            .flat_map(|y| (0..64u32).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let d = g.direction(x, y);
+                (1.0 + d.z + 0.5 * d.x) as f32
+            })
+            .collect();
+        let light = EnvLight::new(Radiance::new(64, 32, values).unwrap());
+        let report = ReportOptions {
+            image_size: 12,
+            zoom_lods: vec![],
+            kd: 1.0,
+            ks: 0.0,
+            ..ReportOptions::default()
+        };
+        let scenes: Vec<Scene> = views(&report, 16)
+            .into_iter()
+            .filter(|s| s.name == "sphere")
+            .collect();
+        let mut a = section(EnvImageOptions {
+            subpixels: 2,
+            samples: 512,
+            seed: 3,
+            lobes: vec![2],
+            sh_lmax: vec![2],
+        });
+        measure("proc", &map, &scenes, &light, &mut a).unwrap();
+        let g = &a.ground_truth[0];
+        assert!(g.pixels > 40 && g.noise < 0.03, "{g:?}");
+        for r in &a.rows {
+            assert!(
+                r.error < 3.0 * g.noise + 0.01,
+                "{}: {} against noise {}",
+                r.config,
+                r.error,
+                g.noise
+            );
+        }
     }
 }

@@ -840,10 +840,10 @@ pub fn environment() -> EnvStability {
                 for &view in &views {
                     for (b, brdf) in brdfs.iter().enumerate() {
                         for route in [Route::Prefiltered, Route::Sh] {
-                            let f = shade(&black, black.sh(), bake, &t, view, brdf, route);
+                            let f = shade(&black, bake, &t, view, brdf, route);
                             out.black_max =
                                 out.black_max.max(f.diffuse.abs()).max(f.specular.abs());
-                            let f = shade(&sun, sun.sh(), bake, &t, view, brdf, route);
+                            let f = shade(&sun, bake, &t, view, brdf, route);
                             if !(f.diffuse.is_finite()
                                 && f.specular.is_finite()
                                 && f.diffuse >= 0.0

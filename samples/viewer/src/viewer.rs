@@ -175,11 +175,11 @@ pub struct Settings {
 }
 
 /// Whether the environment shaders implement `spec` (`glsl/ndf_env.glsl`: plain, Toksvig,
-/// LEAN, vMF).
+/// LEAN, vMF, and SH by the SH route only).
 pub fn env_capable(spec: MethodSpec) -> bool {
     matches!(
         spec.method,
-        Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf
+        Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf | Method::Sh
     )
 }
 
@@ -581,7 +581,11 @@ impl Viewer {
             brdf: ShaderBrdf::of(&self.settings.brdf()),
             format: self.settings.format,
             finest,
-            light: self.settings.shader_light(),
+            // SH bakes have the SH route only (the `H` key leaves them on it).
+            light: match self.settings.shader_light() {
+                l if l.is_env() && bake.spec.method == Method::Sh => ShaderLight::EnvSh,
+                l => l,
+            },
         }
     }
 
@@ -880,7 +884,7 @@ mod tests {
 
     #[test]
     fn environment_mode_steps_through_the_methods_it_draws() {
-        let methods: Vec<MethodSpec> = ["olano", "plain", "tan2005-4", "vmf6a"]
+        let methods: Vec<MethodSpec> = ["olano", "plain", "tan2005-4", "vmf6a", "sh4"]
             .iter()
             .map(|m| m.parse().unwrap())
             .collect();
@@ -891,9 +895,11 @@ mod tests {
         s.step_method(1);
         assert_eq!(s.method().to_string(), "vmf6a");
         s.step_method(1);
+        assert_eq!(s.method().to_string(), "sh4");
+        s.step_method(1);
         assert_eq!(s.method().to_string(), "plain");
         s.step_method(-1);
-        assert_eq!(s.method().to_string(), "vmf6a");
+        assert_eq!(s.method().to_string(), "sh4");
         s.set_env(false).unwrap();
         s.step_method(1);
         assert_eq!(s.method().to_string(), "olano");
