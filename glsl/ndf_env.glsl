@@ -12,8 +12,7 @@
 //   specular         per lobe facing the view (co = v.mu > 0), r = 2 co mu - v, times g(r, mu):
 //     prefiltered    the BRDF widened by the lobe (s' = s/(1 + s var); GGX alpha', exponent
 //                    2/alpha'^2 - 2); its lobe over incident directions replaced by the vMF of the
-//                    same first moment (table, envlight::lobe_moments: r turned towards mu by the
-//                    fraction tilt of its angle, kappa_i = 2^(log2 kappa_i)); the environment
+//                    same first moment (table, envlight::lobe_moments: normalize(b mu + (1 - b) r), kappa_i = 2^(log2 kappa_i)); the environment
 //                    convolved with that vMF (LOD = 1/2 log2(kappa_0/kappa_i)) times the lobe
 //                    energy E(co, s') (table);
 //     SH (eq 26)     max(sum_l rho_l e^{-l^2 var/2} sum_m L'_lm(v) Y_lm(mu), 0) co.
@@ -33,7 +32,7 @@ mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry
 
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
 uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
-uniform sampler2D ndf_env_energy;   // lobe table: 3 blocks (energy, tilt, log2 kappa_i) of
+uniform sampler2D ndf_env_energy;   // lobe table: 3 blocks (energy, blend, log2 kappa_i) of
                                     // ENERGY_PARAM rows x ENERGY_COS columns
 uniform float ndf_env_kappa0;
 uniform float ndf_env_level_count;
@@ -193,16 +192,10 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
     float pi_row = (log2(max(kh, 1e-30)) + 4.0) / 24.0 * float(NDF_ENV_ENERGY_PARAM - 1);
 #endif
     float e = ndf_env_energy_at(0, pi_row, co);
-    float tilt = ndf_env_energy_at(1, pi_row, co);
+    float blend = ndf_env_energy_at(1, pi_row, co);
     float log_kappa = ndf_env_energy_at(2, pi_row, co);
-    // The lobe's mean direction: r turned towards mu (CPU: envlight::tilted).
-    vec3 u = r_dir - co * mu;
-    float ulen = length(u);
-    vec3 d = mu;
-    if (ulen > 1e-9) {
-        float ang = tilt * acos(clamp(co, -1.0, 1.0));
-        d = mu * cos(ang) + u * (sin(ang) / ulen);
-    }
+    // The lobe's mean direction: a blend of mu and r (CPU: envlight::tilted).
+    vec3 d = ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
     spec = ndf_env_lookup(ndf_env_frame * d, exp2(log_kappa)) * e;
 #else
     float sum = 0.0;

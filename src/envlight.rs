@@ -20,9 +20,8 @@
 //! - **Specular, prefiltered route**: per lobe the BRDF widened by the lobe (eq 20 `s'`, GGX
 //!   `α'`), its lobe over incident directions `w(ω_i) = f'(ω_h·μ) max(ω_i·μ, 0)` replaced by
 //!   the vMF matching its first moment (mean direction and mean resultant length, tabulated per
-//!   `(ω_o·μ, s')` by [`lobe_moments`]: the mean direction is the reflected direction
-//!   `r = 2(ω_o·μ)μ − ω_o` turned towards μ by a tabulated fraction of its angle, κ_i from the
-//!   length; the `4(ω_o·ω_h)` Jacobian, the cosine and the horizon are in both — the earlier
+//!   `(ω_o·μ, s')` by [`lobe_moments`]: the mean direction is a tabulated blend of μ and the
+//!   reflected direction `r = 2(ω_o·μ)μ − ω_o`, κ_i from the mean's length; the `4(ω_o·ω_h)` Jacobian, the cosine and the horizon are in both — the earlier
 //!   `κ_i = s'/4` about `r` was off by up to 14 % at 80° views under an overcast sky), one
 //!   lookup of the prefiltered environment at `LOD = ½ log2(Ω_s/Ω_p)`, times the lobe's energy
 //!   `E(ω_o·μ, s') = ∫ w dω_i` from the same table (the "split sum": exact for a constant
@@ -103,7 +102,7 @@ impl EnvLight {
 
     /// The prefiltered route's lobe table of `brdf`'s family (Blinn-Phong or GGX):
     /// [`ENERGY_BLOCKS`] × [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values, row-major — the
-    /// energy `E(c_o, p)`, then the tilt, then `log2 κ_i` ([`lobe_moments`]) — what the shaders
+    /// energy `E(c_o, p)`, then the blend, then `log2 κ_i` ([`lobe_moments`]) — what the shaders
     /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones).
     pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
         match brdf {
@@ -335,11 +334,11 @@ pub const ENERGY_COS: usize = 33;
 /// Rows of a lobe-energy table: the lobe parameter (Blinn-Phong `log2 s' ∈ [−4, 20]`, GGX
 /// `log10 α' ∈ [−3, 0]`) in equal steps.
 pub const ENERGY_PARAM: usize = 49;
-/// Blocks of a lobe table, [`ENERGY_PARAM`] rows each: the energy, the tilt, `log2 κ_i`
+/// Blocks of a lobe table, [`ENERGY_PARAM`] rows each: the energy, the blend, `log2 κ_i`
 /// ([`lobe_moments`]).
 pub const ENERGY_BLOCKS: usize = 3;
 
-/// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the tilt, `log2 κ_i`)
+/// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
 /// for a view at `cos θ_o = c_o`: Blinn-Phong over
 /// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.
 /// Each family's table is computed on first use (a Lambert-only or GGX-only user never
@@ -447,9 +446,9 @@ const MOMENT_MIN_ANGLE: f64 = 1e-3;
 /// ([`crate::harmonics::polar_quadrature`]) × 128 azimuths) of the weight
 /// `w(ω_i) = f(ω_h·z) max(ω_i·z, 0)`:
 /// 0. the energy `E = ∫ w dω_i`;
-/// 1. the tilt `t = θ_m/θ_o` of the weight's mean direction `m = ∫ ω_i w / E` from the normal,
-///    as a fraction of the reflected direction's angle θ_o (the cosine and the horizon pull the
-///    lobe towards the normal, by up to a third of θ_o at grazing views);
+/// 1. the weight's mean direction `m = ∫ ω_i w / E` as a blend of the normal and the reflected
+///    direction r: `m̂ = normalize(b z + (1 − b) r)` (the cosine and the horizon pull the lobe
+///    towards the normal, by up to a third of r's angle at grazing views);
 /// 2. `log2 κ_i`, the κ of the vMF whose mean resultant length is `|m|`
 ///    ([`crate::vmf::kappa_from_r_exact`]: the vMF matching the lobe's first moment, which
 ///    includes the `4(ω_o·ω_h)` Jacobian and the horizon; `s'/4` is its limit for a sharp lobe
@@ -489,23 +488,22 @@ fn lobe_moments(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> [f64; ENERGY_BLO
     }
     let mean = m / sum;
     let theta_o = co.clamp(-1.0, 1.0).acos();
-    // The view is at +x, the reflected direction at −x.
-    let tilt = ((-mean.x).atan2(mean.z) / theta_o).clamp(0.0, 1.0);
+    // The view is at +x, the reflected direction at −x; the mean lies between the normal and
+    // it, at θ_m from the normal: the direction `∝ sin(θ_o − θ_m) z + sin(θ_m) r`, stored as
+    // the blend weight of the normal (a normalize in the shader, no inverse trigonometry).
+    let theta_m = (-mean.x).atan2(mean.z).clamp(0.0, theta_o);
+    let (a, b) = ((theta_o - theta_m).sin(), theta_m.sin());
+    let blend = if a + b > 0.0 { a / (a + b) } else { 0.0 };
     let kappa = crate::vmf::kappa_from_r_exact(mean.length().min(1.0));
-    [sum, tilt, kappa.max(1e-6).log2().min(60.0)]
+    [sum, blend, kappa.max(1e-6).log2().min(60.0)]
 }
 
-/// The lookup direction of a lobe about `mu` seen from a view at `co = ω_o·μ`, reflected
-/// direction `r`: `r` turned towards `μ` to the fraction `tilt` of its angle (the mean
-/// direction of [`lobe_moments`]).
-fn tilted(mu: DVec3, r: DVec3, co: f64, tilt: f64) -> DVec3 {
-    let u = r - co * mu;
-    let len = u.length();
-    if !(len > 1e-9) {
-        return mu;
-    }
-    let a = tilt * co.clamp(-1.0, 1.0).acos();
-    mu * a.cos() + u * (a.sin() / len)
+/// The lookup direction of a lobe about `mu` with reflected direction `r`: `normalize(blend·μ +
+/// (1 − blend)·r)`, the mean direction of [`lobe_moments`] (`blend` its block 1).
+fn tilted(mu: DVec3, r: DVec3, blend: f64) -> DVec3 {
+    (mu * blend + r * (1.0 - blend))
+        .try_normalize()
+        .unwrap_or(DVec3::Z)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -663,7 +661,7 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
 }
 
 /// The effective half-vector lobe of `brdf` widened by per-axis variance `var` at `co`: the
-/// [`lobe_moments`] of its Blinn-Phong s' or GGX α' (energy, tilt, log2 κ_i).
+/// [`lobe_moments`] of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_i).
 fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
         Brdf::BlinnPhong { s } => light.energy.blinn_phong(s / (1.0 + s * var), co),
@@ -744,8 +742,8 @@ pub fn shade(
         let g = brdf.g(r, lobe.mu);
         let spec = match route {
             Route::Prefiltered => {
-                let [e, tilt, log_kappa] = widened(light, brdf, lobe.var(), co);
-                let d = tilted(lobe.mu, r, co, tilt);
+                let [e, blend, log_kappa] = widened(light, brdf, lobe.var(), co);
+                let d = tilted(lobe.mu, r, blend);
                 light.prefiltered.lookup(d, log_kappa.exp2()) * e
             }
             Route::Sh => {
