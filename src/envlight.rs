@@ -483,7 +483,7 @@ fn lobe_moments(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> [f64; ENERGY_BLO
         sum += k * ring;
         m += k * ring_m;
     }
-    if !(sum > 0.0) {
+    if sum.is_nan() || sum <= 0.0 {
         return [0.0, 1.0, 60.0];
     }
     let mean = m / sum;

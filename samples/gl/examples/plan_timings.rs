@@ -6,7 +6,9 @@
 //! views of `Scene::standard` (512²). A scene lit only by an environment is drawn by the
 //! environment route the plan compiles (`NDF_LIGHT_ENV_PREFILTERED`) under its environment;
 //! the full configuration then shades without colour (the environment shaders shade one
-//! channel), everything else by the scene's point light. The material is the scene's sharpest
+//! channel). A scene with both lights draws the parts whose shader is lit by both
+//! (`NDF_LIGHT_BOTH`) under the scene's point light and its environment, and the full
+//! configuration the same way without colour; everything else by the scene's point light. The material is the scene's sharpest
 //! BRDF.
 //!
 //! Each part's frame is that of a view where every pixel falls in the part's level range: the
