@@ -11,8 +11,10 @@
 //                    A_2 = max(1 - 3|r| var, 0), clamped at 0 per lobe;
 //   specular         per lobe facing the view (co = v.mu > 0), r = 2 co mu - v, times g(r, mu):
 //     prefiltered    the BRDF widened by the lobe (s' = s/(1 + s var); GGX alpha', exponent
-//                    2/alpha'^2 - 2), the environment convolved with a vMF of kappa_i = s'/4 at r
-//                    (LOD = 1/2 log2(kappa_0/kappa_i)) times the lobe energy E(co, s') (table);
+//                    2/alpha'^2 - 2); its lobe over incident directions replaced by the vMF of the
+//                    same first moment (table, envlight::lobe_moments: normalize(b mu + (1 - b) r), kappa_i = 2^(log2 kappa_i)); the environment
+//                    convolved with that vMF (LOD = 1/2 log2(kappa_0/kappa_i)) times the lobe
+//                    energy E(co, s') (table);
 //     SH (eq 26)     max(sum_l rho_l e^{-l^2 var/2} sum_m L'_lm(v) Y_lm(mu), 0) co.
 // SH bakes (NDF_METHOD_SH, lit by NDF_LIGHT_ENV_SH only; c_lm the texel's coefficients, bands
 // Lambda_l = sqrt(4 pi/(2l+1))):
@@ -39,7 +41,8 @@ mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry
 
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
 uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
-uniform sampler2D ndf_env_energy;   // lobe energy, ENERGY_PARAM rows x ENERGY_COS columns
+uniform sampler2D ndf_env_energy;   // lobe table: 3 blocks (energy, blend, log2 kappa_i) of
+                                    // ENERGY_PARAM rows x ENERGY_COS columns
 uniform float ndf_env_kappa0;
 uniform float ndf_env_level_count;
 uniform float ndf_env_level[3 * NDF_ENV_MAX_LEVELS];  // width, height, first row
@@ -90,8 +93,9 @@ float ndf_env_lookup(vec3 d, float kappa) {
     return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
 }
 
-// Bilinear lookup of the energy table at fractional row pi and c_o (CPU: EnergyTables::lookup).
-float ndf_env_energy_at(float pi, float co) {
+// Bilinear lookup of block `block` of the lobe table at fractional row pi and c_o (CPU:
+// EnergyTables::lookup).
+float ndf_env_energy_at(int block, float pi, float co) {
     pi = clamp(pi, 0.0, float(NDF_ENV_ENERGY_PARAM - 1));
     float ci = clamp(co, 0.0, 1.0) * float(NDF_ENV_ENERGY_COS - 1);
     int p0 = int(floor(pi));
@@ -100,6 +104,8 @@ float ndf_env_energy_at(float pi, float co) {
     int c1 = min(c0 + 1, NDF_ENV_ENERGY_COS - 1);
     float fp = pi - float(p0);
     float fc = ci - float(c0);
+    p0 += block * NDF_ENV_ENERGY_PARAM;
+    p1 += block * NDF_ENV_ENERGY_PARAM;
     float a = texelFetch(ndf_env_energy, ivec2(c0, p0), 0).r;
     float b = texelFetch(ndf_env_energy, ivec2(c1, p0), 0).r;
     float c = texelFetch(ndf_env_energy, ivec2(c0, p1), 0).r;
@@ -289,15 +295,18 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #ifdef NDF_LIGHT_ENV_PREFILTERED
 #if defined(NDF_BRDF_GGX)
     float aw = min(sqrt(ndf_alpha * ndf_alpha + ndf_ggx_c * max(vv, 0.0)), 1.0);
-    float kh = max(2.0 / (aw * aw) - 2.0, 1e-3);
-    float e = ndf_env_energy_at((log2(max(aw, 1e-30)) / log2(10.0) + 3.0) / 3.0 *
-                                float(NDF_ENV_ENERGY_PARAM - 1), co);
+    float pi_row = (log2(max(aw, 1e-30)) / log2(10.0) + 3.0) / 3.0 *
+                   float(NDF_ENV_ENERGY_PARAM - 1);
 #else
     float kh = ndf_s / (1.0 + ndf_s * vv);
-    float e = ndf_env_energy_at((log2(max(kh, 1e-30)) + 4.0) / 24.0 *
-                                float(NDF_ENV_ENERGY_PARAM - 1), co);
+    float pi_row = (log2(max(kh, 1e-30)) + 4.0) / 24.0 * float(NDF_ENV_ENERGY_PARAM - 1);
 #endif
-    spec = ndf_env_lookup(ndf_env_frame * r_dir, 0.25 * kh) * e;
+    float e = ndf_env_energy_at(0, pi_row, co);
+    float blend = ndf_env_energy_at(1, pi_row, co);
+    float log_kappa = ndf_env_energy_at(2, pi_row, co);
+    // The lobe's mean direction: a blend of mu and r (CPU: envlight::tilted).
+    vec3 d = ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
+    spec = ndf_env_lookup(ndf_env_frame * d, exp2(log_kappa)) * e;
 #else
     float sum = 0.0;
     for (int l = 0; l <= NDF_ENV_LMAX; ++l) {

@@ -27,12 +27,28 @@ int ndf_max_level() {
     return int(floor(log2(float(max(size.x, size.y)))));
 }
 
+#ifdef NDF_LIGHT_BOTH
+// Set by the entry point: the view (tangent frame), the point light's scale (colour x falloff)
+// and the environment's (its radiance scale).
+vec3 ndf_view = vec3(0.0, 0.0, 1.0);
+vec3 ndf_point_scale = vec3(1.0);
+vec3 ndf_env_scale = vec3(1.0);
+#endif
+
 // The shading of one texel: the method's (ndf_shade_texel) under the point light l with half
 // vector h, or with NDF_LIGHT_ENV the environment's (ndf_env.glsl; l then carries the view, h is
-// unused, and the g factor is applied per lobe).
+// unused, and the g factor is applied per lobe), or with NDF_LIGHT_BOTH both, scaled and summed
+// (the point light's g factor applied here: it does not depend on the texel).
 void ndf_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
 #ifdef NDF_LIGHT_ENV
     ndf_env_texel(t, l, diffuse, specular);
+#elif defined(NDF_LIGHT_BOTH)
+    vec3 de;
+    vec3 se;
+    ndf_shade_texel(t, l, h, diffuse, specular);
+    ndf_env_texel(t, ndf_view, de, se);
+    diffuse = ndf_point_scale * diffuse + ndf_env_scale * de;
+    specular = ndf_point_scale * specular * ndf_g(l, h) + ndf_env_scale * se;
 #else
     ndf_shade_texel(t, l, h, diffuse, specular);
 #endif
@@ -128,7 +144,7 @@ void ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, out vec3 dif
 #else
     ndf_shade(uv, ndf_lod(dx, dy, vec2(textureSize(ndf_tex0, 0))), l, h, diffuse, specular);
 #endif
-#ifndef NDF_LIGHT_ENV
+#if !defined(NDF_LIGHT_ENV) && !defined(NDF_LIGHT_BOTH)
     specular *= ndf_g(l, h);
 #endif
 }
@@ -147,6 +163,9 @@ uniform mat3 ndf_probe_frame;  // tangent -> environment frame; unset (zero): th
 #else
 uniform vec3 ndf_probe_l;      // light direction, tangent space, unit
 uniform vec3 ndf_probe_h;      // half vector, tangent space, unit
+#ifdef NDF_LIGHT_BOTH
+uniform vec3 ndf_probe_v;      // view direction of the environment term, unit
+#endif
 #endif
 uniform int ndf_probe_channel; // colour channel written (0, 1, 2)
 
@@ -161,11 +180,18 @@ void main() {
 #else
     ndf_shade(uv, ndf_probe_lod, ndf_probe_v, ndf_probe_v, d, s);
 #endif
-#elif defined(NDF_ANISO)
+#else
+#ifdef NDF_LIGHT_BOTH
+    ndf_view = ndf_probe_v;
+#endif
+#ifdef NDF_ANISO
     ndf_shade_footprint(uv, ndf_probe_dx, ndf_probe_dy, ndf_probe_l, ndf_probe_h, d, s);
 #else
     ndf_shade(uv, ndf_probe_lod, ndf_probe_l, ndf_probe_h, d, s);
+#ifndef NDF_LIGHT_BOTH
     s *= ndf_g(ndf_probe_l, ndf_probe_h);
+#endif
+#endif
 #endif
     int c = ndf_probe_channel;
     ndf_out = vec4(c == 0 ? d.x : (c == 1 ? d.y : d.z), c == 0 ? s.x : (c == 1 ? s.y : s.z),
@@ -182,8 +208,11 @@ uniform vec4 ndf_light;        // w = 0: direction towards the light; w = 1: poi
 uniform vec3 ndf_light_color;  // radiance scale (point lights fall off with 1/d^2)
 uniform vec3 ndf_kd;           // K_d
 uniform vec3 ndf_ks;           // K_s
-#ifdef NDF_LIGHT_ENV
+#if defined(NDF_LIGHT_ENV) || defined(NDF_LIGHT_BOTH)
 uniform mat3 ndf_env_rotation; // world -> environment frame (a rotation)
+#endif
+#ifdef NDF_LIGHT_BOTH
+uniform vec3 ndf_env_color;    // the environment's radiance scale (with the point light)
 #endif
 
 void main() {
@@ -209,8 +238,17 @@ void main() {
     vec3 h = ndf_normalize_or_z(l + v);
     vec3 d;
     vec3 s;
+#ifdef NDF_LIGHT_BOTH
+    ndf_env_frame = ndf_env_rotation * mat3(tg, bt, n);
+    ndf_view = v;
+    ndf_point_scale = ndf_light_color * falloff;
+    ndf_env_scale = ndf_env_color;
+    ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), l, h, d, s);
+    ndf_out = vec4(ndf_kd * d + ndf_ks * s, 1.0);
+#else
     ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), l, h, d, s);
     ndf_out = vec4(ndf_light_color * falloff * (ndf_kd * d + ndf_ks * s), 1.0);
+#endif
 #endif
 }
 #endif

@@ -20,8 +20,8 @@
 //! The `L′` table ([`crate::environment::projection::ReflectedTable`]) is an `R32F` texture of
 //! `count(8) = 81` columns (the coefficients) × `16² = 256` rows (row `iθ·16 + iφ`, the views of
 //! [`crate::environment::projection::view_of`]); the lobe-energy table of the BRDF
-//! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_COS`] columns × [`ENERGY_PARAM`]
-//! rows. Both are read with `texelFetch` and interpolated in the shader like the CPU does.
+//! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_COS`] columns ×
+//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_i`, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
 //!
 //! Uniforms ([`uniforms`]): `ndf_env_sh[81]` (`L_lm`, environment frame), `ndf_env_kappa0`,
 //! `ndf_env_level_count`, `ndf_env_level[3·16]` (width, height, first row per level, as floats),
@@ -31,7 +31,7 @@
 
 use crate::brdf::Brdf;
 use crate::environment::projection::REFLECTED_GRID;
-use crate::envlight::{ENERGY_COS, ENERGY_PARAM, ENV_LMAX, EnvLight, Route};
+use crate::envlight::{ENERGY_BLOCKS, ENERGY_COS, ENERGY_PARAM, ENV_LMAX, EnvLight, Route};
 use crate::error::{Error, Result};
 use crate::harmonics::count;
 
@@ -105,8 +105,8 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
     })
 }
 
-/// The lobe-energy table of `brdf` as f32 for upload ([`ENERGY_PARAM`] rows × [`ENERGY_COS`]
-/// columns), `None` for a BRDF without a specular lobe.
+/// The lobe table of `brdf` as f32 for upload ([`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows ×
+/// [`ENERGY_COS`] columns: energy, blend, `log2 κ_i`), `None` for a BRDF without a specular lobe.
 pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
     light
         .energy_table(brdf)
@@ -114,7 +114,7 @@ pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
 }
 
 /// The size (columns, rows) of [`energy`]'s texture.
-pub const ENERGY_SIZE: (usize, usize) = (ENERGY_COS, ENERGY_PARAM);
+pub const ENERGY_SIZE: (usize, usize) = (ENERGY_COS, ENERGY_BLOCKS * ENERGY_PARAM);
 
 /// The environment uniforms of a shader lit by `route` with `brdf` (module docs), as f32 values
 /// (arrays as several).
@@ -168,7 +168,7 @@ mod tests {
         assert_eq!(up.sh.len(), 81);
         assert_eq!(up.reflected.len(), 81 * 256);
         let e = energy(&light, &Brdf::BlinnPhong { s: 32.0 }).unwrap();
-        assert_eq!(e.len(), ENERGY_COS * ENERGY_PARAM);
+        assert_eq!(e.len(), ENERGY_COS * ENERGY_BLOCKS * ENERGY_PARAM);
         assert!(energy(&light, &Brdf::Lambert).is_none());
         let u = uniforms(&up, &Brdf::ggx(0.3), Route::Sh);
         assert!(u.iter().any(|(n, v)| *n == "ndf_env_rho" && v.len() == 9));

@@ -18,11 +18,14 @@
 //!   their large-κ form); the single-lobe baselines are one lobe (plain: κ = ∞; Toksvig:
 //!   `|r| = |n̄|`; LEAN: κ from its mean isotropic slope variance).
 //! - **Specular, prefiltered route**: per lobe the BRDF widened by the lobe (eq 20 `s'`, GGX
-//!   `α'`), its half-vector lobe mapped to the reflected direction `r = 2(ω_o·μ)μ − ω_o` as a vMF
-//!   of `κ_i = s'/4` (angles double on reflection; GGX through its equivalent exponent), one
+//!   `α'`), its lobe over incident directions `w(ω_i) = f'(ω_h·μ) max(ω_i·μ, 0)` replaced by
+//!   the vMF matching its first moment (mean direction and mean resultant length, tabulated per
+//!   `(ω_o·μ, s')` by [`lobe_moments`]: the mean direction is a tabulated blend of μ and the
+//!   reflected direction `r = 2(ω_o·μ)μ − ω_o`, κ_i from the mean's length; the `4(ω_o·ω_h)` Jacobian, the cosine and the horizon are in both — the earlier
+//!   `κ_i = s'/4` about `r` was off by up to 14 % at 80° views under an overcast sky), one
 //!   lookup of the prefiltered environment at `LOD = ½ log2(Ω_s/Ω_p)`, times the lobe's energy
-//!   `E(ω_o·μ, s') = ∫ f'(ω_h·μ) max(ω_i·μ, 0) dω_i` from a table computed by quadrature (the
-//!   "split sum": exact for a constant environment), times `g(r, μ)`.
+//!   `E(ω_o·μ, s') = ∫ w dω_i` from the same table (the "split sum": exact for a constant
+//!   environment), times `g(r, μ)`.
 //! - **Specular, SH route** (eq 26): per lobe `Σ_l ρ̂_l e^{−l²/2κ} Σ_m L′_lm(ω_o) Y_lm(μ)` with
 //!   `L′` from the view grid ([`crate::environment::projection::ReflectedTable`]), times the
 //!   paper's cosine `max(ω_o·μ, 0)` (ω_i·μ at the lobe's peak) and `g(r, μ)`, clamped at 0.
@@ -99,8 +102,9 @@ impl EnvLight {
         &self.reflected
     }
 
-    /// The prefiltered route's lobe-energy table of `brdf`'s family (Blinn-Phong or GGX):
-    /// [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values `E(c_o, p)`, row-major, what the shaders
+    /// The prefiltered route's lobe table of `brdf`'s family (Blinn-Phong or GGX):
+    /// [`ENERGY_BLOCKS`] × [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values, row-major — the
+    /// energy `E(c_o, p)`, then the blend, then `log2 κ_i` ([`lobe_moments`]) — what the shaders
     /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones).
     pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
         match brdf {
@@ -332,8 +336,12 @@ pub const ENERGY_COS: usize = 33;
 /// Rows of a lobe-energy table: the lobe parameter (Blinn-Phong `log2 s' ∈ [−4, 20]`, GGX
 /// `log10 α' ∈ [−3, 0]`) in equal steps.
 pub const ENERGY_PARAM: usize = 49;
+/// Blocks of a lobe table, [`ENERGY_PARAM`] rows each: the energy, the blend, `log2 κ_i`
+/// ([`lobe_moments`]).
+pub const ENERGY_BLOCKS: usize = 3;
 
-/// `E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i` for a view at `cos θ_o = c_o`: Blinn-Phong over
+/// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
+/// for a view at `cos θ_o = c_o`: Blinn-Phong over
 /// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.
 /// Each family's table is computed on first use (a Lambert-only or GGX-only user never
 /// pays for the other's quadrature, about a second each on two cores).
@@ -358,20 +366,29 @@ fn energy_tables() -> &'static EnergyTables {
 }
 
 /// One family's table: `lobe(c, p)` over [`ENERGY_PARAM`] parameters `param(i)` (quadrature
-/// width `width(p)`) × [`ENERGY_COS`] view cosines.
+/// width `width(p)`) × [`ENERGY_COS`] view cosines, for each of the [`ENERGY_BLOCKS`]
+/// quantities of [`lobe_moments`] (block after block).
 fn energy_table_of(
     lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
     param: fn(usize) -> f64,
     width: fn(f64) -> f64,
 ) -> Vec<f64> {
-    (0..ENERGY_PARAM * ENERGY_COS)
+    let cells: Vec<[f64; ENERGY_BLOCKS]> = (0..ENERGY_PARAM * ENERGY_COS)
         .into_par_iter()
         .map(|k| {
             let p = param(k / ENERGY_COS);
             let co = k as f64 % ENERGY_COS as f64 / (ENERGY_COS - 1) as f64;
-            energy(&|c| lobe(c, p), width(p), co)
+            lobe_moments(&|c| lobe(c, p), width(p), co)
         })
-        .collect()
+        .collect();
+    let n = cells.len();
+    let mut out = vec![0.0; ENERGY_BLOCKS * n];
+    for (k, c) in cells.iter().enumerate() {
+        for (b, v) in c.iter().enumerate() {
+            out[b * n + k] = *v;
+        }
+    }
+    out
 }
 
 impl EnergyTables {
@@ -397,36 +414,53 @@ impl EnergyTables {
             .get_or_init(|| energy_table_of(&|c, a| ggx(c, a), ggx_param, |a| a.min(0.5 * PI)))
     }
 
-    /// Bilinear lookup: `table` over (param index, c_o).
-    fn lookup(table: &[f64], pi: f64, co: f64) -> f64 {
+    /// Bilinear lookup of each block of `table` over (param index, c_o).
+    fn lookup(table: &[f64], pi: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
         let pi = pi.clamp(0.0, (ENERGY_PARAM - 1) as f64);
         let ci = co.clamp(0.0, 1.0) * (ENERGY_COS - 1) as f64;
         let (p0, c0) = (pi.floor() as usize, ci.floor() as usize);
         let (p1, c1) = ((p0 + 1).min(ENERGY_PARAM - 1), (c0 + 1).min(ENERGY_COS - 1));
         let (fp, fc) = (pi - p0 as f64, ci - c0 as f64);
-        let at = |p: usize, c: usize| table[p * ENERGY_COS + c];
-        (1.0 - fp) * ((1.0 - fc) * at(p0, c0) + fc * at(p0, c1))
-            + fp * ((1.0 - fc) * at(p1, c0) + fc * at(p1, c1))
+        std::array::from_fn(|b| {
+            let at = |p: usize, c: usize| table[(b * ENERGY_PARAM + p) * ENERGY_COS + c];
+            (1.0 - fp) * ((1.0 - fc) * at(p0, c0) + fc * at(p0, c1))
+                + fp * ((1.0 - fc) * at(p1, c0) + fc * at(p1, c1))
+        })
     }
 
-    fn blinn_phong(&self, s: f64, co: f64) -> f64 {
+    fn blinn_phong(&self, s: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
         let pi = (s.max(1e-300).log2() + 4.0) / 24.0 * (ENERGY_PARAM - 1) as f64;
         Self::lookup(self.blinn_phong_table(), pi, co)
     }
 
-    fn ggx(&self, a: f64, co: f64) -> f64 {
+    fn ggx(&self, a: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
         let pi = (a.max(1e-300).log10() + 3.0) / 3.0 * (ENERGY_PARAM - 1) as f64;
         Self::lookup(self.ggx_table(), pi, co)
     }
 }
 
-/// `∫ f(ω_h·z) max(ω_i·z, 0) dω_i` for the view at `cos θ_o = co` in the xz plane, by
-/// quadrature over ω_h (`dω_i = 4(ω_o·ω_h) dω_h`): polar panels sized to the lobe
-/// ([`crate::harmonics::polar_quadrature`]) × 128 azimuths.
-fn energy(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> f64 {
+/// The view angle the moments of a view at the normal are taken at (its limit: at exactly
+/// 0 the reflected lobe has no plane to tilt in).
+const MOMENT_MIN_ANGLE: f64 = 1e-3;
+
+/// The lobe's split-sum quantities for the view at `cos θ_o = co` in the xz plane, by
+/// quadrature over ω_h (`dω_i = 4(ω_o·ω_h) dω_h`: polar panels sized to the lobe
+/// ([`crate::harmonics::polar_quadrature`]) × 128 azimuths) of the weight
+/// `w(ω_i) = f(ω_h·z) max(ω_i·z, 0)`:
+/// 0. the energy `E = ∫ w dω_i`;
+/// 1. the weight's mean direction `m = ∫ ω_i w / E` as a blend of the normal and the reflected
+///    direction r: `m̂ = normalize(b z + (1 − b) r)` (the cosine and the horizon pull the lobe
+///    towards the normal, by up to a third of r's angle at grazing views);
+/// 2. `log2 κ_i`, the κ of the vMF whose mean resultant length is `|m|`
+///    ([`crate::vmf::kappa_from_r_exact`]: the vMF matching the lobe's first moment, which
+///    includes the `4(ω_o·ω_h)` Jacobian and the horizon; `s'/4` is its limit for a sharp lobe
+///    seen head on).
+fn lobe_moments(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
+    let co = co.min(MOMENT_MIN_ANGLE.cos());
     let o = DVec3::new((1.0 - co * co).max(0.0).sqrt(), 0.0, co);
     let nphi = 128;
     let mut sum = 0.0;
+    let mut m = DVec3::ZERO;
     for (theta, w) in crate::harmonics::polar_quadrature(width) {
         let (st, ct) = theta.sin_cos();
         let fv = f(ct);
@@ -434,6 +468,7 @@ fn energy(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> f64 {
             continue;
         }
         let mut ring = 0.0;
+        let mut ring_m = DVec3::ZERO;
         for j in 0..nphi {
             let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
             let h = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
@@ -442,11 +477,35 @@ fn energy(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> f64 {
                 continue;
             }
             let l = 2.0 * oh * h - o;
-            ring += l.z.max(0.0) * 4.0 * oh;
+            let x = l.z.max(0.0) * 4.0 * oh;
+            ring += x;
+            ring_m += x * l;
         }
-        sum += w * st * fv * ring * 2.0 * PI / nphi as f64;
+        let k = w * st * fv * 2.0 * PI / nphi as f64;
+        sum += k * ring;
+        m += k * ring_m;
     }
-    sum
+    if sum.is_nan() || sum <= 0.0 {
+        return [0.0, 1.0, 60.0];
+    }
+    let mean = m / sum;
+    let theta_o = co.clamp(-1.0, 1.0).acos();
+    // The view is at +x, the reflected direction at −x; the mean lies between the normal and
+    // it, at θ_m from the normal: the direction `∝ sin(θ_o − θ_m) z + sin(θ_m) r`, stored as
+    // the blend weight of the normal (a normalize in the shader, no inverse trigonometry).
+    let theta_m = (-mean.x).atan2(mean.z).clamp(0.0, theta_o);
+    let (a, b) = ((theta_o - theta_m).sin(), theta_m.sin());
+    let blend = if a + b > 0.0 { a / (a + b) } else { 0.0 };
+    let kappa = crate::vmf::kappa_from_r_exact(mean.length().min(1.0));
+    [sum, blend, kappa.max(1e-6).log2().min(60.0)]
+}
+
+/// The lookup direction of a lobe about `mu` with reflected direction `r`: `normalize(blend·μ +
+/// (1 − blend)·r)`, the mean direction of [`lobe_moments`] (`blend` its block 1).
+fn tilted(mu: DVec3, r: DVec3, blend: f64) -> DVec3 {
+    (mu * blend + r * (1.0 - blend))
+        .try_normalize()
+        .unwrap_or(DVec3::Z)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -603,19 +662,13 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
     sum
 }
 
-/// The effective half-vector lobe of `brdf` widened by per-axis variance `var`: its
-/// Blinn-Phong-equivalent exponent (κ of the half-vector lobe) and the lobe energy at `co`.
-fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> (f64, f64) {
+/// The effective half-vector lobe of `brdf` widened by per-axis variance `var` at `co`: the
+/// [`lobe_moments`] of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_i).
+fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
-        Brdf::BlinnPhong { s } => {
-            let sp = s / (1.0 + s * var);
-            (sp, light.energy.blinn_phong(sp, co))
-        }
-        Brdf::Ggx(g) => {
-            let a = g.widened(var);
-            ((2.0 / (a * a) - 2.0).max(1e-3), light.energy.ggx(a, co))
-        }
-        _ => (0.0, 0.0),
+        Brdf::BlinnPhong { s } => light.energy.blinn_phong(s / (1.0 + s * var), co),
+        Brdf::Ggx(g) => light.energy.ggx(g.widened(var), co),
+        _ => [0.0; ENERGY_BLOCKS],
     }
 }
 
@@ -720,9 +773,9 @@ pub fn shade_in(
         let g = brdf.g(r, lobe.mu);
         let spec = match route {
             Route::Prefiltered => {
-                let (kh, e) = widened(light, brdf, lobe.var(), co);
-                let ki = 0.25 * kh;
-                light.prefiltered.lookup(frame * r, ki) * e
+                let [e, blend, log_kappa] = widened(light, brdf, lobe.var(), co);
+                let d = tilted(lobe.mu, r, blend);
+                light.prefiltered.lookup(frame * d, log_kappa.exp2()) * e
             }
             Route::Sh => {
                 let mut sum = 0.0;
@@ -1165,7 +1218,7 @@ mod tests {
             );
         }
         // GGX: the projected lobe integrates to 1; at normal view ∫ D (2c²−1) 4c dω_h by quadrature.
-        let q = energy(&|c| ggx(c, 0.3), 0.3, 1.0);
+        let q = lobe_moments(&|c| ggx(c, 0.3), 0.3, 1.0)[0];
         assert!(
             (gt.specular[2] - q).abs() < 4.0 * gt.specular_se[2],
             "{} {q}",

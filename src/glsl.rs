@@ -121,6 +121,13 @@ pub enum ShaderLight {
     EnvPrefiltered,
     /// An environment, specular by eq 26 with the `L′` table (`NDF_LIGHT_ENV_SH`).
     EnvSh,
+    /// The point (or directional) light *and* an environment by the prefiltered route, summed
+    /// in one shader from the same filtered texels (`NDF_LIGHT_BOTH` +
+    /// `NDF_LIGHT_ENV_PREFILTERED`): the point light's uniforms and `ndf_env_color` (the
+    /// environment's radiance scale) on meshes; `ndf_probe_l`, `ndf_probe_h` and
+    /// `ndf_probe_v` in the probe, which writes the unscaled sum. CPU twin: the point-light
+    /// shading (g applied per texel) plus [`crate::envlight::shade`].
+    PointAndEnvPrefiltered,
 }
 
 impl ShaderLight {
@@ -132,9 +139,18 @@ impl ShaderLight {
         }
     }
 
-    /// Whether an environment lights the surface.
+    /// Whether an environment lights the surface (alone or with the point light).
     pub fn is_env(self) -> bool {
         self != ShaderLight::Point
+    }
+
+    /// Whether the point (or directional) light lights the surface (alone or with an
+    /// environment).
+    pub fn has_point(self) -> bool {
+        matches!(
+            self,
+            ShaderLight::Point | ShaderLight::PointAndEnvPrefiltered
+        )
     }
 }
 
@@ -426,6 +442,10 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
             d("NDF_LIGHT_ENV", "1");
             d("NDF_LIGHT_ENV_SH", "1");
         }
+        ShaderLight::PointAndEnvPrefiltered => {
+            d("NDF_LIGHT_BOTH", "1");
+            d("NDF_LIGHT_ENV_PREFILTERED", "1");
+        }
     }
     if manual {
         d("NDF_MANUAL", "1");
@@ -669,6 +689,20 @@ mod tests {
         .unwrap();
         let point = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
         assert!(!point.contains("#define NDF_LIGHT_ENV") && !point.contains("void ndf_env_texel("));
+        // Both lights: the point-light defines plus NDF_LIGHT_BOTH and the prefiltered route,
+        // the environment file included, the SH route's L' sampler not declared.
+        let both = ShaderOptions {
+            light: ShaderLight::PointAndEnvPrefiltered,
+            ..Default::default()
+        };
+        let src = source(&b, Stage::Fragment, &both).unwrap();
+        assert!(src.contains("#define NDF_LIGHT_BOTH 1"));
+        assert!(src.contains("#define NDF_LIGHT_ENV_PREFILTERED 1"));
+        assert!(!src.contains("#define NDF_LIGHT_ENV 1") && !src.contains("NDF_LIGHT_ENV_SH 1"));
+        assert!(
+            src.contains("void ndf_env_texel(") && src.contains(&env_block(&ShaderSpec::of(&b)))
+        );
+        assert!(ShaderLight::PointAndEnvPrefiltered.has_point() && !ShaderLight::EnvSh.has_point());
         for (light, define) in [
             (
                 ShaderLight::EnvPrefiltered,

@@ -1266,10 +1266,14 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 .as_deref()
                 .unwrap_or("the generated sky with a sun"),
             crate::envlight::default_views().len(),
-            if scene.has_direct() {
-                "the shaders are the point-light specialization: one shader lit by both an \
-                 environment and point lights is not built, the engine draws the environment \
-                 pass with NDF_LIGHT_ENV_PREFILTERED"
+            if scene.has_direct() && color {
+                "the shaders are the point-light specialization (the environment routes shade \
+                 one channel and this plan ships colour textures): the engine draws the \
+                 environment pass with NDF_LIGHT_ENV_PREFILTERED"
+            } else if scene.has_direct() {
+                "one shader per part is lit by both (NDF_LIGHT_BOTH + NDF_LIGHT_ENV_PREFILTERED: \
+                 the point light's and the environment's terms summed from the same filtered \
+                 texels)"
             } else {
                 "the shaders compile NDF_LIGHT_ENV_PREFILTERED and no point-light code"
             }
@@ -1491,10 +1495,13 @@ impl Plan {
                 _ => Sampling::Auto,
             },
             color: p.color,
-            light: if self.shader.environment && !self.scene.has_direct() {
-                crate::glsl::ShaderLight::EnvPrefiltered
-            } else {
-                crate::glsl::ShaderLight::Point
+            // Both kinds of light: one shader summing both terms (the environment routes
+            // shade one channel, so a part with colour textures keeps the point-light
+            // specialization and the engine's environment pass).
+            light: match (self.shader.environment, self.scene.has_direct(), p.color) {
+                (true, false, _) => crate::glsl::ShaderLight::EnvPrefiltered,
+                (true, true, false) => crate::glsl::ShaderLight::PointAndEnvPrefiltered,
+                _ => crate::glsl::ShaderLight::Point,
             },
             ..ShaderOptions::default()
         }

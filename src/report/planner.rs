@@ -87,8 +87,11 @@ pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
     let plan_alu = (0..plan.parts.len())
         .map(|i| plan.shader(i, addressing).ok().and_then(|s| alu_of(&s)))
         .try_fold(0u32, |a, x| x.map(|x| a.max(x)));
+    // The full configuration's shader is lit like the plan's; an environment-lit one (alone
+    // or with the point light) shades one channel, so it is compiled without colour.
+    let lit = plan.shader_options(0).light;
     let full_options = ShaderOptions {
-        color: true,
+        color: !lit.is_env(),
         ..plan.shader_options(0)
     };
     let full_alu = crate::glsl::source_for(&ShaderSpec::of(&full), Stage::Fragment, &full_options)

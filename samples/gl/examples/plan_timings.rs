@@ -6,7 +6,9 @@
 //! views of `Scene::standard` (512²). A scene lit only by an environment is drawn by the
 //! environment route the plan compiles (`NDF_LIGHT_ENV_PREFILTERED`) under its environment;
 //! the full configuration then shades without colour (the environment shaders shade one
-//! channel), everything else by the scene's point light. The material is the scene's sharpest
+//! channel). A scene with both lights draws the parts whose shader is lit by both
+//! (`NDF_LIGHT_BOTH`) under the scene's point light and its environment, and the full
+//! configuration the same way without colour; everything else by the scene's point light. The material is the scene's sharpest
 //! BRDF.
 //!
 //! Each part's frame is that of a view where every pixel falls in the part's level range: the
@@ -109,9 +111,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         plan.check_map(&map)?;
         let env_only = plan.shader.environment && !plan.scene.has_direct();
         let env = match plan.scene.environment_light()? {
-            Some(light) if env_only => Some(EnvTextures::upload(&gl, &light)?),
+            Some(light) if plan.shader.environment => Some(EnvTextures::upload(&gl, &light)?),
             _ => None,
         };
+        // Per renderer: whether its shader is lit by the environment (alone or with the
+        // point light: drawn by `draw_env`, which binds the environment).
+        let mut lit_by_env = Vec::new();
         // The parts, with their specialized shaders; each part's textures hold its first
         // level and every coarser one (a texture whose level 0 is the part's first level, as
         // an engine binds it), so that a view's coarser pixels sample small levels as they
@@ -123,23 +128,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for t in &mut bake.textures {
                 t.levels = t.levels[p.first..].to_vec();
             }
-            renderers.push(BakeRenderer::new(&gl, &bake, &plan.shader_options(i))?);
+            let options = plan.shader_options(i);
+            lit_by_env.push(options.light.is_env());
+            renderers.push(BakeRenderer::new(&gl, &bake, &options)?);
         }
-        // The full configuration.
-        if map.feature().is_none() && !env_only {
+        // The full configuration (lit like the plan: by the environment without colour when
+        // the plan's shaders are lit by it, alone or with the point light).
+        let full_env = plan.shader_options(0).light.is_env();
+        if map.feature().is_none() && !full_env {
             let n = map.normals().len();
             map = map.with_feature(vec![[1.0; 4]; n])?;
         }
         let full: Bake = methods::bake_with(&map, Method::Vmf, &FULL.bake_options())?;
         let full_options = ShaderOptions {
-            color: !env_only,
-            light: if env_only {
-                ShaderLight::EnvPrefiltered
-            } else {
-                ShaderLight::Point
+            color: !full_env,
+            light: match (full_env, env_only) {
+                (true, true) => ShaderLight::EnvPrefiltered,
+                (true, false) => ShaderLight::PointAndEnvPrefiltered,
+                _ => ShaderLight::Point,
             },
             ..plan.shader_options(0)
         };
+        lit_by_env.push(full_env);
         renderers.push(BakeRenderer::new(&gl, &full, &full_options)?);
         let rotation = env_rotation(0.0);
         for (scene, mesh) in views.iter().zip(&meshes) {
@@ -147,11 +157,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             lighting.brdf = plan.scene.brdfs()[0].clone();
             let mut times = vec![Vec::new(); renderers.len()];
             for frame in 0..WARM_UP + frames {
-                for (r, t) in renderers.iter().zip(&mut times) {
+                for ((r, t), &by_env) in renderers.iter().zip(&mut times).zip(&lit_by_env) {
                     target.clear([0.0, 0.0, 0.0, 1.0]);
                     gl.finish();
                     let start = Instant::now();
-                    match &env {
+                    match env.as_ref().filter(|_| by_env) {
                         Some(env) => r.draw_env(
                             mesh,
                             &glam::Mat4::IDENTITY,

@@ -213,9 +213,16 @@ impl BakeRenderer {
                     "draw_env needs a shader compiled for environment lighting".into(),
                 ));
             }
-            ShaderLight::EnvPrefiltered => ndfmap::envlight::Route::Prefiltered,
+            ShaderLight::EnvPrefiltered | ShaderLight::PointAndEnvPrefiltered => {
+                ndfmap::envlight::Route::Prefiltered
+            }
             ShaderLight::EnvSh => ndfmap::envlight::Route::Sh,
         };
+        if self.light == ShaderLight::PointAndEnvPrefiltered {
+            // Both: `lighting` is the point light, the environment at the same colour scale.
+            self.program.set_vec4("ndf_light", lighting.light);
+            self.program.set_vec3("ndf_env_color", lighting.color);
+        }
         let p = &self.program;
         let unit = self.textures.len() as u32;
         self.binding
