@@ -43,6 +43,8 @@ use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
+mod kernel;
+
 /// Smallest GGX α a PBR bake stores or shades (perceptual roughness ≈ 0.032): a lobe no
 /// engine's half floats resolve more sharply. Input roughness below it is raised to it.
 pub const MIN_ALPHA: f64 = 1e-3;
@@ -352,14 +354,16 @@ pub fn targets(
         .collect();
     for (b0, batch) in pairs.chunks(8).enumerate() {
         let c = batch.len();
+        let lights: Vec<(DVec3, DVec3)> =
+            batch.iter().map(|&(l, v)| (l, half_vector(l, v))).collect();
         let mut finest = vec![0.0f64; map.normals().len() * c];
         finest
             .par_chunks_mut(c)
             .zip(map.normals().par_iter().zip(alphas.par_iter()))
             .for_each(|(o, (n, &a))| {
                 let n = n.as_dvec3();
-                for (o, &(l, v)) in o.iter_mut().zip(batch) {
-                    *o = iso_value(n, a, l, half_vector(l, v));
+                for (o, &(l, h)) in o.iter_mut().zip(&lights) {
+                    *o = iso_value(n, a, l, h);
                 }
             });
         for (lf, level) in levels.iter().zip(out.iter_mut()) {
@@ -530,12 +534,14 @@ fn offset(n0: DVec3, t1: DVec3, t2: DVec3, u: f64, v: f64) -> DVec3 {
 }
 
 /// Fits one isotropic lobe to one texel's `target` (values for `set`'s pairs): the best of
-/// `starts` by [`cost`], refined by `iterations` Levenberg–Marquardt steps over
+/// `starts` by [`cost`], refined by up to `iterations` Levenberg–Marquardt steps over
 /// `(u, v, ln α)` (the normal `normalize(n₀ + u t₁ + v t₂)` in the start's tangent frame)
 /// with the analytic Jacobian `∂D/∂c = 4α²c(1 − α²)/(π d³)`, `∂D/∂ln α = 2D(1 − 2c²α²/d)`
 /// for `d = 1 − c²(1 − α²)`. Returns the lobe and its cost. `α` stays in `[floor, 1]`
 /// (the bake's floor is the footprint's base roughness `sqrt(E[α²])`: filtering only widens,
-/// and a narrower lobe fitted to a few pairs overshoots between them).
+/// and a narrower lobe fitted to a few pairs overshoots between them). The sums run in four
+/// f64 lanes (`pbr/kernel.rs`); the bake stops a texel's steps early ([`FAST_CONVERGED`]),
+/// this function does not.
 pub fn fit_isotropic(
     set: &FitSet,
     target: &[f64],
@@ -543,75 +549,8 @@ pub fn fit_isotropic(
     iterations: usize,
     floor: f64,
 ) -> (IsoLobe, f64) {
-    let mut best = starts[0];
-    let mut best_cost = f64::INFINITY;
-    for s in starts {
-        let c = cost(set, target, |l, h| iso_value(s.n, s.alpha, l, h));
-        if c < best_cost {
-            best = *s;
-            best_cost = c;
-        }
-    }
-    if iterations == 0 {
-        return (best, best_cost);
-    }
-    let n0 = best.n;
-    let (t1, t2) = tangent_frame(n0);
-    let lo = floor.clamp(MIN_ALPHA, 1.0).ln();
-    let lobe_of = |p: &[f64; 3]| IsoLobe {
-        n: offset(n0, t1, t2, p[0], p[1]),
-        alpha: p[2].clamp(lo, 0.0).exp(),
-    };
-    let jac = |p: &[f64; 3], r: &mut [f64], j: &mut [[f64; 3]]| {
-        let lobe = lobe_of(p);
-        let n = lobe.n;
-        // dn/du and dn/dv of n = normalize(n0 + u t1 + v t2): (t − n (n·t)) / |n0 + u t1 + v t2|.
-        let len = (n0 + p[0] * t1 + p[1] * t2).length();
-        let du = (t1 - n * n.dot(t1)) / len;
-        let dv = (t2 - n * n.dot(t2)) / len;
-        let a = lobe.alpha;
-        let a2 = a * a;
-        let in_range = p[2] > lo && p[2] < 0.0;
-        for (k, ((&(l, v), &w), g)) in set.pairs.iter().zip(&set.weights).zip(target).enumerate() {
-            let h = half_vector(l, v);
-            let c = n.dot(h);
-            let cl = n.dot(l);
-            let s = cl.max(0.0);
-            if c <= 0.0 {
-                r[k] = w * (0.0 - g);
-                j[k] = [0.0; 3];
-                continue;
-            }
-            let d = (1.0 - c) * (1.0 + c) + c * c * a2;
-            let dd = a2 / (PI * d * d);
-            let dc = 4.0 * a2 * c * (1.0 - a2) / (PI * d * d * d);
-            let dlna = 2.0 * dd * (1.0 - 2.0 * c * c * a2 / d);
-            let ds = if cl > 0.0 { 1.0 } else { 0.0 };
-            r[k] = w * (dd * s - g);
-            j[k] = [
-                w * (dc * du.dot(h) * s + dd * ds * du.dot(l)),
-                w * (dc * dv.dot(h) * s + dd * ds * dv.dot(l)),
-                if in_range { w * dlna * s } else { 0.0 },
-            ];
-        }
-    };
-    let cost_at = |p: &[f64; 3]| {
-        let lobe = lobe_of(p);
-        cost(set, target, |l, h| iso_value(lobe.n, lobe.alpha, l, h))
-    };
-    let (p, c) = levenberg_marquardt(
-        [0.0, 0.0, best.alpha.ln().clamp(lo, 0.0)],
-        set.pairs.len(),
-        iterations,
-        [0.3, 0.3, 1.0],
-        jac,
-        cost_at,
-    );
-    if c < best_cost {
-        (lobe_of(&p), c)
-    } else {
-        (best, best_cost)
-    }
+    let k = kernel::IsoKernel::new(set);
+    kernel::fit(&k, &k.targets(target), starts, iterations, floor, 0.0)
 }
 
 /// Fits one anisotropic lobe to one texel's `target`: the best two of `starts`, refined by
@@ -704,10 +643,18 @@ fn canonical(mut lobe: AnisoLobe) -> AnisoLobe {
     lobe
 }
 
+/// Most Levenberg–Marquardt steps of the bake's isotropic fit per texel ([`Search::Fast`]).
+pub const FAST_ITERATIONS: usize = 8;
+
+/// The bake's isotropic fit stops a texel's steps once one lowers the cost by less than this
+/// fraction of itself ([`Search::Fast`]).
+pub const FAST_CONVERGED: f64 = 1e-3;
+
 /// How hard a PBR bake searches per texel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Search {
-    /// The bake's: the best of six starts (module docs), then 4 Levenberg–Marquardt steps
+    /// The bake's: the best of six starts (module docs), then up to [`FAST_ITERATIONS`]
+    /// Levenberg–Marquardt steps, fewer once a step gains less than [`FAST_CONVERGED`]
     /// (anisotropic: 4 more from the isotropic fit and the covariance start).
     Fast,
     /// The report's best-possible lobe: the fast starts plus up to 16 of the footprint's own
@@ -975,6 +922,7 @@ fn bake_fit(
     let stats = statistics(map, &mat, &levels);
     timings.targets = clock.elapsed().as_secs_f64();
     let p = set.pairs.len();
+    let kernel = kernel::IsoKernel::new(set);
     let cancel = progress.cancel_flag();
     let mut iso_levels: Vec<Vec<IsoLobe>> = Vec::new();
     let mut aniso_levels: Vec<Vec<AnisoLobe>> = Vec::new();
@@ -988,8 +936,17 @@ fn bake_fit(
         };
         let (iterations, keep) = match search {
             _ if k < fit_from => (0, 1),
-            Search::Fast => (4, 1),
+            Search::Fast => (FAST_ITERATIONS, 1),
             Search::Thorough { .. } => (25, 3),
+        };
+        // The fast search stops a texel's steps once they stop paying; the thorough one runs
+        // them all.
+        // The anisotropic fit (forward differences, 12× the isotropic one's cost) keeps 4.
+        let aniso_iterations = iterations.min(4);
+        let converged = if search == Search::Fast {
+            FAST_CONVERGED
+        } else {
+            0.0
         };
         let clock = std::time::Instant::now();
         let iso: Vec<IsoLobe> = if k == 0 {
@@ -1029,23 +986,25 @@ fn bake_fit(
                         search,
                         &own,
                     );
-                    let t = &target[k][i * p..(i + 1) * p];
+                    let t = kernel.targets(&target[k][i * p..(i + 1) * p]);
                     let floor = st[i * STATS + 3].max(0.0).sqrt();
                     if iterations == 0 {
                         starts[0]
                     } else if keep == 1 {
-                        fit_isotropic(set, t, &starts, iterations, floor).0
+                        kernel::fit(&kernel, &t, &starts, iterations, floor, converged).0
                     } else {
                         // The best `keep` starts, each refined; the best result.
                         let mut ranked: Vec<(f64, IsoLobe)> = starts
                             .iter()
-                            .map(|s| (cost(set, t, |l, h| iso_value(s.n, s.alpha, l, h)), *s))
+                            .map(|s| (kernel.cost(s.n, s.alpha, &t), *s))
                             .collect();
                         ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
                         ranked
                             .iter()
                             .take(keep)
-                            .map(|&(_, s)| fit_isotropic(set, t, &[s], iterations, floor))
+                            .map(|&(_, s)| {
+                                kernel::fit(&kernel, &t, &[s], iterations, floor, converged)
+                            })
                             .min_by(|a, b| a.1.total_cmp(&b.1))
                             .map(|r| r.0)
                             .unwrap_or(starts[0])
@@ -1083,7 +1042,7 @@ fn bake_fit(
                         let cov = covariance_start(&st[i * STATS..(i + 1) * STATS], lobe.n);
                         let t = &target[k][i * p..(i + 1) * p];
                         let floor = st[i * STATS + 3].max(0.0).sqrt();
-                        fit_anisotropic(set, t, &aniso_starts(lobe, cov), iterations, floor).0
+                        fit_anisotropic(set, t, &aniso_starts(lobe, cov), aniso_iterations, floor).0
                     })
                     .collect()
             };
@@ -1117,7 +1076,7 @@ fn bake_fit(
             },
             "anisotropic": options.anisotropic,
             "fit": match search {
-                Search::Fast => "levenberg-marquardt, 4 steps from the best of 6 starts",
+                Search::Fast => "levenberg-marquardt, up to 8 steps from the best of 6 starts",
                 Search::Thorough { .. } => {
                     "levenberg-marquardt, 25 steps from the best 3 of many starts"
                 }

@@ -1,0 +1,85 @@
+//! Times the PBR bake's isotropic fit per level (issue 17's speed goal) and prints a digest of
+//! the bake, so that two builds can be compared in the same run:
+//! `cargo run --release --example pbr_fit_time -- MAP ALPHA THREADS REPEATS`.
+//! Each repeat bakes with `THREADS` rayon threads; the per-level fit seconds printed are the
+//! minimum over the repeats (wall clock of that stage, so the least-loaded repeat). The CPU
+//! seconds of the fit (all levels, all threads: the process's user + system time of a bake
+//! minus that of the same bake with no level fitted, from `/proc/self/stat`, Linux only) are
+//! printed too: on a loaded machine they are what the fit costs.
+
+use ndfmap::bake::PbrOptions;
+use ndfmap::pbr::{FitSet, Search, bake_with_set, base_alpha};
+use ndfmap::{IngestOptions, NormalMap};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let path = args
+        .get(1)
+        .expect("usage: pbr_fit_time MAP ALPHA THREADS REPEATS");
+    let alpha: f64 = args.get(2).map_or(0.1, |a| a.parse().expect("alpha"));
+    let threads: usize = args.get(3).map_or(2, |a| a.parse().expect("threads"));
+    let repeats: usize = args.get(4).map_or(3, |a| a.parse().expect("repeats"));
+    let map = NormalMap::load(std::path::Path::new(path), &IngestOptions::default()).unwrap();
+    let options = PbrOptions {
+        roughness: alpha.sqrt(),
+        anisotropic: false,
+    };
+    let set = FitSet::standard(base_alpha(options.roughness));
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    let mut best: Vec<f64> = Vec::new();
+    let mut digest = 0u64;
+    let mut cpu = f64::INFINITY;
+    for _ in 0..repeats {
+        let c0 = cpu_seconds();
+        pool.install(|| bake_with_set(&map, &options, None, &set, Search::Fast, 99).unwrap());
+        let c1 = cpu_seconds();
+        let (bake, t) =
+            pool.install(|| bake_with_set(&map, &options, None, &set, Search::Fast, 0).unwrap());
+        let c2 = cpu_seconds();
+        cpu = cpu.min((c2 - c1) - (c1 - c0));
+        if best.is_empty() {
+            best = t.fit.clone();
+        }
+        for (b, s) in best.iter_mut().zip(&t.fit) {
+            *b = b.min(*s);
+        }
+        digest = 0xcbf2_9ce4_8422_2325;
+        for tex in &bake.textures {
+            for level in &tex.levels {
+                for texel in level {
+                    for v in texel {
+                        digest = (digest ^ v.to_bits() as u64).wrapping_mul(0x100_0000_01b3);
+                    }
+                }
+            }
+        }
+    }
+    let shown: Vec<String> = best.iter().take(6).map(|s| format!("{s:.3}")).collect();
+    println!(
+        "fit seconds per level (min of {repeats}, {threads} threads): [{}]",
+        shown.join(", ")
+    );
+    println!("fit CPU seconds, all levels (min of {repeats}): {cpu:.2}");
+    println!("bake digest {digest:016x}");
+}
+
+/// User + system CPU seconds of this process so far (`/proc/self/stat`, 100 ticks a second);
+/// NaN where it cannot be read.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the command name (which is in parentheses and may hold spaces).
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    // utime and stime are fields 14 and 15 of the whole line: 11 and 12 after the name.
+    (ticks(11) + ticks(12)) / 100.0
+}
