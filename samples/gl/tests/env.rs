@@ -93,6 +93,31 @@ fn bakes() -> Vec<Bake> {
     out
 }
 
+/// A probe's CPU twin at `uv`, `lod`: `one` (a texel's (diffuse, specular)) on the hardware's
+/// trilinear parameters, or on each texel the manual path reads, blended as it blends them.
+fn filtered(
+    bake: &Bake,
+    manual: bool,
+    uv: DVec2,
+    lod: f64,
+    one: impl Fn(&[[f32; 4]]) -> (f64, f64),
+) -> (f64, f64) {
+    if !manual {
+        return one(&trilinear(bake, uv, lod));
+    }
+    let mut t = vec![[0.0f32; 4]; bake.textures.len()];
+    let (mut d, mut s) = (0.0, 0.0);
+    for (level, lw) in level_weights(lod, bake.level_count()) {
+        for (index, bw) in bilinear(bake, level, uv) {
+            bake.texel_into(level, index, &mut t);
+            let f = one(&t);
+            d += lw * bw * f.0;
+            s += lw * bw * f.1;
+        }
+    }
+    (d, s)
+}
+
 /// The CPU twin of the probe at `uv`, `lod`.
 #[allow(clippy::too_many_arguments)]
 fn cpu(
@@ -106,22 +131,10 @@ fn cpu(
     route: Route,
     frame: DMat3,
 ) -> (f64, f64) {
-    if !manual {
-        let t = trilinear(bake, uv, lod);
-        let s = shade_in(light, frame, bake, &t, v, brdf, route);
-        return (s.diffuse, s.specular);
-    }
-    let mut t = vec![[0.0f32; 4]; bake.textures.len()];
-    let (mut d, mut s) = (0.0, 0.0);
-    for (level, lw) in level_weights(lod, bake.level_count()) {
-        for (index, bw) in bilinear(bake, level, uv) {
-            bake.texel_into(level, index, &mut t);
-            let f = shade_in(light, frame, bake, &t, v, brdf, route);
-            d += lw * bw * f.diffuse;
-            s += lw * bw * f.specular;
-        }
-    }
-    (d, s)
+    filtered(bake, manual, uv, lod, |t| {
+        let s = shade_in(light, frame, bake, t, v, brdf, route);
+        (s.diffuse, s.specular)
+    })
 }
 
 /// Renders one bake × BRDF × route at every level and a fractional LOD for every view; returns
@@ -205,10 +218,12 @@ fn measure(
     (worst, worst_abs)
 }
 
-fn run(route: ndfmap_gl::Route) {
+/// A GL context on `route` with the generated 64 × 32 sky (sun included) uploaded, or `None`
+/// (said on stdout) when `NDFMAP_SKIP_GL=1`.
+fn lit_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
     if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
         println!("skipped: NDFMAP_SKIP_GL=1");
-        return;
+        return None;
     }
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
     let sky = Sky {
@@ -219,6 +234,13 @@ fn run(route: ndfmap_gl::Route) {
     .unwrap();
     let light = EnvLight::new(sky.luminance());
     let env = EnvTextures::upload(&gl, &light).unwrap();
+    Some((gl, light, env))
+}
+
+fn run(route: ndfmap_gl::Route) {
+    let Some((gl, light, env)) = lit_context(route) else {
+        return;
+    };
     let mut table: BTreeMap<String, (f64, f64)> = BTreeMap::new();
     let mut failures = Vec::new();
     for b in bakes() {
@@ -263,19 +285,9 @@ const SH_TOLERANCE: f64 = 2e-2;
 /// SH bakes (l* = 2, 4, 8) lit by the SH route in the environment's frame and in [`tilted`],
 /// and Toksvig / vMF J = 3 (manual) in [`tilted`] (the frame of every other lookup).
 fn run_framed(route: ndfmap_gl::Route) {
-    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
-        println!("skipped: NDFMAP_SKIP_GL=1");
+    let Some((gl, light, env)) = lit_context(route) else {
         return;
-    }
-    let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
-    let sky = Sky {
-        width: 64,
-        ..Sky::default()
-    }
-    .render()
-    .unwrap();
-    let light = EnvLight::new(sky.luminance());
-    let env = EnvTextures::upload(&gl, &light).unwrap();
+    };
     let map = ndfmap::procedural::generate(16, 5).map;
     let mut cases: Vec<(Bake, Route, f64)> = [2usize, 4, 8]
         .iter()
@@ -373,25 +385,11 @@ fn cpu_both(
     (l, h, v): (DVec3, DVec3, DVec3),
     brdf: &Brdf,
 ) -> (f64, f64) {
-    let one = |t: &[[f32; 4]]| {
+    filtered(bake, manual, uv, lod, |t| {
         let p = shade_rgb_with(bake, t, l, h, brdf, false, &ShadeOptions::default());
         let e = shade_in(light, DMat3::IDENTITY, bake, t, v, brdf, Route::Prefiltered);
         (p.diffuse[0] + e.diffuse, p.specular[0] + e.specular)
-    };
-    if !manual {
-        return one(&trilinear(bake, uv, lod));
-    }
-    let mut t = vec![[0.0f32; 4]; bake.textures.len()];
-    let (mut d, mut s) = (0.0, 0.0);
-    for (level, lw) in level_weights(lod, bake.level_count()) {
-        for (index, bw) in bilinear(bake, level, uv) {
-            bake.texel_into(level, index, &mut t);
-            let f = one(&t);
-            d += lw * bw * f.0;
-            s += lw * bw * f.1;
-        }
-    }
-    (d, s)
+    })
 }
 
 /// One shader lit by a point light and the environment (issue 18): the probe of
@@ -399,19 +397,9 @@ fn cpu_both(
 /// aligned (hardware) and unaligned (manual), Lambert, Blinn-Phong and GGX with g, two
 /// light/view pairs, every level and a fractional LOD. Returns the largest error.
 fn both(route: ndfmap_gl::Route) {
-    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
-        println!("skipped: NDFMAP_SKIP_GL=1");
+    let Some((gl, light, env)) = lit_context(route) else {
         return;
-    }
-    let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
-    let sky = Sky {
-        width: 64,
-        ..Sky::default()
-    }
-    .render()
-    .unwrap();
-    let light = EnvLight::new(sky.luminance());
-    let env = EnvTextures::upload(&gl, &light).unwrap();
+    };
     let all = bakes();
     let picked = [&all[0], &all[4], &all[5]];
     let mut worst = 0.0f64;
