@@ -1189,6 +1189,27 @@ mod tests {
         crate::methods::bake(&map, method)
     }
 
+    /// The generated 64 × 32 sky (sun included), ready to light with.
+    fn sky_light() -> EnvLight {
+        let sky = Sky {
+            width: 64,
+            ..Sky::default()
+        }
+        .render()
+        .unwrap();
+        EnvLight::new(sky.luminance())
+    }
+
+    /// Four tilted normals of a 2 × 2 map whose level-1 texel is their footprint.
+    fn quad_normals() -> Vec<glam::Vec3> {
+        vec![
+            glam::Vec3::new(0.3, 0.0, 0.954),
+            glam::Vec3::new(0.0, -0.4, 0.9165),
+            glam::Vec3::Z,
+            glam::Vec3::new(-0.2, 0.2, 0.959),
+        ]
+    }
+
     fn map_of(w: u32, h: u32, v: Vec<glam::Vec3>) -> crate::NormalMap {
         crate::NormalMap::from_vectors(w, h, v, Default::default(), Default::default()).unwrap()
     }
@@ -1377,23 +1398,8 @@ mod tests {
 
     #[test]
     fn sh_method_diffuse_matches_the_footprint_ground_truth() {
-        let sky = Sky {
-            width: 64,
-            ..Sky::default()
-        }
-        .render()
-        .unwrap();
-        let light = EnvLight::new(sky.luminance());
-        let map = map_of(
-            2,
-            2,
-            vec![
-                glam::Vec3::new(0.3, 0.0, 0.954),
-                glam::Vec3::new(0.0, -0.4, 0.9165),
-                glam::Vec3::Z,
-                glam::Vec3::new(-0.2, 0.2, 0.959),
-            ],
-        );
+        let light = sky_light();
+        let map = map_of(2, 2, quad_normals());
         let bake = crate::methods::bake(&map, Method::Sh);
         let t = bake.texel(1, 0, 0);
         let a = shade(&light, &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh);
@@ -1416,19 +1422,8 @@ mod tests {
         // The surface's tangent frame turned 60° towards the sun: every method's diffuse term
         // (SH bakes through the rotated L_lm) against the ground truth over the normals turned
         // into the environment's frame; the identity frame is far off, so the frame is used.
-        let sky = Sky {
-            width: 64,
-            ..Sky::default()
-        }
-        .render()
-        .unwrap();
-        let light = EnvLight::new(sky.luminance());
-        let normals = vec![
-            glam::Vec3::new(0.3, 0.0, 0.954),
-            glam::Vec3::new(0.0, -0.4, 0.9165),
-            glam::Vec3::Z,
-            glam::Vec3::new(-0.2, 0.2, 0.959),
-        ];
+        let light = sky_light();
+        let normals = quad_normals();
         let map = map_of(2, 2, normals.clone());
         let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -1.05);
         let view = DVec3::new(0.2, 0.3, 0.93).normalize();

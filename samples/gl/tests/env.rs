@@ -137,6 +137,48 @@ fn cpu(
     })
 }
 
+/// Draws the probe `program` at every level of `bake` and a fractional LOD, against
+/// `expected(uv, lod)` per pixel (diffuse, specular): the largest error relative to each value
+/// (plus a thousandth of the largest), and the largest absolute error over the largest value.
+fn probe_levels(
+    gl: &Gl,
+    program: &Program,
+    bake: &Bake,
+    expected: impl Fn(DVec2, f64) -> (f64, f64),
+) -> (f64, f64) {
+    let (mut worst, mut worst_abs) = (0.0f64, 0.0f64);
+    for level in 0..bake.level_count() {
+        let (w, h) = bake.sizes[level];
+        let target = RenderTarget::new(gl, w, h).unwrap();
+        program.set_vec2("ndf_probe_size", [w as f32, h as f32]);
+        for frac in [0.0, 0.375] {
+            let lod = level as f64 + frac;
+            program.set_f32("ndf_probe_lod", lod as f32);
+            draw_fullscreen(program, &target).unwrap();
+            let pixels = read_rgba_f32(&target).unwrap();
+            let expected: Vec<(f64, f64)> = (0..pixels.len())
+                .map(|i| {
+                    let (x, y) = (i as u32 % w, i as u32 / w);
+                    let uv = DVec2::new((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+                    expected(uv, lod)
+                })
+                .collect();
+            let fd = 1e-3 * expected.iter().map(|e| e.0.abs()).fold(0.0, f64::max);
+            let fs = 1e-3 * expected.iter().map(|e| e.1.abs()).fold(0.0, f64::max);
+            for (p, e) in pixels.iter().zip(&expected) {
+                assert!(p[0].is_finite() && p[1].is_finite());
+                let ed = (p[0] as f64 - e.0).abs() / (e.0.abs() + fd + 1e-30);
+                let es = (p[1] as f64 - e.1).abs() / (e.1.abs() + fs + 1e-30);
+                worst = worst.max(ed).max(es);
+                let ad = (p[0] as f64 - e.0).abs() / (1e3 * fd + 1e-30);
+                let as_ = (p[1] as f64 - e.1).abs() / (1e3 * fs + 1e-30);
+                worst_abs = worst_abs.max(ad).max(as_);
+            }
+        }
+    }
+    (worst, worst_abs)
+}
+
 /// Renders one bake × BRDF × route at every level and a fractional LOD for every view; returns
 /// the largest error and the largest absolute error over the largest value.
 #[allow(clippy::too_many_arguments)]
@@ -184,36 +226,11 @@ fn measure(
     let mut worst_abs = 0.0f64;
     for &v in views {
         program.set_vec3("ndf_probe_v", v.as_vec3());
-        for level in 0..bake.level_count() {
-            let (w, h) = bake.sizes[level];
-            let target = RenderTarget::new(gl, w, h).unwrap();
-            program.set_vec2("ndf_probe_size", [w as f32, h as f32]);
-            for frac in [0.0, 0.375] {
-                let lod = level as f64 + frac;
-                program.set_f32("ndf_probe_lod", lod as f32);
-                draw_fullscreen(&program, &target).unwrap();
-                let pixels = read_rgba_f32(&target).unwrap();
-                let expected: Vec<(f64, f64)> = (0..pixels.len())
-                    .map(|i| {
-                        let (x, y) = (i as u32 % w, i as u32 / w);
-                        let uv =
-                            DVec2::new((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
-                        cpu(light, bake, manual, uv, lod, v, brdf, route, frame)
-                    })
-                    .collect();
-                let fd = 1e-3 * expected.iter().map(|e| e.0.abs()).fold(0.0, f64::max);
-                let fs = 1e-3 * expected.iter().map(|e| e.1.abs()).fold(0.0, f64::max);
-                for (p, e) in pixels.iter().zip(&expected) {
-                    assert!(p[0].is_finite() && p[1].is_finite());
-                    let ed = (p[0] as f64 - e.0).abs() / (e.0.abs() + fd + 1e-30);
-                    let es = (p[1] as f64 - e.1).abs() / (e.1.abs() + fs + 1e-30);
-                    worst = worst.max(ed).max(es);
-                    let ad = (p[0] as f64 - e.0).abs() / (1e3 * fd + 1e-30);
-                    let as_ = (p[1] as f64 - e.1).abs() / (1e3 * fs + 1e-30);
-                    worst_abs = worst_abs.max(ad).max(as_);
-                }
-            }
-        }
+        let (e, a) = probe_levels(gl, &program, bake, |uv, lod| {
+            cpu(light, bake, manual, uv, lod, v, brdf, route, frame)
+        });
+        worst = worst.max(e);
+        worst_abs = worst_abs.max(a);
     }
     (worst, worst_abs)
 }
@@ -438,35 +455,10 @@ fn both(route: ndfmap_gl::Route) {
                 program.set_vec3("ndf_probe_l", l.as_vec3());
                 program.set_vec3("ndf_probe_h", h.as_vec3());
                 program.set_vec3("ndf_probe_v", v.as_vec3());
-                for level in 0..bake.level_count() {
-                    let (w, hh) = bake.sizes[level];
-                    let target = RenderTarget::new(&gl, w, hh).unwrap();
-                    program.set_vec2("ndf_probe_size", [w as f32, hh as f32]);
-                    for frac in [0.0, 0.375] {
-                        let lod = level as f64 + frac;
-                        program.set_f32("ndf_probe_lod", lod as f32);
-                        draw_fullscreen(&program, &target).unwrap();
-                        let pixels = read_rgba_f32(&target).unwrap();
-                        let expected: Vec<(f64, f64)> = (0..pixels.len())
-                            .map(|i| {
-                                let (x, y) = (i as u32 % w, i as u32 / w);
-                                let uv = DVec2::new(
-                                    (x as f64 + 0.5) / w as f64,
-                                    (y as f64 + 0.5) / hh as f64,
-                                );
-                                cpu_both(&light, bake, manual, uv, lod, (l, h, v), &brdf)
-                            })
-                            .collect();
-                        let fd = 1e-3 * expected.iter().map(|e| e.0.abs()).fold(0.0, f64::max);
-                        let fs = 1e-3 * expected.iter().map(|e| e.1.abs()).fold(0.0, f64::max);
-                        for (p, e) in pixels.iter().zip(&expected) {
-                            assert!(p[0].is_finite() && p[1].is_finite());
-                            let ed = (p[0] as f64 - e.0).abs() / (e.0.abs() + fd + 1e-30);
-                            let es = (p[1] as f64 - e.1).abs() / (e.1.abs() + fs + 1e-30);
-                            worst = worst.max(ed).max(es);
-                        }
-                    }
-                }
+                let (e, _) = probe_levels(&gl, &program, bake, |uv, lod| {
+                    cpu_both(&light, bake, manual, uv, lod, (l, h, v), &brdf)
+                });
+                worst = worst.max(e);
             }
         }
     }
