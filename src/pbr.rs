@@ -469,34 +469,27 @@ fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; 
     x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
-/// Levenberg–Marquardt over `N` parameters: `jac(p, r, j)` writes the weighted residuals and
-/// their Jacobian at `p` (one row per pair), `cost_at(p)` the weighted squared error;
-/// `iterations` Jacobian evaluations at most, each with up to three damping tries; steps are
-/// held to `max_step` per parameter. Returns the parameters and their cost.
+/// Levenberg–Marquardt over `N` parameters, shared by the isotropic fit (analytic normal
+/// equations in lanes, `pbr/kernel.rs`) and the anisotropic one (forward differences):
+/// from `p` of cost `current`, each of up to `iterations` steps takes the normal equations
+/// `(JᵀJ, −Jᵀr)` at `p` from `normal_equations` and tries up to three dampings
+/// `(JᵀJ + λ diag(JᵀJ)) δ = −Jᵀr` (λ × 10 after a failure, × 0.3 after a success), each step
+/// component held to `max_step`; a trial is taken when `cost_at` is lower. Stops when no
+/// damping lowers the cost or a step lowers it by `converged` of itself or less (0: only the
+/// former). Returns the parameters and their cost.
 fn levenberg_marquardt<const N: usize>(
     mut p: [f64; N],
-    pairs: usize,
+    mut current: f64,
     iterations: usize,
     max_step: [f64; N],
-    jac: impl Fn(&[f64; N], &mut [f64], &mut [[f64; N]]),
+    converged: f64,
+    mut normal_equations: impl FnMut(&[f64; N]) -> ([[f64; N]; N], [f64; N]),
     cost_at: impl Fn(&[f64; N]) -> f64,
 ) -> ([f64; N], f64) {
-    let mut r = [0.0; MAX_PAIRS];
-    let mut j = [[0.0; N]; MAX_PAIRS];
-    let mut current = cost_at(&p);
     let mut lambda = 1e-3;
     for _ in 0..iterations {
-        jac(&p, &mut r[..pairs], &mut j[..pairs]);
-        let mut a = [[0.0; N]; N];
-        let mut g = [0.0; N];
-        for (ri, ji) in r[..pairs].iter().zip(&j[..pairs]) {
-            for u in 0..N {
-                g[u] -= ji[u] * ri;
-                for w in 0..N {
-                    a[u][w] += ji[u] * ji[w];
-                }
-            }
-        }
+        let (a, g) = normal_equations(&p);
+        let before = current;
         let mut improved = false;
         for _ in 0..3 {
             let mut damped = a;
@@ -521,7 +514,7 @@ fn levenberg_marquardt<const N: usize>(
             }
             lambda *= 10.0;
         }
-        if !improved {
+        if !improved || before - current <= converged * before {
             break;
         }
     }
@@ -604,29 +597,46 @@ fn refine_anisotropic(
             r[k] = w * (aniso_value(&lobe, l, half_vector(l, v)) - g);
         }
     };
-    let jac = |p: &[f64; 5], r: &mut [f64], j: &mut [[f64; 5]]| {
-        residuals(p, r);
+    let pairs = set.pairs.len();
+    let normal_equations = |p: &[f64; 5]| {
+        // Forward-difference Jacobian rows, then JᵀJ and −Jᵀr.
+        let mut r = [0.0; MAX_PAIRS];
+        let mut j = [[0.0; 5]; MAX_PAIRS];
+        residuals(p, &mut r[..pairs]);
         let mut shifted = [0.0; MAX_PAIRS];
         for u in 0..5 {
             let step = 1e-6;
             let mut q = *p;
             q[u] += step;
-            residuals(&q, &mut shifted[..r.len()]);
-            for k in 0..r.len() {
+            residuals(&q, &mut shifted[..pairs]);
+            for k in 0..pairs {
                 j[k][u] = (shifted[k] - r[k]) / step;
             }
         }
+        let mut a = [[0.0; 5]; 5];
+        let mut g = [0.0; 5];
+        for (ri, ji) in r[..pairs].iter().zip(&j[..pairs]) {
+            for u in 0..5 {
+                g[u] -= ji[u] * ri;
+                for w in 0..5 {
+                    a[u][w] += ji[u] * ji[w];
+                }
+            }
+        }
+        (a, g)
     };
     let cost_at = |p: &[f64; 5]| {
         let lobe = lobe_of(p);
         cost(set, target, |l, h| aniso_value(&lobe, l, h))
     };
+    let p0 = [0.0, 0.0, best.alpha_t.ln(), best.alpha_b.ln(), best.phi];
     let (p, c) = levenberg_marquardt(
-        [0.0, 0.0, best.alpha_t.ln(), best.alpha_b.ln(), best.phi],
-        set.pairs.len(),
+        p0,
+        cost_at(&p0),
         iterations,
         [0.3, 0.3, 1.0, 1.0, 0.5],
-        jac,
+        0.0,
+        normal_equations,
         cost_at,
     );
     let lobe = if c < best_cost { lobe_of(&p) } else { best };

@@ -281,49 +281,29 @@ pub(super) fn fit(
         n: (n0 + p[0] * t1 + p[1] * t2).normalize(),
         alpha: p[2].clamp(lo, 0.0).exp(),
     };
-    let max_step = [0.3, 0.3, 1.0];
-    let mut p = [0.0, 0.0, best.alpha.ln().clamp(lo, 0.0)];
-    let mut current = best_cost;
-    let mut lambda = 1e-3;
-    for _ in 0..iterations {
-        let lobe = lobe_of(&p);
+    let normal_equations = |p: &[f64; 3]| {
+        let lobe = lobe_of(p);
         let n = lobe.n;
         // dn/du, dn/dv of n = normalize(n0 + u t1 + v t2): (t − n (n·t)) / |n0 + u t1 + v t2|.
         let len = (n0 + p[0] * t1 + p[1] * t2).length();
         let du = (t1 - n * n.dot(t1)) / len;
         let dv = (t2 - n * n.dot(t2)) / len;
         let free = p[2] > lo && p[2] < 0.0;
-        let (a, grad) = k.normal_equations(n, du, dv, lobe.alpha, free, g);
-        let before = current;
-        let mut improved = false;
-        for _ in 0..3 {
-            let mut damped = a;
-            for u in 0..3 {
-                damped[u][u] += lambda * a[u][u].max(1e-12);
-            }
-            let Some(step) = super::solve(damped, grad) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let mut trial = p;
-            for u in 0..3 {
-                trial[u] += step[u].clamp(-max_step[u], max_step[u]);
-            }
-            let t = lobe_of(&trial);
-            let c = k.cost(t.n, t.alpha, g);
-            if c < current {
-                p = trial;
-                current = c;
-                lambda = (lambda * 0.3).max(1e-9);
-                improved = true;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved || before - current <= converged * before {
-            break;
-        }
-    }
+        k.normal_equations(n, du, dv, lobe.alpha, free, g)
+    };
+    let cost_at = |p: &[f64; 3]| {
+        let t = lobe_of(p);
+        k.cost(t.n, t.alpha, g)
+    };
+    let (p, current) = super::levenberg_marquardt(
+        [0.0, 0.0, best.alpha.ln().clamp(lo, 0.0)],
+        best_cost,
+        iterations,
+        [0.3, 0.3, 1.0],
+        converged,
+        normal_equations,
+        cost_at,
+    );
     if current < best_cost {
         (lobe_of(&p), current)
     } else {
