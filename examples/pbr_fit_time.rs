@@ -24,7 +24,7 @@ fn main() {
         roughness: alpha.sqrt(),
         anisotropic: false,
     };
-    let set = FitSet::standard(base_alpha(options.roughness));
+    let set = FitSet::standard();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()

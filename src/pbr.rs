@@ -10,11 +10,14 @@
 //! Walter et al. 2007; its Smith and Schlick factors do not depend on the normal, footnote 4 of
 //! the paper, so they weight pairs and do not enter per normal). The texel's lobe `(n′, α′)`
 //! minimizes `Σ_p w_p² (D_{α′}(n′·h_p) max(n′·l_p, 0) − G_p)²` over a fixed set of pairs
-//! ([`FitSet::standard`]: 7 views up to 75°, half vectors up to 28° from the geometric normal,
-//! weights `w_p = F(l·h) V(l, v)` at the base roughness, Schlick and Smith), by a few
-//! Levenberg–Marquardt steps with an analytic Jacobian ([`fit_isotropic`]), started from the
-//! best of: the mean normal with the κ formula (`κ = (3r − r³)/(1 − r²)`, `α′² = α² + 2/κ`),
-//! the mean normal with the base roughness, and the four finer texels' fitted lobes. The
+//! ([`FitSet::standard`]: 56 pairs, views and lights from the zenith to 74°, grazing ones
+//! included, unit weights `w_p = 1`: the quantity the issue's targets measure; none of them is
+//! one of the evaluation's pairs), by a few Levenberg–Marquardt steps with an analytic
+//! Jacobian ([`fit_isotropic`]), started from the best of: the mean normal with the κ formula
+//! (`κ = (3r − r³)/(1 − r²)`, `α′² = α² + c/κ` for c = 2, 0.5, 1, 4), the mean normal with the
+//! base roughness, and the four finer texels' fitted lobes. [`FitSet::near_peak`] (half
+//! vectors within 28°, weighted by the g factor) and [`FitSet::view_range`] are for renderers
+//! that never see grazing angles. The
 //! targets `G_p` are exact (footprint averages of the per-normal shading, [`targets`]); the
 //! fit is a local least-squares optimum on those pairs, not a global one.
 //!
@@ -256,11 +259,20 @@ pub struct FitSet {
 }
 
 impl FitSet {
-    /// The bake's fixed pairs ([`standard_pairs`]) weighted by the GGX g factor at base
-    /// roughness `alpha`: `F(l·h) V(l_z, v_z)` (Schlick, F0 = 0.04; Smith height-correlated),
-    /// normalized to a mean of 1.
-    pub fn standard(alpha: f64) -> FitSet {
-        let pairs = standard_pairs();
+    /// The bake's fixed pairs ([`standard_pairs`]: views and lights up to 74° from the
+    /// zenith, grazing ones included) with unit weights: the fit minimizes the unweighted
+    /// error of `D·max(n·l, 0)`, the quantity issue 17's targets measure.
+    pub fn standard() -> FitSet {
+        FitSet::unweighted(&standard_pairs())
+    }
+
+    /// The fit set of the previous rounds, for renderers that never see grazing angles
+    /// ([`near_peak_pairs`]: 7 views up to 75°, half vectors at most 28° from the zenith),
+    /// weighted by the GGX g factor at base roughness `alpha`: `F(l·h) V(l_z, v_z)`
+    /// (Schlick, F0 = 0.04; Smith height-correlated), normalized to a mean of 1. Use it
+    /// through [`bake_with_set`].
+    pub fn near_peak(alpha: f64) -> FitSet {
+        let pairs = near_peak_pairs();
         let mut weights: Vec<f64> = pairs
             .iter()
             .map(|&(l, v)| {
@@ -276,6 +288,19 @@ impl FitSet {
             weights,
             halves,
         }
+    }
+
+    /// The scene-viewing-range fit set: the pairs of [`standard_pairs`] whose view and light
+    /// are both within `max_deg` degrees of the zenith, unit weights (for a renderer whose
+    /// views and lights stay within that range). `None` when fewer than 8 pairs remain
+    /// (`max_deg` below about 40°).
+    pub fn view_range(max_deg: f64) -> Option<FitSet> {
+        let cos = max_deg.to_radians().cos() - 1e-12;
+        let pairs: Vec<Pair> = standard_pairs()
+            .into_iter()
+            .filter(|&(l, v)| l.z >= cos && v.z >= cos)
+            .collect();
+        (pairs.len() >= 8).then(|| FitSet::unweighted(&pairs))
     }
 
     /// `pairs` with unit weights (the report's best-possible lobe, fitted on the evaluation's
@@ -296,13 +321,45 @@ fn direction(theta_deg: f64, phi_deg: f64) -> DVec3 {
     DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos())
 }
 
-/// The bake's fixed light/view pairs: 7 views (the zenith, θ = 45° at φ = 0°, 120°, 240°,
-/// θ = 75° at φ = 60°, 180°, 300°), and per view 7 half vectors (the zenith, θ_h = 12° at
-/// three azimuths, 28° at three others, turned by 40° from one view to the next), each light
-/// the mirror of the view about its half vector; pairs whose light is within 2° of the horizon
-/// are dropped. Different from the evaluation's pairs (`eval::default_directions`), so the
-/// fit is not scored on the pairs it was fitted to.
+/// The bake's fixed light/view pairs, chosen once to cover the range issue 17's targets
+/// measure (views and lights from the zenith to 70°, grazing included) without using the
+/// evaluation's own directions (`eval::default_directions`: views at 0°, 35°, 70° and lights
+/// at 0°, 35°, 70° on the axes), so that the fit is scored on pairs it did not see. 7 views
+/// (θ = 12° at φ = 30°; 40° at φ = 75°, 195°, 315°; 68° at φ = 15°, 135°, 255°) and per view
+/// 8 lights: the mirror direction (half vector at the zenith: the peak the relative error is
+/// dominated by), the zenith, and two lights on each of the rings θ = 25°, 50°, 74°, opposite
+/// each other, at azimuths relative to the view's turned by 50° from one view to the next
+/// (ring k at `φ_v + 40° + 60° k + 50° i` and 180° further). 56 pairs.
 pub fn standard_pairs() -> Vec<Pair> {
+    let views = [
+        (12.0, 30.0),
+        (40.0, 75.0),
+        (40.0, 195.0),
+        (40.0, 315.0),
+        (68.0, 15.0),
+        (68.0, 135.0),
+        (68.0, 255.0),
+    ];
+    let mut out = Vec::new();
+    for (i, &(tv, pv)) in views.iter().enumerate() {
+        let v = direction(tv, pv);
+        out.push((direction(tv, pv + 180.0), v));
+        out.push((DVec3::Z, v));
+        for (k, tl) in [25.0, 50.0, 74.0].into_iter().enumerate() {
+            let phi = pv + 40.0 + 60.0 * k as f64 + 50.0 * i as f64;
+            out.push((direction(tl, phi), v));
+            out.push((direction(tl, phi + 180.0), v));
+        }
+    }
+    out
+}
+
+/// [`FitSet::near_peak`]'s pairs (the bake's until this round): 7 views (the zenith, θ = 45°
+/// at φ = 0°, 120°, 240°, θ = 75° at φ = 60°, 180°, 300°), and per view 7 half vectors (the
+/// zenith, θ_h = 12° at three azimuths, 28° at three others, turned by 40° from one view to
+/// the next), each light the mirror of the view about its half vector; pairs whose light is
+/// within 2° of the horizon are dropped (49 pairs).
+pub fn near_peak_pairs() -> Vec<Pair> {
     let views = [
         (0.0, 0.0),
         (45.0, 0.0),
@@ -663,12 +720,12 @@ pub const FAST_CONVERGED: f64 = 1e-3;
 /// How hard a PBR bake searches per texel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Search {
-    /// The bake's: the best of six starts (module docs), then up to [`FAST_ITERATIONS`]
+    /// The bake's: the best of nine starts (module docs), then up to [`FAST_ITERATIONS`]
     /// Levenberg–Marquardt steps, fewer once a step gains less than [`FAST_CONVERGED`]
     /// (anisotropic: 4 more from the isotropic fit and the covariance start).
     Fast,
     /// The report's best-possible lobe: the fast starts plus up to 16 of the footprint's own
-    /// normals at 1, 2 and 4 times the base α and the κ formula at c = 0.5, 1 and 4, each of
+    /// normals at 1, 2 and 4 times the base α, each of
     /// the best three refined by 25 steps, at levels `from_level` and coarser (finer levels as
     /// [`Search::Fast`]: their lobes are only the coarser levels' starts).
     Thorough {
@@ -697,12 +754,11 @@ pub(crate) fn bake(
     maps: Option<&PbrMaps>,
     progress: &mut Progress,
 ) -> Result<Bake> {
-    let alpha = base_alpha(options.roughness);
     bake_fit(
         map,
         options,
         maps,
-        &FitSet::standard(alpha),
+        &FitSet::standard(),
         Search::Fast,
         0,
         progress,
@@ -796,7 +852,9 @@ fn statistics(map: &NormalMap, mat: &[[f64; 3]], levels: &[LevelFootprints]) -> 
         .collect()
 }
 
-/// The starts of a texel at a level ≥ 1: κ formula, mean normal at base α, four children.
+/// The starts of a texel at a level ≥ 1: the κ formula with c = 2, the mean normal at base
+/// α, the four children, the κ formula with c = 0.5, 1, 4 (and, for [`Search::Thorough`],
+/// the footprint's own normals `own` at 1, 2, 4 × the base α).
 fn iso_starts(
     stats: &[f64],
     children: [Option<IsoLobe>; 4],
@@ -815,13 +873,13 @@ fn iso_starts(
         IsoLobe { n: mean, alpha },
     ];
     s.extend(children.into_iter().flatten());
+    for c in [0.5, 1.0, 4.0] {
+        s.push(IsoLobe {
+            n: mean,
+            alpha: Widening::Constant(c).apply(alpha, r),
+        });
+    }
     if search != Search::Fast {
-        for c in [0.5, 1.0, 4.0] {
-            s.push(IsoLobe {
-                n: mean,
-                alpha: Widening::Constant(c).apply(alpha, r),
-            });
-        }
         for &n in own {
             for f in [1.0, 2.0, 4.0] {
                 s.push(IsoLobe {
@@ -1086,7 +1144,7 @@ fn bake_fit(
             },
             "anisotropic": options.anisotropic,
             "fit": match search {
-                Search::Fast => "levenberg-marquardt, up to 8 steps from the best of 6 starts",
+                Search::Fast => "levenberg-marquardt, up to 8 steps from the best of 9 starts",
                 Search::Thorough { .. } => {
                     "levenberg-marquardt, 25 steps from the best 3 of many starts"
                 }
@@ -1391,7 +1449,7 @@ mod tests {
     #[test]
     fn the_fit_recovers_a_single_lobe_and_beats_its_starts() {
         // A target made by one known lobe is recovered from a poor start.
-        let set = FitSet::standard(0.1);
+        let set = FitSet::standard();
         let truth = IsoLobe {
             n: DVec3::new(0.15, -0.1, 1.0).normalize(),
             alpha: 0.17,
@@ -1441,7 +1499,7 @@ mod tests {
         };
         let fitted = run(&map, &options, None).unwrap();
         let formula = bake_formula(&map, &options, None, Widening::Constant(2.0)).unwrap();
-        let set = FitSet::standard(base_alpha(0.3));
+        let set = FitSet::standard();
         let levels = pyramid(16, 16);
         let alphas = vec![base_alpha(0.3); 256];
         let t = targets(&map, &alphas, &set.pairs, &levels);

@@ -320,7 +320,7 @@ mod tests {
     /// those of a central-difference Jacobian of the plain residuals.
     #[test]
     fn lane_sums_equal_plain_sums_and_finite_differences() {
-        let set = FitSet::standard(0.05);
+        let set = FitSet::near_peak(0.05);
         let truth = DVec3::new(0.2, -0.1, 1.0).normalize();
         let target: Vec<f64> = set
             .pairs

@@ -13,7 +13,7 @@
 //! - the best isotropic lobe found per texel (multi-start Levenberg–Marquardt on the
 //!   evaluation's own pairs, [`crate::pbr::Search::Thorough`]: a lower bound for any single
 //!   isotropic lobe as far as the search finds it);
-//! - the best isotropic lobe found the same way on the evaluation's pairs turned by 90° about
+//! - the best isotropic lobe found the same way on the evaluation's pairs turned by 45° about
 //!   the normal, scored on the untouched pairs: what a lobe fitted without seeing the scored
 //!   pairs reaches, so the in-sample bound's advantage is visible;
 //! - vMF J = 6 (aligned, C = 1, balanced) under GGX with c = 2: a custom shader, for scale.
@@ -23,7 +23,7 @@ use crate::brdf::Brdf;
 use crate::error::{Error, Result};
 use crate::eval::{Reference, default_directions};
 use crate::ingest::NormalMap;
-use crate::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set, base_alpha};
+use crate::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -185,11 +185,14 @@ pub fn compare(
         let b = bake_formula(map, &options, None, w)?;
         bakes.push((label.into(), b, Some(t.elapsed().as_secs_f64())));
     }
-    // The evaluation's pairs turned by 90° about the geometric normal: the same distribution
-    // of light/view pairs, other samples. The best lobe fitted on them and scored on the
-    // evaluation's own pairs is what a lobe fitted without seeing those pairs can reach, so it
-    // tells the in-sample row's advantage from what any bake could gain.
-    let turn = |d: glam::DVec3| glam::DVec3::new(-d.y, d.x, d.z);
+    // The evaluation's pairs turned by 45° about the geometric normal: the same distribution
+    // of light/view pairs, other samples (only the pair with light and view at the zenith is
+    // shared; a 90° turn maps the evaluation's four-fold light azimuths onto themselves, so
+    // the nine pairs of its zenith view would be in-sample). The best lobe fitted on them and
+    // scored on the evaluation's own pairs is what a lobe fitted without seeing those pairs
+    // can reach, so it tells the in-sample row's advantage from what any bake could gain.
+    let (c45, s45) = (std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2);
+    let turn = |d: glam::DVec3| glam::DVec3::new(c45 * d.x - s45 * d.y, s45 * d.x + c45 * d.y, d.z);
     let turned: Vec<_> = directions
         .iter()
         .map(|&(l, v)| (turn(l), turn(v)))
@@ -199,13 +202,13 @@ pub fn compare(
         (
             "ndfmap pbr (isotropic fit)",
             false,
-            FitSet::standard(base_alpha(perceptual)),
+            FitSet::standard(),
             Search::Fast,
         ),
         (
             "ndfmap pbr --anisotropic",
             true,
-            FitSet::standard(base_alpha(perceptual)),
+            FitSet::standard(),
             Search::Fast,
         ),
         (
@@ -221,7 +224,7 @@ pub fn compare(
             Search::Thorough { from_level: first },
         ),
         (
-            "best isotropic found on those pairs turned 90° (out of sample)",
+            "best isotropic found on those pairs turned 45° (out of sample)",
             false,
             FitSet::unweighted(&turned),
             Search::Thorough { from_level: first },
