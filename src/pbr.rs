@@ -358,7 +358,7 @@ pub fn standard_pairs() -> Vec<Pair> {
 /// at φ = 0°, 120°, 240°, θ = 75° at φ = 60°, 180°, 300°), and per view 7 half vectors (the
 /// zenith, θ_h = 12° at three azimuths, 28° at three others, turned by 40° from one view to
 /// the next), each light the mirror of the view about its half vector; pairs whose light is
-/// within 2° of the horizon are dropped (49 pairs).
+/// within 2° of the horizon are dropped: 39 of the 49 remain.
 pub fn near_peak_pairs() -> Vec<Pair> {
     let views = [
         (0.0, 0.0),
@@ -1444,6 +1444,50 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The bake's pairs are unit vectors above the horizon, at most [`MAX_PAIRS`], reach
+    /// grazing angles (views and lights beyond 65°, half vectors beyond 35°) and hold none of
+    /// the evaluation's pairs (held out); [`FitSet::view_range`] keeps exactly those within
+    /// its range; [`FitSet::near_peak`]'s half vectors stay within 28°.
+    #[test]
+    fn fit_sets_cover_grazing_pairs_and_hold_out_the_evaluations() {
+        let set = FitSet::standard();
+        assert_eq!(set.pairs.len(), 56);
+        assert!(set.pairs.len() <= MAX_PAIRS && set.weights.iter().all(|&w| w == 1.0));
+        let deg = |d: DVec3| d.z.clamp(-1.0, 1.0).acos().to_degrees();
+        for &(l, v) in &set.pairs {
+            assert!((l.length() - 1.0).abs() < 1e-12 && (v.length() - 1.0).abs() < 1e-12);
+            assert!(deg(l) <= 74.0 + 1e-9 && deg(v) <= 68.0 + 1e-9);
+        }
+        assert!(set.pairs.iter().any(|&(l, _)| deg(l) > 65.0));
+        assert!(set.pairs.iter().any(|&(_, v)| deg(v) > 65.0));
+        assert!(set.halves.iter().any(|&h| deg(h) > 35.0));
+        // Seven mirror pairs (half vector at the zenith).
+        assert_eq!(set.halves.iter().filter(|h| deg(**h) < 1e-6).count(), 7);
+        for &(el, ev) in &crate::eval::default_directions() {
+            for &(l, v) in &set.pairs {
+                assert!(
+                    l.angle_between(el) + v.angle_between(ev) > 5f64.to_radians(),
+                    "{l} {v} is an evaluation pair"
+                );
+            }
+        }
+        let narrow = FitSet::view_range(45.0).unwrap();
+        let want = set
+            .pairs
+            .iter()
+            .filter(|(l, v)| deg(*l) <= 45.0 && deg(*v) <= 45.0)
+            .count();
+        assert_eq!(narrow.pairs.len(), want);
+        assert!(want >= 8 && want < 56);
+        assert!(FitSet::view_range(10.0).is_none());
+        assert_eq!(FitSet::view_range(90.0).unwrap(), set);
+        let near = FitSet::near_peak(0.1);
+        assert_eq!(near.pairs.len(), 39);
+        assert!(near.halves.iter().all(|&h| deg(h) <= 28.0 + 1e-9));
+        let mean = near.weights.iter().sum::<f64>() / 39.0;
+        assert!((mean - 1.0).abs() < 1e-12);
     }
 
     #[test]

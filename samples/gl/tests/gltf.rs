@@ -14,7 +14,7 @@ use ndfmap::eval::default_directions;
 use ndfmap::format::Format;
 use ndfmap::glsl::{ShaderBrdf, ShaderOptions};
 use ndfmap::methods::bake_with;
-use ndfmap::pbr::{Widening, bake_formula};
+use ndfmap::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set};
 use ndfmap::sample::{Filtering, shade_at};
 use ndfmap_gl::glam::{Mat4, Vec2, Vec3};
 use ndfmap_gl::{
@@ -216,6 +216,18 @@ fn fitted_pbr_bake_is_closer_to_the_reference_than_the_plain_mip_chain() {
         anisotropic: false,
     };
     let fitted = pbr_bake(128, false);
+    // The same fit on the previous rounds' near-peak pairs (half vectors within 28°, g-factor
+    // weights): what a renderer without grazing views may prefer (docs/pbr.md).
+    let near = bake_with_set(
+        &map,
+        &options,
+        None,
+        &FitSet::near_peak(ROUGHNESS * ROUGHNESS),
+        Search::Fast,
+        0,
+    )
+    .unwrap()
+    .0;
     let mip = bake_formula(&map, &options, None, Widening::Constant(0.0)).unwrap();
     let mut finest = mip.clone();
     finest.sizes.truncate(1);
@@ -223,28 +235,40 @@ fn fitted_pbr_bake_is_closer_to_the_reference_than_the_plain_mip_chain() {
         t.levels.truncate(1);
     }
     let (size, block) = (96, 8);
+    let mut results = Vec::new();
     for (g, kd) in [(false, 0.0), (true, 0.0), (true, 0.1)] {
         let shader = ShaderOptions {
             brdf: ShaderBrdf::Ggx { g },
             ..ShaderOptions::default()
         };
         let draw = |b: &Bake| BakeRenderer::new(&gl, b, &shader).unwrap();
-        let (fitted, mip, finest) = (draw(&fitted), draw(&mip), draw(&finest));
+        let (fitted, near, mip, finest) =
+            (draw(&fitted), draw(&near), draw(&mip), draw(&finest));
         for (repeat, distance) in [(8.0, 9.0), (4.0, 4.5)] {
             let scene = plane_scene(repeat, distance, g, kd);
             let reference = image(&gl, &scene, &finest, size, 16, block);
             let e_fitted = relative_rms(&image(&gl, &scene, &fitted, size, 1, block), &reference);
+            let e_near = relative_rms(&image(&gl, &scene, &near, size, 1, block), &reference);
             let e_mip = relative_rms(&image(&gl, &scene, &mip, size, 1, block), &reference);
             println!(
                 "plane x{repeat} at {distance}, g {g}, K_d {kd}: relative RMS of 8x8 blocks against the \
-                 reference: plain mip {e_mip:.4}, fitted {e_fitted:.4}"
+                 reference: plain mip {e_mip:.4}, fitted {e_fitted:.4}, fitted on near-peak pairs \
+                 {e_near:.4}"
             );
             if kd == 0.0 {
-                assert!(
-                    e_fitted < 0.9 * e_mip,
-                    "fitted {e_fitted:.4} is not clearly below plain mip {e_mip:.4}"
-                );
+                results.push((repeat, g, e_mip, e_fitted, e_near));
             }
         }
+    }
+    for (repeat, g, e_mip, e_fitted, e_near) in results {
+        assert!(
+            e_fitted < 0.95 * e_mip,
+            "x{repeat}, g {g}: fitted {e_fitted:.4} is not below plain mip {e_mip:.4}"
+        );
+        assert!(
+            e_near < 0.95 * e_mip,
+            "x{repeat}, g {g}: fitted on near-peak pairs {e_near:.4} is not below plain mip \
+             {e_mip:.4}"
+        );
     }
 }
