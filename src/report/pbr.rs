@@ -191,7 +191,10 @@ pub fn compare(
     // the nine pairs of its zenith view would be in-sample). The best lobe fitted on them and
     // scored on the evaluation's own pairs is what a lobe fitted without seeing those pairs
     // can reach, so it tells the in-sample row's advantage from what any bake could gain.
-    let (c45, s45) = (std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2);
+    let (c45, s45) = (
+        std::f64::consts::FRAC_1_SQRT_2,
+        std::f64::consts::FRAC_1_SQRT_2,
+    );
     let turn = |d: glam::DVec3| glam::DVec3::new(c45 * d.x - s45 * d.y, s45 * d.x + c45 * d.y, d.z);
     let turned: Vec<_> = directions
         .iter()

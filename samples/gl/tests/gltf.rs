@@ -242,8 +242,7 @@ fn fitted_pbr_bake_is_closer_to_the_reference_than_the_plain_mip_chain() {
             ..ShaderOptions::default()
         };
         let draw = |b: &Bake| BakeRenderer::new(&gl, b, &shader).unwrap();
-        let (fitted, near, mip, finest) =
-            (draw(&fitted), draw(&near), draw(&mip), draw(&finest));
+        let (fitted, near, mip, finest) = (draw(&fitted), draw(&near), draw(&mip), draw(&finest));
         for (repeat, distance) in [(8.0, 9.0), (4.0, 4.5)] {
             let scene = plane_scene(repeat, distance, g, kd);
             let reference = image(&gl, &scene, &finest, size, 16, block);
