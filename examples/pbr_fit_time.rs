@@ -8,7 +8,7 @@
 //! printed too: on a loaded machine they are what the fit costs.
 
 use ndfmap::bake::PbrOptions;
-use ndfmap::pbr::{FitSet, Search, bake_with_set, base_alpha};
+use ndfmap::pbr::{FitSet, Search, bake_with_set};
 use ndfmap::{IngestOptions, NormalMap};
 
 fn main() {

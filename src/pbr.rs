@@ -1480,7 +1480,7 @@ mod tests {
             .filter(|(l, v)| deg(*l) <= 45.0 && deg(*v) <= 45.0)
             .count();
         assert_eq!(narrow.pairs.len(), want);
-        assert!(want >= 8 && want < 56);
+        assert!((8..56).contains(&want));
         assert!(FitSet::view_range(10.0).is_none());
         assert_eq!(FitSet::view_range(90.0).unwrap(), set);
         let near = FitSet::near_peak(0.1);
