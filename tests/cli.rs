@@ -420,7 +420,7 @@ fn pbr_report_without_filament_says_so() {
         "κ Godot",
         "ndfmap pbr (isotropic fit)",
         "best isotropic found",
-        "best isotropic found on those pairs turned 90° (out of sample)",
+        "best isotropic found on those pairs turned 45° (out of sample)",
     ] {
         assert!(text.contains(row), "{row} missing: {text}");
     }
