@@ -193,8 +193,9 @@ pub const SH_PEAK_PER_COEFFICIENT: u64 = 6;
 
 /// The PBR bake's peak memory per texel whatever its pairs: the decoded map, the material
 /// (24), the per-level statistics (12 f64 over the levels, 4/3 × 96), one batch of per-normal
-/// values (8 f64) and the lobes. One measured peak: rock 1024², 49 pairs, 752 MB (`ndfmap bake
-/// -m pbr`, `/usr/bin/time -f %M`); the estimate gives 972 MB.
+/// values (8 f64) and the lobes. Measured peaks, rock 1024² (`ndfmap bake -m pbr`,
+/// `/usr/bin/time -f %M`): 752 MB with the earlier 39-pair set (estimate 893 MB), 981 MB with
+/// the standard 56-pair set (estimate 1107 MB).
 pub const PBR_PEAK_BASE: u64 = 320;
 
 /// The PBR bake's peak memory per texel per fit pair: the exact targets of every level (f64,
