@@ -1531,6 +1531,79 @@ impl Plan {
         );
         Ok(src)
     }
+    /// The parts of the plan's one LOD-switching shader ([`crate::glsl::lod_switch_source`]):
+    /// adjacent plan parts whose shaders are the same (method, textures, format, colour,
+    /// sampling) merge into one shader part, whose textures hold their levels (level 0 = the
+    /// first part's first level; the files `p{part}…_L{level}` of the merged parts, in level
+    /// order). Returns each shader part with the plan parts it merges.
+    pub fn lod_switch_parts(
+        &self,
+        addressing: crate::ingest::Addressing,
+    ) -> Vec<(crate::glsl::LodPart, Vec<usize>)> {
+        let mut out: Vec<(crate::glsl::LodPart, Vec<usize>)> = Vec::new();
+        for (i, p) in self.parts.iter().enumerate() {
+            let spec = self.shader_spec(i, addressing);
+            let options = ShaderOptions {
+                probe: false,
+                ..self.shader_options(i)
+            };
+            if let Some((last, members)) = out.last_mut()
+                && last.spec == spec
+                && last.options == options
+                && last.last + 1 == p.first
+            {
+                last.last = p.last;
+                members.push(i);
+                continue;
+            }
+            out.push((
+                crate::glsl::LodPart {
+                    spec,
+                    options,
+                    first: p.first,
+                    last: p.last,
+                },
+                vec![i],
+            ));
+        }
+        out
+    }
+
+    /// The plan's one fragment shader switching method by level of detail
+    /// ([`crate::glsl::lod_switch_source`] over [`Plan::lod_switch_parts`]), with a header
+    /// naming each sampler's files. Fails (saying why) where it is not built: environment
+    /// lighting, more than 32 samplers.
+    pub fn lod_switch_shader(&self, addressing: crate::ingest::Addressing) -> Result<String> {
+        let parts = self.lod_switch_parts(addressing);
+        let lod: Vec<crate::glsl::LodPart> = parts.iter().map(|p| p.0.clone()).collect();
+        let options = lod[0].options;
+        let options = ShaderOptions {
+            sampling: match options.sampling {
+                Sampling::Anisotropic(n) => Sampling::Anisotropic(n),
+                _ => Sampling::Auto,
+            },
+            ..options
+        };
+        let src = crate::glsl::lod_switch_source(
+            &lod,
+            (self.map.width, self.map.height),
+            Stage::Fragment,
+            &options,
+        )?;
+        let mut header = String::from(
+            "// ndfmap plan: one shader for every level shipped; sampler ndf_p{k}_tex{i} is a \
+             texture whose level 0 is part k's first level:\n",
+        );
+        for (k, (p, members)) in parts.iter().enumerate() {
+            let _ = writeln!(
+                header,
+                "//   part {k}: levels {}-{}: ndf_p{k}_tex{{i}} = texture i (manifest order) of \
+                 plan part(s) {:?}, files p{{part}}{{texture}}_L{{level}}",
+                p.first, p.last, members
+            );
+        }
+        Ok(src.replacen('\n', &format!("\n{header}"), 1))
+    }
 }
 
 /// The result of baking a plan: per part, its bake restricted to the part's levels.
