@@ -723,9 +723,9 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
         float_literal(last as f32)
     );
     let (call, sig) = if aniso {
-        ("ndf_part_probes(k{}, uv, major, n, {}, l, h, {})", "vec2 uv, vec2 major, int n, float lod")
+        ("ndf_part_probes(k{}, uv, major, n, {}, l, h, {});", "vec2 uv, vec2 major, int n, float lod")
     } else {
-        ("ndf_part_shade(k{}, uv, {}, l, h, {})", "vec2 uv, float lod")
+        ("ndf_part_shade(k{}, uv, {}, l, h, {});", "vec2 uv, float lod")
     };
     let c = |next: &str, lod: &str, outs: &str| {
         call.replacen("{}", next, 1)

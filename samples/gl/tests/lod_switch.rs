@@ -13,6 +13,7 @@
 //! and 1e-3 × the BRDF's peak (specular); Blinn-Phong s = 32, f32 textures.
 
 use glam::DVec2;
+use ndfmap_gl::glow::HasContext;
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::{Brdf, half_vector};
 use ndfmap::eval::default_directions;
