@@ -518,7 +518,8 @@ fn fragment_sections() -> Result<(&'static str, &'static str, &'static str)> {
 /// `(1 − f)·shade_k(last_k) + f·shade_{k+1}(first_{k+1})`, the blend of the two parts'
 /// shadings. With anisotropic sampling, λ is the probes' `λ'` (`sample::aniso_probes` on the
 /// map) and each part averages its probes at its local LOD (clamped to its levels), then
-/// shades. Environment lighting is refused (its file defines one `ndf_env_texel` per shader).
+/// shades. Lit by the point light, the prefiltered environment or both ([`ShaderLight`];
+/// the environment's helpers once, its `ndf_env_texel` per part); the SH route is refused.
 pub fn lod_switch_source(
     parts: &[LodPart],
     map_size: (u32, u32),
@@ -532,10 +533,10 @@ pub fn lod_switch_source(
     if map_size.0 == 0 || map_size.1 == 0 {
         return bad(format!("map size {}x{}", map_size.0, map_size.1));
     }
-    if options.light != ShaderLight::Point {
+    if options.light == ShaderLight::EnvSh {
         return bad(
-            "the LOD-switching shader is built for point and directional lights; environment \
-             lighting uses one shader per part"
+            "the LOD-switching shader lights by the point light and/or the prefiltered \
+             environment route, not the SH route: use one shader per part"
                 .into(),
         );
     }
@@ -606,6 +607,16 @@ pub fn lod_switch_source(
     out += "#define NDF_LOD_SWITCH 1\n";
     out += COMMON;
     out += head;
+    let (env_helpers, env_texel) = if options.light.is_env() {
+        env_sections()?
+    } else {
+        (String::new(), String::new())
+    };
+    let (globals, body) = both_lights_globals(body)?;
+    if options.light == ShaderLight::PointAndEnvPrefiltered {
+        out += &globals;
+    }
+    out += &env_helpers;
     let probes = if aniso {
         "\n// The anisotropic probes of ndf_shade_switch_aniso averaged at this part's local LOD, \
          then shaded.\nvoid ndf_shade_probes(vec2 uv, vec2 major, int n, float lod, vec3 l, \
@@ -627,8 +638,19 @@ pub fn lod_switch_source(
             .filter(|d| d.2 == Scope::Part)
             .map(|(n, v, _)| (n, v))
             .collect();
-        let text = bindings(&p.spec, textures, manual) + &method_file(p.spec.method) + body + probes;
+        let text = bindings(&p.spec, textures, manual)
+            + &method_file(p.spec.method)
+            + &env_texel
+            + &body
+            + probes;
         let names = part_identifiers(&text);
+        // Macros the part's text defines for itself (`NDF_ENV_LP`) are undefined after it.
+        let own: Vec<&str> = text
+            .lines()
+            .filter_map(|l| l.trim_start().strip_prefix("#define "))
+            .filter_map(|l| l.split_whitespace().next())
+            .filter(|n| !text.contains(&format!("#undef {n}")))
+            .collect();
         let _ = writeln!(
             out,
             "\n// ---- part {k}: levels {}-{}, {} ({} texture(s) {}, level 0 = map level {})",
@@ -646,8 +668,12 @@ pub fn lod_switch_source(
             let _ = writeln!(out, "#define {n} {}", part_name(n, k));
         }
         out += &text;
-        for n in defs.iter().map(|d| d.0).chain(names.iter().map(|n| n.as_str())) {
-            let _ = writeln!(out, "#undef {n}");
+        let mut undone: Vec<&str> = Vec::new();
+        for n in defs.iter().map(|d| d.0).chain(names.iter().map(|n| n.as_str())).chain(own) {
+            if !undone.contains(&n) {
+                undone.push(n);
+                let _ = writeln!(out, "#undef {n}");
+            }
         }
     }
     if let Sampling::Anisotropic(n) = options.sampling {
@@ -656,6 +682,52 @@ pub fn lod_switch_source(
     out += &switch_block(parts, map_size, aniso);
     out += entry;
     Ok(out)
+}
+
+/// [`env_block`] cut for the LOD-switching shader: the environment's data and lobe helpers
+/// (once; no method defined, so no SH-bake code) and `ndf_env_texel` with its comment (per
+/// part: it reads the part's method and textures).
+fn env_sections() -> Result<(String, String)> {
+    let whole = sh_basis("ndf_env_basis", "8") + ENV;
+    let Some(at) = whole.find("\nvoid ndf_env_texel(") else {
+        return Err(Error::InvalidOption(
+            "glsl/ndf_env.glsl lacks ndf_env_texel, where the LOD-switching shader cuts it".into(),
+        ));
+    };
+    // Back over the function's comment lines.
+    let mut cut = at + 1;
+    while let Some(prev) = whole[..cut - 1].rfind('\n') {
+        if whole[prev + 1..cut].starts_with("//") {
+            cut = prev + 1;
+        } else {
+            break;
+        }
+    }
+    Ok((whole[..cut].to_string(), whole[cut..].to_string()))
+}
+
+/// The fragment file's filtering section without its `NDF_LIGHT_BOTH` globals (the view and
+/// the two lights' scales the entry point sets), and those globals: the LOD-switching shader
+/// declares them once, shared by every part.
+fn both_lights_globals(body: &str) -> Result<(String, String)> {
+    const START: &str = "#ifdef NDF_LIGHT_BOTH\n// Set by the entry point";
+    let Some(a) = body.find(START) else {
+        return Err(Error::InvalidOption(
+            "glsl/ndf_fragment.glsl lacks the NDF_LIGHT_BOTH globals the LOD-switching shader \
+             shares between parts"
+                .into(),
+        ));
+    };
+    let Some(len) = body[a..].find("#endif\n") else {
+        return Err(Error::InvalidOption(
+            "glsl/ndf_fragment.glsl: the NDF_LIGHT_BOTH globals are not closed".into(),
+        ));
+    };
+    let b = a + len + "#endif\n".len();
+    Ok((
+        body[a..b].to_string(),
+        format!("{}{}", &body[..a], &body[b..]),
+    ))
 }
 
 /// The generated switch of [`lod_switch_source`]: `ndf_shade` (and, anisotropic,
@@ -757,8 +829,9 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
               float ratio = pmin > 0.0 ? min(pmax / pmin, float(NDF_ANISO)) : float(NDF_ANISO);\n    \
               int n = clamp(int(ceil(ratio)), 1, NDF_ANISO);\n    \
               float lod = log2(max(pmax / float(n), 1e-15));\n    \
-              ndf_switch(uv, px >= py ? dx : dy, n, lod, l, h, diffuse, specular);\n    \
-              specular *= ndf_g(l, h);\n}\n";
+              ndf_switch(uv, px >= py ? dx : dy, n, lod, l, h, diffuse, specular);\n\
+              #if !defined(NDF_LIGHT_ENV) && !defined(NDF_LIGHT_BOTH)\n    \
+              specular *= ndf_g(l, h);\n#endif\n}\n";
     } else {
         s += "\n// Filtered shading at uv and level of detail lod (the entry points' ndf_shade).\n\
               void ndf_shade(vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {\n    \
@@ -766,8 +839,9 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
               // At GL's level of detail on the map, times the g factor.\n\
               void ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, out vec3 diffuse,\n\
               \x20                        out vec3 specular) {\n    \
-              ndf_shade(uv, ndf_lod(dx, dy, NDF_MAP_SIZE), l, h, diffuse, specular);\n    \
-              specular *= ndf_g(l, h);\n}\n";
+              ndf_shade(uv, ndf_lod(dx, dy, NDF_MAP_SIZE), l, h, diffuse, specular);\n\
+              #if !defined(NDF_LIGHT_ENV) && !defined(NDF_LIGHT_BOTH)\n    \
+              specular *= ndf_g(l, h);\n#endif\n}\n";
     }
     s
 }
