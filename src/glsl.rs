@@ -496,8 +496,7 @@ fn fragment_sections() -> Result<(&'static str, &'static str, &'static str)> {
             &FRAGMENT[b..],
         )),
         _ => Err(Error::InvalidOption(
-            "glsl/ndf_fragment.glsl lacks the markers the LOD-switching shader splits it at"
-                .into(),
+            "glsl/ndf_fragment.glsl lacks the markers the LOD-switching shader splits it at".into(),
         )),
     }
 }
@@ -654,12 +653,7 @@ pub fn lod_switch_source(
         let _ = writeln!(
             out,
             "\n// ---- part {k}: levels {}-{}, {} ({} texture(s) {}, level 0 = map level {})",
-            p.first,
-            p.last,
-            p.spec.method,
-            textures,
-            p.spec.format,
-            p.first
+            p.first, p.last, p.spec.method, textures, p.spec.format, p.first
         );
         for (n, v) in &defs {
             let _ = writeln!(out, "#define {n} {v}");
@@ -669,7 +663,12 @@ pub fn lod_switch_source(
         }
         out += &text;
         let mut undone: Vec<&str> = Vec::new();
-        for n in defs.iter().map(|d| d.0).chain(names.iter().map(|n| n.as_str())).chain(own) {
+        for n in defs
+            .iter()
+            .map(|d| d.0)
+            .chain(names.iter().map(|n| n.as_str()))
+            .chain(own)
+        {
             if !undone.contains(&n) {
                 undone.push(n);
                 let _ = writeln!(out, "#undef {n}");
@@ -742,15 +741,25 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let mut s = String::from("\n// ---- the switch: the part holding floor(lambda) shades (CPU twin: sample::shade_switch)\n");
+    let mut s = String::from(
+        "\n// ---- the switch: the part holding floor(lambda) shades (CPU twin: sample::shade_switch)\n",
+    );
     let _ = writeln!(
         s,
         "const vec2 NDF_MAP_SIZE = vec2({}, {});",
         float_literal(map_size.0 as f32),
         float_literal(map_size.1 as f32)
     );
-    let _ = writeln!(s, "const int NDF_PART_FIRST[{n}] = int[]({});", list(&|p| p.first));
-    let _ = writeln!(s, "const int NDF_PART_LAST[{n}] = int[]({});", list(&|p| p.last));
+    let _ = writeln!(
+        s,
+        "const int NDF_PART_FIRST[{n}] = int[]({});",
+        list(&|p| p.first)
+    );
+    let _ = writeln!(
+        s,
+        "const int NDF_PART_LAST[{n}] = int[]({});",
+        list(&|p| p.last)
+    );
     // One call per part: a dispatch on the part index.
     let dispatch = |name: &str, args: &str| {
         let mut d = String::new();
@@ -795,9 +804,15 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
         float_literal(last as f32)
     );
     let (call, sig) = if aniso {
-        ("ndf_part_probes(k{}, uv, major, n, {}, l, h, {});", "vec2 uv, vec2 major, int n, float lod")
+        (
+            "ndf_part_probes(k{}, uv, major, n, {}, l, h, {});",
+            "vec2 uv, vec2 major, int n, float lod",
+        )
     } else {
-        ("ndf_part_shade(k{}, uv, {}, l, h, {});", "vec2 uv, float lod")
+        (
+            "ndf_part_shade(k{}, uv, {}, l, h, {});",
+            "vec2 uv, float lod",
+        )
     };
     let c = |next: &str, lod: &str, outs: &str| {
         call.replacen("{}", next, 1)
@@ -1062,6 +1077,95 @@ mod tests {
                 assert_eq!(ShaderSpec::of(&b).ranges, want, "{method} color={color}");
             }
         }
+    }
+
+    #[test]
+    fn the_lod_switch_renames_each_part_and_refuses_what_it_cannot_switch() {
+        let vmf = |lobes: usize, aligned: bool| {
+            let b = bake_with(
+                &map(),
+                Method::Vmf,
+                &BakeOptions {
+                    lobes,
+                    align: aligned.then_some(1.0),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            ShaderSpec::of(&b)
+        };
+        let plain = ShaderSpec::of(&bake(&map(), Method::Plain));
+        let o = ShaderOptions::default();
+        let part = |spec: ShaderSpec, first, last| LodPart {
+            spec,
+            options: o,
+            first,
+            last,
+        };
+        let parts = vec![
+            part(plain.clone(), 0, 1),
+            part(vmf(2, true), 2, 3),
+            part(vmf(3, false), 4, 5),
+        ];
+        let src = lod_switch_source(&parts, (32, 32), Stage::Fragment, &o).unwrap();
+        // Exactly the samplers each part reads, renamed per part; no unrenamed sampler.
+        for (k, n) in [(0, 1), (1, 2), (2, 3)] {
+            for i in 0..4 {
+                let decl = format!("#define ndf_tex{i} {}", lod_switch_sampler(k, i));
+                assert_eq!(src.contains(&decl), i < n, "part {k} texture {i}");
+            }
+        }
+        assert_eq!(src.matches("uniform sampler2D ndf_tex").count(), 6);
+        // Each part's functions under its own name, the switch's once.
+        for k in 0..3 {
+            assert!(src.contains(&format!("#define ndf_shade_texel ndf_p{k}_shade_texel")));
+            assert!(src.contains(&format!(
+                "ndf_p{k}_shade(uv, lod, l, h, diffuse, specular);"
+            )));
+        }
+        assert!(src.contains("#define ndf_vmf_decode ndf_p1_vmf_decode"));
+        assert!(src.contains("const int NDF_PART_FIRST[3] = int[](0, 2, 4);"));
+        assert!(src.contains("const int NDF_PART_LAST[3] = int[](1, 3, 5);"));
+        assert!(src.contains("const vec2 NDF_MAP_SIZE = vec2(32.0, 32.0);"));
+        // Three part copies (renamed by their #defines) and the switch's.
+        assert_eq!(src.matches("void ndf_shade(").count(), 4);
+        assert_eq!(src.matches("void main()").count(), 2, "probe and mesh, once each");
+        // Part 2 is unaligned: manual sampling there only.
+        let p2 = &src[src.find("// ---- part 2").unwrap()..];
+        assert!(p2.contains("#define NDF_MANUAL 1"));
+        assert!(!src[..src.find("// ---- part 2").unwrap()].contains("#define NDF_MANUAL 1"));
+        // The vertex shader is the usual one.
+        let vert = lod_switch_source(&parts, (32, 32), Stage::Vertex, &o).unwrap();
+        assert!(vert.ends_with(VERTEX));
+        // Refused: gaps or overlaps, another lighting in a part, the SH route, mixed
+        // anisotropy, no part, an empty map, too many samplers.
+        let err = |parts: &[LodPart], opts: &ShaderOptions| {
+            lod_switch_source(parts, (32, 32), Stage::Fragment, opts)
+                .unwrap_err()
+                .to_string()
+        };
+        let mut gap = parts.clone();
+        gap[1].first = 3;
+        assert!(err(&gap, &o).contains("does not follow"));
+        let mut lit = parts.clone();
+        lit[1].options.light = ShaderLight::PointAndEnvPrefiltered;
+        assert!(err(&lit, &o).contains("must be the shader's"));
+        let sh = ShaderOptions {
+            light: ShaderLight::EnvSh,
+            ..o
+        };
+        assert!(err(&parts, &sh).contains("SH route"));
+        let mut aniso = parts.clone();
+        aniso[0].options.sampling = Sampling::Anisotropic(4);
+        assert!(err(&aniso, &o).contains("anisotropic"));
+        assert!(err(&[], &o).contains("at least one part"));
+        assert!(lod_switch_source(&parts, (0, 32), Stage::Fragment, &o).is_err());
+        let many: Vec<LodPart> = (0..5).map(|k| part(vmf(8, true), k, k)).collect();
+        assert!(err(&many, &o).contains("more than the 32"));
+        // A part's own refusals apply (colour of a bake without colour textures).
+        let mut color = parts.clone();
+        color[1].options.color = true;
+        assert!(lod_switch_source(&color, (32, 32), Stage::Fragment, &o).is_err());
     }
 
     #[test]

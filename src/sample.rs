@@ -331,11 +331,17 @@ mod tests {
         let r = [(0, 0), (1, 3), (4, 6)];
         assert_eq!(lod_switch_weights(&r, -2.0), vec![(0, 0.0, 1.0)]);
         assert_eq!(lod_switch_weights(&r, 0.0), vec![(0, 0.0, 1.0)]);
-        assert_eq!(lod_switch_weights(&r, 0.25), vec![(0, 0.0, 0.75), (1, 0.0, 0.25)]);
+        assert_eq!(
+            lod_switch_weights(&r, 0.25),
+            vec![(0, 0.0, 0.75), (1, 0.0, 0.25)]
+        );
         assert_eq!(lod_switch_weights(&r, 1.0), vec![(1, 0.0, 1.0)]);
         assert_eq!(lod_switch_weights(&r, 2.5), vec![(1, 1.5, 1.0)]);
         assert_eq!(lod_switch_weights(&r, 3.0), vec![(1, 2.0, 1.0)]);
-        assert_eq!(lod_switch_weights(&r, 3.5), vec![(1, 2.0, 0.5), (2, 0.0, 0.5)]);
+        assert_eq!(
+            lod_switch_weights(&r, 3.5),
+            vec![(1, 2.0, 0.5), (2, 0.0, 0.5)]
+        );
         assert_eq!(lod_switch_weights(&r, 5.75), vec![(2, 1.75, 1.0)]);
         assert_eq!(lod_switch_weights(&r, 9.0), vec![(2, 2.0, 1.0)]);
         assert_eq!(lod_switch_weights(&[(2, 5)], 1.0), vec![(0, 0.0, 1.0)]);

@@ -1920,7 +1920,9 @@ fn environments_load_and_pack_for_upload() {
         let mut buf = vec![0 as c_char; size];
         check!(ndf_bake_shader_source(vmf, 1, &so, buf.as_mut_ptr(), size, &mut size) => Ok, "");
         let got = CStr::from_ptr(buf.as_ptr()).to_str().unwrap();
-        assert!(got.contains("#define NDF_LIGHT_BOTH 1") && !got.contains("#define NDF_LIGHT_ENV 1"));
+        assert!(
+            got.contains("#define NDF_LIGHT_BOTH 1") && !got.contains("#define NDF_LIGHT_ENV 1")
+        );
         // SH bakes: the SH route (the Rust source, with the per-fragment rotation's table);
         // the prefiltered route is refused with a message naming the one to use.
         let sh = c_bake(map, NDF_METHOD_SH);

@@ -892,9 +892,9 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                     })
             };
             if measured[i].is_none() && c.method == Method::Vmf && c.lobes < PROBE_LOBES {
-                let probe = cands.iter().position(|d| {
-                    d.method == Method::Vmf && d.aligned && d.lobes == PROBE_LOBES
-                });
+                let probe = cands
+                    .iter()
+                    .position(|d| d.method == Method::Vmf && d.aligned && d.lobes == PROBE_LOBES);
                 if let Some(p) = probe
                     && measured[p].is_none()
                 {

@@ -15,24 +15,24 @@
 //! and 1e-3 × the BRDF's peak (specular); Blinn-Phong s = 32, f32 textures.
 
 use glam::{DMat3, DVec2, DVec3};
-use ndfmap::environment::Sky;
-use ndfmap::envlight::{EnvLight, Route as EnvRoute, shade_in};
-use ndfmap::sample::{bilinear, level_weights, lod_switch_weights, trilinear};
-use ndfmap::shade::{ShadeOptions, shade_rgb_with};
-use ndfmap_gl::glow::HasContext;
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::{Brdf, half_vector};
+use ndfmap::environment::Sky;
+use ndfmap::envlight::{EnvLight, Route as EnvRoute, shade_in};
 use ndfmap::eval::default_directions;
 use ndfmap::format::Format;
 use ndfmap::glsl::{
-    LodPart, Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage, lod_switch_sampler,
-    lod_switch_source, manual_sampling,
+    LodPart, Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage,
+    lod_switch_sampler, lod_switch_source, manual_sampling,
 };
 use ndfmap::methods::bake_with;
 use ndfmap::sample::{Filtering, SwitchPart, shade_at, shade_switch, shade_switch_aniso};
+use ndfmap::sample::{bilinear, level_weights, lod_switch_weights, trilinear};
+use ndfmap::shade::{ShadeOptions, shade_rgb_with};
+use ndfmap_gl::glow::HasContext;
 use ndfmap_gl::{
-    BakeTextures, BrdfBinding, EnvTextures, Gl, Program, RenderTarget, Route, draw_fullscreen, glow,
-    read_rgba_f32,
+    BakeTextures, BrdfBinding, EnvTextures, Gl, Program, RenderTarget, Route, draw_fullscreen,
+    glow, read_rgba_f32,
 };
 
 const TOLERANCE: f64 = 2e-4;
@@ -80,7 +80,15 @@ fn both_part(
 ) -> (f64, f64) {
     let one = |t: &[[f32; 4]]| {
         let p = shade_rgb_with(bake, t, l, h, brdf, false, &ShadeOptions::default());
-        let e = shade_in(light, DMat3::IDENTITY, bake, t, v, brdf, EnvRoute::Prefiltered);
+        let e = shade_in(
+            light,
+            DMat3::IDENTITY,
+            bake,
+            t,
+            v,
+            brdf,
+            EnvRoute::Prefiltered,
+        );
         (p.diffuse[0] + e.diffuse, p.specular[0] + e.specular)
     };
     if !manual {
@@ -249,7 +257,13 @@ fn run_case(gl: &Gl, setup: &Setup) {
                             for (k, local, w) in lod_switch_weights(&ranges, lod) {
                                 let t = &twins[k];
                                 let (pd, ps) = both_part(
-                                    light, t.bake, t.filtering.manual, uv, local, (l, h, v), &brdf,
+                                    light,
+                                    t.bake,
+                                    t.filtering.manual,
+                                    uv,
+                                    local,
+                                    (l, h, v),
+                                    &brdf,
                                 );
                                 d += w * pd;
                                 s += w * ps;
@@ -278,16 +292,23 @@ fn run_case(gl: &Gl, setup: &Setup) {
                     let local = (lod - w.first as f64).clamp(0.0, (w.last - w.first) as f64);
                     let bad = match setup.env {
                         Some((light, _)) => both_part(
-                            light, w.bake, w.filtering.manual, uv, local, (l, h, v), &brdf,
+                            light,
+                            w.bake,
+                            w.filtering.manual,
+                            uv,
+                            local,
+                            (l, h, v),
+                            &brdf,
                         ),
                         None => {
                             let b = shade_at(w.bake, uv, local, l, h, &w.filtering);
                             (b.diffuse.x, b.specular.x)
                         }
                     };
-                    wrong_worst = wrong_worst
-                        .max(err(p[0], bad.0, 1e-3))
-                        .max(err(p[1], bad.1, 1e-3 * peak));
+                    wrong_worst =
+                        wrong_worst
+                            .max(err(p[0], bad.0, 1e-3))
+                            .max(err(p[1], bad.1, 1e-3 * peak));
                 }
                 assert!(
                     wrong_worst > 10.0 * tolerance,
@@ -301,7 +322,11 @@ fn run_case(gl: &Gl, setup: &Setup) {
         "{}: LOD switch {:?}{} GL vs CPU worst {worst:.2e}",
         gl.route(),
         setup.sampling,
-        if setup.env.is_some() { " + environment" } else { "" }
+        if setup.env.is_some() {
+            " + environment"
+        } else {
+            ""
+        }
     );
     assert!(Format::F32 == setup.bakes[0].0.format);
 }
