@@ -1607,8 +1607,9 @@ impl Plan {
 
     /// The plan's one fragment shader switching method by level of detail
     /// ([`crate::glsl::lod_switch_source`] over [`Plan::lod_switch_parts`]), with a header
-    /// naming each sampler's files. Fails (saying why) where it is not built: environment
-    /// lighting, more than 32 samplers.
+    /// naming each sampler's files. Fails (saying why) where it is not built: parts lit
+    /// differently (a part with colour textures under an environment keeps the point-light
+    /// shader), more than 32 samplers.
     pub fn lod_switch_shader(&self, addressing: crate::ingest::Addressing) -> Result<String> {
         let parts = self.lod_switch_parts(addressing);
         let lod: Vec<crate::glsl::LodPart> = parts.iter().map(|p| p.0.clone()).collect();
