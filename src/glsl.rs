@@ -1129,7 +1129,11 @@ mod tests {
         assert!(src.contains("const vec2 NDF_MAP_SIZE = vec2(32.0, 32.0);"));
         // Three part copies (renamed by their #defines) and the switch's.
         assert_eq!(src.matches("void ndf_shade(").count(), 4);
-        assert_eq!(src.matches("void main()").count(), 2, "probe and mesh, once each");
+        assert_eq!(
+            src.matches("void main()").count(),
+            2,
+            "probe and mesh, once each"
+        );
         // Part 2 is unaligned: manual sampling there only.
         let p2 = &src[src.find("// ---- part 2").unwrap()..];
         assert!(p2.contains("#define NDF_MANUAL 1"));

@@ -234,7 +234,7 @@ pub fn shade_aniso_lights(
 }
 
 /// The parts and weights of a shader that switches method by level of detail
-/// ([`crate::glsl::lod_switch_source`]) at `lod`: `ranges[k]` is part k's `(first, last)` map
+/// (`glsl::lod_switch_source`) at `lod`: `ranges[k]` is part k's `(first, last)` map
 /// levels, consecutive. λ = `lod` clamped to the levels shipped; the part k holding ⌊λ⌋ shades
 /// at its local level of detail λ − first_k, except at its last level with f = frac(λ) > 0,
 /// where the trilinear blend crosses into the next part: `(k, last_k − first_k, 1 − f)` and
@@ -272,7 +272,7 @@ pub struct SwitchPart<'a> {
     pub filtering: Filtering,
 }
 
-/// The CPU twin of [`crate::glsl::lod_switch_source`]'s `ndf_shade` (hardware or manual
+/// The CPU twin of `glsl::lod_switch_source`'s `ndf_shade` (hardware or manual
 /// sampling per part): the [`lod_switch_weights`] blend of the parts' [`shade_at`].
 pub fn shade_switch(parts: &[SwitchPart], uv: DVec2, lod: f64, l: DVec3, h: DVec3) -> ShadingRgb {
     let ranges: Vec<(usize, usize)> = parts.iter().map(|p| (p.first, p.last)).collect();
