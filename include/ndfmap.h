@@ -68,6 +68,15 @@
 #define NDF_PLAN_TEXT_SHADER 2
 
 /**
+ * `ndf_plan_text`: the plan's one fragment shader switching method by level of detail
+ * (every part; samplers `ndf_p{k}_tex{i}`, each a texture whose level 0 is part k's first
+ * level; `part` ignored). `NDF_STATUS_INVALID_ARGUMENT` with the reason where it is not built
+ * (parts lit differently: a part with colour textures under an environment; more than 32
+ * samplers).
+ */
+#define NDF_PLAN_TEXT_LOD_SWITCH_SHADER 3
+
+/**
  * Status of a call. `NDF_STATUS_OK` (0) is success; the numbers are stable and never reused.
  */
 enum ndf_status
@@ -1216,6 +1225,16 @@ typedef struct ndf_environment_info {
  * into the tangent frame; they also read the BRDF's `ndf_sh_rho` as under a point light.
  */
 #define NDF_LIGHT_ENV_SH 2
+
+/**
+ * The point (or directional) light *and* an environment by the prefiltered route, summed in
+ * one shader from the same filtered texels (`NDF_LIGHT_BOTH` + `NDF_LIGHT_ENV_PREFILTERED`):
+ * the point light's uniforms, `ndf_env_color` (the environment's radiance scale) and the
+ * environment's data as for `NDF_LIGHT_ENV_PREFILTERED`. Plain, Toksvig, LEAN and vMF bakes;
+ * Lambert, Blinn-Phong or GGX; no colour. What `ndf_plan_text` returns for a scene with both
+ * kinds of light.
+ */
+#define NDF_LIGHT_POINT_AND_ENV_PREFILTERED 3
 
 /**
  * Set them to 0 and count them (`ndf_environment_info.repaired`). Default.

@@ -397,88 +397,567 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         return Ok(out);
     }
     let manual = manual_sampling(spec, options);
-    let mut d = |name: &str, value: &str| {
+    for (name, value, _) in defines(spec, options, textures, manual) {
         let _ = writeln!(out, "#define {name} {value}");
-    };
-    d(method_define(spec.method), "1");
-    if spec.lobes > 0 {
-        d("NDF_LOBES", &spec.lobes.to_string());
-    }
-    d("NDF_TEXTURES", &textures.to_string());
-    match options.brdf {
-        ShaderBrdf::BlinnPhong => {}
-        ShaderBrdf::TorranceSparrow => d("NDF_BRDF_TORRANCE_SPARROW", "1"),
-        ShaderBrdf::Lambert => d("NDF_BRDF_LAMBERT", "1"),
-        ShaderBrdf::Ggx { g } => {
-            d("NDF_BRDF_GGX", "1");
-            if g {
-                d("NDF_BRDF_G", "1");
-            }
-        }
-        ShaderBrdf::Tabulated => d("NDF_BRDF_TABULATED", "1"),
-    }
-    if spec.method == Method::Sh {
-        d("NDF_SH_LMAX", &spec.lmax.to_string());
-    }
-    if let Sampling::Anisotropic(n) = options.sampling {
-        d("NDF_ANISO", &n.to_string());
-    }
-    if spec.method == Method::Vmf && options.vmf_diffuse == crate::shade::VmfDiffuse::Algorithm2 {
-        d("NDF_VMF_DIFFUSE_ALG2", "1");
-    }
-    if spec.method == Method::Sh && options.sh_diffuse == crate::sh::ShDiffuse::Series {
-        d("NDF_SH_DIFFUSE_SERIES", "1");
-    }
-    if options.color {
-        d("NDF_COLOR", "1");
-    }
-    match options.light {
-        ShaderLight::Point => {}
-        ShaderLight::EnvPrefiltered => {
-            d("NDF_LIGHT_ENV", "1");
-            d("NDF_LIGHT_ENV_PREFILTERED", "1");
-        }
-        ShaderLight::EnvSh => {
-            d("NDF_LIGHT_ENV", "1");
-            d("NDF_LIGHT_ENV_SH", "1");
-        }
-        ShaderLight::PointAndEnvPrefiltered => {
-            d("NDF_LIGHT_BOTH", "1");
-            d("NDF_LIGHT_ENV_PREFILTERED", "1");
-        }
-    }
-    if manual {
-        d("NDF_MANUAL", "1");
-    }
-    if spec.addressing == Addressing::Clamp {
-        d("NDF_CLAMP", "1");
-    }
-    if spec.method == Method::Vmf || (spec.method == Method::Toksvig && options.light.is_env()) {
-        d(
-            "NDF_R_MAX",
-            &float_literal(crate::vmf::r_max(spec.format) as f32),
-        );
-        d(
-            "NDF_ALPHA_MIN",
-            &float_literal(crate::vmf::alpha_min(spec.format) as f32),
-        );
     }
     out += COMMON;
     out += &bindings(spec, textures, manual);
-    match spec.method {
-        Method::Vmf => out += VMF,
-        Method::Tan2005 => out += TAN2005,
-        Method::Sh => {
-            out += &sh_basis("ndf_sh_eval", "NDF_SH_LMAX");
-            out += SH;
-        }
-        _ => out += BASELINES,
-    }
+    out += &method_file(spec.method);
     if options.light.is_env() {
         out += &env_block(spec);
     }
     out += FRAGMENT;
     Ok(out)
+}
+
+/// One level range of a shader that switches method by level of detail
+/// ([`lod_switch_source`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LodPart {
+    /// The part's textures and method. Level 0 of its textures is map level `first` (a texture
+    /// holding only the part's levels, or the map's chain with `GL_TEXTURE_BASE_LEVEL` =
+    /// `first`); the shader reads its levels `0 ..= last − first`.
+    pub spec: ShaderSpec,
+    /// Its shader options ([`ShaderOptions::color`], [`ShaderOptions::sampling`] and
+    /// [`ShaderOptions::vmf_diffuse`] / [`ShaderOptions::sh_diffuse`] are the part's own; the
+    /// lighting, BRDF and probe flag must be those of every part).
+    pub options: ShaderOptions,
+    /// The finest map level it shades.
+    pub first: usize,
+    /// The coarsest.
+    pub last: usize,
+}
+
+/// The identifiers a method's part defines (functions, `const` arrays, samplers) in `text`:
+/// what [`lod_switch_source`] renames per part so that several methods live in one shader.
+fn part_identifiers(text: &str) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for line in text.lines() {
+        let words: Vec<&str> = line
+            .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .filter(|w| !w.is_empty())
+            .collect();
+        let name = match words.as_slice() {
+            // `type name(` at the start of a line: a function definition.
+            [ty, name, ..]
+                if !line.starts_with(char::is_whitespace)
+                    && line.contains(&format!("{ty} {name}("))
+                    && matches!(
+                        *ty,
+                        "void" | "float" | "vec2" | "vec3" | "vec4" | "bool" | "int" | "ivec2"
+                    )
+                    && !line.trim_start().starts_with("//") =>
+            {
+                Some(*name)
+            }
+            ["const", _, name, ..] if line.starts_with("const ") => Some(*name),
+            ["uniform", "sampler2D", name, ..] if line.starts_with("uniform ") => Some(*name),
+            _ => None,
+        };
+        // The SH basis is defined as `NDF_BASIS_NAME`, a macro the text sets to `ndf_sh_eval`.
+        let name = match name {
+            Some("NDF_BASIS_NAME") => Some("ndf_sh_eval"),
+            n => n,
+        };
+        if let Some(n) = name
+            && (n.starts_with("ndf_") || n.starts_with("NDF_"))
+            && !names.iter().any(|x| x == n)
+        {
+            names.push(n.to_string());
+        }
+    }
+    names
+}
+
+/// The per-part identifier of `name` in part `k`: `ndf_x` → `ndf_p{k}_x`, `NDF_X` → `NDF_P{k}_X`.
+fn part_name(name: &str, k: usize) -> String {
+    if let Some(rest) = name.strip_prefix("ndf_") {
+        format!("ndf_p{k}_{rest}")
+    } else {
+        format!("NDF_P{k}_{}", &name[4..])
+    }
+}
+
+/// The sampler of texture `texture` of part `k` in a [`lod_switch_source`] shader:
+/// `ndf_p{k}_tex{texture}`.
+pub fn lod_switch_sampler(part: usize, texture: usize) -> String {
+    format!("ndf_p{part}_tex{texture}")
+}
+
+/// [`FRAGMENT`] cut in three: the output declaration (once), the filtering functions (once
+/// per part, renamed) and the entry points (once, after the switch).
+fn fragment_sections() -> Result<(&'static str, &'static str, &'static str)> {
+    const OUT: &str = "layout(location = 0) out vec4 ndf_out;\n";
+    const ENTRY: &str = "#ifdef NDF_PROBE\nuniform vec2 ndf_probe_size;";
+    match (FRAGMENT.find(OUT), FRAGMENT.find(ENTRY)) {
+        (Some(a), Some(b)) if a + OUT.len() <= b => Ok((
+            &FRAGMENT[..a + OUT.len()],
+            &FRAGMENT[a + OUT.len()..b],
+            &FRAGMENT[b..],
+        )),
+        _ => Err(Error::InvalidOption(
+            "glsl/ndf_fragment.glsl lacks the markers the LOD-switching shader splits it at".into(),
+        )),
+    }
+}
+
+/// One shader for a plan that mixes methods across level ranges (issue 18): the fragment
+/// shader (or, for [`Stage::Vertex`], the usual vertex shader) that shades each pixel with the
+/// part whose levels hold its level of detail.
+///
+/// Each part's method code, sampler block and filtering functions are the single-method
+/// shader's ([`source_for`]), with the part's `#define`s and every identifier it defines
+/// renamed `ndf_p{k}_…` (`#define` renaming, `#undef` after the part): samplers
+/// `ndf_p{k}_tex{i}` ([`lod_switch_sampler`]), exactly the textures each part reads. The
+/// switch (CPU twin [`crate::sample::lod_switch_weights`] / [`crate::sample::shade_switch`]):
+/// λ = the level of detail on the map (`map_size`, GL's rule) clamped to the levels shipped
+/// `[first of part 0, last of the last part]`; with ℓ = ⌊λ⌋ and f = λ − ℓ, the part k holding
+/// ℓ shades at its local LOD λ − first_k (hardware trilinear or manual within the part); at a
+/// part's last level with f > 0, the trilinear blend across the boundary is done as
+/// `(1 − f)·shade_k(last_k) + f·shade_{k+1}(first_{k+1})`, the blend of the two parts'
+/// shadings. With anisotropic sampling, λ is the probes' `λ'` (`sample::aniso_probes` on the
+/// map) and each part averages its probes at its local LOD (clamped to its levels), then
+/// shades. Lit by the point light, the prefiltered environment or both ([`ShaderLight`];
+/// the environment's helpers once, its `ndf_env_texel` per part); the SH route is refused.
+pub fn lod_switch_source(
+    parts: &[LodPart],
+    map_size: (u32, u32),
+    stage: Stage,
+    options: &ShaderOptions,
+) -> Result<String> {
+    let bad = |m: String| Err(Error::InvalidOption(m));
+    if parts.is_empty() {
+        return bad("a LOD-switching shader needs at least one part".into());
+    }
+    if map_size.0 == 0 || map_size.1 == 0 {
+        return bad(format!("map size {}x{}", map_size.0, map_size.1));
+    }
+    if options.light == ShaderLight::EnvSh {
+        return bad(
+            "the LOD-switching shader lights by the point light and/or the prefiltered \
+             environment route, not the SH route: use one shader per part"
+                .into(),
+        );
+    }
+    let aniso = matches!(options.sampling, Sampling::Anisotropic(_));
+    let mut samplers = 0;
+    for (k, p) in parts.iter().enumerate() {
+        if p.first > p.last || (k > 0 && p.first != parts[k - 1].last + 1) {
+            return bad(format!(
+                "part {k} (levels {}-{}) does not follow the previous part's levels",
+                p.first, p.last
+            ));
+        }
+        let o = &p.options;
+        if o.light != options.light || o.brdf != options.brdf || o.probe != options.probe {
+            return bad(format!(
+                "part {k}: lighting, BRDF and probe flag must be the shader's"
+            ));
+        }
+        if p.spec.addressing != parts[0].spec.addressing {
+            return bad(format!("part {k}: another texture addressing"));
+        }
+        if matches!(o.sampling, Sampling::Anisotropic(_)) != aniso {
+            return bad(format!(
+                "part {k}: anisotropic sampling must be every part's or none's"
+            ));
+        }
+        // Every check of the single-method shader applies to the part.
+        source_for(&p.spec, Stage::Fragment, o)?;
+        samplers += sampled_textures(&p.spec, o)?;
+    }
+    if samplers > MAX_SAMPLERS {
+        return bad(format!(
+            "the LOD-switching shader would sample {samplers} textures, more than the \
+             {MAX_SAMPLERS} texture units GPUs offer: use one shader per part"
+        ));
+    }
+    let (head, body, entry) = fragment_sections()?;
+    let label: Vec<String> = parts
+        .iter()
+        .map(|p| format!("L{}-{} {}", p.first, p.last, p.spec.method))
+        .collect();
+    let mut out = String::from("#version 330 core\n");
+    let _ = writeln!(
+        out,
+        "// ndfmap {} - {} shader switching method by level of detail: {}",
+        env!("CARGO_PKG_VERSION"),
+        match stage {
+            Stage::Vertex => "vertex",
+            Stage::Fragment => "fragment",
+        },
+        label.join("; ")
+    );
+    if options.probe {
+        out += "#define NDF_PROBE 1\n";
+    }
+    if stage == Stage::Vertex {
+        out += VERTEX;
+        return Ok(out);
+    }
+    let first_spec = &parts[0].spec;
+    let first_textures = sampled_textures(first_spec, &parts[0].options)?;
+    let manual0 = manual_sampling(first_spec, &parts[0].options);
+    for (name, value, scope) in defines(first_spec, options, first_textures, manual0) {
+        if scope == Scope::Common {
+            let _ = writeln!(out, "#define {name} {value}");
+        }
+    }
+    out += "#define NDF_LOD_SWITCH 1\n";
+    out += COMMON;
+    out += head;
+    let (env_helpers, env_texel) = if options.light.is_env() {
+        env_sections()?
+    } else {
+        (String::new(), String::new())
+    };
+    let (globals, body) = both_lights_globals(body)?;
+    if options.light == ShaderLight::PointAndEnvPrefiltered {
+        out += &globals;
+    }
+    out += &env_helpers;
+    let probes = if aniso {
+        "\n// The anisotropic probes of ndf_shade_switch_aniso averaged at this part's local LOD, \
+         then shaded.\nvoid ndf_shade_probes(vec2 uv, vec2 major, int n, float lod, vec3 l, \
+         vec3 h, out vec3 diffuse,\n                      out vec3 specular) {\n    \
+         vec4 t[NDF_TEXTURES];\n    for (int k = 0; k < NDF_TEXTURES; ++k) t[k] = vec4(0.0);\n    \
+         for (int i = 1; i <= NDF_ANISO; ++i) {\n        if (i > n) break;\n        \
+         vec4 p[NDF_TEXTURES];\n        ndf_fetch_lod(uv + major * (float(i) / float(n + 1) - \
+         0.5), lod, p);\n        for (int k = 0; k < NDF_TEXTURES; ++k) t[k] += p[k];\n    }\n    \
+         for (int k = 0; k < NDF_TEXTURES; ++k) t[k] /= float(n);\n    \
+         ndf_texel(t, l, h, diffuse, specular);\n}\n"
+    } else {
+        ""
+    };
+    for (k, p) in parts.iter().enumerate() {
+        let textures = sampled_textures(&p.spec, &p.options)?;
+        let manual = manual_sampling(&p.spec, &p.options);
+        let defs: Vec<(&str, String)> = defines(&p.spec, &p.options, textures, manual)
+            .into_iter()
+            .filter(|d| d.2 == Scope::Part)
+            .map(|(n, v, _)| (n, v))
+            .collect();
+        let text = bindings(&p.spec, textures, manual)
+            + &method_file(p.spec.method)
+            + &env_texel
+            + &body
+            + probes;
+        let names = part_identifiers(&text);
+        // Macros the part's text defines for itself (`NDF_ENV_LP`) are undefined after it.
+        let own: Vec<&str> = text
+            .lines()
+            .filter_map(|l| l.trim_start().strip_prefix("#define "))
+            .filter_map(|l| l.split_whitespace().next())
+            .filter(|n| !text.contains(&format!("#undef {n}")))
+            .collect();
+        let _ = writeln!(
+            out,
+            "\n// ---- part {k}: levels {}-{}, {} ({} texture(s) {}, level 0 = map level {})",
+            p.first, p.last, p.spec.method, textures, p.spec.format, p.first
+        );
+        for (n, v) in &defs {
+            let _ = writeln!(out, "#define {n} {v}");
+        }
+        for n in &names {
+            let _ = writeln!(out, "#define {n} {}", part_name(n, k));
+        }
+        out += &text;
+        let mut undone: Vec<&str> = Vec::new();
+        for n in defs
+            .iter()
+            .map(|d| d.0)
+            .chain(names.iter().map(|n| n.as_str()))
+            .chain(own)
+        {
+            if !undone.contains(&n) {
+                undone.push(n);
+                let _ = writeln!(out, "#undef {n}");
+            }
+        }
+    }
+    if let Sampling::Anisotropic(n) = options.sampling {
+        let _ = writeln!(out, "#define NDF_ANISO {n}");
+    }
+    out += &switch_block(parts, map_size, aniso);
+    out += entry;
+    Ok(out)
+}
+
+/// [`env_block`] cut for the LOD-switching shader: the environment's data and lobe helpers
+/// (once; no method defined, so no SH-bake code) and `ndf_env_texel` with its comment (per
+/// part: it reads the part's method and textures).
+fn env_sections() -> Result<(String, String)> {
+    let whole = sh_basis("ndf_env_basis", "8") + ENV;
+    let Some(at) = whole.find("\nvoid ndf_env_texel(") else {
+        return Err(Error::InvalidOption(
+            "glsl/ndf_env.glsl lacks ndf_env_texel, where the LOD-switching shader cuts it".into(),
+        ));
+    };
+    // Back over the function's comment lines.
+    let mut cut = at + 1;
+    while let Some(prev) = whole[..cut - 1].rfind('\n') {
+        if whole[prev + 1..cut].starts_with("//") {
+            cut = prev + 1;
+        } else {
+            break;
+        }
+    }
+    Ok((whole[..cut].to_string(), whole[cut..].to_string()))
+}
+
+/// The fragment file's filtering section without its `NDF_LIGHT_BOTH` globals (the view and
+/// the two lights' scales the entry point sets), and those globals: the LOD-switching shader
+/// declares them once, shared by every part.
+fn both_lights_globals(body: &str) -> Result<(String, String)> {
+    const START: &str = "#ifdef NDF_LIGHT_BOTH\n// Set by the entry point";
+    let Some(a) = body.find(START) else {
+        return Err(Error::InvalidOption(
+            "glsl/ndf_fragment.glsl lacks the NDF_LIGHT_BOTH globals the LOD-switching shader \
+             shares between parts"
+                .into(),
+        ));
+    };
+    let Some(len) = body[a..].find("#endif\n") else {
+        return Err(Error::InvalidOption(
+            "glsl/ndf_fragment.glsl: the NDF_LIGHT_BOTH globals are not closed".into(),
+        ));
+    };
+    let b = a + len + "#endif\n".len();
+    Ok((
+        body[a..b].to_string(),
+        format!("{}{}", &body[..a], &body[b..]),
+    ))
+}
+
+/// The generated switch of [`lod_switch_source`]: `ndf_shade` (and, anisotropic,
+/// `ndf_shade_footprint`) choosing the part by level of detail, blending two parts across a
+/// boundary.
+fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String {
+    let n = parts.len();
+    let list = |f: &dyn Fn(&LodPart) -> usize| {
+        parts
+            .iter()
+            .map(|p| f(p).to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut s = String::from(
+        "\n// ---- the switch: the part holding floor(lambda) shades (CPU twin: sample::shade_switch)\n",
+    );
+    let _ = writeln!(
+        s,
+        "const vec2 NDF_MAP_SIZE = vec2({}, {});",
+        float_literal(map_size.0 as f32),
+        float_literal(map_size.1 as f32)
+    );
+    let _ = writeln!(
+        s,
+        "const int NDF_PART_FIRST[{n}] = int[]({});",
+        list(&|p| p.first)
+    );
+    let _ = writeln!(
+        s,
+        "const int NDF_PART_LAST[{n}] = int[]({});",
+        list(&|p| p.last)
+    );
+    // One call per part: a dispatch on the part index.
+    let dispatch = |name: &str, args: &str| {
+        let mut d = String::new();
+        for k in 0..n {
+            let call = format!("ndf_p{k}_{name}({args});");
+            if k + 1 == n {
+                let _ = writeln!(d, "    {}{call}", if n > 1 { "else " } else { "" });
+            } else if k == 0 {
+                let _ = writeln!(d, "    if (k == 0) {call}");
+            } else {
+                let _ = writeln!(d, "    else if (k == {k}) {call}");
+            }
+        }
+        d
+    };
+    let _ = writeln!(
+        s,
+        "\n// Part k's shading at its local level of detail (0 = its first level).\n\
+         void ndf_part_shade(int k, vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse,\n\
+         \x20                   out vec3 specular) {{\n{}}}",
+        dispatch("shade", "uv, lod, l, h, diffuse, specular")
+    );
+    if aniso {
+        let _ = writeln!(
+            s,
+            "\n// Part k's anisotropic probes at its local level of detail.\n\
+             void ndf_part_probes(int k, vec2 uv, vec2 major, int n, float lod, vec3 l, vec3 h,\n\
+             \x20                    out vec3 diffuse, out vec3 specular) {{\n{}}}",
+            dispatch("shade_probes", "uv, major, n, lod, l, h, diffuse, specular")
+        );
+    }
+    let last = parts[n - 1].last;
+    let _ = writeln!(
+        s,
+        "\n// The part holding level floor(lambda) of the levels shipped, the fraction f, and \
+         lambda.\nint ndf_part_of(float lod, out float lambda, out float f) {{\n    \
+         lambda = clamp(lod, {}, {});\n    int level = int(floor(lambda));\n    \
+         f = lambda - float(level);\n    int k = 0;\n    \
+         for (int i = 1; i < {n}; ++i) if (level >= NDF_PART_FIRST[i]) k = i;\n    \
+         return k;\n}}",
+        float_literal(parts[0].first as f32),
+        float_literal(last as f32)
+    );
+    let (call, sig) = if aniso {
+        (
+            "ndf_part_probes(k{}, uv, major, n, {}, l, h, {});",
+            "vec2 uv, vec2 major, int n, float lod",
+        )
+    } else {
+        (
+            "ndf_part_shade(k{}, uv, {}, l, h, {});",
+            "vec2 uv, float lod",
+        )
+    };
+    let c = |next: &str, lod: &str, outs: &str| {
+        call.replacen("{}", next, 1)
+            .replacen("{}", lod, 1)
+            .replacen("{}", outs, 1)
+    };
+    let _ = writeln!(
+        s,
+        "\n// The switch at level of detail lod: inside a part, its filtering; across a part's \
+         last level,\n// (1 - f) its shading at that level + f the next part's at its first.\n\
+         void ndf_switch({sig}, vec3 l, vec3 h, out vec3 diffuse,\n\
+         \x20               out vec3 specular) {{\n    float lambda;\n    float f;\n    \
+         int k = ndf_part_of(lod, lambda, f);\n    \
+         int local_last = NDF_PART_LAST[k] - NDF_PART_FIRST[k];\n    \
+         float local = min(lambda - float(NDF_PART_FIRST[k]), float(local_last));\n    \
+         if (f == 0.0 || int(floor(lambda)) < NDF_PART_LAST[k]) {{\n        {}\n        \
+         return;\n    }}\n    vec3 d;\n    vec3 s;\n    {}\n    {}\n    \
+         diffuse = (1.0 - f) * diffuse + f * d;\n    specular = (1.0 - f) * specular + f * s;\n}}",
+        c("", "local", "diffuse, specular"),
+        c("", "float(local_last)", "diffuse, specular"),
+        c(" + 1", "0.0", "d, s"),
+    );
+    if aniso {
+        s += "\n// The anisotropic footprint on the map (sample::aniso_probes), switched by its \
+              probes' LOD.\nvoid ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, \
+              out vec3 diffuse,\n                         out vec3 specular) {\n    \
+              float px = length(dx * NDF_MAP_SIZE);\n    float py = length(dy * NDF_MAP_SIZE);\n    \
+              float pmax = max(px, py);\n    float pmin = min(px, py);\n    \
+              float ratio = pmin > 0.0 ? min(pmax / pmin, float(NDF_ANISO)) : float(NDF_ANISO);\n    \
+              int n = clamp(int(ceil(ratio)), 1, NDF_ANISO);\n    \
+              float lod = log2(max(pmax / float(n), 1e-15));\n    \
+              ndf_switch(uv, px >= py ? dx : dy, n, lod, l, h, diffuse, specular);\n\
+              #if !defined(NDF_LIGHT_ENV) && !defined(NDF_LIGHT_BOTH)\n    \
+              specular *= ndf_g(l, h);\n#endif\n}\n";
+    } else {
+        s += "\n// Filtered shading at uv and level of detail lod (the entry points' ndf_shade).\n\
+              void ndf_shade(vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {\n    \
+              ndf_switch(uv, lod, l, h, diffuse, specular);\n}\n\n\
+              // At GL's level of detail on the map, times the g factor.\n\
+              void ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, out vec3 diffuse,\n\
+              \x20                        out vec3 specular) {\n    \
+              ndf_shade(uv, ndf_lod(dx, dy, NDF_MAP_SIZE), l, h, diffuse, specular);\n\
+              #if !defined(NDF_LIGHT_ENV) && !defined(NDF_LIGHT_BOTH)\n    \
+              specular *= ndf_g(l, h);\n#endif\n}\n";
+    }
+    s
+}
+
+/// Whether a `#define` of [`defines`] belongs to the method's part of a shader (renewed per
+/// part in [`lod_switch_source`]) or is common to the whole shader.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scope {
+    /// Method, textures, sampling: one value per part.
+    Part,
+    /// BRDF, lighting, addressing: the same for every part.
+    Common,
+}
+
+/// The `#define`s of `spec` and `options` (name, value, scope), in the order [`source_for`]
+/// writes them.
+fn defines(
+    spec: &ShaderSpec,
+    options: &ShaderOptions,
+    textures: usize,
+    manual: bool,
+) -> Vec<(&'static str, String, Scope)> {
+    use Scope::{Common, Part};
+    let mut v: Vec<(&'static str, String, Scope)> = Vec::new();
+    let mut d = |name: &'static str, value: &str, scope: Scope| v.push((name, value.into(), scope));
+    d(method_define(spec.method), "1", Part);
+    if spec.lobes > 0 {
+        d("NDF_LOBES", &spec.lobes.to_string(), Part);
+    }
+    d("NDF_TEXTURES", &textures.to_string(), Part);
+    match options.brdf {
+        ShaderBrdf::BlinnPhong => {}
+        ShaderBrdf::TorranceSparrow => d("NDF_BRDF_TORRANCE_SPARROW", "1", Common),
+        ShaderBrdf::Lambert => d("NDF_BRDF_LAMBERT", "1", Common),
+        ShaderBrdf::Ggx { g } => {
+            d("NDF_BRDF_GGX", "1", Common);
+            if g {
+                d("NDF_BRDF_G", "1", Common);
+            }
+        }
+        ShaderBrdf::Tabulated => d("NDF_BRDF_TABULATED", "1", Common),
+    }
+    if spec.method == Method::Sh {
+        d("NDF_SH_LMAX", &spec.lmax.to_string(), Part);
+    }
+    if let Sampling::Anisotropic(n) = options.sampling {
+        d("NDF_ANISO", &n.to_string(), Part);
+    }
+    if spec.method == Method::Vmf && options.vmf_diffuse == crate::shade::VmfDiffuse::Algorithm2 {
+        d("NDF_VMF_DIFFUSE_ALG2", "1", Part);
+    }
+    if spec.method == Method::Sh && options.sh_diffuse == crate::sh::ShDiffuse::Series {
+        d("NDF_SH_DIFFUSE_SERIES", "1", Part);
+    }
+    if options.color {
+        d("NDF_COLOR", "1", Part);
+    }
+    match options.light {
+        ShaderLight::Point => {}
+        ShaderLight::EnvPrefiltered => {
+            d("NDF_LIGHT_ENV", "1", Common);
+            d("NDF_LIGHT_ENV_PREFILTERED", "1", Common);
+        }
+        ShaderLight::EnvSh => {
+            d("NDF_LIGHT_ENV", "1", Common);
+            d("NDF_LIGHT_ENV_SH", "1", Common);
+        }
+        ShaderLight::PointAndEnvPrefiltered => {
+            d("NDF_LIGHT_BOTH", "1", Common);
+            d("NDF_LIGHT_ENV_PREFILTERED", "1", Common);
+        }
+    }
+    if manual {
+        d("NDF_MANUAL", "1", Part);
+    }
+    if spec.addressing == Addressing::Clamp {
+        d("NDF_CLAMP", "1", Common);
+    }
+    if spec.method == Method::Vmf || (spec.method == Method::Toksvig && options.light.is_env()) {
+        d(
+            "NDF_R_MAX",
+            &float_literal(crate::vmf::r_max(spec.format) as f32),
+            Part,
+        );
+        d(
+            "NDF_ALPHA_MIN",
+            &float_literal(crate::vmf::alpha_min(spec.format) as f32),
+            Part,
+        );
+    }
+    v
+}
+
+/// The method file(s) of `method` (SH: the basis instantiated as `ndf_sh_eval`, then eq 12).
+fn method_file(method: Method) -> String {
+    match method {
+        Method::Vmf => VMF.to_string(),
+        Method::Tan2005 => TAN2005.to_string(),
+        Method::Sh => sh_basis("ndf_sh_eval", "NDF_SH_LMAX") + SH,
+        _ => BASELINES.to_string(),
+    }
 }
 
 /// [`SH_BASIS`] instantiated as `void name(vec3 d, out float y[(lmax + 1)²])` (`lmax`: a
@@ -598,6 +1077,99 @@ mod tests {
                 assert_eq!(ShaderSpec::of(&b).ranges, want, "{method} color={color}");
             }
         }
+    }
+
+    #[test]
+    fn the_lod_switch_renames_each_part_and_refuses_what_it_cannot_switch() {
+        let vmf = |lobes: usize, aligned: bool| {
+            let b = bake_with(
+                &map(),
+                Method::Vmf,
+                &BakeOptions {
+                    lobes,
+                    align: aligned.then_some(1.0),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            ShaderSpec::of(&b)
+        };
+        let plain = ShaderSpec::of(&bake(&map(), Method::Plain));
+        let o = ShaderOptions::default();
+        let part = |spec: ShaderSpec, first, last| LodPart {
+            spec,
+            options: o,
+            first,
+            last,
+        };
+        let parts = vec![
+            part(plain.clone(), 0, 1),
+            part(vmf(2, true), 2, 3),
+            part(vmf(3, false), 4, 5),
+        ];
+        let src = lod_switch_source(&parts, (32, 32), Stage::Fragment, &o).unwrap();
+        // Exactly the samplers each part reads, renamed per part; no unrenamed sampler.
+        for (k, n) in [(0, 1), (1, 2), (2, 3)] {
+            for i in 0..4 {
+                let decl = format!("#define ndf_tex{i} {}", lod_switch_sampler(k, i));
+                assert_eq!(src.contains(&decl), i < n, "part {k} texture {i}");
+            }
+        }
+        assert_eq!(src.matches("uniform sampler2D ndf_tex").count(), 6);
+        // Each part's functions under its own name, the switch's once.
+        for k in 0..3 {
+            assert!(src.contains(&format!("#define ndf_shade_texel ndf_p{k}_shade_texel")));
+            assert!(src.contains(&format!(
+                "ndf_p{k}_shade(uv, lod, l, h, diffuse, specular);"
+            )));
+        }
+        assert!(src.contains("#define ndf_vmf_decode ndf_p1_vmf_decode"));
+        assert!(src.contains("const int NDF_PART_FIRST[3] = int[](0, 2, 4);"));
+        assert!(src.contains("const int NDF_PART_LAST[3] = int[](1, 3, 5);"));
+        assert!(src.contains("const vec2 NDF_MAP_SIZE = vec2(32.0, 32.0);"));
+        // Three part copies (renamed by their #defines) and the switch's.
+        assert_eq!(src.matches("void ndf_shade(").count(), 4);
+        assert_eq!(
+            src.matches("void main()").count(),
+            2,
+            "probe and mesh, once each"
+        );
+        // Part 2 is unaligned: manual sampling there only.
+        let p2 = &src[src.find("// ---- part 2").unwrap()..];
+        assert!(p2.contains("#define NDF_MANUAL 1"));
+        assert!(!src[..src.find("// ---- part 2").unwrap()].contains("#define NDF_MANUAL 1"));
+        // The vertex shader is the usual one.
+        let vert = lod_switch_source(&parts, (32, 32), Stage::Vertex, &o).unwrap();
+        assert!(vert.ends_with(VERTEX));
+        // Refused: gaps or overlaps, another lighting in a part, the SH route, mixed
+        // anisotropy, no part, an empty map, too many samplers.
+        let err = |parts: &[LodPart], opts: &ShaderOptions| {
+            lod_switch_source(parts, (32, 32), Stage::Fragment, opts)
+                .unwrap_err()
+                .to_string()
+        };
+        let mut gap = parts.clone();
+        gap[1].first = 3;
+        assert!(err(&gap, &o).contains("does not follow"));
+        let mut lit = parts.clone();
+        lit[1].options.light = ShaderLight::PointAndEnvPrefiltered;
+        assert!(err(&lit, &o).contains("must be the shader's"));
+        let sh = ShaderOptions {
+            light: ShaderLight::EnvSh,
+            ..o
+        };
+        assert!(err(&parts, &sh).contains("SH route"));
+        let mut aniso = parts.clone();
+        aniso[0].options.sampling = Sampling::Anisotropic(4);
+        assert!(err(&aniso, &o).contains("anisotropic"));
+        assert!(err(&[], &o).contains("at least one part"));
+        assert!(lod_switch_source(&parts, (0, 32), Stage::Fragment, &o).is_err());
+        let many: Vec<LodPart> = (0..5).map(|k| part(vmf(8, true), k, k)).collect();
+        assert!(err(&many, &o).contains("more than the 32"));
+        // A part's own refusals apply (colour of a bake without colour textures).
+        let mut color = parts.clone();
+        color[1].options.color = true;
+        assert!(lod_switch_source(&color, (32, 32), Stage::Fragment, &o).is_err());
     }
 
     #[test]

@@ -233,11 +233,120 @@ pub fn shade_aniso_lights(
     }
 }
 
+/// The parts and weights of a shader that switches method by level of detail
+/// (`glsl::lod_switch_source`) at `lod`: `ranges[k]` is part k's `(first, last)` map
+/// levels, consecutive. λ = `lod` clamped to the levels shipped; the part k holding ⌊λ⌋ shades
+/// at its local level of detail λ − first_k, except at its last level with f = frac(λ) > 0,
+/// where the trilinear blend crosses into the next part: `(k, last_k − first_k, 1 − f)` and
+/// `(k + 1, 0, f)`. Returns `(part, local lod, weight)`, weights summing to 1.
+pub fn lod_switch_weights(ranges: &[(usize, usize)], lod: f64) -> Vec<(usize, f64, f64)> {
+    let (Some(&(lo, _)), Some(&(_, hi))) = (ranges.first(), ranges.last()) else {
+        return Vec::new();
+    };
+    let lambda = if lod.is_nan() {
+        lo as f64
+    } else {
+        lod.clamp(lo as f64, hi as f64)
+    };
+    let level = lambda.floor() as usize;
+    let f = lambda - level as f64;
+    let k = ranges.iter().rposition(|r| level >= r.0).unwrap_or(0);
+    let (first, last) = ranges[k];
+    if f == 0.0 || level < last || k + 1 == ranges.len() {
+        vec![(k, lambda - first as f64, 1.0)]
+    } else {
+        vec![(k, (last - first) as f64, 1.0 - f), (k + 1, 0.0, f)]
+    }
+}
+
+/// One part of a LOD-switching shader's CPU twin ([`shade_switch`]).
+#[derive(Debug, Clone)]
+pub struct SwitchPart<'a> {
+    /// The part's bake: its level 0 is map level `first` (what `plan::execute` returns).
+    pub bake: &'a Bake,
+    /// The finest map level it shades.
+    pub first: usize,
+    /// The coarsest.
+    pub last: usize,
+    /// Its filtering and shading.
+    pub filtering: Filtering,
+}
+
+/// The CPU twin of `glsl::lod_switch_source`'s `ndf_shade` (hardware or manual
+/// sampling per part): the [`lod_switch_weights`] blend of the parts' [`shade_at`].
+pub fn shade_switch(parts: &[SwitchPart], uv: DVec2, lod: f64, l: DVec3, h: DVec3) -> ShadingRgb {
+    let ranges: Vec<(usize, usize)> = parts.iter().map(|p| (p.first, p.last)).collect();
+    let mut out = ShadingRgb::default();
+    for (k, local, w) in lod_switch_weights(&ranges, lod) {
+        let s = shade_at(parts[k].bake, uv, local, l, h, &parts[k].filtering);
+        out.diffuse += w * s.diffuse;
+        out.specular += w * s.specular;
+    }
+    out
+}
+
+/// The CPU twin of the LOD-switching shader's anisotropic `ndf_shade_footprint`: the probes of
+/// [`aniso_probes`] on the map (`map_size`), the parts of [`lod_switch_weights`] at the probes'
+/// LOD, each averaging its probes' trilinear samples at its local LOD and shading once.
+#[allow(clippy::too_many_arguments)]
+pub fn shade_switch_aniso(
+    parts: &[SwitchPart],
+    map_size: (u32, u32),
+    uv: DVec2,
+    (duv_dx, duv_dy): (DVec2, DVec2),
+    max_aniso: u32,
+    l: DVec3,
+    h: DVec3,
+) -> ShadingRgb {
+    let ranges: Vec<(usize, usize)> = parts.iter().map(|p| (p.first, p.last)).collect();
+    let (lod, offsets) = aniso_probes(duv_dx, duv_dy, map_size, max_aniso);
+    let mut out = ShadingRgb::default();
+    for (k, local, w) in lod_switch_weights(&ranges, lod) {
+        let (bake, f) = (parts[k].bake, &parts[k].filtering);
+        let mut acc = vec![[0.0f64; 4]; bake.textures.len()];
+        for o in &offsets {
+            for (a, t) in acc.iter_mut().zip(trilinear(bake, uv + *o, local)) {
+                for c in 0..4 {
+                    a[c] += t[c] as f64;
+                }
+            }
+        }
+        let n = offsets.len() as f64;
+        let t: Vec<[f32; 4]> = acc.iter().map(|a| a.map(|v| (v / n) as f32)).collect();
+        let s = shade_rgb_with(bake, &t, l, h, &f.brdf, f.color, &f.shading);
+        out.diffuse += w * s.diffuse;
+        out.specular += w * s.specular;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::bake::Method;
     use crate::methods::bake;
+
+    #[test]
+    fn the_lod_switch_picks_the_part_holding_the_level_and_blends_across_boundaries() {
+        let r = [(0, 0), (1, 3), (4, 6)];
+        assert_eq!(lod_switch_weights(&r, -2.0), vec![(0, 0.0, 1.0)]);
+        assert_eq!(lod_switch_weights(&r, 0.0), vec![(0, 0.0, 1.0)]);
+        assert_eq!(
+            lod_switch_weights(&r, 0.25),
+            vec![(0, 0.0, 0.75), (1, 0.0, 0.25)]
+        );
+        assert_eq!(lod_switch_weights(&r, 1.0), vec![(1, 0.0, 1.0)]);
+        assert_eq!(lod_switch_weights(&r, 2.5), vec![(1, 1.5, 1.0)]);
+        assert_eq!(lod_switch_weights(&r, 3.0), vec![(1, 2.0, 1.0)]);
+        assert_eq!(
+            lod_switch_weights(&r, 3.5),
+            vec![(1, 2.0, 0.5), (2, 0.0, 0.5)]
+        );
+        assert_eq!(lod_switch_weights(&r, 5.75), vec![(2, 1.75, 1.0)]);
+        assert_eq!(lod_switch_weights(&r, 9.0), vec![(2, 2.0, 1.0)]);
+        assert_eq!(lod_switch_weights(&[(2, 5)], 1.0), vec![(0, 0.0, 1.0)]);
+        assert!(lod_switch_weights(&[], 1.0).is_empty());
+    }
 
     #[test]
     fn anisotropic_footprint_follows_the_extension_rule() {

@@ -10,7 +10,8 @@
 use ndfmap::bake::Method;
 use ndfmap::format::Format;
 use ndfmap::glsl::{
-    Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage, source_for,
+    LodPart, Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage,
+    lod_switch_source, source_for,
 };
 use ndfmap::ingest::Addressing;
 use ndfmap::methods::texture_ranges;
@@ -264,6 +265,17 @@ fn every_specialization_compiles_as_glsl_330_core() {
         std::fs::write(&path, source_for(&spec, Stage::Vertex, &opts).unwrap()).unwrap();
         files.push(path);
     }
+    // The LOD-switching shaders of issue 18 (glsl::lod_switch_source): every method in one
+    // shader under the point light (each BRDF family, mesh and probe, wrap and clamp), the
+    // environment-lit methods under both lights and the prefiltered environment, and the
+    // anisotropic switch.
+    for (name, spec, opts) in lod_switch_variants() {
+        let src = lod_switch_source(&spec.0, spec.1, Stage::Fragment, &opts).unwrap();
+        assert!(src.is_ascii(), "{name} has non-ASCII characters");
+        let path = dir.path().join(format!("{name}.frag"));
+        std::fs::write(&path, src).unwrap();
+        files.push(path);
+    }
     let mut failures = Vec::new();
     // One validator run per shader (it stops at the first file's errors otherwise), in
     // batches of threads to keep the test short.
@@ -301,4 +313,122 @@ fn every_specialization_compiles_as_glsl_330_core() {
         failures.join("\n")
     );
     assert!(results.len() > 100, "{} variants", results.len());
+}
+
+/// LOD-switching shaders: (name, (parts, map size), options).
+#[allow(clippy::type_complexity)]
+fn lod_switch_variants() -> Vec<(String, (Vec<LodPart>, (u32, u32)), ShaderOptions)> {
+    let spec = |method: Method, n: usize, format: Format, aligned: bool, addressing| {
+        let (lobes, lmax) = match method {
+            Method::Vmf | Method::Tan2005 => (n, 0),
+            Method::Sh => (0, n),
+            _ => (0, 0),
+        };
+        ShaderSpec {
+            method,
+            lobes,
+            ranges: texture_ranges(method, n, false),
+            format,
+            aligned,
+            addressing,
+            lmax,
+            biased: false,
+        }
+    };
+    let chain = |specs: Vec<ShaderSpec>, o: ShaderOptions| -> Vec<LodPart> {
+        specs
+            .into_iter()
+            .enumerate()
+            .map(|(k, spec)| LodPart {
+                spec,
+                options: o,
+                first: k,
+                last: k,
+            })
+            .collect()
+    };
+    let mut out = Vec::new();
+    for addressing in [Addressing::Wrap, Addressing::Clamp] {
+        let every = |a| {
+            vec![
+                spec(Method::Plain, 0, Format::Unorm8, false, a),
+                spec(Method::Toksvig, 0, Format::F16, false, a),
+                spec(Method::Lean, 0, Format::F32, false, a),
+                spec(Method::Olano, 0, Format::F32, false, a),
+                spec(Method::Sh, 2, Format::F16, false, a),
+                spec(Method::Tan2005, 2, Format::F32, true, a),
+                spec(Method::Vmf, 3, Format::Unorm16, true, a),
+                spec(Method::Vmf, 8, Format::F32, false, a),
+            ]
+        };
+        for brdf in [
+            ShaderBrdf::BlinnPhong,
+            ShaderBrdf::TorranceSparrow,
+            ShaderBrdf::Lambert,
+            ShaderBrdf::Ggx { g: true },
+            ShaderBrdf::Tabulated,
+        ] {
+            for probe in [false, true] {
+                let o = ShaderOptions {
+                    brdf,
+                    probe,
+                    ..Default::default()
+                };
+                out.push((
+                    format!("switch_{addressing:?}_{brdf:?}_probe{}", probe as u8)
+                        .replace([' ', '{', '}', ':'], ""),
+                    (chain(every(addressing), o), (1000, 600)),
+                    o,
+                ));
+            }
+        }
+        let env = |a| {
+            vec![
+                spec(Method::Plain, 0, Format::Unorm8, false, a),
+                spec(Method::Toksvig, 0, Format::F16, false, a),
+                spec(Method::Lean, 0, Format::F32, false, a),
+                spec(Method::Vmf, 3, Format::Unorm16, true, a),
+                spec(Method::Vmf, 2, Format::F32, false, a),
+            ]
+        };
+        for light in [
+            ShaderLight::EnvPrefiltered,
+            ShaderLight::PointAndEnvPrefiltered,
+        ] {
+            for brdf in [ShaderBrdf::BlinnPhong, ShaderBrdf::Ggx { g: true }] {
+                for probe in [false, true] {
+                    let o = ShaderOptions {
+                        brdf,
+                        probe,
+                        light,
+                        ..Default::default()
+                    };
+                    out.push((
+                        format!(
+                            "switch_{addressing:?}_{light:?}_{brdf:?}_probe{}",
+                            probe as u8
+                        )
+                        .replace([' ', '{', '}', ':'], ""),
+                        (chain(env(addressing), o), (256, 256)),
+                        o,
+                    ));
+                }
+            }
+        }
+        let o = ShaderOptions {
+            sampling: Sampling::Anisotropic(8),
+            ..Default::default()
+        };
+        let aniso = vec![
+            spec(Method::Plain, 0, Format::F32, false, addressing),
+            spec(Method::Sh, 3, Format::F32, false, addressing),
+            spec(Method::Vmf, 4, Format::F32, true, addressing),
+        ];
+        out.push((
+            format!("switch_{addressing:?}_aniso"),
+            (chain(aniso, o), (512, 512)),
+            o,
+        ));
+    }
+    out
 }

@@ -64,6 +64,14 @@ fn plan_then_bake_the_plan() {
         // No environment code exists; Blinn-Phong compiles no other BRDF's path.
         assert!(!frag.contains("#define NDF_BRDF_GGX"));
     }
+    // The one shader switching method by LOD (issue 18): every level shipped, in one file.
+    let switch = std::fs::read_to_string(out.join("lod_switch.frag")).unwrap();
+    assert!(switch.starts_with("#version 330 core"));
+    assert!(switch.contains("shader switching method by level of detail"));
+    assert!(switch.contains("ndf_p0_tex0"));
+    let first = parts[0]["first"].as_u64().unwrap();
+    let last = parts[parts.len() - 1]["last"].as_u64().unwrap();
+    assert!(switch.contains(&format!("lambda = clamp(lod, {first}.0, {last}.0);")));
     // Bake it.
     let baked = dir.path().join("baked");
     let run = ndfmap(&[

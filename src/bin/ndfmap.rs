@@ -681,6 +681,14 @@ fn plan_cmd(
     let shaders: Vec<String> = (0..plan.parts.len())
         .map(|i| plan.shader(i, addressing))
         .collect::<Result<_>>()?;
+    // The one shader switching method by LOD, where it is built (else the reason, printed).
+    let switch = match plan.lod_switch_shader(addressing) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            eprintln!("note: no LOD-switching shader (lod_switch.frag): {e}");
+            None
+        }
+    };
     if explain {
         print!("{}", plan.explain());
     }
@@ -698,6 +706,9 @@ fn plan_cmd(
             ];
             for (i, s) in shaders.iter().enumerate() {
                 files.push((format!("part{i}.frag"), s.clone()));
+            }
+            if let Some(s) = &switch {
+                files.push(("lod_switch.frag".to_string(), s.clone()));
             }
             for (name, text) in files {
                 let tmp = dir.join(format!(".{name}.tmp"));

@@ -28,6 +28,12 @@ pub const NDF_PLAN_TEXT_JSON: u32 = 0;
 pub const NDF_PLAN_TEXT_EXPLAIN: u32 = 1;
 /// The specialized GLSL fragment shader of part `part`.
 pub const NDF_PLAN_TEXT_SHADER: u32 = 2;
+/// `ndf_plan_text`: the plan's one fragment shader switching method by level of detail
+/// (every part; samplers `ndf_p{k}_tex{i}`, each a texture whose level 0 is part k's first
+/// level; `part` ignored). `NDF_STATUS_INVALID_ARGUMENT` with the reason where it is not built
+/// (parts lit differently: a part with colour textures under an environment; more than 32
+/// samplers).
+pub const NDF_PLAN_TEXT_LOD_SWITCH_SHADER: u32 = 3;
 
 /// A scene (the fields of the scene file, `docs/planner.md`). Initialize with
 /// `ndf_scene_default()`, then set the fields.
@@ -337,6 +343,7 @@ fn text_of(p: &ndf_plan, what: u32, part: u32) -> Outcome<Vec<u8>> {
             let i = index("part", part, p.plan.parts.len())?;
             p.plan.shader(i, p.addressing)?
         }
+        NDF_PLAN_TEXT_LOD_SWITCH_SHADER => p.plan.lod_switch_shader(p.addressing)?,
         v => {
             return Err(fail(
                 ndf_status::InvalidArgument,
@@ -486,6 +493,7 @@ mod tests {
             NDF_PLAN_TEXT_JSON,
             NDF_PLAN_TEXT_EXPLAIN,
             NDF_PLAN_TEXT_SHADER,
+            NDF_PLAN_TEXT_LOD_SWITCH_SHADER,
         ] {
             let mut size = 0usize;
             assert_eq!(

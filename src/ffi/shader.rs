@@ -71,6 +71,13 @@ pub const NDF_LIGHT_ENV_PREFILTERED: ndf_light = 1;
 /// of SH bakes (`NDF_METHOD_SH`): the environment's `L_lm` and `L′_lm` are rotated per fragment
 /// into the tangent frame; they also read the BRDF's `ndf_sh_rho` as under a point light.
 pub const NDF_LIGHT_ENV_SH: ndf_light = 2;
+/// The point (or directional) light *and* an environment by the prefiltered route, summed in
+/// one shader from the same filtered texels (`NDF_LIGHT_BOTH` + `NDF_LIGHT_ENV_PREFILTERED`):
+/// the point light's uniforms, `ndf_env_color` (the environment's radiance scale) and the
+/// environment's data as for `NDF_LIGHT_ENV_PREFILTERED`. Plain, Toksvig, LEAN and vMF bakes;
+/// Lambert, Blinn-Phong or GGX; no colour. What `ndf_plan_text` returns for a scene with both
+/// kinds of light.
+pub const NDF_LIGHT_POINT_AND_ENV_PREFILTERED: ndf_light = 3;
 
 /// Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
 #[repr(C)]
@@ -175,6 +182,7 @@ unsafe fn shader(
                 ShaderLight::Point,
                 ShaderLight::EnvPrefiltered,
                 ShaderLight::EnvSh,
+                ShaderLight::PointAndEnvPrefiltered,
             ],
         )?,
     };

@@ -1881,6 +1881,10 @@ fn environments_load_and_pack_for_upload() {
                 crate::glsl::ShaderLight::EnvPrefiltered,
             ),
             (NDF_LIGHT_ENV_SH, crate::glsl::ShaderLight::EnvSh),
+            (
+                NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
+                crate::glsl::ShaderLight::PointAndEnvPrefiltered,
+            ),
         ] {
             let so = ndf_shader_options {
                 light,
@@ -1902,11 +1906,23 @@ fn environments_load_and_pack_for_upload() {
             assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
         }
         let so = ndf_shader_options {
-            light: 3,
+            light: 4,
             ..ndf_shader_options_default()
         };
         let mut size = 0;
         check!(ndf_bake_shader_source_size(vmf, 1, &so, &mut size) => InvalidArgument, "light");
+        // Both lights: the point light's and the environment's defines, not NDF_LIGHT_ENV.
+        let so = ndf_shader_options {
+            light: NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
+            ..ndf_shader_options_default()
+        };
+        check!(ndf_bake_shader_source_size(vmf, 1, &so, &mut size) => Ok, "");
+        let mut buf = vec![0 as c_char; size];
+        check!(ndf_bake_shader_source(vmf, 1, &so, buf.as_mut_ptr(), size, &mut size) => Ok, "");
+        let got = CStr::from_ptr(buf.as_ptr()).to_str().unwrap();
+        assert!(
+            got.contains("#define NDF_LIGHT_BOTH 1") && !got.contains("#define NDF_LIGHT_ENV 1")
+        );
         // SH bakes: the SH route (the Rust source, with the per-fragment rotation's table);
         // the prefiltered route is refused with a message naming the one to use.
         let sh = c_bake(map, NDF_METHOD_SH);

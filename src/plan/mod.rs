@@ -403,10 +403,19 @@ impl Measured {
     }
 }
 
-/// Ground-truth samples per texel and view of the planner's environment measurement.
-pub const ENV_SAMPLES: usize = 512;
+/// The lobe count of the aligned vMF candidate measured first when the planner reaches the
+/// cheaper vMF candidates at a level: where it misses, the vMF candidates with fewer lobes are
+/// not measured there (more lobes fit no worse).
+pub const PROBE_LOBES: usize = 4;
+
+/// Ground-truth samples per texel and view of the planner's environment measurement (the
+/// prediction; its Monte Carlo noise is taken out of each level's error, `envlight::denoised`).
+pub const ENV_SAMPLES: usize = 256;
 /// Texels drawn per level of each sample map under an environment.
-pub const ENV_TEXELS: usize = 48;
+pub const ENV_TEXELS: usize = 32;
+/// Ground-truth samples per texel and view of `plan --verify` and the report
+/// ([`WholeMap`]): the measurement the prediction is checked against.
+pub const VERIFY_ENV_SAMPLES: usize = 512;
 
 /// The environment a scene is measured under: its light, and the ground truth of every
 /// sample map ([`crate::envlight::Reference`], computed once, scored against every
@@ -517,7 +526,8 @@ pub struct WholeMap<'a> {
 
 impl<'a> WholeMap<'a> {
     /// The measurement of `plan`'s scene on `map`; under an environment, its ground truth on
-    /// `env_texels` texels per level from the plan's first level ([`ENV_SAMPLES`] samples).
+    /// `env_texels` texels per level from the plan's first level ([`VERIFY_ENV_SAMPLES`]
+    /// samples).
     pub fn new(plan: &'a Plan, map: &'a NormalMap, env_texels: usize) -> Result<WholeMap<'a>> {
         let brdfs = plan.scene.brdfs();
         let env = match plan.scene.environment_light()? {
@@ -525,7 +535,7 @@ impl<'a> WholeMap<'a> {
                 let options = crate::envlight::EvalOptions {
                     first_level: plan.levels[0],
                     texels_per_level: env_texels,
-                    samples: ENV_SAMPLES,
+                    samples: VERIFY_ENV_SAMPLES,
                     ..Default::default()
                 };
                 let reference = crate::envlight::Reference::new(map, &brdfs, &light, &options)?;
@@ -868,6 +878,32 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         let mut pick = None;
         let mut best: Option<(usize, f64)> = None;
         for (i, c) in cands.iter().enumerate() {
+            // A vMF candidate is not measured at a level where an aligned vMF with more lobes
+            // already misses (more lobes fit no worse): reaching the first cheap vMF, the one
+            // of PROBE_LOBES is measured first, so that a scene needing more skips the fewer.
+            let dominated = |measured: &[Option<Measured>]| {
+                c.method == Method::Vmf
+                    && cands.iter().zip(measured).any(|(d, x)| {
+                        d.method == Method::Vmf
+                            && d.aligned
+                            && d.lobes > c.lobes
+                            && x.as_ref()
+                                .is_some_and(|x| x.error(level, scene) > MARGIN * target)
+                    })
+            };
+            if measured[i].is_none() && c.method == Method::Vmf && c.lobes < PROBE_LOBES {
+                let probe = cands
+                    .iter()
+                    .position(|d| d.method == Method::Vmf && d.aligned && d.lobes == PROBE_LOBES);
+                if let Some(p) = probe
+                    && measured[p].is_none()
+                {
+                    measured[p] = Some(m.run(cands[p], &keep)?);
+                }
+            }
+            if dominated(&measured) {
+                continue;
+            }
             if measured[i].is_none() {
                 measured[i] = Some(m.run(*c, &keep)?);
             }
@@ -1530,6 +1566,80 @@ impl Plan {
             1,
         );
         Ok(src)
+    }
+    /// The parts of the plan's one LOD-switching shader ([`crate::glsl::lod_switch_source`]):
+    /// adjacent plan parts whose shaders are the same (method, textures, format, colour,
+    /// sampling) merge into one shader part, whose textures hold their levels (level 0 = the
+    /// first part's first level; the files `p{part}…_L{level}` of the merged parts, in level
+    /// order). Returns each shader part with the plan parts it merges.
+    pub fn lod_switch_parts(
+        &self,
+        addressing: crate::ingest::Addressing,
+    ) -> Vec<(crate::glsl::LodPart, Vec<usize>)> {
+        let mut out: Vec<(crate::glsl::LodPart, Vec<usize>)> = Vec::new();
+        for (i, p) in self.parts.iter().enumerate() {
+            let spec = self.shader_spec(i, addressing);
+            let options = ShaderOptions {
+                probe: false,
+                ..self.shader_options(i)
+            };
+            if let Some((last, members)) = out.last_mut()
+                && last.spec == spec
+                && last.options == options
+                && last.last + 1 == p.first
+            {
+                last.last = p.last;
+                members.push(i);
+                continue;
+            }
+            out.push((
+                crate::glsl::LodPart {
+                    spec,
+                    options,
+                    first: p.first,
+                    last: p.last,
+                },
+                vec![i],
+            ));
+        }
+        out
+    }
+
+    /// The plan's one fragment shader switching method by level of detail
+    /// ([`crate::glsl::lod_switch_source`] over [`Plan::lod_switch_parts`]), with a header
+    /// naming each sampler's files. Fails (saying why) where it is not built: parts lit
+    /// differently (a part with colour textures under an environment keeps the point-light
+    /// shader), more than 32 samplers.
+    pub fn lod_switch_shader(&self, addressing: crate::ingest::Addressing) -> Result<String> {
+        let parts = self.lod_switch_parts(addressing);
+        let lod: Vec<crate::glsl::LodPart> = parts.iter().map(|p| p.0.clone()).collect();
+        let options = lod[0].options;
+        let options = ShaderOptions {
+            sampling: match options.sampling {
+                Sampling::Anisotropic(n) => Sampling::Anisotropic(n),
+                _ => Sampling::Auto,
+            },
+            ..options
+        };
+        let src = crate::glsl::lod_switch_source(
+            &lod,
+            (self.map.width, self.map.height),
+            Stage::Fragment,
+            &options,
+        )?;
+        let mut header = String::from(
+            "// ndfmap plan: one shader for every level shipped; sampler ndf_p{k}_tex{i} is a \
+             texture whose level 0 is part k's first level:\n",
+        );
+        for (k, (p, members)) in parts.iter().enumerate() {
+            let _ = writeln!(
+                header,
+                "//   part {k}: levels {}-{}: ndf_p{k}_tex{{i}} = texture i (manifest order) of \
+                 plan part(s) {:?}, files p{{part}}{{texture}}_L{{level}}",
+                p.first, p.last, members
+            );
+        }
+        Ok(src.replacen('\n', &format!("\n{header}"), 1))
     }
 }
 
