@@ -1,8 +1,10 @@
 // ndf_env.glsl - environment lighting (Han et al. 2007 Sec 8, eqs 24-26; the prefiltered lookups
 // of the Gaussian-mixture paper's Sec 4). Included after the method file when NDF_LIGHT_ENV_SH or
 // NDF_LIGHT_ENV_PREFILTERED is defined; CPU twin: envlight::shade (every clamp and table lookup
-// below is the CPU's, in the same order). Data: src/envgpu.rs (an R32F equirectangular atlas of
-// the prefiltered levels read with texelFetch, the L' table, the lobe-energy table).
+// below is the CPU's, in the same order). Data: src/envgpu.rs (an RGB32F equirectangular atlas of
+// the prefiltered levels read with texelFetch, the RGB32F L' table, the R32F lobe-energy table).
+// RGB: radiance-dependent quantities (L_lm, L'_lm, the lookups, the sums and their clamps at 0)
+// are vec3, one channel each; everything else (lobes, basis, table lookups, g) is computed once.
 //
 // Per texel the method gives isotropic lobes (alpha, mu, |r|, var = 1/kappa; var = 0 is kappa =
 // infinity): plain one lobe of var 0; Toksvig |r| = |m| and Banerjee's kappa; LEAN the mean of
@@ -36,7 +38,7 @@ const int NDF_ENV_GRID = 16;        // projection::REFLECTED_GRID
 const int NDF_ENV_ENERGY_COS = 33;  // envlight::ENERGY_COS
 const int NDF_ENV_ENERGY_PARAM = 49;
 
-uniform float ndf_env_sh[NDF_ENV_COUNT];  // L_lm, environment frame
+uniform vec3 ndf_env_sh[NDF_ENV_COUNT];   // L_lm, environment frame, RGB
 mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry point sets it)
 
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
@@ -48,7 +50,7 @@ uniform float ndf_env_level_count;
 uniform float ndf_env_level[3 * NDF_ENV_MAX_LEVELS];  // width, height, first row
 
 // Bilinear lookup of level k at direction d (CPU: Radiance::bilinear): wrap in phi, clamp rows.
-float ndf_env_bilinear(int k, vec3 d) {
+vec3 ndf_env_bilinear(int k, vec3 d) {
     int w = int(ndf_env_level[3 * k]);
     int h = int(ndf_env_level[3 * k + 1]);
     int row = int(ndf_env_level[3 * k + 2]);
@@ -67,16 +69,16 @@ float ndf_env_bilinear(int k, vec3 d) {
     int xb = (xa + 1) - w * ((xa + 1) / w);
     int ya = clamp(yi, 0, h - 1) + row;
     int yb = clamp(yi + 1, 0, h - 1) + row;
-    float a = texelFetch(ndf_env_atlas, ivec2(xa, ya), 0).r;
-    float b = texelFetch(ndf_env_atlas, ivec2(xb, ya), 0).r;
-    float c = texelFetch(ndf_env_atlas, ivec2(xa, yb), 0).r;
-    float e = texelFetch(ndf_env_atlas, ivec2(xb, yb), 0).r;
+    vec3 a = texelFetch(ndf_env_atlas, ivec2(xa, ya), 0).rgb;
+    vec3 b = texelFetch(ndf_env_atlas, ivec2(xb, ya), 0).rgb;
+    vec3 c = texelFetch(ndf_env_atlas, ivec2(xa, yb), 0).rgb;
+    vec3 e = texelFetch(ndf_env_atlas, ivec2(xb, yb), 0).rgb;
     return (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * e);
 }
 
 // The environment convolved with a normalized vMF lobe of concentration kappa about d
 // (CPU: Prefiltered::lod, Prefiltered::lookup).
-float ndf_env_lookup(vec3 d, float kappa) {
+vec3 ndf_env_lookup(vec3 d, float kappa) {
     float last = ndf_env_level_count - 1.0;
     float lod;
     if (isnan(kappa) || kappa >= ndf_env_kappa0) {
@@ -88,7 +90,7 @@ float ndf_env_lookup(vec3 d, float kappa) {
     }
     int i = int(floor(lod));
     float t = lod - float(i);
-    float a = ndf_env_bilinear(i, d);
+    vec3 a = ndf_env_bilinear(i, d);
     if (t <= 0.0 || float(i + 1) >= ndf_env_level_count) return a;
     return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
 }
@@ -115,11 +117,11 @@ float ndf_env_energy_at(int block, float pi, float co) {
 #endif
 
 #if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
-uniform sampler2D ndf_env_reflected;          // L'_lm: 81 columns x 256 views
+uniform sampler2D ndf_env_reflected;          // L'_lm, RGB: 81 columns x 256 views
 uniform float ndf_env_rho[NDF_ENV_LMAX + 1];  // the BRDF's rho_l, l <= 8
 
 // L'_lm(v) bilinear in (theta_o, phi_o) on the view grid (CPU: ReflectedTable::at).
-void ndf_env_reflected_at(vec3 v, out float lp[NDF_ENV_COUNT]) {
+void ndf_env_reflected_at(vec3 v, out vec3 lp[NDF_ENV_COUNT]) {
     v = ndf_normalize_or_z(v);
     float step_t = 0.5 * NDF_PI / float(NDF_ENV_GRID - 1);
     float t = clamp(acos(clamp(v.z, 0.0, 1.0)) / step_t, 0.0, float(NDF_ENV_GRID - 1));
@@ -142,10 +144,10 @@ void ndf_env_reflected_at(vec3 v, out float lp[NDF_ENV_COUNT]) {
     float w10 = ft * (1.0 - fp);
     float w11 = ft * fp;
     for (int k = 0; k < NDF_ENV_COUNT; ++k) {
-        lp[k] = w00 * texelFetch(ndf_env_reflected, ivec2(k, r00), 0).r
-              + w01 * texelFetch(ndf_env_reflected, ivec2(k, r01), 0).r
-              + w10 * texelFetch(ndf_env_reflected, ivec2(k, r10), 0).r
-              + w11 * texelFetch(ndf_env_reflected, ivec2(k, r11), 0).r;
+        lp[k] = w00 * texelFetch(ndf_env_reflected, ivec2(k, r00), 0).rgb
+              + w01 * texelFetch(ndf_env_reflected, ivec2(k, r01), 0).rgb
+              + w10 * texelFetch(ndf_env_reflected, ivec2(k, r10), 0).rgb
+              + w11 * texelFetch(ndf_env_reflected, ivec2(k, r11), 0).rgb;
     }
 }
 #endif
@@ -169,14 +171,14 @@ float ndf_env_a_kappa(float kappa) {
 #ifdef NDF_METHOD_SH
 // Band-limited coefficients rotated about z by a (CPU: projection::rotate_z): each (m, -m) pair
 // turns by m a.
-void ndf_env_rotate_z(inout float c[NDF_ENV_COUNT], int lmax, float a) {
+void ndf_env_rotate_z(inout vec3 c[NDF_ENV_COUNT], int lmax, float a) {
     for (int l = 1; l <= lmax; ++l) {
         int centre = l * l + l;
         for (int m = 1; m <= l; ++m) {
             float s = sin(float(m) * a);
             float co = cos(float(m) * a);
-            float p = c[centre + m];
-            float q = c[centre - m];
+            vec3 p = c[centre + m];
+            vec3 q = c[centre - m];
             c[centre + m] = p * co - q * s;
             c[centre - m] = p * s + q * co;
         }
@@ -184,14 +186,14 @@ void ndf_env_rotate_z(inout float c[NDF_ENV_COUNT], int lmax, float a) {
 }
 
 // Each band times its block of NDF_ENV_X90, transposed for -90 deg (CPU: projection::rotate_x90).
-void ndf_env_rotate_x90(inout float c[NDF_ENV_COUNT], int lmax, bool transposed) {
+void ndf_env_rotate_x90(inout vec3 c[NDF_ENV_COUNT], int lmax, bool transposed) {
     int offset = 0;
-    float tmp[2 * NDF_ENV_LMAX + 1];
+    vec3 tmp[2 * NDF_ENV_LMAX + 1];
     for (int l = 0; l <= lmax; ++l) {
         int w = 2 * l + 1;
         int b = l * l;
         for (int i = 0; i < w; ++i) {
-            float acc = 0.0;
+            vec3 acc = vec3(0.0);
             for (int j = 0; j < w; ++j) {
                 int k = transposed ? j * w + i : i * w + j;
                 acc += NDF_ENV_X90[offset + k] * c[b + j];
@@ -205,7 +207,7 @@ void ndf_env_rotate_x90(inout float c[NDF_ENV_COUNT], int lmax, bool transposed)
 
 // c turned by the rotation r, f'(d) = f(r^T d), l <= lmax (CPU: projection::rotate_zyz and
 // zyz_angles): r = Rz(alpha) Ry(beta) Rz(gamma), Ry(beta) = Rx(-90) Rz(beta) Rx(90).
-void ndf_env_rotate(inout float c[NDF_ENV_COUNT], int lmax, mat3 r) {
+void ndf_env_rotate(inout vec3 c[NDF_ENV_COUNT], int lmax, mat3 r) {
     // r[j][i] is row i, column j.
     float s = length(vec2(r[2][0], r[2][1]));
     float alpha;
@@ -230,27 +232,28 @@ void ndf_env_rotate(inout float c[NDF_ENV_COUNT], int lmax, mat3 r) {
 // An SH bake's texel lit by the environment (module header; CPU: envlight::shade_in).
 void ndf_env_sh_texel(vec4 t[NDF_TEXTURES], vec3 v,
 #ifndef NDF_BRDF_LAMBERT
-                      float lp[NDF_ENV_COUNT],
+                      vec3 lp[NDF_ENV_COUNT],
 #endif
-                      out float diffuse, out float specular) {
+                      out vec3 diffuse, out vec3 specular) {
     const int LD = NDF_SH_LMAX < 2 ? NDF_SH_LMAX : 2;
     const int LS = NDF_SH_LMAX < NDF_ENV_LMAX ? NDF_SH_LMAX : NDF_ENV_LMAX;
     const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
     mat3 to_tangent = transpose(ndf_env_frame);
-    float c[NDF_ENV_COUNT];
-    for (int k = 0; k < NDF_ENV_COUNT; ++k) c[k] = k < (LD + 1) * (LD + 1) ? ndf_env_sh[k] : 0.0;
+    vec3 c[NDF_ENV_COUNT];
+    for (int k = 0; k < NDF_ENV_COUNT; ++k)
+        c[k] = k < (LD + 1) * (LD + 1) ? ndf_env_sh[k] : vec3(0.0);
     ndf_env_rotate(c, LD, to_tangent);
-    float d = 0.0;
+    vec3 d = vec3(0.0);
     for (int l = 0; l <= LD; ++l) {
         float w = lambert[l] / sqrt(4.0 * NDF_PI / float(2 * l + 1));
         for (int k = l * l; k < (l + 1) * (l + 1); ++k) d += w * c[k] * t[k >> 2][k & 3];
     }
     diffuse = max(d, 0.0);
-    specular = 0.0;
+    specular = vec3(0.0);
 #ifndef NDF_BRDF_LAMBERT
     for (int k = 0; k < NDF_ENV_COUNT; ++k) c[k] = lp[k];
     ndf_env_rotate(c, LS, to_tangent);
-    float sum = 0.0;
+    vec3 sum = vec3(0.0);
     for (int l = 0; l <= LS; ++l) {
         float w = ndf_sh_rho[l] / sqrt(4.0 * NDF_PI / float(2 * l + 1));
         for (int k = l * l; k < (l + 1) * (l + 1); ++k) sum += w * c[k] * t[k >> 2][k & 3];
@@ -270,17 +273,17 @@ void ndf_env_sh_texel(vec4 t[NDF_TEXTURES], vec3 v,
 // One lobe's contribution (CPU: envlight::shade's loop body); v in the tangent frame.
 void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
-                  float lp[NDF_ENV_COUNT],
+                  vec3 lp[NDF_ENV_COUNT],
 #endif
-                  inout float diffuse, inout float specular) {
+                  inout vec3 diffuse, inout vec3 specular) {
     float y[NDF_ENV_COUNT];
     ndf_env_basis(ndf_env_frame * mu, y);
     // Eq 25 (CPU: diffuse_lobe).
     float a[3] = float[](1.0, r, max(1.0 - 3.0 * r * min(var, 1e12), 0.0));
     const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
-    float dsum = 0.0;
+    vec3 dsum = vec3(0.0);
     for (int l = 0; l < 3; ++l) {
-        float band = 0.0;
+        vec3 band = vec3(0.0);
         for (int k = l * l; k < (l + 1) * (l + 1); ++k) band += ndf_env_sh[k] * y[k];
         dsum += lambert[l] * a[l] * band;
     }
@@ -291,7 +294,7 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
     vec3 r_dir = 2.0 * co * mu - v;
     float g = ndf_g(r_dir, mu);
     float vv = min(var, 1e6);
-    float spec;
+    vec3 spec;
 #ifdef NDF_LIGHT_ENV_PREFILTERED
 #if defined(NDF_BRDF_GGX)
     float aw = min(sqrt(ndf_alpha * ndf_alpha + ndf_ggx_c * max(vv, 0.0)), 1.0);
@@ -308,10 +311,10 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
     vec3 d = ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
     spec = ndf_env_lookup(ndf_env_frame * d, exp2(log_kappa)) * e;
 #else
-    float sum = 0.0;
+    vec3 sum = vec3(0.0);
     for (int l = 0; l <= NDF_ENV_LMAX; ++l) {
         float att = exp(-0.5 * float(l * l) * var);
-        float band = 0.0;
+        vec3 band = vec3(0.0);
         for (int k = l * l; k < (l + 1) * (l + 1); ++k) band += lp[k] * y[k];
         sum += ndf_env_rho[l] * att * band;
     }
@@ -321,13 +324,13 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #endif
 }
 
-// Environment-lit shading of one texel for the view v (tangent frame): (diffuse, specular) in
-// every colour channel (CPU: envlight::shade).
+// Environment-lit shading of one texel for the view v (tangent frame): (diffuse, specular) per
+// colour channel (CPU: envlight::shade).
 void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 specular) {
-    float d = 0.0;
-    float s = 0.0;
+    vec3 d = vec3(0.0);
+    vec3 s = vec3(0.0);
 #if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
-    float lp[NDF_ENV_COUNT];
+    vec3 lp[NDF_ENV_COUNT];
     ndf_env_reflected_at(ndf_env_frame * v, lp);
 #define NDF_ENV_LP lp,
 #else
@@ -364,6 +367,6 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
         ndf_env_lobe(alpha, mu, min(rlen, NDF_R_MAX), var, v, NDF_ENV_LP d, s);
     }
 #endif
-    diffuse = vec3(d);
-    specular = vec3(s);
+    diffuse = d;
+    specular = s;
 }

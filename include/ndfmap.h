@@ -180,8 +180,8 @@ typedef uint32_t ndf_status;
 typedef struct ndf_bake ndf_bake;
 
 /**
- * An environment prepared for lighting (opaque): its luminance's SH coefficients, prefiltered
- * levels and `L′` table. Released with `ndf_environment_free`.
+ * An environment prepared for lighting (opaque): per colour channel its SH coefficients,
+ * prefiltered levels and `L′` table. Released with `ndf_environment_free`.
  */
 typedef struct ndf_environment ndf_environment;
 
@@ -845,7 +845,7 @@ typedef struct ndf_environment_info {
    */
   uint64_t repaired;
   /**
-   * Floats of `ndf_environment_sh`: 81 (l ≤ 8).
+   * Floats of `ndf_environment_sh`: 243 (81 coefficients, l ≤ 8, × `channels`).
    */
   uint32_t sh_count;
   /**
@@ -866,7 +866,7 @@ typedef struct ndf_environment_info {
    */
   double kappa0;
   /**
-   * Columns (81) and rows (256) of `ndf_environment_reflected`.
+   * Columns (81 texels of `channels` floats) and rows (256) of `ndf_environment_reflected`.
    */
   uint32_t reflected_columns;
   /**
@@ -881,6 +881,12 @@ typedef struct ndf_environment_info {
    * Rows of `ndf_environment_energy`.
    */
   uint32_t energy_rows;
+  /**
+   * Floats per texel or coefficient of the radiance-dependent arrays (`ndf_environment_sh`,
+   * `_prefiltered`'s atlas, `_reflected`): 3, R, G, B interleaved (`RGB32F` textures,
+   * `uniform vec3 ndf_env_sh[81]`). The energy tables have one.
+   */
+  uint32_t channels;
 } ndf_environment_info;
 
 /**
@@ -2012,9 +2018,9 @@ ndf_status ndf_environment_info_get(const struct ndf_environment *env,
                                     struct ndf_environment_info *info_out);
 
 /**
- * The luminance's SH coefficients `L_lm`, l ≤ 8, (l, m) order, environment frame (+Z up,
- * real orthonormal basis without the Condon–Shortley phase): 81 floats into `out`
- * (`capacity` floats; uniform `ndf_env_sh`).
+ * The SH coefficients `L_lm`, l ≤ 8, (l, m) order, environment frame (+Z up, real
+ * orthonormal basis without the Condon–Shortley phase), each as R, G, B: 243 floats into
+ * `out` (`capacity` floats; uniform `vec3 ndf_env_sh[81]`, e.g. `glUniform3fv(loc, 81, out)`).
  *
  * # Safety
  * `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
@@ -2022,9 +2028,9 @@ ndf_status ndf_environment_info_get(const struct ndf_environment *env,
 ndf_status ndf_environment_sh(const struct ndf_environment *env, float *out, size_t capacity);
 
 /**
- * The prefiltered levels packed for upload as one `R32F` texture (`atlas_width ×
- * atlas_height` floats, row-major from the top; sampler `ndf_env_atlas`, read with
- * `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
+ * The prefiltered levels packed for upload as one `RGB32F` texture (`atlas_width ×
+ * atlas_height × 3` floats, R, G, B per texel, row-major from the top; sampler
+ * `ndf_env_atlas`, read with `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
  * uniform `ndf_env_level` as floats). Both buffers are required.
  *
  * # Safety
@@ -2039,8 +2045,8 @@ ndf_status ndf_environment_prefiltered(const struct ndf_environment *env,
 
 /**
  * The `L′_lm(ω_o)` table of eq 26 (the SH route): `reflected_rows` (256 views, row
- * `iθ·16 + iφ`) × `reflected_columns` (81) floats, an `R32F` texture (sampler
- * `ndf_env_reflected`).
+ * `iθ·16 + iφ`) × `reflected_columns` (81) texels of R, G, B: 62208 floats, an `RGB32F`
+ * texture (sampler `ndf_env_reflected`).
  *
  * # Safety
  * `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
@@ -2052,7 +2058,7 @@ ndf_status ndf_environment_reflected(const struct ndf_environment *env,
 /**
  * The prefiltered route's lobe-energy table of a BRDF family (`NDF_BRDF_BLINN_PHONG` or
  * `NDF_BRDF_GGX`): `energy_rows` × `energy_columns` floats, an `R32F` texture (sampler
- * `ndf_env_energy`). Other BRDFs: `NDF_STATUS_INVALID_ARGUMENT`.
+ * `ndf_env_energy`; one table for all colour channels). Other BRDFs: `NDF_STATUS_INVALID_ARGUMENT`.
  *
  * # Safety
  * `env` is NULL or live; `out` is NULL or writable for `capacity` floats.

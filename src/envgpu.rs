@@ -3,7 +3,7 @@
 //! `NDF_LIGHT_ENV_PREFILTERED` or `NDF_LIGHT_ENV_SH` ([`crate::glsl::ShaderLight`]); their CPU
 //! twin is [`crate::envlight::shade`].
 //!
-//! **Layout: an equirectangular `R32F` atlas, not a cube map and not a GL MIP chain.** The
+//! **Layout: an equirectangular `RGB32F` atlas, not a cube map and not a GL MIP chain.** The
 //! prefiltered levels ([`crate::environment::prefilter`]) are equirectangular, made by
 //! solid-angle-weighted downsampling, and stop halving at 16 × 8 texels while the lobe keeps
 //! widening, so they are not a GL MIP chain (whose levels must halve) and resampling them to a
@@ -17,13 +17,21 @@
 //! relative error of 1/256 of the difference between neighbouring texels, which next to a sun
 //! of radiance 10⁶ is far above the route's own error.
 //!
-//! The `L′` table ([`crate::environment::projection::ReflectedTable`]) is an `R32F` texture of
+//! **RGB, `RGB32F` rather than `RGBA16F`**: every radiance-dependent array (atlas, `L′`,
+//! `L_lm`) holds the three channels interleaved. Half floats would halve the bytes (8 instead
+//! of 12 per texel with the padding channel) but stop at 65504 — below the radiance of a real
+//! sun in an HDR panorama (10⁵–10⁹) — and keep 11 significant bits, which would turn GL = CPU
+//! agreement next to a sun from 10⁻⁷ into 10⁻³ of the value. A 1024 × 512 panorama's atlas is
+//! 1024 × 528 × 12 B ≈ 6.5 MB, the `L′` table 81 × 256 × 12 B ≈ 0.25 MB. The lobe-energy tables
+//! do not depend on the radiance: one `R32F` table per BRDF family serves all three channels.
+//!
+//! The `L′` table ([`crate::environment::projection::ReflectedTable`]) is an `RGB32F` texture of
 //! `count(8) = 81` columns (the coefficients) × `16² = 256` rows (row `iθ·16 + iφ`, the views of
 //! [`crate::environment::projection::view_of`]); the lobe-energy table of the BRDF
 //! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_COS`] columns ×
 //! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_i`, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
 //!
-//! Uniforms ([`uniforms`]): `ndf_env_sh[81]` (`L_lm`, environment frame), `ndf_env_kappa0`,
+//! Uniforms ([`uniforms`]): `vec3 ndf_env_sh[81]` (`L_lm`, environment frame, RGB), `ndf_env_kappa0`,
 //! `ndf_env_level_count`, `ndf_env_level[3·16]` (width, height, first row per level, as floats),
 //! and for the SH route `ndf_env_rho[9]` (the BRDF's `ρ̂_l`, l ≤ 8). Samplers: `ndf_env_atlas`,
 //! `ndf_env_energy` (prefiltered route), `ndf_env_reflected` (SH route). Mesh mode adds
@@ -45,29 +53,35 @@ pub const REFLECTED_COLUMNS: usize = (ENV_LMAX + 1) * (ENV_LMAX + 1);
 /// Rows of the `L′` texture: one per grid view, `REFLECTED_GRID²` = 256.
 pub const REFLECTED_ROWS: usize = REFLECTED_GRID * REFLECTED_GRID;
 
-/// An environment packed for upload (module docs).
+/// Colour channels of the atlas, the `L′` table and `ndf_env_sh` (R, G, B interleaved).
+pub const CHANNELS: usize = 3;
+
+/// An environment packed for upload (module docs), RGB: every radiance-dependent array holds
+/// [`CHANNELS`] interleaved values (R, G, B) per texel or coefficient.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Upload {
     /// Atlas width in texels (level 0's width).
     pub atlas_width: u32,
     /// Atlas height in texels (the levels' heights summed).
     pub atlas_height: u32,
-    /// The atlas, row-major from the top row, texels outside a level's width are 0.
+    /// The atlas, RGB per texel, row-major from the top row; texels outside a level's width
+    /// are 0.
     pub atlas: Vec<f32>,
     /// Per level: width, height, first atlas row.
     pub levels: Vec<[u32; 3]>,
     /// `κ_0 = W·H/π` of level 0 (`LOD = ½ log2(κ_0/κ)`).
     pub kappa0: f64,
-    /// `L_lm`, l ≤ 8, environment frame, (l, m) order.
+    /// `L_lm`, l ≤ 8, environment frame, (l, m) order, RGB per coefficient (81 × 3).
     pub sh: Vec<f32>,
-    /// The `L′` table: [`REFLECTED_ROWS`] rows of [`REFLECTED_COLUMNS`] values.
+    /// The `L′` table: [`REFLECTED_ROWS`] rows of [`REFLECTED_COLUMNS`] RGB values.
     pub reflected: Vec<f32>,
 }
 
 /// Packs `light` for upload (module docs). Fails only when it has more than [`MAX_LEVELS`]
 /// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would).
 pub fn pack(light: &EnvLight) -> Result<Upload> {
-    let levels = light.prefiltered().levels();
+    let first = light.channel(0).prefiltered();
+    let levels = first.levels();
     if levels.len() > MAX_LEVELS {
         return Err(Error::InvalidOption(format!(
             "the environment has {} prefiltered levels, the shaders read at most {MAX_LEVELS}",
@@ -76,31 +90,55 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
     }
     let width = levels[0].radiance.width();
     let height: u32 = levels.iter().map(|l| l.radiance.height()).sum();
-    let mut atlas = vec![0.0f32; width as usize * height as usize];
+    let mut atlas = vec![0.0f32; CHANNELS * width as usize * height as usize];
     let mut table = Vec::with_capacity(levels.len());
     let mut row = 0u32;
-    for level in levels {
-        let r = &level.radiance;
-        for y in 0..r.height() as usize {
-            let src = &r.values()[y * r.width() as usize..][..r.width() as usize];
-            let dst = (row as usize + y) * width as usize;
-            atlas[dst..dst + src.len()].copy_from_slice(src);
+    for (k, level) in levels.iter().enumerate() {
+        let (w, h) = (
+            level.radiance.width() as usize,
+            level.radiance.height() as usize,
+        );
+        for (c, ch) in light.channels().iter().enumerate() {
+            let values = ch.prefiltered().levels()[k].radiance.values();
+            for y in 0..h {
+                let dst = (row as usize + y) * width as usize;
+                for (x, v) in values[y * w..][..w].iter().enumerate() {
+                    atlas[CHANNELS * (dst + x) + c] = *v;
+                }
+            }
         }
-        table.push([r.width(), r.height(), row]);
-        row += r.height();
+        table.push([w as u32, h as u32, row]);
+        row += h as u32;
     }
-    let reflected = light.reflected().packed();
-    debug_assert_eq!(reflected.len(), REFLECTED_COLUMNS * REFLECTED_ROWS);
+    let interleave = |per: Vec<Vec<f32>>| -> Vec<f32> {
+        (0..per[0].len())
+            .flat_map(|i| per.iter().map(move |p| p[i]))
+            .collect()
+    };
+    let channels = light.channels();
+    let reflected = interleave(channels.iter().map(|c| c.reflected().packed()).collect());
+    debug_assert_eq!(
+        reflected.len(),
+        CHANNELS * REFLECTED_COLUMNS * REFLECTED_ROWS
+    );
+    let sh = interleave(
+        channels
+            .iter()
+            .map(|c| {
+                c.sh()[..count(ENV_LMAX)]
+                    .iter()
+                    .map(|&v| v as f32)
+                    .collect()
+            })
+            .collect(),
+    );
     Ok(Upload {
         atlas_width: width,
         atlas_height: height,
         atlas,
         levels: table,
-        kappa0: light.prefiltered().kappa0(),
-        sh: light.sh()[..count(ENV_LMAX)]
-            .iter()
-            .map(|&v| v as f32)
-            .collect(),
+        kappa0: first.kappa0(),
+        sh,
         reflected,
     })
 }
@@ -116,24 +154,41 @@ pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
 /// The size (columns, rows) of [`energy`]'s texture.
 pub const ENERGY_SIZE: (usize, usize) = (ENERGY_COS, ENERGY_BLOCKS * ENERGY_PARAM);
 
-/// The environment uniforms of a shader lit by `route` with `brdf` (module docs), as f32 values
-/// (arrays as several).
-pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<(&'static str, Vec<f32>)> {
+/// One environment uniform: its name, components per element (1: `float`, 3: `vec3`) and
+/// values (arrays as several elements).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EnvUniform {
+    /// The GLSL name.
+    pub name: &'static str,
+    /// Components per element: 1 (`float`, `float[]`) or 3 (`vec3[]`).
+    pub components: usize,
+    /// The values, `components` per element.
+    pub values: Vec<f32>,
+}
+
+/// The environment uniforms of a shader lit by `route` with `brdf` (module docs): `ndf_env_sh`
+/// as `vec3[81]` (RGB), the rest as floats.
+pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
     let mut level = vec![0.0f32; 3 * MAX_LEVELS];
     for (i, l) in upload.levels.iter().enumerate() {
         for k in 0..3 {
             level[3 * i + k] = l[k] as f32;
         }
     }
+    let u = |name, components, values| EnvUniform {
+        name,
+        components,
+        values,
+    };
     let mut out = vec![
-        ("ndf_env_sh", upload.sh.clone()),
-        ("ndf_env_kappa0", vec![upload.kappa0 as f32]),
-        ("ndf_env_level_count", vec![upload.levels.len() as f32]),
-        ("ndf_env_level", level),
+        u("ndf_env_sh", CHANNELS, upload.sh.clone()),
+        u("ndf_env_kappa0", 1, vec![upload.kappa0 as f32]),
+        u("ndf_env_level_count", 1, vec![upload.levels.len() as f32]),
+        u("ndf_env_level", 1, level),
     ];
     if route == Route::Sh && brdf.has_specular() {
         let rho = brdf.sh_coefficients(ENV_LMAX);
-        out.push(("ndf_env_rho", rho.iter().map(|&v| v as f32).collect()));
+        out.push(u("ndf_env_rho", 1, rho.iter().map(|&v| v as f32).collect()));
     }
     out
 }
@@ -144,35 +199,58 @@ mod tests {
     use crate::environment::Sky;
 
     #[test]
-    fn the_atlas_holds_every_level_unchanged() {
+    fn the_atlas_holds_every_level_of_every_channel_unchanged() {
+        // A sun and sky of different colours: a swapped or collapsed channel fails.
         let sky = Sky {
             width: 64,
+            sun: [3.0e4, 1.5e4, 0.5e4],
             ..Sky::default()
         }
         .render()
         .unwrap();
-        let light = EnvLight::new(sky.luminance());
+        let light = EnvLight::new(&sky);
         let up = pack(&light).unwrap();
-        let levels = light.prefiltered().levels();
-        assert_eq!(up.levels.len(), levels.len());
-        assert_eq!(up.atlas.len(), (up.atlas_width * up.atlas_height) as usize);
-        for (l, &[w, h, row]) in levels.iter().zip(&up.levels) {
-            assert_eq!((w, h), (l.radiance.width(), l.radiance.height()));
-            for y in 0..h {
-                for x in 0..w {
-                    let a = up.atlas[((row + y) * up.atlas_width + x) as usize];
-                    assert_eq!(a, l.radiance.values()[(y * w + x) as usize]);
+        for (c, ch) in light.channels().iter().enumerate() {
+            let levels = ch.prefiltered().levels();
+            assert_eq!(up.levels.len(), levels.len());
+            assert_eq!(
+                up.atlas.len(),
+                CHANNELS * (up.atlas_width * up.atlas_height) as usize
+            );
+            for (l, &[w, h, row]) in levels.iter().zip(&up.levels) {
+                assert_eq!((w, h), (l.radiance.width(), l.radiance.height()));
+                for y in 0..h {
+                    for x in 0..w {
+                        let a = up.atlas[CHANNELS * ((row + y) * up.atlas_width + x) as usize + c];
+                        assert_eq!(a, l.radiance.values()[(y * w + x) as usize]);
+                    }
                 }
             }
+            for k in 0..81 {
+                assert_eq!(up.sh[CHANNELS * k + c], ch.sh()[k] as f32);
+            }
+            let lp = ch.reflected().packed();
+            for (i, v) in lp.iter().enumerate() {
+                assert_eq!(up.reflected[CHANNELS * i + c], *v);
+            }
         }
-        assert_eq!(up.sh.len(), 81);
-        assert_eq!(up.reflected.len(), 81 * 256);
+        // The channels differ (the sun's colour reaches every table).
+        assert!(up.sh[0] > 1.2 * up.sh[2], "{} {}", up.sh[0], up.sh[2]);
+        assert_eq!(up.sh.len(), 81 * 3);
+        assert_eq!(up.reflected.len(), 81 * 256 * 3);
         let e = energy(&light, &Brdf::BlinnPhong { s: 32.0 }).unwrap();
         assert_eq!(e.len(), ENERGY_COS * ENERGY_BLOCKS * ENERGY_PARAM);
         assert!(energy(&light, &Brdf::Lambert).is_none());
         let u = uniforms(&up, &Brdf::ggx(0.3), Route::Sh);
-        assert!(u.iter().any(|(n, v)| *n == "ndf_env_rho" && v.len() == 9));
+        assert!(
+            u.iter()
+                .any(|u| u.name == "ndf_env_rho" && u.values.len() == 9)
+        );
+        assert!(
+            u.iter()
+                .any(|u| u.name == "ndf_env_sh" && u.components == 3 && u.values == up.sh)
+        );
         let u = uniforms(&up, &Brdf::ggx(0.3), Route::Prefiltered);
-        assert!(u.iter().all(|(n, _)| *n != "ndf_env_rho"));
+        assert!(u.iter().all(|u| u.name != "ndf_env_rho"));
     }
 }

@@ -38,6 +38,10 @@ use std::path::Path;
 /// Largest environment width accepted (texels); the height is half of it.
 pub const MAX_WIDTH: u32 = 16_384;
 
+/// Rec. 709 luminance weights of linear R, G, B (they sum to 1): [`Environment::luminance`] and
+/// the luminance of RGB shading (`envlight::RgbShading::luminance`).
+pub const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
 /// What to do with NaN, infinite and negative texels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum BadTexels {
@@ -181,8 +185,9 @@ impl Environment {
         }
     }
 
-    /// Rec. 709 luminance `0.2126 R + 0.7152 G + 0.0722 B` as a [`Radiance`]: what `eval` and
-    /// `report` light with (their errors are of one scalar).
+    /// Rec. 709 luminance `0.2126 R + 0.7152 G + 0.0722 B` ([`LUMINANCE`]) as a [`Radiance`]:
+    /// what the ground truth of `eval` and `report` integrates (their errors are of one scalar,
+    /// the luminance of the RGB shading).
     pub fn luminance(&self) -> Radiance {
         Radiance {
             width: self.width,
@@ -190,9 +195,7 @@ impl Environment {
             values: self
                 .texels
                 .iter()
-                .map(|t| {
-                    (0.2126 * t[0] as f64 + 0.7152 * t[1] as f64 + 0.0722 * t[2] as f64) as f32
-                })
+                .map(|t| (0..3).map(|c| LUMINANCE[c] * t[c] as f64).sum::<f64>() as f32)
                 .collect(),
         }
     }

@@ -39,10 +39,10 @@
 
 use crate::bake::{Bake, Method};
 use crate::brdf::{Brdf, ggx};
-use crate::environment::Radiance;
 use crate::environment::prefilter::Prefiltered;
 use crate::environment::projection::{self, ReflectedTable};
 use crate::environment::sampling::EnvSampler;
+use crate::environment::{Environment, LUMINANCE, Radiance};
 use crate::error::{Error, Result};
 use crate::harmonics::{Basis, count, lambda};
 use crate::pyramid::pyramid;
@@ -55,34 +55,28 @@ use std::f64::consts::PI;
 /// Band limit of the environment's SH (eq 25, 26): the paper's l* = 8.
 pub const ENV_LMAX: usize = 8;
 
-/// An environment ready to light with: one channel, its sampler, prefiltered levels, SH
-/// coefficients and `L′` table, and the lobe-energy tables of the prefiltered route.
-pub struct EnvLight {
+/// One colour channel of an environment prepared for the routes: its radiance, prefiltered
+/// levels, SH coefficients and `L′` table (everything that depends on the radiance; the routes
+/// are linear in it, so each channel is the single-channel computation).
+#[derive(Debug, Clone)]
+pub struct EnvChannel {
     radiance: Radiance,
-    sampler: Option<EnvSampler>,
     prefiltered: Prefiltered,
     sh: Vec<f64>,
     reflected: ReflectedTable,
-    energy: &'static EnergyTables,
-    x90: Vec<f64>,
 }
 
-impl EnvLight {
-    /// Prepares `radiance` (prefiltering, projection, tables: about a second for a 1024 × 512
-    /// panorama on two cores).
-    pub fn new(radiance: Radiance) -> EnvLight {
-        EnvLight {
-            sampler: EnvSampler::new(&radiance),
+impl EnvChannel {
+    fn new(radiance: Radiance) -> EnvChannel {
+        EnvChannel {
             prefiltered: Prefiltered::new(&radiance),
             sh: projection::project(&radiance, ENV_LMAX),
             reflected: ReflectedTable::new(&radiance, ENV_LMAX),
-            energy: energy_tables(),
-            x90: projection::x90_blocks(ENV_LMAX),
             radiance,
         }
     }
 
-    /// The radiance lit with.
+    /// The channel's radiance.
     pub fn radiance(&self) -> &Radiance {
         &self.radiance
     }
@@ -101,16 +95,104 @@ impl EnvLight {
     pub fn reflected(&self) -> &ReflectedTable {
         &self.reflected
     }
+}
+
+/// An environment ready to light with, in RGB: per channel ([`EnvChannel`]) the prefiltered
+/// levels, SH coefficients and `L′` table; shared by the channels, the radiance-independent
+/// lobe-energy tables of the prefiltered route and the SH rotation constants; and the Rec. 709
+/// luminance with its importance sampler, which the ground truth ([`ground_truth`]) integrates
+/// (`eval`/`report --env` measure the luminance of the RGB result: the ground truth is linear
+/// in radiance, so its luminance is the luminance of the RGB ground truth).
+pub struct EnvLight {
+    channels: [EnvChannel; 3],
+    luminance: Radiance,
+    sampler: Option<EnvSampler>,
+    energy: &'static EnergyTables,
+    x90: Vec<f64>,
+}
+
+impl EnvLight {
+    /// Prepares the RGB environment `env` (prefiltering, projection, tables per channel, the
+    /// three channels in parallel: about 3 CPU-s for a 1024 × 512 panorama).
+    pub fn new(env: &Environment) -> EnvLight {
+        let prepare = |c: usize| EnvChannel::new(env.channel(c));
+        let (r, (g, b)) = rayon::join(|| prepare(0), || rayon::join(|| prepare(1), || prepare(2)));
+        EnvLight::from_channels([r, g, b], env.luminance())
+    }
+
+    /// Prepares a grey environment: `radiance` in all three channels (prepared once). Its
+    /// luminance is `radiance` (the Rec. 709 weights sum to 1).
+    pub fn grey(radiance: Radiance) -> EnvLight {
+        let one = EnvChannel::new(radiance.clone());
+        EnvLight::from_channels([one.clone(), one.clone(), one], radiance)
+    }
+
+    fn from_channels(channels: [EnvChannel; 3], luminance: Radiance) -> EnvLight {
+        EnvLight {
+            channels,
+            sampler: EnvSampler::new(&luminance),
+            luminance,
+            energy: energy_tables(),
+            x90: projection::x90_blocks(ENV_LMAX),
+        }
+    }
+
+    /// Channel `c` (0 = R, 1 = G, 2 = B; clamped).
+    pub fn channel(&self, c: usize) -> &EnvChannel {
+        &self.channels[c.min(2)]
+    }
+
+    /// The three channels.
+    pub fn channels(&self) -> &[EnvChannel; 3] {
+        &self.channels
+    }
+
+    /// The Rec. 709 luminance the ground truth integrates.
+    pub fn luminance(&self) -> &Radiance {
+        &self.luminance
+    }
 
     /// The prefiltered route's lobe table of `brdf`'s family (Blinn-Phong or GGX):
     /// [`ENERGY_BLOCKS`] × [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values, row-major — the
     /// energy `E(c_o, p)`, then the blend, then `log2 κ_i` ([`lobe_moments`]) — what the shaders
-    /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones).
+    /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones). One
+    /// table for all channels.
     pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
         match brdf {
             Brdf::BlinnPhong { .. } => Some(self.energy.blinn_phong_table()),
             Brdf::Ggx(_) => Some(self.energy.ggx_table()),
             _ => None,
+        }
+    }
+}
+
+/// Environment-lit shading per colour channel (R, G, B): the terms of
+/// [`crate::brdf::Shading`] for each channel's radiance.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RgbShading {
+    /// Diffuse term per channel.
+    pub diffuse: [f64; 3],
+    /// Specular term per channel (g included).
+    pub specular: [f64; 3],
+}
+
+impl RgbShading {
+    /// Channel `c` (0 = R, 1 = G, 2 = B; clamped).
+    pub fn channel(&self, c: usize) -> crate::brdf::Shading {
+        let c = c.min(2);
+        crate::brdf::Shading {
+            diffuse: self.diffuse[c],
+            specular: self.specular[c],
+        }
+    }
+
+    /// Rec. 709 luminance of the RGB terms ([`crate::environment::LUMINANCE`]): what
+    /// `eval`/`report --env` compare with the ground truth.
+    pub fn luminance(&self) -> crate::brdf::Shading {
+        let dot = |v: &[f64; 3]| (0..3).map(|c| LUMINANCE[c] * v[c]).sum::<f64>();
+        crate::brdf::Shading {
+            diffuse: dot(&self.diffuse),
+            specular: dot(&self.specular),
         }
     }
 }
@@ -236,7 +318,7 @@ pub fn ground_truth(
     else {
         return out;
     };
-    let env = &light.radiance;
+    let env = &light.luminance;
     let total_w: f64 = normals.iter().map(|n| n.1).sum();
     let mut cdf = Vec::with_capacity(normals.len());
     let mut acc = 0.0;
@@ -682,17 +764,20 @@ pub fn shade(
     view: DVec3,
     brdf: &Brdf,
     route: Route,
-) -> crate::brdf::Shading {
+) -> RgbShading {
     shade_in(light, DMat3::IDENTITY, bake, texels, view, brdf, route)
 }
 
-/// Environment-lit shading of `bake`'s texel for view `view` (tangent frame) on a surface
-/// whose tangent frame is `frame` (tangent → environment frame, a rotation; the shaders'
-/// `ndf_env_frame`): the CPU twin of the environment shaders. Lobe directions, reflected
-/// directions and the view are turned into the environment's frame for the basis, the lookups
-/// and `L′`; for SH bakes the environment's `L_lm` (bands ≤ 2) and `L′_lm(frame·view)` are
-/// rotated into the tangent frame ([`projection::rotate_zyz`], as the shader does per
-/// fragment) and paired with the texel's `c_lm`.
+/// Environment-lit shading, per colour channel, of `bake`'s texel for view `view` (tangent
+/// frame) on a surface whose tangent frame is `frame` (tangent → environment frame, a
+/// rotation; the shaders' `ndf_env_frame`): the CPU twin of the environment shaders. Lobe
+/// directions, reflected directions and the view are turned into the environment's frame for
+/// the basis, the lookups and `L′`; for SH bakes the environment's `L_lm` (bands ≤ 2) and
+/// `L′_lm(frame·view)` are rotated into the tangent frame ([`projection::rotate_zyz`], as the
+/// shader does per fragment) and paired with the texel's `c_lm`. Everything that does not
+/// depend on the radiance (lobes, basis, BRDF coefficients, lobe-table lookups, g) is computed
+/// once; each channel is then the single-channel route (the routes are linear in radiance; the
+/// clamps at 0 are per channel, as in the shaders).
 pub fn shade_in(
     light: &EnvLight,
     frame: DMat3,
@@ -701,8 +786,8 @@ pub fn shade_in(
     view: DVec3,
     brdf: &Brdf,
     route: Route,
-) -> crate::brdf::Shading {
-    let mut out = crate::brdf::Shading::default();
+) -> RgbShading {
+    let mut out = RgbShading::default();
     let basis = Basis::new(ENV_LMAX);
     let mut y = vec![0.0f64; count(ENV_LMAX)];
     let identity = frame == DMat3::IDENTITY;
@@ -711,57 +796,70 @@ pub fn shade_in(
         let lmax = crate::sh::lmax_of(bake);
         let c = |k: usize| texels[k / 4][k % 4] as f64;
         let ld = lmax.min(2);
-        let sh_t = if identity {
-            light.sh[..count(ld)].to_vec()
-        } else {
-            projection::rotate_zyz(&light.sh, ld, to_tangent, &light.x90)
-        };
-        for (l, rho) in LAMBERT.iter().enumerate().take(ld + 1) {
-            let band = &sh_t[l * l..(l + 1) * (l + 1)];
-            for (k, v) in (l * l..).zip(band) {
-                out.diffuse += rho / lambda(l) * v * c(k);
+        for (ch, o) in light.channels.iter().zip(&mut out.diffuse) {
+            let sh_t = if identity {
+                ch.sh[..count(ld)].to_vec()
+            } else {
+                projection::rotate_zyz(&ch.sh, ld, to_tangent, &light.x90)
+            };
+            let mut d = 0.0;
+            for (l, rho) in LAMBERT.iter().enumerate().take(ld + 1) {
+                let band = &sh_t[l * l..(l + 1) * (l + 1)];
+                for (k, v) in (l * l..).zip(band) {
+                    d += rho / lambda(l) * v * c(k);
+                }
             }
+            *o = d.max(0.0);
         }
-        out.diffuse = out.diffuse.max(0.0);
         if brdf.has_specular() {
             let ls = lmax.min(ENV_LMAX);
             let rho = brdf.sh_coefficients(ls);
-            let lp_env = light.reflected.at(frame * view);
-            let lp = if identity {
-                lp_env
-            } else {
-                projection::rotate_zyz(&lp_env, ls, to_tangent, &light.x90)
-            };
-            let mut sum = 0.0;
-            for (l, rl) in rho.iter().enumerate() {
-                let band = &lp[l * l..(l + 1) * (l + 1)];
-                for (k, v) in (l * l..).zip(band) {
-                    sum += rl / lambda(l) * v * c(k);
-                }
-            }
             let nbar = DVec3::new(c(3), c(1), c(2))
                 .try_normalize()
                 .unwrap_or(DVec3::Z);
             let co = view.dot(nbar).max(0.0);
             let r = 2.0 * co * nbar - view;
-            out.specular = (sum * co).max(0.0) * brdf.g(r, nbar);
+            let g = brdf.g(r, nbar);
+            for (ch, o) in light.channels.iter().zip(&mut out.specular) {
+                let lp_env = ch.reflected.at(frame * view);
+                let lp = if identity {
+                    lp_env
+                } else {
+                    projection::rotate_zyz(&lp_env, ls, to_tangent, &light.x90)
+                };
+                let mut sum = 0.0;
+                for (l, rl) in rho.iter().enumerate() {
+                    let band = &lp[l * l..(l + 1) * (l + 1)];
+                    for (k, v) in (l * l..).zip(band) {
+                        sum += rl / lambda(l) * v * c(k);
+                    }
+                }
+                *o = (sum * co).max(0.0) * g;
+            }
         }
         return out;
     }
     let lobes = lobes_of(bake, texels);
-    let rho = if route == Route::Sh && brdf.has_specular() {
+    let sh_route = route == Route::Sh && brdf.has_specular();
+    let rho = if sh_route {
         brdf.sh_coefficients(ENV_LMAX)
     } else {
         Vec::new()
     };
-    let lp = if route == Route::Sh && brdf.has_specular() {
-        light.reflected.at(frame * view)
+    let lp: Vec<Vec<f64>> = if sh_route {
+        light
+            .channels
+            .iter()
+            .map(|ch| ch.reflected.at(frame * view))
+            .collect()
     } else {
         Vec::new()
     };
     for lobe in &lobes {
         basis.eval_into(frame * lobe.mu, &mut y);
-        out.diffuse += lobe.alpha * diffuse_lobe(&light.sh, &y, lobe).max(0.0);
+        for (ch, o) in light.channels.iter().zip(&mut out.diffuse) {
+            *o += lobe.alpha * diffuse_lobe(&ch.sh, &y, lobe).max(0.0);
+        }
         if !brdf.has_specular() {
             continue;
         }
@@ -771,23 +869,32 @@ pub fn shade_in(
         }
         let r = 2.0 * co * lobe.mu - view;
         let g = brdf.g(r, lobe.mu);
-        let spec = match route {
+        let spec: [f64; 3] = match route {
             Route::Prefiltered => {
                 let [e, blend, log_kappa] = widened(light, brdf, lobe.var(), co);
-                let d = tilted(lobe.mu, r, blend);
-                light.prefiltered.lookup(frame * d, log_kappa.exp2()) * e
+                let d = frame * tilted(lobe.mu, r, blend);
+                let kappa = log_kappa.exp2();
+                std::array::from_fn(|c| light.channels[c].prefiltered.lookup(d, kappa) * e)
             }
             Route::Sh => {
-                let mut sum = 0.0;
-                for (l, rl) in rho.iter().enumerate() {
-                    let a = crate::vmf::sh_scaled_coefficient(l as u32, lobe.kappa.min(1e300));
-                    let band: f64 = (l * l..(l + 1) * (l + 1)).map(|k| lp[k] * y[k]).sum();
-                    sum += rl * a * band;
-                }
-                sum.max(0.0) * co
+                let att: Vec<f64> = (0..rho.len())
+                    .map(|l| {
+                        rho[l] * crate::vmf::sh_scaled_coefficient(l as u32, lobe.kappa.min(1e300))
+                    })
+                    .collect();
+                std::array::from_fn(|c| {
+                    let mut sum = 0.0;
+                    for (l, a) in att.iter().enumerate() {
+                        let band: f64 = (l * l..(l + 1) * (l + 1)).map(|k| lp[c][k] * y[k]).sum();
+                        sum += a * band;
+                    }
+                    sum.max(0.0) * co
+                })
             }
         };
-        out.specular += lobe.alpha * spec * g;
+        for (o, s) in out.specular.iter_mut().zip(spec) {
+            *o += lobe.alpha * s * g;
+        }
     }
     out
 }
@@ -1027,7 +1134,8 @@ impl Reference {
                     }
                     for (c, &(bi, route)) in configs.iter().enumerate() {
                         for (b, brdf) in brdfs.iter().enumerate() {
-                            let f = shade(light, bakes[bi], &texels[bi], view, brdf, route);
+                            let f =
+                                shade(light, bakes[bi], &texels[bi], view, brdf, route).luminance();
                             let e = &mut sums[c * nb + b];
                             e[0] += (f.diffuse - gt.diffuse).powi(2);
                             e[1] += gt.diffuse.powi(2);
@@ -1184,6 +1292,13 @@ mod tests {
             * (2.0 * (1.0 - a.powf(s + 4.0)) / (s + 4.0) - (1.0 - a.powf(s + 2.0)) / (s + 2.0))
     }
 
+    /// The shading of a grey environment: its three channels must be identical.
+    fn grey(f: RgbShading) -> crate::brdf::Shading {
+        assert_eq!(f.diffuse, [f.diffuse[0]; 3], "{f:?}");
+        assert_eq!(f.specular, [f.specular[0]; 3], "{f:?}");
+        f.channel(0)
+    }
+
     fn flat_bake(method: Method) -> Bake {
         let map = map_of(4, 4, vec![glam::Vec3::Z; 16]);
         crate::methods::bake(&map, method)
@@ -1197,7 +1312,7 @@ mod tests {
         }
         .render()
         .unwrap();
-        EnvLight::new(sky.luminance())
+        EnvLight::new(&sky)
     }
 
     /// Four tilted normals of a 2 × 2 map whose level-1 texel is their footprint.
@@ -1216,7 +1331,7 @@ mod tests {
 
     #[test]
     fn constant_environment_matches_the_closed_forms() {
-        let light = EnvLight::new(Radiance::constant(64, 1.0));
+        let light = EnvLight::grey(Radiance::constant(64, 1.0));
         let brdfs = [
             Brdf::BlinnPhong { s: 32.0 },
             Brdf::BlinnPhong { s: 256.0 },
@@ -1250,7 +1365,7 @@ mod tests {
             let bake = flat_bake(m);
             let t = bake.texel(0, 0, 0);
             for (b, brdf) in brdfs.iter().enumerate() {
-                let f = shade(&light, &bake, &t, DVec3::Z, brdf, Route::Prefiltered);
+                let f = grey(shade(&light, &bake, &t, DVec3::Z, brdf, Route::Prefiltered));
                 assert!((f.diffuse - PI).abs() < 1e-3, "{m} {}", f.diffuse);
                 let g = if b < 2 {
                     bp_closed_form([32.0, 256.0][b])
@@ -1268,7 +1383,7 @@ mod tests {
 
     #[test]
     fn black_environment_is_exactly_zero() {
-        let light = EnvLight::new(Radiance::constant(32, 0.0));
+        let light = EnvLight::grey(Radiance::constant(32, 0.0));
         let brdfs = [Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.1)];
         let gt = ground_truth(
             &light,
@@ -1291,7 +1406,7 @@ mod tests {
             let t = bake.texel(0, 0, 0);
             for route in [Route::Prefiltered, Route::Sh] {
                 for brdf in &brdfs {
-                    let f = shade(&light, &bake, &t, DVec3::Z, brdf, route);
+                    let f = grey(shade(&light, &bake, &t, DVec3::Z, brdf, route));
                     assert_eq!((f.diffuse, f.specular), (0.0, 0.0), "{m}");
                 }
             }
@@ -1309,10 +1424,17 @@ mod tests {
         .render()
         .unwrap()
         .luminance();
-        let light = EnvLight::new(sky.clone());
+        let light = EnvLight::grey(sky.clone());
         let bake = flat_bake(Method::Plain);
         let t = bake.texel(0, 0, 0);
-        let f = shade(&light, &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh);
+        let f = grey(shade(
+            &light,
+            &bake,
+            &t,
+            DVec3::Z,
+            &Brdf::Lambert,
+            Route::Sh,
+        ));
         let g = sky.grid();
         let mut direct = 0.0;
         for y in 0..g.height {
@@ -1343,7 +1465,7 @@ mod tests {
         }
         .render()
         .unwrap();
-        let light = EnvLight::new(smooth.luminance());
+        let light = EnvLight::grey(smooth.luminance());
         for n in [
             DVec3::Z,
             DVec3::new(0.5, 0.2, 0.8).normalize(),
@@ -1357,7 +1479,7 @@ mod tests {
                 kappa: f64::INFINITY,
             };
             let y = crate::harmonics::eval(ENV_LMAX, n);
-            let e = diffuse_lobe(light.sh(), &y, &lobe);
+            let e = diffuse_lobe(light.channel(0).sh(), &y, &lobe);
             assert!(gt.diffuse_se < 0.005 * gt.diffuse, "{gt:?}");
             assert!(
                 (e - gt.diffuse).abs() < 0.01 * gt.diffuse + 3.0 * gt.diffuse_se,
@@ -1373,7 +1495,7 @@ mod tests {
         v[10 * 64 + 20] = 1e6;
         let env = Radiance::new(64, 32, v).unwrap();
         let power = env.power();
-        let light = EnvLight::new(env);
+        let light = EnvLight::grey(env);
         let brdfs = [Brdf::BlinnPhong { s: 1e5 }, Brdf::ggx(0.001), Brdf::Lambert];
         let mut rng = Rng(4);
         for _ in 0..20 {
@@ -1386,7 +1508,7 @@ mod tests {
                 let t = bake.texel(0, 0, 0);
                 for route in [Route::Prefiltered, Route::Sh] {
                     for brdf in &brdfs {
-                        let f = shade(&light, &bake, &t, o, brdf, route);
+                        let f = grey(shade(&light, &bake, &t, o, brdf, route));
                         assert!(f.diffuse.is_finite() && f.diffuse >= 0.0);
                         assert!(f.diffuse <= 2.0 * power, "{m} {}", f.diffuse);
                         assert!(f.specular.is_finite() && f.specular >= 0.0, "{m} {brdf:?}");
@@ -1402,7 +1524,7 @@ mod tests {
         let map = map_of(2, 2, quad_normals());
         let bake = crate::methods::bake(&map, Method::Sh);
         let t = bake.texel(1, 0, 0);
-        let a = shade(&light, &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh);
+        let a = shade(&light, &bake, &t, DVec3::Z, &Brdf::Lambert, Route::Sh).luminance();
         let normals: Vec<(DVec3, f64)> = map
             .normals()
             .iter()
@@ -1435,8 +1557,8 @@ mod tests {
         for m in [Method::Sh, Method::Toksvig, Method::Plain, Method::Vmf] {
             let bake = crate::methods::bake(&map, m);
             let t = bake.texel(1, 0, 0);
-            let f = shade_in(&light, frame, &bake, &t, view, &Brdf::Lambert, Route::Sh);
-            let flat = shade(&light, &bake, &t, view, &Brdf::Lambert, Route::Sh);
+            let f = shade_in(&light, frame, &bake, &t, view, &Brdf::Lambert, Route::Sh).luminance();
+            let flat = shade(&light, &bake, &t, view, &Brdf::Lambert, Route::Sh).luminance();
             let rel = |x: f64| (x - gt.diffuse).abs() / gt.diffuse;
             assert!(
                 rel(f.diffuse) < 0.05,
@@ -1451,5 +1573,58 @@ mod tests {
                 gt.diffuse
             );
         }
+    }
+
+    #[test]
+    fn each_channel_is_the_single_channel_route() {
+        // A sun and sky of different colours, a tilted frame: every method, route and BRDF
+        // shaded in RGB equals, per channel, the shading under that channel alone (a grey
+        // environment of it) — a swapped or collapsed channel fails — and the channels differ.
+        let sky = Sky {
+            width: 64,
+            sun: [3.0e4, 1.5e4, 0.5e4],
+            ..Sky::default()
+        }
+        .render()
+        .unwrap();
+        let light = EnvLight::new(&sky);
+        let single: Vec<EnvLight> = (0..3).map(|c| EnvLight::grey(sky.channel(c))).collect();
+        let map = map_of(2, 2, quad_normals());
+        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
+        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
+        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
+        let mut checked = 0;
+        for m in [
+            Method::Plain,
+            Method::Toksvig,
+            Method::Lean,
+            Method::Vmf,
+            Method::Sh,
+        ] {
+            let bake = crate::methods::bake(&map, m);
+            let t = bake.texel(1, 0, 0);
+            for route in [Route::Prefiltered, Route::Sh] {
+                for brdf in &brdfs {
+                    let rgb = shade_in(&light, frame, &bake, &t, view, brdf, route);
+                    for (c, one) in single.iter().enumerate() {
+                        let want = grey(shade_in(one, frame, &bake, &t, view, brdf, route));
+                        assert_eq!(rgb.channel(c), want, "{m} {route:?} {brdf:?} channel {c}");
+                    }
+                    assert!(rgb.diffuse[0] != rgb.diffuse[2], "{m} {rgb:?}");
+                    if brdf.has_specular() {
+                        assert!(
+                            (rgb.specular[0] - rgb.specular[2]).abs() > 0.1 * rgb.specular[1],
+                            "{m} {rgb:?}"
+                        );
+                    }
+                    let lum = rgb.luminance();
+                    let w = crate::environment::LUMINANCE;
+                    let d = w[0] * rgb.diffuse[0] + w[1] * rgb.diffuse[1] + w[2] * rgb.diffuse[2];
+                    assert!((lum.diffuse - d).abs() <= 1e-12 * d.abs());
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 30);
     }
 }

@@ -351,10 +351,7 @@ impl EnvArgs {
         if !quiet && name != "sky" {
             eprintln!("{}", cmgen_check(Path::new(name), &env));
         }
-        Ok(Some((
-            name.clone(),
-            ndfmap::envlight::EnvLight::new(env.luminance()),
-        )))
+        Ok(Some((name.clone(), ndfmap::envlight::EnvLight::new(&env))))
     }
 }
 

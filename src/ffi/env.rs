@@ -1,8 +1,9 @@
 //! C API, environment lighting (issue 16): load an equirectangular environment (Radiance
-//! `.hdr` or OpenEXR, from a file or from memory, or raw RGB floats), prepare it (luminance,
-//! SH projection, prefiltered levels, `L′` table), and get what the environment-lit shaders read,
-//! packed for upload ([`crate::envgpu`]): the SH coefficients, the prefiltered atlas with its
-//! level table, the `L′` table and the lobe-energy tables. The shader source itself comes from
+//! `.hdr` or OpenEXR, from a file or from memory, or raw RGB floats), prepare it (per colour
+//! channel: SH projection, prefiltered levels, `L′` table), and get what the environment-lit
+//! shaders read, packed for upload ([`crate::envgpu`]), RGB interleaved: the SH coefficients,
+//! the prefiltered atlas with its level table, the `L′` table, and the lobe-energy tables (one
+//! channel: they do not depend on the radiance). The shader source itself comes from
 //! `ndf_bake_shader_source` with `ndf_shader_options.light` = `NDF_LIGHT_ENV_PREFILTERED` or
 //! `NDF_LIGHT_ENV_SH`. Wraps [`crate::environment`], [`crate::envlight`], [`crate::envgpu`].
 
@@ -11,7 +12,7 @@ use super::{
     Out, Outcome, bytes, c_str, choose, fail, guard, guard_value, ndf_status, null, read_options,
     text,
 };
-use crate::envgpu::{ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
+use crate::envgpu::{CHANNELS, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
 use crate::environment::{BadTexels, EnvOptions, Environment};
 use crate::envlight::EnvLight;
 use std::ffi::{c_char, c_void};
@@ -50,8 +51,8 @@ pub extern "C" fn ndf_env_options_default() -> ndf_env_options {
     guard_value(o, || o)
 }
 
-/// An environment prepared for lighting (opaque): its luminance's SH coefficients, prefiltered
-/// levels and `L′` table. Released with `ndf_environment_free`.
+/// An environment prepared for lighting (opaque): per colour channel its SH coefficients,
+/// prefiltered levels and `L′` table. Released with `ndf_environment_free`.
 pub struct ndf_environment {
     width: u32,
     height: u32,
@@ -70,7 +71,7 @@ pub struct ndf_environment_info {
     pub height: u32,
     /// Texels repaired (NaN, infinite, negative set to 0).
     pub repaired: u64,
-    /// Floats of `ndf_environment_sh`: 81 (l ≤ 8).
+    /// Floats of `ndf_environment_sh`: 243 (81 coefficients, l ≤ 8, × `channels`).
     pub sh_count: u32,
     /// Atlas width of `ndf_environment_prefiltered` (level 0's width).
     pub atlas_width: u32,
@@ -81,7 +82,7 @@ pub struct ndf_environment_info {
     pub level_count: u32,
     /// `κ_0 = W·H/π`: `LOD = ½ log2(κ_0/κ)` (uniform `ndf_env_kappa0`).
     pub kappa0: f64,
-    /// Columns (81) and rows (256) of `ndf_environment_reflected`.
+    /// Columns (81 texels of `channels` floats) and rows (256) of `ndf_environment_reflected`.
     pub reflected_columns: u32,
     /// Rows of `ndf_environment_reflected`.
     pub reflected_rows: u32,
@@ -89,10 +90,14 @@ pub struct ndf_environment_info {
     pub energy_columns: u32,
     /// Rows of `ndf_environment_energy`.
     pub energy_rows: u32,
+    /// Floats per texel or coefficient of the radiance-dependent arrays (`ndf_environment_sh`,
+    /// `_prefiltered`'s atlas, `_reflected`): 3, R, G, B interleaved (`RGB32F` textures,
+    /// `uniform vec3 ndf_env_sh[81]`). The energy tables have one.
+    pub channels: u32,
 }
 
 fn prepare(env: Environment) -> Outcome<ndf_environment> {
-    let light = EnvLight::new(env.luminance());
+    let light = EnvLight::new(&env);
     let upload = crate::envgpu::pack(&light)?;
     Ok(ndf_environment {
         width: env.width(),
@@ -301,15 +306,16 @@ pub unsafe extern "C" fn ndf_environment_info_get(
             reflected_rows: REFLECTED_ROWS as u32,
             energy_columns: ENERGY_SIZE.0 as u32,
             energy_rows: ENERGY_SIZE.1 as u32,
+            channels: CHANNELS as u32,
         };
         unsafe { out.write(info) };
         Ok(())
     })
 }
 
-/// The luminance's SH coefficients `L_lm`, l ≤ 8, (l, m) order, environment frame (+Z up,
-/// real orthonormal basis without the Condon–Shortley phase): 81 floats into `out`
-/// (`capacity` floats; uniform `ndf_env_sh`).
+/// The SH coefficients `L_lm`, l ≤ 8, (l, m) order, environment frame (+Z up, real
+/// orthonormal basis without the Condon–Shortley phase), each as R, G, B: 243 floats into
+/// `out` (`capacity` floats; uniform `vec3 ndf_env_sh[81]`, e.g. `glUniform3fv(loc, 81, out)`).
 ///
 /// # Safety
 /// `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
@@ -326,9 +332,9 @@ pub unsafe extern "C" fn ndf_environment_sh(
     })
 }
 
-/// The prefiltered levels packed for upload as one `R32F` texture (`atlas_width ×
-/// atlas_height` floats, row-major from the top; sampler `ndf_env_atlas`, read with
-/// `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
+/// The prefiltered levels packed for upload as one `RGB32F` texture (`atlas_width ×
+/// atlas_height × 3` floats, R, G, B per texel, row-major from the top; sampler
+/// `ndf_env_atlas`, read with `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
 /// uniform `ndf_env_level` as floats). Both buffers are required.
 ///
 /// # Safety
@@ -364,8 +370,8 @@ pub unsafe extern "C" fn ndf_environment_prefiltered(
 }
 
 /// The `L′_lm(ω_o)` table of eq 26 (the SH route): `reflected_rows` (256 views, row
-/// `iθ·16 + iφ`) × `reflected_columns` (81) floats, an `R32F` texture (sampler
-/// `ndf_env_reflected`).
+/// `iθ·16 + iφ`) × `reflected_columns` (81) texels of R, G, B: 62208 floats, an `RGB32F`
+/// texture (sampler `ndf_env_reflected`).
 ///
 /// # Safety
 /// `env` is NULL or live; `out` is NULL or writable for `capacity` floats.
@@ -384,7 +390,7 @@ pub unsafe extern "C" fn ndf_environment_reflected(
 
 /// The prefiltered route's lobe-energy table of a BRDF family (`NDF_BRDF_BLINN_PHONG` or
 /// `NDF_BRDF_GGX`): `energy_rows` × `energy_columns` floats, an `R32F` texture (sampler
-/// `ndf_env_energy`). Other BRDFs: `NDF_STATUS_INVALID_ARGUMENT`.
+/// `ndf_env_energy`; one table for all colour channels). Other BRDFs: `NDF_STATUS_INVALID_ARGUMENT`.
 ///
 /// # Safety
 /// `env` is NULL or live; `out` is NULL or writable for `capacity` floats.

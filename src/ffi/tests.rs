@@ -1751,8 +1751,10 @@ fn container_files_in_memory_and_on_disk_equal_the_rust_apis() {
 fn environments_load_and_pack_for_upload() {
     use super::env::*;
     use crate::envlight::EnvLight;
+    // A sun whose colour differs from the sky's: every array is compared per channel.
     let sky = crate::environment::Sky {
         width: 32,
+        sun: [3.0e4, 1.5e4, 0.5e4],
         ..Default::default()
     }
     .render()
@@ -1765,9 +1767,12 @@ fn environments_load_and_pack_for_upload() {
         check!(ndf_environment_from_rgb(32, 16, rgb.as_ptr(), &o, &mut env) => Ok, "");
         let mut info = ndf_environment_info::default();
         check!(ndf_environment_info_get(env, &mut info) => Ok, "");
-        let light = EnvLight::new(sky.luminance());
+        let light = EnvLight::new(&sky);
         let up = crate::envgpu::pack(&light).unwrap();
-        assert_eq!((info.width, info.height, info.sh_count), (32, 16, 81));
+        assert_eq!(
+            (info.width, info.height, info.sh_count, info.channels),
+            (32, 16, 243, 3)
+        );
         assert_eq!(
             (
                 info.atlas_width,
@@ -1777,11 +1782,17 @@ fn environments_load_and_pack_for_upload() {
             (up.atlas_width, up.atlas_height, up.levels.len())
         );
         assert_eq!(info.kappa0, up.kappa0);
-        let mut sh = vec![0.0f32; 81];
-        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 80) => BufferTooSmall, "81 are needed");
-        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 81) => Ok, "");
+        let mut sh = vec![0.0f32; 243];
+        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 242) => BufferTooSmall, "243 are needed");
+        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
         assert_eq!(sh, up.sh);
-        let mut atlas = vec![0.0f32; (info.atlas_width * info.atlas_height) as usize];
+        for c in 0..3 {
+            let want: Vec<f32> = light.channel(c).sh().iter().map(|&v| v as f32).collect();
+            let got: Vec<f32> = sh.iter().skip(c).step_by(3).copied().collect();
+            assert_eq!(got, want, "channel {c}");
+        }
+        assert!(sh[0] > 1.2 * sh[2], "the sun's colour: {} {}", sh[0], sh[2]);
+        let mut atlas = vec![0.0f32; 3 * (info.atlas_width * info.atlas_height) as usize];
         let mut levels = vec![0u32; 3 * info.level_count as usize];
         check!(ndf_environment_prefiltered(env, atlas.as_mut_ptr(), atlas.len(), levels.as_mut_ptr(), levels.len()) => Ok, "");
         assert_eq!(atlas, up.atlas);
@@ -1791,7 +1802,7 @@ fn environments_load_and_pack_for_upload() {
         );
         check!(ndf_environment_prefiltered(env, atlas.as_mut_ptr(), atlas.len(), levels.as_mut_ptr(), 2) => BufferTooSmall, "levels");
         check!(ndf_environment_prefiltered(env, null_mut(), 0, levels.as_mut_ptr(), levels.len()) => NullArgument, "atlas is NULL");
-        let mut lp = vec![0.0f32; (info.reflected_columns * info.reflected_rows) as usize];
+        let mut lp = vec![0.0f32; 3 * (info.reflected_columns * info.reflected_rows) as usize];
         check!(ndf_environment_reflected(env, lp.as_mut_ptr(), lp.len()) => Ok, "");
         assert_eq!(lp, up.reflected);
         let mut e = vec![0.0f32; (info.energy_columns * info.energy_rows) as usize];
@@ -1801,7 +1812,7 @@ fn environments_load_and_pack_for_upload() {
             crate::envgpu::energy(&light, &crate::brdf::Brdf::ggx(0.1)).unwrap()
         );
         check!(ndf_environment_energy(env, NDF_BRDF_LAMBERT, e.as_mut_ptr(), e.len()) => InvalidArgument, "energy tables");
-        check!(ndf_environment_sh(null(), sh.as_mut_ptr(), 81) => NullArgument, "env is NULL");
+        check!(ndf_environment_sh(null(), sh.as_mut_ptr(), 243) => NullArgument, "env is NULL");
         check!(ndf_environment_info_get(env, null_mut()) => NullArgument, "info_out is NULL");
         ndf_environment_free(env);
         ndf_environment_free(null_mut());
@@ -1825,8 +1836,8 @@ fn environments_load_and_pack_for_upload() {
             },
         )
         .unwrap();
-        let want = crate::envgpu::pack(&EnvLight::new(rust.luminance())).unwrap();
-        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 81) => Ok, "");
+        let want = crate::envgpu::pack(&EnvLight::new(&rust)).unwrap();
+        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
         assert_eq!(sh, want.sh);
         ndf_environment_free(env);
         let dir = tempfile::tempdir().unwrap();
@@ -1834,7 +1845,7 @@ fn environments_load_and_pack_for_upload() {
         std::fs::write(&path, &hdr).unwrap();
         let cpath = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
         check!(ndf_environment_load_file(cpath.as_ptr(), &yawed, &mut env) => Ok, "");
-        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 81) => Ok, "");
+        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
         assert_eq!(sh, want.sh);
         ndf_environment_free(env);
 

@@ -488,7 +488,7 @@ impl Scene {
 
     /// The environment to light with, when the scene has one: `environment` read (a relative
     /// path against the working directory), or the generated sky (with or without its sun);
-    /// its luminance.
+    /// RGB.
     pub fn environment_light(&self) -> Result<Option<crate::envlight::EnvLight>> {
         if !self.has_environment() {
             return Ok(None);
@@ -506,7 +506,7 @@ impl Scene {
             )
             .map_err(|e| Error::InvalidOption(format!("scene: field 'environment': {e}")))?,
         };
-        Ok(Some(crate::envlight::EnvLight::new(env.luminance())))
+        Ok(Some(crate::envlight::EnvLight::new(&env)))
     }
 }
 

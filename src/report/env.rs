@@ -143,7 +143,8 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
 }
 
 /// The environment-lit shading of `bake` at `uv` and level of detail `lod_v`, sampled as its
-/// shader does (manual: every texel of the trilinear footprint shaded, then blended).
+/// shader does (manual: every texel of the trilinear footprint shaded, then blended): the
+/// Rec. 709 luminance of the RGB result (what the ground truth, of the luminance, measures).
 #[allow(clippy::too_many_arguments)]
 fn shade_sampled(
     light: &EnvLight,
@@ -158,14 +159,14 @@ fn shade_sampled(
     let manual = manual_sampling(&ShaderSpec::of(bake), &ShaderOptions::default());
     if !manual {
         let t = trilinear(bake, uv, lod_v);
-        return envlight::shade_in(light, frame, bake, &t, view, brdf, route);
+        return envlight::shade_in(light, frame, bake, &t, view, brdf, route).luminance();
     }
     let mut out = crate::brdf::Shading::default();
     let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
     for (level, lw) in level_weights(lod_v, bake.level_count()) {
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut texel);
-            let s = envlight::shade_in(light, frame, bake, &texel, view, brdf, route);
+            let s = envlight::shade_in(light, frame, bake, &texel, view, brdf, route).luminance();
             out.diffuse += lw * bw * s.diffuse;
             out.specular += lw * bw * s.specular;
         }
@@ -356,7 +357,7 @@ mod tests {
             Default::default(),
         )
         .unwrap();
-        let light = EnvLight::new(Radiance::constant(32, 1.0));
+        let light = EnvLight::grey(Radiance::constant(32, 1.0));
         let report = ReportOptions {
             image_size: 10,
             zoom_lods: vec![1.0],
@@ -422,7 +423,7 @@ mod tests {
                 (1.0 + d.z + 0.5 * d.x) as f32
             })
             .collect();
-        let light = EnvLight::new(Radiance::new(64, 32, values).unwrap());
+        let light = EnvLight::grey(Radiance::new(64, 32, values).unwrap());
         let report = ReportOptions {
             image_size: 12,
             zoom_lods: vec![],

@@ -804,13 +804,13 @@ pub fn environment() -> EnvStability {
         Brdf::Lambert,
     ];
     let views: Vec<DVec3> = hemisphere(9);
-    let black = EnvLight::new(Radiance::constant(32, 0.0));
+    let black = EnvLight::grey(Radiance::constant(32, 0.0));
     let mut v = vec![0.0f32; 64 * 32];
     v[9 * 64 + 40] = 1e6;
     let sun_env = Radiance::new(64, 32, v).expect("valid");
     let power = sun_env.power();
     let max_l = 1e6;
-    let sun = EnvLight::new(sun_env);
+    let sun = EnvLight::grey(sun_env);
     let mut out = EnvStability {
         checked: 0,
         black_max: 0.0,
@@ -840,21 +840,27 @@ pub fn environment() -> EnvStability {
                 for &view in &views {
                     for (b, brdf) in brdfs.iter().enumerate() {
                         for route in [Route::Prefiltered, Route::Sh] {
-                            let f = shade(&black, bake, &t, view, brdf, route);
-                            out.black_max =
-                                out.black_max.max(f.diffuse.abs()).max(f.specular.abs());
-                            let f = shade(&sun, bake, &t, view, brdf, route);
-                            if !(f.diffuse.is_finite()
-                                && f.specular.is_finite()
-                                && f.diffuse >= 0.0
-                                && f.specular >= 0.0)
-                            {
-                                out.sun_bad += 1;
+                            let rgb = shade(&black, bake, &t, view, brdf, route);
+                            for c in 0..3 {
+                                let f = rgb.channel(c);
+                                out.black_max =
+                                    out.black_max.max(f.diffuse.abs()).max(f.specular.abs());
                             }
-                            out.sun_diffuse_ratio =
-                                out.sun_diffuse_ratio.max(f.diffuse / (1.0625 * power));
-                            out.sun_specular_ratio =
-                                out.sun_specular_ratio.max(f.specular / spec_bound[b]);
+                            let rgb = shade(&sun, bake, &t, view, brdf, route);
+                            for c in 0..3 {
+                                let f = rgb.channel(c);
+                                if !(f.diffuse.is_finite()
+                                    && f.specular.is_finite()
+                                    && f.diffuse >= 0.0
+                                    && f.specular >= 0.0)
+                                {
+                                    out.sun_bad += 1;
+                                }
+                                out.sun_diffuse_ratio =
+                                    out.sun_diffuse_ratio.max(f.diffuse / (1.0625 * power));
+                                out.sun_specular_ratio =
+                                    out.sun_specular_ratio.max(f.specular / spec_bound[b]);
+                            }
                             out.checked += 2;
                         }
                     }
@@ -862,7 +868,7 @@ pub fn environment() -> EnvStability {
             }
         }
     }
-    let p = sun.prefiltered();
+    let p = sun.channel(0).prefiltered();
     for kappa in [f64::INFINITY, 1e30, f64::NAN] {
         out.infinite_kappa_lod = out.infinite_kappa_lod.max(p.lod(kappa));
     }

@@ -145,47 +145,86 @@ static void shaders(const ndf_bake *bake) {
     }
 }
 
-/* Environment lighting (issue 16): a constant environment from RGB floats, whose SH, atlas and
- * L' table are known in closed form (L_00 = sqrt(4 pi) L, every prefiltered texel L, L'_00 =
- * sqrt(4 pi) L), the energy table, a bright single texel, errors, and the environment-lit
- * shader source. No output lines: checked here. */
-static void environments(const ndf_bake *vmf) {
+/* Environment lighting (issue 16): a constant coloured environment from RGB floats (R, G, B =
+ * 2, 1, 0.5), whose SH, atlas and L' table are known in closed form per channel (L_00 =
+ * sqrt(4 pi) L, every prefiltered texel L, L'_00 = sqrt(4 pi) L; RGB interleaved), the energy
+ * table, errors, and the environment-lit shaders of the vMF and the SH bake. No output lines:
+ * checked here. */
+static const float env_colour[3] = {2.0f, 1.0f, 0.5f};
+
+/* The fragment shader of `bake` lit by `light`: checks the status and that every string of
+ * `want` (NULL-terminated) is in the source. */
+static void env_shader(const ndf_bake *bake, ndf_light light, const char *const *want,
+                       const char *what) {
+    ndf_shader_options so = ndf_shader_options_default();
+    size_t size = 0, written = 0;
+    char *source;
+    so.light = light;
+    expect(ndf_bake_shader_source_size(bake, NDF_SHADER_STAGE_FRAGMENT, &so, &size), NDF_STATUS_OK,
+           what);
+    if (size == 0) {
+        return;
+    }
+    source = (char *)malloc(size);
+    expect(ndf_bake_shader_source(bake, NDF_SHADER_STAGE_FRAGMENT, &so, source, size, &written),
+           NDF_STATUS_OK, what);
+    for (; *want != NULL; want++) {
+        if (strstr(source, *want) == NULL) {
+            fprintf(stderr, "FAIL %s: no \"%s\"\n", what, *want);
+            failures++;
+        }
+    }
+    free(source);
+}
+
+static void environments(const ndf_bake *vmf, const ndf_bake *sh_bake) {
     enum { EW = 32, EH = 16 };
     static float rgb[EW * EH * 3];
     ndf_env_options eo = ndf_env_options_default();
     ndf_environment *env = NULL;
     ndf_environment_info info;
-    float sh[81];
+    float sh[243];
     float *atlas, *table, *energy;
     uint32_t *levels;
-    size_t i, n;
+    size_t i, n, c;
     ndf_shader_options so = ndf_shader_options_default();
-    size_t size = 0, written = 0;
-    char *source;
+    size_t size = 0;
+    const double root4pi = sqrt(4.0 * 3.14159265358979);
+    static const char *const vmf_wants[] = {"#define NDF_LIGHT_ENV_SH 1", "#define NDF_METHOD_VMF",
+                                            "uniform vec3 ndf_env_sh[", NULL};
+    static const char *const sh_wants[] = {"#define NDF_LIGHT_ENV_SH 1", "#define NDF_METHOD_SH",
+                                           "const float NDF_ENV_X90[", "ndf_env_sh_texel(",
+                                           "uniform vec3 ndf_env_sh[", NULL};
     for (i = 0; i < EW * EH * 3; i++) {
-        rgb[i] = 2.0f;
+        rgb[i] = env_colour[i % 3];
     }
     expect(ndf_environment_from_rgb(EW, EH, rgb, &eo, &env), NDF_STATUS_OK, "env from rgb");
     if (env == NULL) {
         return;
     }
     expect(ndf_environment_info_get(env, &info), NDF_STATUS_OK, "env info");
-    expect(ndf_environment_sh(env, sh, 80), NDF_STATUS_BUFFER_TOO_SMALL, "env sh short");
-    expect(ndf_environment_sh(env, sh, 81), NDF_STATUS_OK, "env sh");
-    if (info.sh_count != 81 || info.width != EW || fabs(sh[0] - 2.0 * sqrt(4.0 * 3.14159265358979)) > 1e-4) {
-        fprintf(stderr, "FAIL env sh %u %g\n", (unsigned)info.sh_count, sh[0]);
+    expect(ndf_environment_sh(env, sh, 242), NDF_STATUS_BUFFER_TOO_SMALL, "env sh short");
+    expect(ndf_environment_sh(env, sh, 243), NDF_STATUS_OK, "env sh");
+    if (info.sh_count != 243 || info.channels != 3 || info.width != EW) {
+        fprintf(stderr, "FAIL env info %u %u\n", (unsigned)info.sh_count, (unsigned)info.channels);
         failures++;
     }
+    for (c = 0; c < 3; c++) {
+        if (fabs(sh[c] - env_colour[c] * root4pi) > 1e-4) {
+            fprintf(stderr, "FAIL env sh channel %lu: %g\n", (unsigned long)c, sh[c]);
+            failures++;
+        }
+    }
     /* l > 0 vanish up to the projection's 2x2 sub-samples per texel, which on this coarse
-     * 32 x 16 grid (11-degree texels) leave about 0.024 in the zonal even bands (0.3 % of L_00;
+     * 32 x 16 grid (11-degree texels) leave about 0.012 L in the zonal even bands (0.3 % of L_00;
      * below 1e-4 from 64 x 32 on, src/environment/projection.rs). */
-    for (i = 1; i < 81; i++) {
-        if (fabs(sh[i]) > 0.03) {
+    for (i = 3; i < 243; i++) {
+        if (fabs(sh[i]) > 0.015 * env_colour[i % 3]) {
             fprintf(stderr, "FAIL env sh[%lu] = %g\n", (unsigned long)i, sh[i]);
             failures++;
         }
     }
-    n = (size_t)info.atlas_width * info.atlas_height;
+    n = (size_t)info.atlas_width * info.atlas_height * info.channels;
     atlas = (float *)malloc(n * sizeof(float));
     levels = (uint32_t *)malloc(3 * info.level_count * sizeof(uint32_t));
     expect(ndf_environment_prefiltered(env, atlas, n, levels, 3 * info.level_count), NDF_STATUS_OK,
@@ -196,9 +235,14 @@ static void environments(const ndf_bake *vmf) {
         uint32_t x, y;
         for (y = 0; y < levels[3 * i + 1]; y++) {
             for (x = 0; x < levels[3 * i]; x++) {
-                float v = atlas[(size_t)(levels[3 * i + 2] + y) * info.atlas_width + x];
-                if (fabs(v - 2.0f) > 1e-4) {
-                    fprintf(stderr, "FAIL env level %lu texel %g\n", (unsigned long)i, v);
+                size_t at = ((size_t)(levels[3 * i + 2] + y) * info.atlas_width + x) * 3;
+                int bad = 0;
+                for (c = 0; c < 3; c++) {
+                    bad |= fabs(atlas[at + c] - env_colour[c]) > 1e-4 * env_colour[c];
+                }
+                if (bad) {
+                    fprintf(stderr, "FAIL env level %lu texel %g %g %g\n", (unsigned long)i,
+                            atlas[at], atlas[at + 1], atlas[at + 2]);
                     failures++;
                     y = levels[3 * i + 1];
                     break;
@@ -206,14 +250,21 @@ static void environments(const ndf_bake *vmf) {
             }
         }
     }
-    table = (float *)malloc((size_t)info.reflected_columns * info.reflected_rows * sizeof(float));
-    expect(ndf_environment_reflected(env, table, (size_t)info.reflected_columns * info.reflected_rows),
-           NDF_STATUS_OK, "env reflected");
+    n = (size_t)info.reflected_columns * info.reflected_rows * info.channels;
+    table = (float *)malloc(n * sizeof(float));
+    expect(ndf_environment_reflected(env, table, n - 1), NDF_STATUS_BUFFER_TOO_SMALL,
+           "env reflected short");
+    expect(ndf_environment_reflected(env, table, n), NDF_STATUS_OK, "env reflected");
     for (i = 0; i < info.reflected_rows; i++) {
-        if (fabs(table[i * info.reflected_columns] - 2.0 * sqrt(4.0 * 3.14159265358979)) > 1e-3) {
-            fprintf(stderr, "FAIL env L'00 %g\n", table[i * info.reflected_columns]);
-            failures++;
-            break;
+        const float *row = table + i * info.reflected_columns * 3;
+        for (c = 0; c < 3; c++) {
+            if (fabs(row[c] - env_colour[c] * root4pi) > 5e-4 * env_colour[c] * root4pi) {
+                fprintf(stderr, "FAIL env L'00 row %lu channel %lu: %g\n", (unsigned long)i,
+                        (unsigned long)c, row[c]);
+                failures++;
+                i = info.reflected_rows;
+                break;
+            }
         }
     }
     energy = (float *)malloc((size_t)info.energy_columns * info.energy_rows * sizeof(float));
@@ -245,18 +296,13 @@ static void environments(const ndf_bake *vmf) {
         failures++;
     }
 
-    /* The environment-lit vMF shader. */
-    so.light = NDF_LIGHT_ENV_SH;
-    expect(ndf_bake_shader_source_size(vmf, NDF_SHADER_STAGE_FRAGMENT, &so, &size), NDF_STATUS_OK,
-           "env shader size");
-    source = (char *)malloc(size);
-    expect(ndf_bake_shader_source(vmf, NDF_SHADER_STAGE_FRAGMENT, &so, source, size, &written),
-           NDF_STATUS_OK, "env shader");
-    if (strstr(source, "#define NDF_LIGHT_ENV_SH 1") == NULL) {
-        fprintf(stderr, "FAIL env shader define\n");
-        failures++;
-    }
-    free(source);
+    /* The environment-lit shaders of the vMF bake and the SH bake (its per-fragment rotation
+     * constant and texel function); the SH bake has no prefiltered route. */
+    env_shader(vmf, NDF_LIGHT_ENV_SH, vmf_wants, "env shader vmf");
+    env_shader(sh_bake, NDF_LIGHT_ENV_SH, sh_wants, "env shader sh bake");
+    so.light = NDF_LIGHT_ENV_PREFILTERED;
+    expect(ndf_bake_shader_source_size(sh_bake, NDF_SHADER_STAGE_FRAGMENT, &so, &size),
+           NDF_STATUS_INVALID_ARGUMENT, "env shader sh bake prefiltered");
 }
 
 static int calls = 0;
@@ -459,7 +505,7 @@ int main(int argc, char **argv) {
     shaders(bakes[NDF_METHOD_VMF]);
     bad_input(map, bakes[NDF_METHOD_PLAIN], rgb);
     materials();
-    environments(bakes[NDF_METHOD_VMF]);
+    environments(bakes[NDF_METHOD_VMF], bakes[NDF_METHOD_SH]);
 
     for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_SH; m++) {
         ndf_bake_free(bakes[m]);

@@ -45,7 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..Sky::default()
     }
     .render()?;
-    let light = EnvLight::new(sky.luminance());
+    let light = EnvLight::new(&sky);
     let env = EnvTextures::upload(&gl, &light)?;
     let map = ndfmap::procedural::generate(512, 3).map;
     let mixture = |lobes, align| BakeOptions {

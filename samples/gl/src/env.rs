@@ -1,6 +1,7 @@
 //! Environment lighting on the GPU (issue 16): [`EnvTextures`] uploads what the environment
 //! shaders (`glsl/ndf_env.glsl`, [`ndfmap::glsl::ShaderLight`]) read — the prefiltered levels as
-//! one equirectangular `R32F` atlas, the `L′` table and the two lobe-energy tables, all sampled
+//! one equirectangular `RGB32F` atlas, the `RGB32F` `L′` table and the two `R32F` lobe-energy
+//! tables (they do not depend on the radiance: one for all channels), all sampled
 //! with `texelFetch` (filtering `NEAREST`, no MIP levels) — and sets their uniforms
 //! ([`ndfmap::envgpu`]). Why an equirectangular atlas and not a cube map or a GL MIP chain:
 //! the CPU's levels are equirectangular and stop halving at 16 × 8 texels, and the shader's own
@@ -13,7 +14,7 @@ use crate::{Gl, Result};
 use glam::Mat3;
 use glow::HasContext;
 use ndfmap::brdf::Brdf;
-use ndfmap::envgpu::{self, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
+use ndfmap::envgpu::{self, CHANNELS, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
 use ndfmap::envlight::{EnvLight, Route};
 
 /// An environment on the GPU (module docs).
@@ -25,7 +26,7 @@ pub struct EnvTextures {
 }
 
 impl EnvTextures {
-    /// Uploads `light` (about 4 MB for a 1024 × 512 panorama).
+    /// Uploads `light`, RGB (about 7 MB for a 1024 × 512 panorama).
     pub fn upload(gl: &Gl, light: &EnvLight) -> Result<EnvTextures> {
         let upload = envgpu::pack(light)?;
         let mut made = Vec::new();
@@ -33,25 +34,33 @@ impl EnvTextures {
             (
                 upload.atlas_width as usize,
                 upload.atlas_height as usize,
+                CHANNELS,
                 upload.atlas.clone(),
             ),
-            (REFLECTED_COLUMNS, REFLECTED_ROWS, upload.reflected.clone()),
+            (
+                REFLECTED_COLUMNS,
+                REFLECTED_ROWS,
+                CHANNELS,
+                upload.reflected.clone(),
+            ),
             (
                 ENERGY_SIZE.0,
                 ENERGY_SIZE.1,
+                1,
                 envgpu::energy(light, &Brdf::BlinnPhong { s: 1.0 }).unwrap_or_default(),
             ),
             (
                 ENERGY_SIZE.0,
                 ENERGY_SIZE.1,
+                1,
                 envgpu::energy(light, &Brdf::ggx(0.5)).unwrap_or_default(),
             ),
         ];
-        for (w, h, data) in &tables {
+        for (w, h, channels, data) in &tables {
             let image = FloatImage {
                 width: *w,
                 height: *h,
-                channels: 1,
+                channels: *channels,
                 data,
             };
             match float_texture(gl, image, FloatSampling::Fetch, "environment table upload") {
@@ -105,11 +114,11 @@ impl EnvTextures {
             }
             program.set_i32(name, unit as i32);
         }
-        for (name, values) in envgpu::uniforms(&self.upload, brdf, route) {
-            if values.len() == 1 {
-                program.set_f32(name, values[0]);
-            } else {
-                program.set_f32_array(name, &values);
+        for u in envgpu::uniforms(&self.upload, brdf, route) {
+            match (u.components, u.values.len()) {
+                (3, _) => program.set_vec3_array(u.name, &u.values),
+                (_, 1) => program.set_f32(u.name, u.values[0]),
+                _ => program.set_f32_array(u.name, &u.values),
             }
         }
     }

@@ -170,6 +170,14 @@ impl Program {
         self.with_uniform(name, |g, l| unsafe { g.uniform_1_f32_slice(Some(l), v) });
     }
 
+    /// Sets `vec3 name[N]` from `v` (3 floats per element, N ≤ `v.len() / 3` elements read by
+    /// GL); ignored when absent.
+    pub fn set_vec3_array(&self, name: &str, v: &[f32]) {
+        // SAFETY: as in `set_f32`; the location is the array's first element and the slice
+        // holds whole vec3s (glow passes `len / 3` elements).
+        self.with_uniform(name, |g, l| unsafe { g.uniform_3_f32_slice(Some(l), v) });
+    }
+
     /// Sets `int name` (or a sampler's texture unit); ignored when absent.
     pub fn set_i32(&self, name: &str, v: i32) {
         // SAFETY: as in `set_f32`.

@@ -9,6 +9,10 @@
 //!
 //! The environment is the project's generated sky with a sun (64 × 32: the sun's texel holds
 //! about 400 times the sky's radiance), so the lookups next to a very bright texel are covered.
+//! The sun is orange (3·10⁴, 1.5·10⁴, 0.5·10⁴) and the sky blue, and the draws of every case
+//! cycle through the colour channels (`ndf_probe_channel` 0, 1, 2 against the twin's R, G, B;
+//! draw i of view k writes channel (i + k) mod 3, so each case checks all three at several
+//! levels without tripling the draws): swapped or collapsed channels fail.
 //!
 //! Error measure: `|gl − cpu| / (|cpu| + floor)` with `floor = 1e-3 ·` the largest CPU value of
 //! the term in the case (relative where the value matters, absolute in the tails). Bound
@@ -35,7 +39,9 @@ use ndfmap_gl::{
 use std::collections::BTreeMap;
 
 /// Largest accepted error (module docs) of a route. Measured on llvmpipe (both routes): without
-/// the sun every case is below 9e-4. With it, prefiltered ≤ 4.6e-3 (issue 18's moment-matched
+/// the sun every case is below 9e-4. With it, prefiltered ≤ 5.7e-3 since the sun is orange
+/// (its red texel is 1.5 times the earlier white sun's over a red sky a quarter of the blue:
+/// a larger jump next to it; ≤ 4.6e-3 with the white sun) (issue 18's moment-matched
 /// lobe: its κ_i is larger than the earlier s'/4, so lookups read finer levels next to the sun;
 /// the point + environment shader ≤ 2.4e-3): the bilinear lookup next
 /// to the sun's texel (≈ 400 times its neighbours) turns the f32/`atan` error of the texel
@@ -45,7 +51,7 @@ use std::collections::BTreeMap;
 /// of the largest value (the second number printed).
 fn tolerance(route: Route) -> f64 {
     match route {
-        Route::Prefiltered => 5e-3,
+        Route::Prefiltered => 8e-3,
         Route::Sh => 4e-2,
     }
 }
@@ -93,29 +99,34 @@ fn bakes() -> Vec<Bake> {
     out
 }
 
-/// A probe's CPU twin at `uv`, `lod`: `one` (a texel's (diffuse, specular)) on the hardware's
-/// trilinear parameters, or on each texel the manual path reads, blended as it blends them.
+/// Per colour channel (R, G, B): (diffuse, specular).
+type Rgb = [(f64, f64); 3];
+
+/// A probe's CPU twin at `uv`, `lod`: `one` (a texel's (diffuse, specular) per channel) on the
+/// hardware's trilinear parameters, or on each texel the manual path reads, blended as it
+/// blends them.
 fn filtered(
     bake: &Bake,
     manual: bool,
     uv: DVec2,
     lod: f64,
-    one: impl Fn(&[[f32; 4]]) -> (f64, f64),
-) -> (f64, f64) {
+    one: impl Fn(&[[f32; 4]]) -> Rgb,
+) -> Rgb {
     if !manual {
         return one(&trilinear(bake, uv, lod));
     }
     let mut t = vec![[0.0f32; 4]; bake.textures.len()];
-    let (mut d, mut s) = (0.0, 0.0);
+    let mut out = [(0.0, 0.0); 3];
     for (level, lw) in level_weights(lod, bake.level_count()) {
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut t);
-            let f = one(&t);
-            d += lw * bw * f.0;
-            s += lw * bw * f.1;
+            for (o, f) in out.iter_mut().zip(one(&t)) {
+                o.0 += lw * bw * f.0;
+                o.1 += lw * bw * f.1;
+            }
         }
     }
-    (d, s)
+    out
 }
 
 /// The CPU twin of the probe at `uv`, `lod`.
@@ -130,22 +141,25 @@ fn cpu(
     brdf: &Brdf,
     route: Route,
     frame: DMat3,
-) -> (f64, f64) {
+) -> Rgb {
     filtered(bake, manual, uv, lod, |t| {
         let s = shade_in(light, frame, bake, t, v, brdf, route);
-        (s.diffuse, s.specular)
+        std::array::from_fn(|c| (s.diffuse[c], s.specular[c]))
     })
 }
 
-/// Draws the probe `program` at every level of `bake` and a fractional LOD, against
-/// `expected(uv, lod)` per pixel (diffuse, specular): the largest error relative to each value
-/// (plus a thousandth of the largest), and the largest absolute error over the largest value.
+/// Draws the probe `program` at every level of `bake` and a fractional LOD, draw i writing
+/// colour channel (i + `first_channel`) mod 3, against `expected(uv, lod)` per pixel (diffuse,
+/// specular per channel): the largest error relative to each value (plus a thousandth of the
+/// channel's largest), and the largest absolute error over the largest value.
 fn probe_levels(
     gl: &Gl,
     program: &Program,
     bake: &Bake,
-    expected: impl Fn(DVec2, f64) -> (f64, f64),
+    first_channel: usize,
+    expected: impl Fn(DVec2, f64) -> Rgb,
 ) -> (f64, f64) {
+    let mut draw = first_channel;
     let (mut worst, mut worst_abs) = (0.0f64, 0.0f64);
     for level in 0..bake.level_count() {
         let (w, h) = bake.sizes[level];
@@ -154,25 +168,30 @@ fn probe_levels(
         for frac in [0.0, 0.375] {
             let lod = level as f64 + frac;
             program.set_f32("ndf_probe_lod", lod as f32);
-            draw_fullscreen(program, &target).unwrap();
-            let pixels = read_rgba_f32(&target).unwrap();
-            let expected: Vec<(f64, f64)> = (0..pixels.len())
+            let expected: Vec<Rgb> = (0..(w * h) as usize)
                 .map(|i| {
                     let (x, y) = (i as u32 % w, i as u32 / w);
                     let uv = DVec2::new((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
                     expected(uv, lod)
                 })
                 .collect();
-            let fd = 1e-3 * expected.iter().map(|e| e.0.abs()).fold(0.0, f64::max);
-            let fs = 1e-3 * expected.iter().map(|e| e.1.abs()).fold(0.0, f64::max);
-            for (p, e) in pixels.iter().zip(&expected) {
-                assert!(p[0].is_finite() && p[1].is_finite());
-                let ed = (p[0] as f64 - e.0).abs() / (e.0.abs() + fd + 1e-30);
-                let es = (p[1] as f64 - e.1).abs() / (e.1.abs() + fs + 1e-30);
-                worst = worst.max(ed).max(es);
-                let ad = (p[0] as f64 - e.0).abs() / (1e3 * fd + 1e-30);
-                let as_ = (p[1] as f64 - e.1).abs() / (1e3 * fs + 1e-30);
-                worst_abs = worst_abs.max(ad).max(as_);
+            {
+                let c = draw % 3;
+                draw += 1;
+                program.set_i32("ndf_probe_channel", c as i32);
+                draw_fullscreen(program, &target).unwrap();
+                let pixels = read_rgba_f32(&target).unwrap();
+                let fd = 1e-3 * expected.iter().map(|e| e[c].0.abs()).fold(0.0, f64::max);
+                let fs = 1e-3 * expected.iter().map(|e| e[c].1.abs()).fold(0.0, f64::max);
+                for (p, e) in pixels.iter().zip(expected.iter().map(|e| e[c])) {
+                    assert!(p[0].is_finite() && p[1].is_finite());
+                    let ed = (p[0] as f64 - e.0).abs() / (e.0.abs() + fd + 1e-30);
+                    let es = (p[1] as f64 - e.1).abs() / (e.1.abs() + fs + 1e-30);
+                    worst = worst.max(ed).max(es);
+                    let ad = (p[0] as f64 - e.0).abs() / (1e3 * fd + 1e-30);
+                    let as_ = (p[1] as f64 - e.1).abs() / (1e3 * fs + 1e-30);
+                    worst_abs = worst_abs.max(ad).max(as_);
+                }
             }
         }
     }
@@ -215,7 +234,6 @@ fn measure(
         )
         .unwrap();
     env.bind(&program, unit + 1, brdf, route);
-    program.set_i32("ndf_probe_channel", 0);
     // None: ndf_probe_frame left unset (the identity).
     if let Some(f) = frame {
         program.set_mat3("ndf_probe_frame", &f.as_mat3());
@@ -224,9 +242,9 @@ fn measure(
     let manual = manual_sampling(&ShaderSpec::of(bake), &options);
     let mut worst = 0.0f64;
     let mut worst_abs = 0.0f64;
-    for &v in views {
+    for (k, &v) in views.iter().enumerate() {
         program.set_vec3("ndf_probe_v", v.as_vec3());
-        let (e, a) = probe_levels(gl, &program, bake, |uv, lod| {
+        let (e, a) = probe_levels(gl, &program, bake, k, |uv, lod| {
             cpu(light, bake, manual, uv, lod, v, brdf, route, frame)
         });
         worst = worst.max(e);
@@ -235,7 +253,8 @@ fn measure(
     (worst, worst_abs)
 }
 
-/// A GL context on `route` with the generated 64 × 32 sky (sun included) uploaded, or `None`
+/// A GL context on `route` with the generated 64 × 32 sky (its sun orange, its sky blue)
+/// uploaded, or `None`
 /// (said on stdout) when `NDFMAP_SKIP_GL=1`.
 fn lit_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
     if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
@@ -245,11 +264,12 @@ fn lit_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
     let sky = Sky {
         width: 64,
+        sun: [3.0e4, 1.5e4, 0.5e4],
         ..Sky::default()
     }
     .render()
     .unwrap();
-    let light = EnvLight::new(sky.luminance());
+    let light = EnvLight::new(&sky);
     let env = EnvTextures::upload(&gl, &light).unwrap();
     Some((gl, light, env))
 }
@@ -401,11 +421,11 @@ fn cpu_both(
     lod: f64,
     (l, h, v): (DVec3, DVec3, DVec3),
     brdf: &Brdf,
-) -> (f64, f64) {
+) -> Rgb {
     filtered(bake, manual, uv, lod, |t| {
         let p = shade_rgb_with(bake, t, l, h, brdf, false, &ShadeOptions::default());
         let e = shade_in(light, DMat3::IDENTITY, bake, t, v, brdf, Route::Prefiltered);
-        (p.diffuse[0] + e.diffuse, p.specular[0] + e.specular)
+        std::array::from_fn(|c| (p.diffuse[c] + e.diffuse[c], p.specular[c] + e.specular[c]))
     })
 }
 
@@ -447,15 +467,14 @@ fn both(route: ndfmap_gl::Route) {
                 .apply(&gl, &program, &brdf, options.brdf, None, unit)
                 .unwrap();
             env.bind(&program, unit + 1, &brdf, Route::Prefiltered);
-            program.set_i32("ndf_probe_channel", 0);
             let manual = manual_sampling(&ShaderSpec::of(bake), &options);
             let vs = views();
-            for (l, v) in [(vs[1], vs[0]), (vs[2], vs[3])] {
+            for (k, (l, v)) in [(vs[1], vs[0]), (vs[2], vs[3])].into_iter().enumerate() {
                 let h = (l + v).normalize();
                 program.set_vec3("ndf_probe_l", l.as_vec3());
                 program.set_vec3("ndf_probe_h", h.as_vec3());
                 program.set_vec3("ndf_probe_v", v.as_vec3());
-                let (e, _) = probe_levels(&gl, &program, bake, |uv, lod| {
+                let (e, _) = probe_levels(&gl, &program, bake, k, |uv, lod| {
                     cpu_both(&light, bake, manual, uv, lod, (l, h, v), &brdf)
                 });
                 worst = worst.max(e);

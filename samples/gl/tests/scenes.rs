@@ -203,7 +203,7 @@ fn run(route: Route) {
     }
     .render()
     .unwrap();
-    let light = ndfmap::envlight::EnvLight::new(sky.luminance());
+    let light = ndfmap::envlight::EnvLight::new(&sky);
     let env = ndfmap_gl::EnvTextures::upload(&gl, &light).unwrap();
     let map = ndfmap::procedural::generate(128, 3).map;
     let env_bakes = [

@@ -140,8 +140,7 @@ struct Cli {
     frames: Option<u32>,
     /// Start lit by this environment (equirectangular Radiance .hdr or OpenEXR, 2:1, linear;
     /// e.g. the shared panoramas, read in place), `sky` for the generated sky with its sun
-    /// (the `E` key's default). The panorama is the background; the bake is lit by its
-    /// luminance.
+    /// (the `E` key's default). The panorama is the background; the bake is lit by it in RGB.
     #[arg(long)]
     env: Option<String>,
     /// Specular route under the environment: prefiltered (one lookup per lobe) or sh (eq 26).

@@ -488,14 +488,14 @@ impl Viewer {
         })
     }
 
-    /// Prepares the environment on the GPU (first call: the SH projection, prefiltered levels and `L′` table of its luminance, a few seconds for
-    /// a 1024 × 512 panorama).
+    /// Prepares the environment on the GPU (first call: the SH projection, prefiltered levels
+    /// and `L′` table of each colour channel, a few seconds for a 1024 × 512 panorama).
     fn prepare_env(&mut self) -> Result<(), String> {
         if self.env.is_some() {
             return Ok(());
         }
         let env = &self.env_input.environment;
-        let light = EnvLight::new(env.luminance());
+        let light = EnvLight::new(env);
         let textures = EnvTextures::upload(&self.gl, &light).map_err(|e| e.to_string())?;
         let background = EnvBackground::new(&self.gl, env).map_err(|e| e.to_string())?;
         self.env = Some(EnvGpu {
@@ -512,7 +512,8 @@ impl Viewer {
 
     /// Whether the map's albedo is used as colour by `spec` under the current settings.
     fn uses_color(&self, spec: MethodSpec) -> bool {
-        // The environment routes shade one channel (luminance): no colour there.
+        // The environment shaders light in RGB but read no eq 22 colour textures: the map's
+        // albedo is not used there.
         self.settings.color
             && !self.settings.env_lit
             && self.bakes.has_albedo()
