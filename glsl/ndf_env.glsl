@@ -41,6 +41,12 @@ const int NDF_ENV_ENERGY_PARAM = 49;
 uniform vec3 ndf_env_sh[NDF_ENV_COUNT];   // L_lm, environment frame, RGB
 mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry point sets it)
 
+// The azimuth atan(d.y, d.x), taken as 0 at the poles (d.x = d.y = 0, where GLSL's atan is
+// undefined: a flat texel seen head on looks up exactly there) (CPU: environment::azimuth).
+float ndf_env_azimuth(vec3 d) {
+    return (d.x == 0.0 && d.y == 0.0) ? 0.0 : atan(d.y, d.x);
+}
+
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
 uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
 uniform sampler2D ndf_env_energy;   // lobe table: 3 blocks (energy, blend, log2 kappa_i) of
@@ -55,7 +61,7 @@ vec3 ndf_env_bilinear(int k, vec3 d) {
     int h = int(ndf_env_level[3 * k + 1]);
     int row = int(ndf_env_level[3 * k + 2]);
     d = ndf_normalize_or_z(d);
-    float u = (atan(d.y, d.x) + NDF_PI) / (2.0 * NDF_PI);
+    float u = (ndf_env_azimuth(d) + NDF_PI) / (2.0 * NDF_PI);
     float v = acos(clamp(d.z, -1.0, 1.0)) / NDF_PI;
     float fu = u * float(w) - 0.5;
     float fv = v * float(h) - 0.5;
@@ -125,7 +131,7 @@ void ndf_env_reflected_at(vec3 v, out vec3 lp[NDF_ENV_COUNT]) {
     v = ndf_normalize_or_z(v);
     float step_t = 0.5 * NDF_PI / float(NDF_ENV_GRID - 1);
     float t = clamp(acos(clamp(v.z, 0.0, 1.0)) / step_t, 0.0, float(NDF_ENV_GRID - 1));
-    float p = (atan(v.y, v.x) + NDF_PI) / (2.0 * NDF_PI) * float(NDF_ENV_GRID);
+    float p = (ndf_env_azimuth(v) + NDF_PI) / (2.0 * NDF_PI) * float(NDF_ENV_GRID);
     float t0f = floor(t);
     float p0f = floor(p);
     float ft = t - t0f;

@@ -229,6 +229,17 @@ impl Environment {
 
 /// Refuses an environment size that is empty, not 2:1 or wider than [`MAX_WIDTH`] (`what`
 /// names the input in the error).
+/// The azimuth `φ = atan2(y, x)` of `d`, taken as 0 at the poles (`x = y = 0`, either sign of
+/// zero), as the shaders' `ndf_env_azimuth` does (GLSL leaves `atan(0, 0)` undefined; a flat
+/// texel seen head on looks the environment up exactly there).
+pub(crate) fn azimuth(d: DVec3) -> f64 {
+    if d.x == 0.0 && d.y == 0.0 {
+        0.0
+    } else {
+        d.y.atan2(d.x)
+    }
+}
+
 pub(crate) fn check_size(what: &str, width: u32, height: u32) -> Result<()> {
     let bad = |reason: &str| {
         Err(Error::Dimensions {
@@ -506,7 +517,7 @@ impl Geometry {
     /// The texel holding direction `d` (any length; zero or non-finite counts as +Z).
     pub fn texel_of(&self, d: DVec3) -> (u32, u32) {
         let d = d.try_normalize().unwrap_or(DVec3::Z);
-        let u = (d.y.atan2(d.x) + PI) / (2.0 * PI);
+        let u = (azimuth(d) + PI) / (2.0 * PI);
         let v = d.z.clamp(-1.0, 1.0).acos() / PI;
         let x = ((u * self.width as f64) as i64).clamp(0, self.width as i64 - 1) as u32;
         let y = ((v * self.height as f64) as i64).clamp(0, self.height as i64 - 1) as u32;
@@ -516,7 +527,7 @@ impl Geometry {
     /// Continuous texel coordinates `(u·W, v·H)` of `d` (texel centres at half-integers).
     pub fn coordinates(&self, d: DVec3) -> (f64, f64) {
         let d = d.try_normalize().unwrap_or(DVec3::Z);
-        let u = (d.y.atan2(d.x) + PI) / (2.0 * PI);
+        let u = (azimuth(d) + PI) / (2.0 * PI);
         let v = d.z.clamp(-1.0, 1.0).acos() / PI;
         (u * self.width as f64, v * self.height as f64)
     }
@@ -669,6 +680,20 @@ impl Radiance {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_poles_have_azimuth_zero_whatever_the_sign_of_zero() {
+        // atan2(±0, −0) is ±π in Rust, undefined in GLSL: both sides take 0 at the poles.
+        for (x, y) in [(0.0, 0.0), (-0.0, 0.0), (0.0, -0.0), (-0.0, -0.0)] {
+            assert_eq!(azimuth(DVec3::new(x, y, 1.0)), 0.0);
+            assert_eq!(azimuth(DVec3::new(x, y, -1.0)), 0.0);
+        }
+        assert_eq!(azimuth(DVec3::new(-1.0, 0.0, 0.0)), PI);
+        assert_eq!(azimuth(DVec3::new(0.0, -1.0, 0.0)), -0.5 * PI);
+        let g = Radiance::geometry(8, 4);
+        assert_eq!(g.coordinates(DVec3::new(-0.0, -0.0, 1.0)), (4.0, 0.0));
+        assert_eq!(g.texel_of(DVec3::new(-0.0, 0.0, 1.0)), (4, 0));
+    }
 
     fn hdr_bytes(w: u32, h: u32, f: impl Fn(u32, u32) -> [f32; 3]) -> Vec<u8> {
         let mut out = Vec::new();

@@ -375,7 +375,8 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         }
         if options.color {
             return Err(Error::InvalidOption(
-                "environment lighting shades one channel: no colour textures".into(),
+                "environment lighting has no variant for colour textures (eq 22's per-lobe colour)"
+                    .into(),
             ));
         }
     }

@@ -277,7 +277,7 @@ impl ReflectedTable {
         let v = view.try_normalize().unwrap_or(DVec3::Z);
         let step_t = 0.5 * PI / (REFLECTED_GRID - 1) as f64;
         let t = (v.z.clamp(0.0, 1.0).acos() / step_t).clamp(0.0, (REFLECTED_GRID - 1) as f64);
-        let p = (v.y.atan2(v.x) + PI) / (2.0 * PI) * REFLECTED_GRID as f64;
+        let p = (super::azimuth(v) + PI) / (2.0 * PI) * REFLECTED_GRID as f64;
         let (t0, p0) = (t.floor() as usize, p.floor());
         let (ft, fp) = (t - t0 as f64, p - p0);
         let t1 = (t0 + 1).min(REFLECTED_GRID - 1);

@@ -1233,8 +1233,8 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     // Colour decisions.
     let colour_line = match (color_measured, color) {
         _ if env_only && (scene.color.varies || color_measured.is_some()) => format!(
-            "colour textures: left out: the environment shaders shade one channel (the \
-             engine's albedo MIP chain gives the colour){}",
+            "colour textures: left out: the environment shaders have no colour-texture \
+             variant (the engine's albedo MIP chain gives the colour){}",
             color_measured.map_or(String::new(), |v| format!(
                 "; the albedo varies by {} RMS",
                 pct(v)
@@ -1303,8 +1303,8 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 .unwrap_or("the generated sky with a sun"),
             crate::envlight::default_views().len(),
             if scene.has_direct() && color {
-                "the shaders are the point-light specialization (the environment routes shade \
-                 one channel and this plan ships colour textures): the engine draws the \
+                "the shaders are the point-light specialization (the environment shaders have \
+                 no colour-texture variant and this plan ships colour textures): the engine draws the \
                  environment pass with NDF_LIGHT_ENV_PREFILTERED"
             } else if scene.has_direct() {
                 "one shader per part is lit by both (NDF_LIGHT_BOTH + NDF_LIGHT_ENV_PREFILTERED: \
@@ -1531,9 +1531,9 @@ impl Plan {
                 _ => Sampling::Auto,
             },
             color: p.color,
-            // Both kinds of light: one shader summing both terms (the environment routes
-            // shade one channel, so a part with colour textures keeps the point-light
-            // specialization and the engine's environment pass).
+            // Both kinds of light: one shader summing both terms (the environment shaders
+            // have no colour-texture variant, so a part with colour textures keeps the
+            // point-light specialization and the engine's environment pass).
             light: match (self.shader.environment, self.scene.has_direct(), p.color) {
                 (true, false, _) => crate::glsl::ShaderLight::EnvPrefiltered,
                 (true, true, false) => crate::glsl::ShaderLight::PointAndEnvPrefiltered,

@@ -88,7 +88,7 @@ pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
         .map(|i| plan.shader(i, addressing).ok().and_then(|s| alu_of(&s)))
         .try_fold(0u32, |a, x| x.map(|x| a.max(x)));
     // The full configuration's shader is lit like the plan's; an environment-lit one (alone
-    // or with the point light) shades one channel, so it is compiled without colour.
+    // or with the point light) has no colour-texture variant, so it is compiled without colour.
     let lit = plan.shader_options(0).light;
     let full_options = ShaderOptions {
         color: !lit.is_env(),

@@ -89,7 +89,7 @@ fn both_part(
             brdf,
             EnvRoute::Prefiltered,
         );
-        (p.diffuse[0] + e.diffuse, p.specular[0] + e.specular)
+        (p.diffuse[0] + e.diffuse[0], p.specular[0] + e.specular[0])
     };
     if !manual {
         return one(&trilinear(bake, uv, lod));
@@ -190,11 +190,10 @@ fn run_case(gl: &Gl, setup: &Setup) {
     let peak = brdf.peak().max(1.0);
     let directions = default_directions();
     let mut worst = 0.0f64;
-    // Under the environment the view avoids the tangent frame's pole: there the prefiltered
-    // lookup's atan(0, 0) (a flat texel seen head on) is undefined in GLSL, and Mesa's value
-    // differs from the CPU's atan2(0, 0) = 0 (the env route's own limit, not the switch's).
+    // The zenith view included: a flat texel seen head on looks the environment up exactly at
+    // its pole, where both sides take the azimuth as 0 (`ndf_env_azimuth`, `Geometry::azimuth`).
     let pairs = if setup.env.is_some() {
-        [directions[10], directions[22]]
+        [directions[0], directions[10]]
     } else {
         [directions[0], directions[13]]
     };
@@ -356,7 +355,7 @@ fn run(route: Route) {
     }
     .render()
     .unwrap();
-    let light = EnvLight::new(sky.luminance());
+    let light = EnvLight::new(&sky);
     let env = EnvTextures::upload(&gl, &light).unwrap();
     run_case(
         &gl,
