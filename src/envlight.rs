@@ -541,6 +541,13 @@ fn lobe_moments(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> [f64; ENERGY_BLO
     let co = co.min(MOMENT_MIN_ANGLE.cos());
     let o = DVec3::new((1.0 - co * co).max(0.0).sqrt(), 0.0, co);
     let nphi = 128;
+    // The azimuths' (cos, sin), shared by every ring (the same values as computed per ring).
+    let azimuths: Vec<(f64, f64)> = (0..nphi)
+        .map(|j| {
+            let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
+            (phi.cos(), phi.sin())
+        })
+        .collect();
     let mut sum = 0.0;
     let mut m = DVec3::ZERO;
     for (theta, w) in crate::harmonics::polar_quadrature(width) {
@@ -551,9 +558,8 @@ fn lobe_moments(f: &dyn Fn(f64) -> f64, width: f64, co: f64) -> [f64; ENERGY_BLO
         }
         let mut ring = 0.0;
         let mut ring_m = DVec3::ZERO;
-        for j in 0..nphi {
-            let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
-            let h = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
+        for &(cp, sp) in &azimuths {
+            let h = DVec3::new(st * cp, st * sp, ct);
             let oh = o.dot(h);
             if oh <= 0.0 {
                 continue;
