@@ -105,6 +105,50 @@ fn plan_then_bake_the_plan() {
         }
     }
     assert_eq!(next, 7);
+    // The LOD-switching shader is written beside the textures, the same as the plan's, and the
+    // manifest says which textures of which parts its samplers read.
+    let ls = &m["lod_switch"];
+    assert_eq!(ls["shader"], "lod_switch.frag", "{ls}");
+    assert!(ls.get("not_built").is_none());
+    assert_eq!(
+        std::fs::read_to_string(baked.join("lod_switch.frag")).unwrap(),
+        switch
+    );
+    let sparts = ls["parts"].as_array().unwrap();
+    assert!(!sparts.is_empty() && sparts.len() <= mparts.len());
+    let (mut next, mut next_part) = (1, 0);
+    for (k, sp) in sparts.iter().enumerate() {
+        assert_eq!(sp["first"], next);
+        next = sp["last"].as_u64().unwrap() + 1;
+        let members: Vec<u64> = sp["plan_parts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect();
+        // Consecutive plan parts, covering exactly this part's levels.
+        assert_eq!(members[0], next_part, "{sp}");
+        assert!(members.windows(2).all(|w| w[1] == w[0] + 1));
+        next_part = members[members.len() - 1] + 1;
+        assert_eq!(mparts[members[0] as usize]["first"], sp["first"]);
+        assert_eq!(mparts[next_part as usize - 1]["last"], sp["last"]);
+        let textures = mparts[members[0] as usize]["textures"]
+            .as_array()
+            .unwrap()
+            .len();
+        let samplers = sp["samplers"].as_array().unwrap();
+        assert!(!samplers.is_empty());
+        for s in samplers {
+            let (name, i) = (s[0].as_str().unwrap(), s[1].as_u64().unwrap());
+            assert_eq!(name, format!("ndf_p{k}_tex{i}"));
+            assert!((i as usize) < textures, "{s}");
+            assert!(
+                switch.contains(&format!("#define ndf_tex{i} {name}")),
+                "{name}"
+            );
+        }
+    }
+    assert_eq!((next, next_part as usize), (7, mparts.len()));
     // No level-0 file anywhere: the scene never samples it.
     for e in std::fs::read_dir(&baked).unwrap() {
         let n = e.unwrap().file_name().to_string_lossy().into_owned();

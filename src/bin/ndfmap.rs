@@ -705,7 +705,7 @@ fn plan_cmd(
                 files.push((format!("part{i}.frag"), s.clone()));
             }
             if let Some(s) = &switch {
-                files.push(("lod_switch.frag".to_string(), s.clone()));
+                files.push((ndfmap::plan::LOD_SWITCH_FILE.to_string(), s.clone()));
             }
             for (name, text) in files {
                 let tmp = dir.join(format!(".{name}.tmp"));

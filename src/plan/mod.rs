@@ -1800,8 +1800,62 @@ pub struct PlanManifest {
     pub addressing: crate::ingest::Addressing,
     /// The parts, finest first.
     pub parts: Vec<PartManifest>,
+    /// The one shader that switches method by level of detail ([`Plan::lod_switch_shader`]),
+    /// written beside the textures, and which textures its samplers read.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lod_switch: Option<SwitchManifest>,
     /// The input and its convention.
     pub input: crate::output::InputInfo,
+}
+
+/// [`PlanManifest::lod_switch`]: the LOD-switching fragment shader of a plan bake.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SwitchManifest {
+    /// Its file in the folder ([`LOD_SWITCH_FILE`]); absent when it is not built.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shader: Option<String>,
+    /// Why it is not built (parts lit differently, too many samplers); absent when it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_built: Option<String>,
+    /// Its parts, finest first (adjacent plan parts with the same shader merged).
+    pub parts: Vec<SwitchPartManifest>,
+}
+
+/// One part of a [`SwitchManifest`]: a level range shaded by one method.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SwitchPartManifest {
+    /// Finest map level.
+    pub first: usize,
+    /// Coarsest map level.
+    pub last: usize,
+    /// The plan parts ([`PlanManifest::parts`] indices) it merges, in level order: their files
+    /// make its textures' levels.
+    pub plan_parts: Vec<usize>,
+    /// Per sampler the shader declares for this part, `(sampler name, texture index)`: sampler
+    /// `ndf_p{k}_tex{i}` reads texture `i` (manifest order) of `plan_parts`, with its level 0 at
+    /// `first` (upload only those levels, or set `GL_TEXTURE_BASE_LEVEL`).
+    pub samplers: Vec<(String, usize)>,
+}
+
+/// File name of a plan bake's LOD-switching fragment shader.
+pub const LOD_SWITCH_FILE: &str = "lod_switch.frag";
+
+/// The samplers `ndf_p{k}_tex{i}` a LOD-switching shader declares for part `k` (read from its
+/// renaming `#define`s), as `(name, i)`, in texture order.
+fn switch_samplers(source: &str, k: usize) -> Vec<(String, usize)> {
+    let prefix = format!("ndf_p{k}_tex");
+    let mut out: Vec<(String, usize)> = source
+        .lines()
+        .filter_map(|line| {
+            let rest = line.strip_prefix("#define ndf_tex")?;
+            let (_, target) = rest.split_once(' ')?;
+            let i: usize = target.trim().strip_prefix(&prefix)?.parse().ok()?;
+            Some((target.trim().to_string(), i))
+        })
+        .collect();
+    out.sort_by_key(|s| s.1);
+    out.dedup();
+    out
 }
 
 /// File name of texture `name` of part `part` at map level `level`: `p{part}{name}_L{level}`.
@@ -1868,7 +1922,7 @@ pub fn write(
             bake_seconds: *seconds,
         });
     }
-    let manifest = PlanManifest {
+    let mut manifest = PlanManifest {
         format: "ndfmap-plan-bake".into(),
         manifest_version: crate::output::MANIFEST_VERSION,
         ndfmap_version: env!("CARGO_PKG_VERSION").into(),
@@ -1881,8 +1935,30 @@ pub fn write(
             .map(|(b, _)| b.addressing)
             .unwrap_or_default(),
         parts,
+        lod_switch: None,
         input,
     };
+    // The LOD-switching shader, where it is built (else the reason, recorded).
+    let switch_parts = plan.lod_switch_parts(manifest.addressing);
+    let switch = plan.lod_switch_shader(manifest.addressing);
+    manifest.lod_switch = Some(SwitchManifest {
+        shader: switch.is_ok().then(|| LOD_SWITCH_FILE.to_string()),
+        not_built: switch.as_ref().err().map(|e| e.to_string()),
+        parts: switch_parts
+            .iter()
+            .enumerate()
+            .map(|(k, (p, members))| SwitchPartManifest {
+                first: p.first,
+                last: p.last,
+                plan_parts: members.clone(),
+                samplers: switch
+                    .as_ref()
+                    .map(|src| switch_samplers(src, k))
+                    .unwrap_or_default(),
+            })
+            .collect(),
+    });
+    let switch = switch.ok();
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Write {
         path: dir.to_path_buf(),
         message: e.to_string(),
@@ -1906,6 +1982,12 @@ pub fn write(
             .collect::<Vec<Result<()>>>()
             .into_iter()
             .collect::<Result<()>>()?;
+        if let Some(src) = &switch {
+            std::fs::write(staging.join(LOD_SWITCH_FILE), src).map_err(|e| Error::Write {
+                path: dir.join(LOD_SWITCH_FILE),
+                message: e.to_string(),
+            })?;
+        }
         std::fs::write(staging.join(crate::output::MANIFEST), json + "\n").map_err(|e| {
             Error::Write {
                 path: dir.join(crate::output::MANIFEST),
