@@ -336,14 +336,18 @@ fn run(route: Route) {
         return;
     }
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    // Plain, vMF J = 2 aligned (hardware) and vMF J = 3 unaligned (manual) over levels 0-6.
+    let three_parts = || {
+        vec![
+            (part_bake(Method::Plain, 0, false, 0, 1), 0, 1),
+            (part_bake(Method::Vmf, 2, true, 2, 3), 2, 3),
+            (part_bake(Method::Vmf, 3, false, 4, 6), 4, 6),
+        ]
+    };
     run_case(
         &gl,
         &Setup {
-            bakes: vec![
-                (part_bake(Method::Plain, 0, false, 0, 1), 0, 1),
-                (part_bake(Method::Vmf, 2, true, 2, 3), 2, 3),
-                (part_bake(Method::Vmf, 3, false, 4, 6), 4, 6),
-            ],
+            bakes: three_parts(),
             sampling: Sampling::Auto,
             env: None,
         },
@@ -360,11 +364,7 @@ fn run(route: Route) {
     run_case(
         &gl,
         &Setup {
-            bakes: vec![
-                (part_bake(Method::Plain, 0, false, 0, 1), 0, 1),
-                (part_bake(Method::Vmf, 2, true, 2, 3), 2, 3),
-                (part_bake(Method::Vmf, 3, false, 4, 6), 4, 6),
-            ],
+            bakes: three_parts(),
             sampling: Sampling::Auto,
             env: Some((&light, &env)),
         },
