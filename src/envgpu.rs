@@ -196,18 +196,11 @@ pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::environment::Sky;
 
     #[test]
     fn the_atlas_holds_every_level_of_every_channel_unchanged() {
         // A sun and sky of different colours: a swapped or collapsed channel fails.
-        let sky = Sky {
-            width: 64,
-            sun: [3.0e4, 1.5e4, 0.5e4],
-            ..Sky::default()
-        }
-        .render()
-        .unwrap();
+        let sky = crate::environment::coloured_test_sky();
         let light = EnvLight::new(&sky);
         let up = pack(&light).unwrap();
         for (c, ch) in light.channels().iter().enumerate() {

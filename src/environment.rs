@@ -229,6 +229,19 @@ impl Environment {
 
 /// Refuses an environment size that is empty, not 2:1 or wider than [`MAX_WIDTH`] (`what`
 /// names the input in the error).
+/// The tests' coloured sky: [`Sky`] at 64 × 32 with an orange sun (3·10⁴, 1.5·10⁴, 0.5·10⁴)
+/// over its blue sky, so that a swapped or collapsed colour channel shows.
+#[cfg(test)]
+pub(crate) fn coloured_test_sky() -> Environment {
+    Sky {
+        width: 64,
+        sun: [3.0e4, 1.5e4, 0.5e4],
+        ..Sky::default()
+    }
+    .render()
+    .unwrap()
+}
+
 /// The azimuth `φ = atan2(y, x)` of `d`, taken as 0 at the poles (`x = y = 0`, either sign of
 /// zero), as the shaders' `ndf_env_azimuth` does (GLSL leaves `atan(0, 0)` undefined; a flat
 /// texel seen head on looks the environment up exactly there).

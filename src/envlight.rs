@@ -1586,13 +1586,7 @@ mod tests {
         // A sun and sky of different colours, a tilted frame: every method, route and BRDF
         // shaded in RGB equals, per channel, the shading under that channel alone (a grey
         // environment of it) — a swapped or collapsed channel fails — and the channels differ.
-        let sky = Sky {
-            width: 64,
-            sun: [3.0e4, 1.5e4, 0.5e4],
-            ..Sky::default()
-        }
-        .render()
-        .unwrap();
+        let sky = crate::environment::coloured_test_sky();
         let light = EnvLight::new(&sky);
         let single: Vec<EnvLight> = (0..3).map(|c| EnvLight::grey(sky.channel(c))).collect();
         let map = map_of(2, 2, quad_normals());
