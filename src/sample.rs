@@ -203,8 +203,14 @@ pub fn anisotropic(
     max_aniso: u32,
 ) -> Vec<[f32; 4]> {
     let (lod, offsets) = aniso_probes(duv_dx, duv_dy, bake.sizes[0], max_aniso);
+    probe_mean(bake, uv, &offsets, lod)
+}
+
+/// The mean of the trilinear samples of every texture of `bake` at `uv + offsets[i]` and
+/// `lod`, accumulated in f64 and rounded to f32 (the anisotropic probes' average).
+fn probe_mean(bake: &Bake, uv: DVec2, offsets: &[DVec2], lod: f64) -> Vec<[f32; 4]> {
     let mut acc = vec![[0.0f64; 4]; bake.textures.len()];
-    for o in &offsets {
+    for o in offsets {
         for (a, t) in acc.iter_mut().zip(trilinear(bake, uv + *o, lod)) {
             for c in 0..4 {
                 a[c] += t[c] as f64;
@@ -303,16 +309,7 @@ pub fn shade_switch_aniso(
     let mut out = ShadingRgb::default();
     for (k, local, w) in lod_switch_weights(&ranges, lod) {
         let (bake, f) = (parts[k].bake, &parts[k].filtering);
-        let mut acc = vec![[0.0f64; 4]; bake.textures.len()];
-        for o in &offsets {
-            for (a, t) in acc.iter_mut().zip(trilinear(bake, uv + *o, local)) {
-                for c in 0..4 {
-                    a[c] += t[c] as f64;
-                }
-            }
-        }
-        let n = offsets.len() as f64;
-        let t: Vec<[f32; 4]> = acc.iter().map(|a| a.map(|v| (v / n) as f32)).collect();
+        let t = probe_mean(bake, uv, &offsets, local);
         let s = shade_rgb_with(bake, &t, l, h, &f.brdf, f.color, &f.shading);
         out.diffuse += w * s.diffuse;
         out.specular += w * s.specular;
