@@ -22,7 +22,7 @@ fn main() {
     let map = NormalMap::load(std::path::Path::new(path), &IngestOptions::default()).unwrap();
     let options = PbrOptions {
         roughness: alpha.sqrt(),
-        anisotropic: false,
+        ..PbrOptions::default()
     };
     let set = FitSet::standard();
     let pool = rayon::ThreadPoolBuilder::new()

@@ -245,6 +245,11 @@ pub struct PbrOptions {
     pub roughness: f64,
     /// Fit an anisotropic GGX lobe per texel and write `KHR_materials_anisotropy`'s texture.
     pub anisotropic: bool,
+    /// The widest view and light angle from the normal the renderer shows, in degrees: `None`
+    /// (default) fits the bake's full pair set (`pbr::FitSet::standard`, grazing pairs to 74°
+    /// included); `Some(θ)` fits only its pairs with view and light within θ
+    /// (`pbr::FitSet::view_range`; 40° to 90°), for a renderer that never goes grazing.
+    pub fit_max_angle: Option<f64>,
 }
 
 impl Default for PbrOptions {
@@ -252,6 +257,7 @@ impl Default for PbrOptions {
         PbrOptions {
             roughness: 0.5,
             anisotropic: false,
+            fit_max_angle: None,
         }
     }
 }

@@ -204,6 +204,8 @@ pub struct Settings {
     pub roughness: Option<f64>,
     /// pbr: anisotropic lobes.
     pub anisotropic: Option<bool>,
+    /// pbr: the widest view and light angle the fit covers, degrees (40 to 90).
+    pub fit_max_angle: Option<f64>,
     /// f32, f16, unorm16, unorm8.
     pub format: Option<String>,
     /// exr, ktx2, dds.
@@ -247,6 +249,7 @@ impl Settings {
             lmax,
             roughness,
             anisotropic,
+            fit_max_angle,
             format,
             container,
             compress,
@@ -364,6 +367,7 @@ impl Settings {
             pbr: PbrOptions {
                 roughness: self.roughness.unwrap_or(d.pbr.roughness),
                 anisotropic: self.anisotropic.unwrap_or(d.pbr.anisotropic),
+                fit_max_angle: self.fit_max_angle.or(d.pbr.fit_max_angle),
             },
             memory_limit: memory,
             ..d

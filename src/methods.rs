@@ -223,7 +223,10 @@ pub fn estimate_peak_bytes(
         Method::Vmf => VMF_PEAK_PER_TEXEL.bytes(lobes, color),
         Method::Tan2005 => TAN2005_PEAK_PER_TEXEL.bytes(lobes, color),
         Method::Pbr => {
-            PBR_PEAK_BASE + PBR_PEAK_PER_PAIR * crate::pbr::standard_pairs().len() as u64
+            // The options' pair set (checked before the estimate; the standard set otherwise).
+            let pairs = crate::pbr::fit_set(&options.pbr)
+                .map_or(crate::pbr::standard_pairs().len(), |s| s.pairs.len());
+            PBR_PEAK_BASE + PBR_PEAK_PER_PAIR * pairs as u64
         }
         Method::Sh => {
             let coefficients = crate::harmonics::count(options.lmax).next_multiple_of(4) as u64;

@@ -747,7 +747,7 @@ pub struct PbrTimings {
 }
 
 /// Bakes the PBR textures of `map` for `options` and the optional per-texel `maps` (checked
-/// first, [`PbrMaps::check`]) with the bake's [`FitSet::standard`] and [`Search::Fast`].
+/// first, [`PbrMaps::check`]) with the options' pairs ([`fit_set`]) and [`Search::Fast`].
 pub(crate) fn bake(
     map: &NormalMap,
     options: &PbrOptions,
@@ -758,7 +758,7 @@ pub(crate) fn bake(
         map,
         options,
         maps,
-        &FitSet::standard(),
+        &fit_set(options)?,
         Search::Fast,
         0,
         progress,
@@ -778,7 +778,8 @@ pub fn bake_with_maps(
 }
 
 /// [`bake`] with any pair set and search (the report's best-possible isotropic lobe: the
-/// evaluation's own pairs, [`Search::Thorough`]), and the seconds each stage took. Levels
+/// evaluation's own pairs, [`Search::Thorough`]), and the seconds each stage took; `set`
+/// replaces the options' own ([`PbrOptions::fit_max_angle`] is then only checked). Levels
 /// 1 to `fit_from − 1` are not fitted (the κ formula's lobe, c = 2, isotropic): for a report
 /// that measures only coarser levels.
 pub fn bake_with_set(
@@ -1150,11 +1151,13 @@ fn bake_fit(
                 }
             },
             "fit_pairs": set.pairs.len(),
+            "fit_max_angle": options.fit_max_angle,
         }),
     ))
 }
 
-/// Checks a PBR bake's options: the roughness must be finite and in [0, 1].
+/// Checks a PBR bake's options: the roughness must be finite and in [0, 1], the fit's widest
+/// angle ([`PbrOptions::fit_max_angle`]) in [[`MIN_FIT_ANGLE`], 90]°.
 pub fn check_options(options: &PbrOptions) -> Result<()> {
     if !(0.0..=1.0).contains(&options.roughness) {
         return Err(Error::InvalidOption(format!(
@@ -1162,7 +1165,30 @@ pub fn check_options(options: &PbrOptions) -> Result<()> {
             options.roughness
         )));
     }
-    Ok(())
+    fit_set(options).map(|_| ())
+}
+
+/// The smallest [`PbrOptions::fit_max_angle`]: below it [`FitSet::view_range`] keeps fewer
+/// than 8 of the standard pairs (only the 12° view).
+pub const MIN_FIT_ANGLE: f64 = 40.0;
+
+/// The pairs the bake fits for `options`: [`FitSet::standard`], or [`FitSet::view_range`] of
+/// [`PbrOptions::fit_max_angle`] (an error naming the option when it is not a number in
+/// [[`MIN_FIT_ANGLE`], 90]°).
+pub fn fit_set(options: &PbrOptions) -> Result<FitSet> {
+    let Some(deg) = options.fit_max_angle else {
+        return Ok(FitSet::standard());
+    };
+    (MIN_FIT_ANGLE..=90.0)
+        .contains(&deg)
+        .then(|| FitSet::view_range(deg))
+        .flatten()
+        .ok_or_else(|| {
+            Error::InvalidOption(format!(
+                "fit max angle {deg}° (expected the widest view and light angle the renderer \
+                 shows, {MIN_FIT_ANGLE}° to 90°)"
+            ))
+        })
 }
 
 /// Builds the bake's textures from a per-texel lobe `lobe(level, texel)`: normal, α_b, and for
@@ -1483,6 +1509,22 @@ mod tests {
         assert!((8..56).contains(&want));
         assert!(FitSet::view_range(10.0).is_none());
         assert_eq!(FitSet::view_range(90.0).unwrap(), set);
+        // The bake's option: the standard set without it, the view range with it; MIN_FIT_ANGLE
+        // is the narrowest range that holds 8 pairs; the rest is refused, naming the option.
+        let with = |a: Option<f64>| {
+            fit_set(&PbrOptions {
+                fit_max_angle: a,
+                ..PbrOptions::default()
+            })
+        };
+        assert_eq!(with(None).unwrap(), set);
+        assert_eq!(with(Some(45.0)).unwrap(), narrow);
+        assert!(with(Some(MIN_FIT_ANGLE)).unwrap().pairs.len() >= 8);
+        assert!(FitSet::view_range(MIN_FIT_ANGLE - 1.0).is_none());
+        for bad in [MIN_FIT_ANGLE - 0.5, 90.5, f64::NAN, f64::INFINITY] {
+            let e = with(Some(bad)).unwrap_err().to_string();
+            assert!(e.contains("fit max angle"), "{e}");
+        }
         let near = FitSet::near_peak(0.1);
         assert_eq!(near.pairs.len(), 39);
         assert!(near.halves.iter().all(|&h| deg(h) <= 28.0 + 1e-9));
@@ -1539,7 +1581,7 @@ mod tests {
         let map = bumpy(16, 16);
         let options = PbrOptions {
             roughness: 0.3,
-            anisotropic: false,
+            ..PbrOptions::default()
         };
         let fitted = run(&map, &options, None).unwrap();
         let formula = bake_formula(&map, &options, None, Widening::Constant(2.0)).unwrap();
@@ -1574,6 +1616,7 @@ mod tests {
         let options = PbrOptions {
             roughness: 0.4,
             anisotropic: true,
+            ..PbrOptions::default()
         };
         let a = run(&map, &options, None).unwrap();
         let b = rayon::ThreadPoolBuilder::new()
@@ -1639,7 +1682,7 @@ mod tests {
             &map,
             &PbrOptions {
                 roughness: 1.2,
-                anisotropic: false,
+                ..PbrOptions::default()
             },
             None,
         )

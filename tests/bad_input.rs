@@ -1754,6 +1754,17 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
         "--anisotropic",
     ]);
     assert_one_line_error(&r, &["--method pbr"]);
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "vmf",
+        "-o",
+        s(&out),
+        "--fit-max-angle",
+        "60",
+    ]);
+    assert_one_line_error(&r, &["--method pbr"]);
     // An sRGB-flagged 8-bit roughness map: warned of, read as stored (51/255 = 0.2 at level 0).
     let mut png = Vec::new();
     image::GrayImage::from_pixel(16, 16, image::Luma([51]))
@@ -1850,4 +1861,19 @@ fn pbr_material_values_outside_0_1_or_nan_are_refused() {
         "1.5",
     ]);
     assert_one_line_error(&r, &["roughness 1.5"]);
+    // A fit range too narrow to hold 8 pairs, or not an angle: one line naming it.
+    for (angle, words) in [("30", "fit max angle 30"), ("NaN", "fit max angle NaN")] {
+        let r = ndfmap(&[
+            "bake",
+            s(&input),
+            "-m",
+            "pbr",
+            "-o",
+            s(&dir.path().join("o")),
+            "--fit-max-angle",
+            angle,
+        ]);
+        assert_one_line_error(&r, &[words]);
+    }
+    assert!(!dir.path().join("o").exists(), "nothing written");
 }

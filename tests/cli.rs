@@ -424,6 +424,36 @@ fn pbr_report_without_filament_says_so() {
     ] {
         assert!(text.contains(row), "{row} missing: {text}");
     }
+    assert!(text.contains("Scored on all 27 evaluation pairs"), "{text}");
+    // A renderer that stays within 50°: the rows scored on the 10 pairs within it (views at
+    // 0° and 35°, lights at the zenith and 35°), and the bake fitted for that range.
+    let run = ndfmap_with(
+        &[
+            "pbr-report",
+            input.to_str().unwrap(),
+            "--alpha",
+            "0.1",
+            "--first-level",
+            "1",
+            "--last-level",
+            "2",
+            "--no-vmf",
+            "--fit-max-angle",
+            "50",
+        ],
+        &[("PATH", "")],
+    );
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        text.contains("Scored on the 10 evaluation pairs with view and light within 50°"),
+        "{text}"
+    );
+    assert!(text.contains("| ndfmap pbr --fit-max-angle 50 |"), "{text}");
 }
 
 #[test]

@@ -213,6 +213,11 @@ enum Command {
         /// Leave out the vMF J = 6 row (its bake takes the longest).
         #[arg(long)]
         no_vmf: bool,
+        /// A renderer that never shows views or lights beyond DEG degrees: score every row on
+        /// the evaluation's pairs within it and add the bake fitted for it
+        /// (`bake -m pbr --fit-max-angle DEG`).
+        #[arg(long, value_name = "DEG")]
+        fit_max_angle: Option<f64>,
         /// Also write the comparisons as JSON to this file.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -508,6 +513,11 @@ struct PbrArgs {
     /// pbr: fit an anisotropic GGX lobe per texel and write KHR_materials_anisotropy's texture.
     #[arg(long)]
     anisotropic: bool,
+    /// pbr: the widest view and light angle from the normal your renderer shows, in degrees
+    /// (40 to 90): the fit uses only those of its light/view pairs (default: all, grazing
+    /// pairs to 74° included).
+    #[arg(long, value_name = "DEG")]
+    fit_max_angle: Option<f64>,
 }
 
 impl PbrArgs {
@@ -1085,12 +1095,13 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     let pbr_maps = a.pbr.roughness_map.is_some()
         || a.pbr.metallic_map.is_some()
         || a.pbr.occlusion_map.is_some();
-    let pbr_flags = a.pbr.roughness.is_some() || pbr_maps || a.pbr.anisotropic;
+    let pbr_flags =
+        a.pbr.roughness.is_some() || pbr_maps || a.pbr.anisotropic || a.pbr.fit_max_angle.is_some();
     let method: Option<Method> = a.method.as_deref().map(str::parse).transpose()?;
     if pbr_flags && method.is_some_and(|m| m != Method::Pbr) {
         return Err(Error::InvalidOption(
-            "--roughness, --roughness-map, --metallic-map, --occlusion-map and \
-             --anisotropic are for --method pbr"
+            "--roughness, --roughness-map, --metallic-map, --occlusion-map, \
+             --anisotropic and --fit-max-angle are for --method pbr"
                 .into(),
         ));
     }
@@ -1131,6 +1142,7 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         lmax,
         roughness: a.pbr.roughness,
         anisotropic: Some(a.pbr.anisotropic),
+        fit_max_angle: a.pbr.fit_max_angle,
         format: Some(a.format.clone()),
         container: Some(a.container.clone()),
         compress: a.compress.clone(),
@@ -1329,6 +1341,7 @@ fn bake_pbr_with_maps(a: &BakeCommand, input: &Path) -> Result<()> {
         pbr: ndfmap::bake::PbrOptions {
             roughness: a.pbr.roughness.unwrap_or(0.5),
             anisotropic: a.pbr.anisotropic,
+            fit_max_angle: a.pbr.fit_max_angle,
         },
         ..BakeOptions::default()
     };
@@ -1398,6 +1411,7 @@ fn run(cli: Cli) -> Result<u8> {
                 ) != defaults
                     || pbr.roughness.is_some()
                     || pbr.anisotropic
+                    || pbr.fit_max_angle.is_some()
                 {
                     return Err(Error::InvalidOption(
                         "--plan decides the method, lobes, alignment, band limit, format and \
@@ -1711,8 +1725,16 @@ fn run(cli: Cli) -> Result<u8> {
             first_level,
             last_level,
             no_vmf,
+            fit_max_angle,
             json,
-        } => pbr_report(&inputs, &alpha, (first_level, last_level), no_vmf, json)?,
+        } => pbr_report(
+            &inputs,
+            &alpha,
+            (first_level, last_level),
+            no_vmf,
+            fit_max_angle,
+            json,
+        )?,
         Command::Bench {
             sizes,
             lobes,
@@ -2784,6 +2806,7 @@ fn pbr_report(
     alphas: &[f64],
     levels: (usize, usize),
     no_vmf: bool,
+    fit_max_angle: Option<f64>,
     json: Option<PathBuf>,
 ) -> Result<()> {
     use ndfmap::report::pbr::{compare, find_filament, markdown};
@@ -2829,7 +2852,15 @@ fn pbr_report(
             Some(b)
         };
         for &a in alphas {
-            let c = compare(&map, &name, a, levels, vmf.as_ref(), filament.as_deref())?;
+            let c = compare(
+                &map,
+                &name,
+                a,
+                levels,
+                vmf.as_ref(),
+                filament.as_deref(),
+                fit_max_angle,
+            )?;
             print!("{}", markdown(&c));
             all.push(c);
         }

@@ -247,6 +247,10 @@ pub struct ndf_pbr_options {
     /// Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
     /// machine's memory.
     pub memory_limit: u64,
+    /// The widest view and light angle from the normal the renderer shows, in degrees, 40 to
+    /// 90: the fit uses only its light/view pairs within it. Default 0: all pairs (grazing
+    /// ones to 74° included).
+    pub fit_max_angle: f64,
 }
 
 /// The default PBR options: perceptual roughness 0.5 everywhere, isotropic, no material maps,
@@ -264,6 +268,7 @@ pub extern "C" fn ndf_pbr_options_default() -> ndf_pbr_options {
         progress: None,
         progress_user_data: std::ptr::null_mut(),
         memory_limit: 0,
+        fit_max_angle: d.fit_max_angle.unwrap_or(0.0),
     };
     guard_value(o, || o)
 }
@@ -582,8 +587,8 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
 /// fitted so that one GGX lobe per texel, sampled with ordinary trilinear filtering by an
 /// unmodified metallic-roughness shader, reproduces the footprint's average shading (the
 /// library's `pbr` module; `docs/pbr.md` has the measurements).
-/// - `options`: from `ndf_pbr_options_default()`; a roughness outside [0, 1] gives
-///   `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
+/// - `options`: from `ndf_pbr_options_default()`; a roughness outside [0, 1] or a
+///   `fit_max_angle` other than 0 outside [40, 90] (or NaN) gives `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
 ///   [0, 1] gives `NDF_STATUS_BAD_FEATURES`.
 /// - `bake_out`, cancellation: as for `ndf_bake_vmf`.
 ///
@@ -615,6 +620,7 @@ pub unsafe extern "C" fn ndf_bake_pbr(
             pbr: crate::bake::PbrOptions {
                 roughness: o.roughness,
                 anisotropic: o.anisotropic != 0,
+                fit_max_angle: (o.fit_max_angle != 0.0).then_some(o.fit_max_angle),
             },
             memory_limit: super::memory_limit(o.memory_limit),
             ..BakeOptions::default()

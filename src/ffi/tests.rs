@@ -590,6 +590,7 @@ fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
     let options = crate::bake::PbrOptions {
         roughness: 0.5,
         anisotropic: true,
+        ..Default::default()
     };
     let maps = crate::pbr::PbrMaps {
         roughness: Some(rough.clone()),
@@ -616,10 +617,25 @@ fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
         check!(ndf_bake_pbr(map, &plain, &mut bake) => Ok, "");
         let options = crate::bake::PbrOptions {
             roughness: 0.3,
-            anisotropic: false,
+            ..Default::default()
         };
         let want = crate::pbr::bake_with_maps(&rust, &options, None).unwrap();
         assert_eq!((*bake).bake, want);
+        ndf_bake_free(bake);
+        // A renderer that never goes grazing: the fit over the pairs within 50°, as the Rust
+        // bake over `FitSet::view_range(50)` — and not the full set's bake.
+        let narrow = ndf_pbr_options {
+            roughness: 0.3,
+            fit_max_angle: 50.0,
+            ..ndf_pbr_options_default()
+        };
+        check!(ndf_bake_pbr(map, &narrow, &mut bake) => Ok, "");
+        let set = crate::pbr::FitSet::view_range(50.0).unwrap();
+        let (by_set, _) =
+            crate::pbr::bake_with_set(&rust, &options, None, &set, crate::pbr::Search::Fast, 0)
+                .unwrap();
+        assert_eq!((*bake).bake.textures, by_set.textures);
+        assert_ne!((*bake).bake.textures, want.textures);
         ndf_bake_free(bake);
         // Bad options and maps: a status naming the problem, no bake, the out-pointer alone.
         let mut nan = rough.clone();
@@ -634,6 +650,22 @@ fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
                 },
                 ndf_status::InvalidArgument,
                 "roughness 1.5",
+            ),
+            (
+                ndf_pbr_options {
+                    fit_max_angle: 30.0,
+                    ..ndf_pbr_options_default()
+                },
+                ndf_status::InvalidArgument,
+                "fit max angle 30",
+            ),
+            (
+                ndf_pbr_options {
+                    fit_max_angle: f64::NAN,
+                    ..ndf_pbr_options_default()
+                },
+                ndf_status::InvalidArgument,
+                "fit max angle NaN",
             ),
             (
                 ndf_pbr_options {

@@ -23,7 +23,7 @@ use crate::brdf::Brdf;
 use crate::error::{Error, Result};
 use crate::eval::{Reference, default_directions};
 use crate::ingest::NormalMap;
-use crate::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set};
+use crate::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set, fit_set};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -50,6 +50,11 @@ pub struct PbrComparison {
     pub alpha: f64,
     /// The levels measured (inclusive).
     pub levels: (usize, usize),
+    /// The renderer's widest view and light angle the rows are scored within (degrees), if
+    /// not all of the evaluation's pairs.
+    pub max_angle: Option<f64>,
+    /// How many light/view pairs score the rows.
+    pub scored_pairs: usize,
     /// The rows, in the order of the module docs (Filament's tool row absent without it).
     pub rows: Vec<PbrRow>,
     /// Seconds of ndfmap's isotropic fit per level (level 0: none), and of its targets.
@@ -60,6 +65,26 @@ pub struct PbrComparison {
     pub aniso_seconds: Vec<f64>,
     /// Why Filament's row is missing, if it is.
     pub filament_note: Option<String>,
+}
+
+/// The evaluation's light/view pairs ([`default_directions`]), or those with view and light
+/// within `max_angle` degrees of the zenith (an error when fewer than two remain).
+fn scored_directions(max_angle: Option<f64>) -> Result<Vec<crate::eval::LightView>> {
+    let all = default_directions();
+    let Some(a) = max_angle else {
+        return Ok(all);
+    };
+    let cos = a.to_radians().cos() - 1e-12;
+    let kept: Vec<_> = all
+        .into_iter()
+        .filter(|(l, v)| l.z >= cos && v.z >= cos)
+        .collect();
+    if kept.len() < 2 || !a.is_finite() {
+        return Err(Error::InvalidOption(format!(
+            "--fit-max-angle {a}: fewer than two evaluation pairs within it"
+        )));
+    }
+    Ok(kept)
 }
 
 /// Finds `roughness-prefilter` on PATH.
@@ -134,6 +159,9 @@ pub fn run_filament(
 
 /// Measures every row on `map` (named `name`) at base α `alpha`, levels `first..=last`;
 /// `vmf` is the map's vMF J = 6 bake (made once per map by the caller), `filament` the tool.
+/// With `max_angle` (a renderer that never shows views or lights beyond it, degrees) every row
+/// is scored on the evaluation's pairs within it only, the in-sample rows fit those, and a row
+/// of the bake fitted for that range (`PbrOptions::fit_max_angle`) joins ndfmap's fits.
 pub fn compare(
     map: &NormalMap,
     name: &str,
@@ -141,14 +169,15 @@ pub fn compare(
     (first, last): (usize, usize),
     vmf: Option<&Bake>,
     filament: Option<&Path>,
+    max_angle: Option<f64>,
 ) -> Result<PbrComparison> {
     let perceptual = alpha.sqrt();
     let options = PbrOptions {
         roughness: perceptual,
-        anisotropic: false,
+        ..PbrOptions::default()
     };
     let brdf = Brdf::ggx(alpha);
-    let directions = default_directions();
+    let directions = scored_directions(max_angle)?;
     let mut bakes: Vec<(String, Bake, Option<f64>)> = Vec::new();
     let t = Instant::now();
     let plain = crate::methods::bake_with(map, Method::Plain, &BakeOptions::default())?;
@@ -234,6 +263,19 @@ pub fn compare(
         ),
     ];
     let mut timings = Vec::new();
+    let ranged = max_angle
+        .map(|a| {
+            let o = PbrOptions {
+                fit_max_angle: Some(a),
+                ..options
+            };
+            fit_set(&o).map(|set| (format!("ndfmap pbr --fit-max-angle {a}"), set))
+        })
+        .transpose()?;
+    let fits = fits
+        .into_iter()
+        .map(|(label, anisotropic, set, search)| (label.to_string(), anisotropic, set, search))
+        .chain(ranged.map(|(label, set)| (label, false, set, Search::Fast)));
     for (label, anisotropic, set, search) in fits {
         let t = Instant::now();
         let o = PbrOptions {
@@ -241,7 +283,7 @@ pub fn compare(
             ..options
         };
         let (b, timing) = bake_with_set(map, &o, None, &set, search, first)?;
-        bakes.push((label.into(), b, Some(t.elapsed().as_secs_f64())));
+        bakes.push((label, b, Some(t.elapsed().as_secs_f64())));
         timings.push(timing);
     }
     let reference = Reference::new(map, std::slice::from_ref(&brdf), &directions, first);
@@ -282,6 +324,8 @@ pub fn compare(
         map: name.into(),
         alpha,
         levels: (first, last),
+        max_angle,
+        scored_pairs: directions.len(),
         rows,
         fit_seconds: timings[0].fit.clone(),
         target_seconds: timings[0].targets,
@@ -303,6 +347,18 @@ pub fn markdown(c: &PbrComparison) -> String {
         c.alpha,
         c.alpha.sqrt()
     );
+    match c.max_angle {
+        Some(a) => {
+            let _ = writeln!(
+                out,
+                "Scored on the {} evaluation pairs with view and light within {a}°.\n",
+                c.scored_pairs
+            );
+        }
+        None => {
+            let _ = writeln!(out, "Scored on all {} evaluation pairs.\n", c.scored_pairs);
+        }
+    }
     if let Some(n) = &c.filament_note {
         let _ = writeln!(out, "{n}\n");
     }

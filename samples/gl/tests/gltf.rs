@@ -39,6 +39,7 @@ fn pbr_bake(size: u32, anisotropic: bool) -> Bake {
         pbr: PbrOptions {
             roughness: ROUGHNESS,
             anisotropic,
+            ..PbrOptions::default()
         },
         ..BakeOptions::default()
     };
@@ -213,7 +214,7 @@ fn fitted_pbr_bake_is_closer_to_the_reference_than_the_plain_mip_chain() {
     let map = ndfmap::procedural::generate(128, 3).map;
     let options = PbrOptions {
         roughness: ROUGHNESS,
-        anisotropic: false,
+        ..PbrOptions::default()
     };
     let fitted = pbr_bake(128, false);
     // The same fit on the previous rounds' near-peak pairs (half vectors within 28°, g-factor

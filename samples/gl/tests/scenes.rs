@@ -98,6 +98,7 @@ fn renderers(gl: &Gl) -> Vec<(BakeRenderer, Option<Brdf>)> {
             pbr: PbrOptions {
                 roughness: 0.3,
                 anisotropic,
+                ..PbrOptions::default()
             },
             ..Default::default()
         };

@@ -289,6 +289,7 @@ fn bake_key(map: &NormalMap, key: BakeKey, align: f64, roughness: f64) -> Result
     let pbr = PbrOptions {
         roughness,
         anisotropic: spec.pbr == PbrKind::Anisotropic,
+        ..PbrOptions::default()
     };
     let options = BakeOptions {
         lobes: spec.lobes.max(1),
