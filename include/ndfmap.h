@@ -344,9 +344,9 @@ typedef struct ndf_pbr_options {
    */
   uint64_t memory_limit;
   /**
-   * The widest view and light angle from the normal the renderer shows, in degrees, 40 to
-   * 90: the fit uses only its light/view pairs within it. Default 0: all pairs (grazing
-   * ones to 74° included).
+   * The widest view and light angle from the normal the renderer shows, in degrees, 20 to
+   * 90: the fit's light/view pairs are scaled into it. Default 0: the standard pairs
+   * (grazing ones to 74° included).
    */
   double fit_max_angle;
 } ndf_pbr_options;
@@ -1525,7 +1525,7 @@ ndf_status ndf_bake_tan2005(const struct ndf_normal_map *map,
  * unmodified metallic-roughness shader, reproduces the footprint's average shading (the
  * library's `pbr` module; `docs/pbr.md` has the measurements).
  * - `options`: from `ndf_pbr_options_default()`; a roughness outside [0, 1] or a
- *   `fit_max_angle` other than 0 outside [40, 90] (or NaN) gives `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
+ *   `fit_max_angle` other than 0 outside [20, 90] (or NaN) gives `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
  *   [0, 1] gives `NDF_STATUS_BAD_FEATURES`.
  * - `bake_out`, cancellation: as for `ndf_bake_vmf`.
  *

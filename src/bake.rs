@@ -247,8 +247,8 @@ pub struct PbrOptions {
     pub anisotropic: bool,
     /// The widest view and light angle from the normal the renderer shows, in degrees: `None`
     /// (default) fits the bake's full pair set (`pbr::FitSet::standard`, grazing pairs to 74°
-    /// included); `Some(θ)` fits only its pairs with view and light within θ
-    /// (`pbr::FitSet::view_range`; 40° to 90°), for a renderer that never goes grazing.
+    /// included); `Some(θ)` fits the same design with its angles scaled into θ
+    /// (`pbr::FitSet::view_range`; 20° to 90°), for a renderer that never goes grazing.
     pub fit_max_angle: Option<f64>,
 }
 

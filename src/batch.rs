@@ -204,7 +204,7 @@ pub struct Settings {
     pub roughness: Option<f64>,
     /// pbr: anisotropic lobes.
     pub anisotropic: Option<bool>,
-    /// pbr: the widest view and light angle the fit covers, degrees (40 to 90).
+    /// pbr: the widest view and light angle the fit covers, degrees (20 to 90).
     pub fit_max_angle: Option<f64>,
     /// f32, f16, unorm16, unorm8.
     pub format: Option<String>,

@@ -514,8 +514,8 @@ struct PbrArgs {
     #[arg(long)]
     anisotropic: bool,
     /// pbr: the widest view and light angle from the normal your renderer shows, in degrees
-    /// (40 to 90): the fit uses only those of its light/view pairs (default: all, grazing
-    /// pairs to 74° included).
+    /// (20 to 90): the fit's light/view pairs are scaled into that range (default: the
+    /// standard pairs, grazing ones to 74° included).
     #[arg(long, value_name = "DEG")]
     fit_max_angle: Option<f64>,
 }

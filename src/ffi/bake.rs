@@ -247,9 +247,9 @@ pub struct ndf_pbr_options {
     /// Memory budget of the bake in bytes, as in `ndf_baseline_options`. Default 0: half the
     /// machine's memory.
     pub memory_limit: u64,
-    /// The widest view and light angle from the normal the renderer shows, in degrees, 40 to
-    /// 90: the fit uses only its light/view pairs within it. Default 0: all pairs (grazing
-    /// ones to 74° included).
+    /// The widest view and light angle from the normal the renderer shows, in degrees, 20 to
+    /// 90: the fit's light/view pairs are scaled into it. Default 0: the standard pairs
+    /// (grazing ones to 74° included).
     pub fit_max_angle: f64,
 }
 
@@ -588,7 +588,7 @@ pub unsafe extern "C" fn ndf_bake_tan2005(
 /// unmodified metallic-roughness shader, reproduces the footprint's average shading (the
 /// library's `pbr` module; `docs/pbr.md` has the measurements).
 /// - `options`: from `ndf_pbr_options_default()`; a roughness outside [0, 1] or a
-///   `fit_max_angle` other than 0 outside [40, 90] (or NaN) gives `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
+///   `fit_max_angle` other than 0 outside [20, 90] (or NaN) gives `NDF_STATUS_INVALID_ARGUMENT`, a material map with a value that is not finite or not in
 ///   [0, 1] gives `NDF_STATUS_BAD_FEATURES`.
 /// - `bake_out`, cancellation: as for `ndf_bake_vmf`.
 ///

@@ -622,8 +622,8 @@ fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
         let want = crate::pbr::bake_with_maps(&rust, &options, None).unwrap();
         assert_eq!((*bake).bake, want);
         ndf_bake_free(bake);
-        // A renderer that never goes grazing: the fit over the pairs within 50°, as the Rust
-        // bake over `FitSet::view_range(50)` — and not the full set's bake.
+        // A renderer that never goes grazing: the fit over the pairs scaled into 50°, as the
+        // Rust bake over `FitSet::view_range(50)` — and not the full set's bake.
         let narrow = ndf_pbr_options {
             roughness: 0.3,
             fit_max_angle: 50.0,
@@ -653,11 +653,11 @@ fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
             ),
             (
                 ndf_pbr_options {
-                    fit_max_angle: 30.0,
+                    fit_max_angle: 10.0,
                     ..ndf_pbr_options_default()
                 },
                 ndf_status::InvalidArgument,
-                "fit max angle 30",
+                "fit max angle 10",
             ),
             (
                 ndf_pbr_options {
