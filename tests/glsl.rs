@@ -124,6 +124,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                     } else {
                                         ShDiffuse::Moments
                                     },
+                                    ..Default::default()
                                 };
                                 let name = format!(
                                     "{method}{lobes}-c{}-{brdf:?}-{sampling:?}-p{}-{format}",
