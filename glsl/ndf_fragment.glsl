@@ -52,6 +52,10 @@ void ndf_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 
 #else
     ndf_shade_texel(t, l, h, diffuse, specular);
 #endif
+#ifdef NDF_NO_DIFFUSE
+    // K_d = 0: the diffuse term is never used, so the method's Lambert code is dead.
+    diffuse = vec3(0.0);
+#endif
 }
 
 #ifdef NDF_MANUAL
@@ -206,7 +210,9 @@ in vec2 ndf_v_uv;
 uniform vec3 ndf_camera_pos;   // world space
 uniform vec4 ndf_light;        // w = 0: direction towards the light; w = 1: point light position
 uniform vec3 ndf_light_color;  // radiance scale (point lights fall off with 1/d^2)
+#ifndef NDF_NO_DIFFUSE
 uniform vec3 ndf_kd;           // K_d
+#endif
 uniform vec3 ndf_ks;           // K_s
 #if defined(NDF_LIGHT_ENV) || defined(NDF_LIGHT_BOTH)
 uniform mat3 ndf_env_rotation; // world -> environment frame (a rotation)
@@ -227,7 +233,11 @@ void main() {
     vec3 d;
     vec3 s;
     ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), v, v, d, s);
+#ifdef NDF_NO_DIFFUSE
+    ndf_out = vec4(ndf_light_color * ndf_ks * s, 1.0);
+#else
     ndf_out = vec4(ndf_light_color * (ndf_kd * d + ndf_ks * s), 1.0);
+#endif
 #else
     vec3 to_light = ndf_light.w == 0.0 ? ndf_light.xyz : ndf_light.xyz - ndf_v_position;
     float falloff = ndf_light.w == 0.0 ? 1.0 : 1.0 / max(dot(to_light, to_light), 1e-12);
@@ -244,10 +254,18 @@ void main() {
     ndf_point_scale = ndf_light_color * falloff;
     ndf_env_scale = ndf_env_color;
     ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), l, h, d, s);
+#ifdef NDF_NO_DIFFUSE
+    ndf_out = vec4(ndf_ks * s, 1.0);
+#else
     ndf_out = vec4(ndf_kd * d + ndf_ks * s, 1.0);
+#endif
 #else
     ndf_shade_footprint(ndf_v_uv, dFdx(ndf_v_uv), dFdy(ndf_v_uv), l, h, d, s);
+#ifdef NDF_NO_DIFFUSE
+    ndf_out = vec4(ndf_light_color * falloff * ndf_ks * s, 1.0);
+#else
     ndf_out = vec4(ndf_light_color * falloff * (ndf_kd * d + ndf_ks * s), 1.0);
+#endif
 #endif
 #endif
 }

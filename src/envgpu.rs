@@ -77,7 +77,7 @@ pub struct Upload {
     pub reflected: Vec<f32>,
 }
 
-/// Packs `light` for upload (module docs). Fails only when it has more than [`MAX_LEVELS`]
+/// Packs `light` for upload (module docs). Fails when it has more than [`MAX_LEVELS`]
 /// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would).
 pub fn pack(light: &EnvLight) -> Result<Upload> {
     let first = light.channel(0).prefiltered();
@@ -116,7 +116,12 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
             .collect()
     };
     let channels = light.channels();
-    let reflected = interleave(channels.iter().map(|c| c.reflected().packed()).collect());
+    let reflected = interleave(
+        channels
+            .iter()
+            .map(|c| c.reflected().map(|t| t.packed()))
+            .collect::<Result<_>>()?,
+    );
     debug_assert_eq!(
         reflected.len(),
         CHANNELS * REFLECTED_COLUMNS * REFLECTED_ROWS
@@ -222,7 +227,7 @@ mod tests {
             for k in 0..81 {
                 assert_eq!(up.sh[CHANNELS * k + c], ch.sh()[k] as f32);
             }
-            let lp = ch.reflected().packed();
+            let lp = ch.reflected().unwrap().packed();
             for (i, v) in lp.iter().enumerate() {
                 assert_eq!(up.reflected[CHANNELS * i + c], *v);
             }

@@ -57,21 +57,22 @@ pub const ENV_LMAX: usize = 8;
 
 /// One colour channel of an environment prepared for the routes: its radiance, prefiltered
 /// levels, SH coefficients and `L′` table (everything that depends on the radiance; the routes
-/// are linear in it, so each channel is the single-channel computation).
+/// are linear in it, so each channel is the single-channel computation). A channel of
+/// [`EnvLight::prefiltered_only`] has no `L′` table.
 #[derive(Debug, Clone)]
 pub struct EnvChannel {
     radiance: Radiance,
     prefiltered: Prefiltered,
     sh: Vec<f64>,
-    reflected: ReflectedTable,
+    reflected: Option<ReflectedTable>,
 }
 
 impl EnvChannel {
-    fn new(radiance: Radiance) -> EnvChannel {
+    fn new(radiance: Radiance, with_reflected: bool) -> EnvChannel {
         EnvChannel {
             prefiltered: Prefiltered::new(&radiance),
             sh: projection::project(&radiance, ENV_LMAX),
-            reflected: ReflectedTable::new(&radiance, ENV_LMAX),
+            reflected: with_reflected.then(|| ReflectedTable::new(&radiance, ENV_LMAX)),
             radiance,
         }
     }
@@ -91,10 +92,30 @@ impl EnvChannel {
         &self.sh
     }
 
-    /// The `L′_lm(ω_o)` table.
-    pub fn reflected(&self) -> &ReflectedTable {
-        &self.reflected
+    /// The `L′_lm(ω_o)` table (eq 26's reflected radiance); an error naming the constructor for
+    /// a channel of [`EnvLight::prefiltered_only`], which has none.
+    pub fn reflected(&self) -> Result<&ReflectedTable> {
+        self.reflected.as_ref().ok_or_else(no_reflected)
     }
+
+    /// `L′(view)` from the table, or NaN in every coefficient where there is none (only
+    /// reached through [`shade_in`] called directly with the SH route on a
+    /// [`EnvLight::prefiltered_only`] light; the fallible entry points refuse that first,
+    /// [`EnvLight::check_routes`]).
+    fn reflected_at(&self, view: DVec3) -> Vec<f64> {
+        match &self.reflected {
+            Some(t) => t.at(view),
+            None => vec![f64::NAN; count(ENV_LMAX)],
+        }
+    }
+}
+
+fn no_reflected() -> Error {
+    Error::InvalidOption(
+        "environment prepared for the prefiltered route only (EnvLight::prefiltered_only): \
+         the SH route (eq 26) needs its L′ table, prepared by EnvLight::new"
+            .into(),
+    )
 }
 
 /// An environment ready to light with, in RGB: per channel ([`EnvChannel`]) the prefiltered
@@ -115,7 +136,21 @@ impl EnvLight {
     /// Prepares the RGB environment `env` (prefiltering, projection, tables per channel, the
     /// three channels in parallel: about 3 CPU-s for a 1024 × 512 panorama).
     pub fn new(env: &Environment) -> EnvLight {
-        let prepare = |c: usize| EnvChannel::new(env.channel(c));
+        EnvLight::prepare(env, true)
+    }
+
+    /// Prepares `env` for the prefiltered route (eq 22 with the lobe tables), the diffuse SH
+    /// (eq 25) and the ground truth only: no per-channel `L′` table (eq 26), which the SH route
+    /// and the SH bakes' specular term read. Those are refused on such a light with a typed
+    /// error ([`EnvLight::check_routes`], called by [`Reference::score_levels`], [`evaluate`]
+    /// and `envgpu::pack`). What the planner measures with (the `L′` tables were a third of a
+    /// matte plan's time); everything it does prepare is bit for bit [`EnvLight::new`]'s.
+    pub fn prefiltered_only(env: &Environment) -> EnvLight {
+        EnvLight::prepare(env, false)
+    }
+
+    fn prepare(env: &Environment, with_reflected: bool) -> EnvLight {
+        let prepare = |c: usize| EnvChannel::new(env.channel(c), with_reflected);
         let (r, (g, b)) = rayon::join(|| prepare(0), || rayon::join(|| prepare(1), || prepare(2)));
         EnvLight::from_channels([r, g, b], env.luminance())
     }
@@ -123,8 +158,28 @@ impl EnvLight {
     /// Prepares a grey environment: `radiance` in all three channels (prepared once). Its
     /// luminance is `radiance` (the Rec. 709 weights sum to 1).
     pub fn grey(radiance: Radiance) -> EnvLight {
-        let one = EnvChannel::new(radiance.clone());
+        let one = EnvChannel::new(radiance.clone(), true);
         EnvLight::from_channels([one.clone(), one.clone(), one], radiance)
+    }
+
+    /// Whether the light has the `L′` tables of the SH route (false for
+    /// [`EnvLight::prefiltered_only`]).
+    pub fn has_sh_route(&self) -> bool {
+        self.channels.iter().all(|c| c.reflected.is_some())
+    }
+
+    /// Refuses, with a typed error, shading `bakes` by `routes` under `brdfs` on a light that
+    /// lacks what they read: the SH route (and any SH bake) with a specular BRDF needs the
+    /// `L′` tables that [`EnvLight::prefiltered_only`] leaves out.
+    pub fn check_routes(&self, bakes: &[&Bake], routes: &[Route], brdfs: &[Brdf]) -> Result<()> {
+        let specular = brdfs.iter().any(|b| b.has_specular());
+        let sh = bakes.iter().any(|b| {
+            b.method == Method::Sh || (b.method == Method::Vmf && routes.contains(&Route::Sh))
+        });
+        if specular && sh && !self.has_sh_route() {
+            return Err(no_reflected());
+        }
+        Ok(())
     }
 
     fn from_channels(channels: [EnvChannel; 3], luminance: Radiance) -> EnvLight {
@@ -827,7 +882,7 @@ pub fn shade_in(
             let r = 2.0 * co * nbar - view;
             let g = brdf.g(r, nbar);
             for (ch, o) in light.channels.iter().zip(&mut out.specular) {
-                let lp_env = ch.reflected.at(frame * view);
+                let lp_env = ch.reflected_at(frame * view);
                 let lp = if identity {
                     lp_env
                 } else {
@@ -856,7 +911,7 @@ pub fn shade_in(
         light
             .channels
             .iter()
-            .map(|ch| ch.reflected.at(frame * view))
+            .map(|ch| ch.reflected_at(frame * view))
             .collect()
     } else {
         Vec::new()
@@ -1096,6 +1151,7 @@ impl Reference {
         for b in bakes {
             check_method(b.method)?;
         }
+        light.check_routes(bakes, routes, &self.brdfs)?;
         // Configurations: (bake index, route).
         let mut configs = Vec::new();
         for (i, b) in bakes.iter().enumerate() {
@@ -1626,5 +1682,87 @@ mod tests {
             }
         }
         assert_eq!(checked, 30);
+    }
+
+    #[test]
+    fn prefiltered_only_shades_its_routes_like_the_full_light_and_refuses_the_sh_route() {
+        // The planner's light: every method by the prefiltered route, and the diffuse term of
+        // an SH bake, bit for bit the full light's; the SH route (and an SH bake's specular
+        // term) under a specular BRDF a typed error from every fallible entry point, Lambert
+        // still measured.
+        let sky = crate::environment::coloured_test_sky();
+        let full = EnvLight::new(&sky);
+        let lite = EnvLight::prefiltered_only(&sky);
+        assert!(full.has_sh_route() && !lite.has_sh_route());
+        let map = map_of(2, 2, quad_normals());
+        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
+        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
+        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
+        for m in [
+            Method::Plain,
+            Method::Toksvig,
+            Method::Lean,
+            Method::Vmf,
+            Method::Sh,
+        ] {
+            let bake = crate::methods::bake(&map, m);
+            let t = bake.texel(1, 0, 0);
+            for brdf in &brdfs {
+                let a = shade_in(&full, frame, &bake, &t, view, brdf, Route::Prefiltered);
+                let b = shade_in(&lite, frame, &bake, &t, view, brdf, Route::Prefiltered);
+                assert_eq!(a.diffuse, b.diffuse, "{m} {brdf:?}");
+                if m != Method::Sh {
+                    assert_eq!(a.specular, b.specular, "{m} {brdf:?}");
+                    assert!(a.specular.iter().all(|v| v.is_finite()));
+                }
+            }
+        }
+        let vmf = crate::methods::bake(&map, Method::Vmf);
+        let sh = crate::methods::bake(&map, Method::Sh);
+        let specular = [Brdf::BlinnPhong { s: 32.0 }];
+        assert!(
+            lite.check_routes(&[&vmf], &[Route::Prefiltered], &specular)
+                .is_ok()
+        );
+        assert!(
+            lite.check_routes(&[&sh], &[Route::Prefiltered], &[Brdf::Lambert])
+                .is_ok()
+        );
+        let options = EvalOptions {
+            texels_per_level: 2,
+            samples: 8,
+            ..Default::default()
+        };
+        for (bake, routes) in [(&vmf, [Route::Sh]), (&sh, [Route::Prefiltered])] {
+            let e = evaluate(&map, &[bake], &specular, &lite, &routes, &options);
+            let Err(Error::InvalidOption(msg)) = e else {
+                panic!("{:?} {routes:?}: {:?}", bake.method, e.map(|_| ()));
+            };
+            assert!(
+                msg.contains("prefiltered_only") && msg.contains("L′"),
+                "{msg}"
+            );
+            assert!(full.check_routes(&[bake], &routes, &specular).is_ok());
+        }
+        assert!(lite.channel(1).reflected().is_err() && full.channel(1).reflected().is_ok());
+        assert!(crate::envgpu::pack(&lite).is_err() && crate::envgpu::pack(&full).is_ok());
+        // Measured with the prefiltered route, both lights give the same errors.
+        let a = evaluate(
+            &map,
+            &[&vmf],
+            &specular,
+            &full,
+            &[Route::Prefiltered],
+            &options,
+        );
+        let b = evaluate(
+            &map,
+            &[&vmf],
+            &specular,
+            &lite,
+            &[Route::Prefiltered],
+            &options,
+        );
+        assert_eq!(a.unwrap(), b.unwrap());
     }
 }

@@ -171,6 +171,11 @@ pub struct ShaderOptions {
     pub vmf_diffuse: crate::shade::VmfDiffuse,
     /// The SH texels' diffuse term (`NDF_SH_DIFFUSE_SERIES` for eq 12's series).
     pub sh_diffuse: crate::sh::ShDiffuse,
+    /// No diffuse term (a scene with K_d = 0; `NDF_NO_DIFFUSE`): the shader declares no
+    /// `ndf_kd`, writes `K_s·specular` only and its texel shading returns a zero diffuse term,
+    /// so the method's Lambert code is dead and compiled out. The probe writes diffuse 0.
+    /// Refused with the Lambert BRDF (nothing would be shaded).
+    pub no_diffuse: bool,
 }
 
 /// The most textures one shader samples (a sampler each): what llvmpipe and the desktop GPUs
@@ -341,6 +346,11 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
             "anisotropic sampling with {n} probes (expected 2 to 16)"
         )));
     }
+    if options.no_diffuse && options.brdf == ShaderBrdf::Lambert {
+        return Err(Error::InvalidOption(
+            "no diffuse term with the lambert BRDF leaves nothing to shade".into(),
+        ));
+    }
     if spec.method == Method::Sh && manual_sampling(spec, options) {
         return Err(Error::InvalidOption(
             "SH coefficients filter linearly: sample them with hardware or anisotropic \
@@ -421,7 +431,8 @@ pub struct LodPart {
     pub spec: ShaderSpec,
     /// Its shader options ([`ShaderOptions::color`], [`ShaderOptions::sampling`] and
     /// [`ShaderOptions::vmf_diffuse`] / [`ShaderOptions::sh_diffuse`] are the part's own; the
-    /// lighting, BRDF and probe flag must be those of every part).
+    /// lighting, BRDF, probe flag and [`ShaderOptions::no_diffuse`] must be those of every
+    /// part).
     pub options: ShaderOptions,
     /// The finest map level it shades.
     pub first: usize,
@@ -550,9 +561,13 @@ pub fn lod_switch_source(
             ));
         }
         let o = &p.options;
-        if o.light != options.light || o.brdf != options.brdf || o.probe != options.probe {
+        if o.light != options.light
+            || o.brdf != options.brdf
+            || o.probe != options.probe
+            || o.no_diffuse != options.no_diffuse
+        {
             return bad(format!(
-                "part {k}: lighting, BRDF and probe flag must be the shader's"
+                "part {k}: lighting, BRDF, probe flag and diffuse term must be the shader's"
             ));
         }
         if p.spec.addressing != parts[0].spec.addressing {
@@ -929,6 +944,9 @@ fn defines(
             d("NDF_LIGHT_BOTH", "1", Common);
             d("NDF_LIGHT_ENV_PREFILTERED", "1", Common);
         }
+    }
+    if options.no_diffuse {
+        d("NDF_NO_DIFFUSE", "1", Common);
     }
     if manual {
         d("NDF_MANUAL", "1", Part);
@@ -1350,5 +1368,65 @@ mod tests {
             "t[0] = textureLod(ndf_tex0, uv, lod) * vec4(2.0, 2.0, 2.0, 1.0) \
              + vec4(-1.0, -1.0, -1.0, 0.0);"
         ));
+    }
+
+    #[test]
+    fn no_diffuse_is_one_define_for_every_light_and_the_lod_switch() {
+        // K_d = 0: NDF_NO_DIFFUSE defined once (also in the LOD-switching shader), the K_d
+        // uniform and term only under its #ifndef/#else, refused with Lambert and for parts
+        // that disagree; without it no define.
+        let b = bake_with(
+            &map(),
+            Method::Vmf,
+            &BakeOptions {
+                lobes: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let plain = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
+        assert!(!plain.contains("#define NDF_NO_DIFFUSE"));
+        for light in [
+            ShaderLight::Point,
+            ShaderLight::EnvPrefiltered,
+            ShaderLight::PointAndEnvPrefiltered,
+        ] {
+            let o = ShaderOptions {
+                light,
+                no_diffuse: true,
+                ..Default::default()
+            };
+            let src = source(&b, Stage::Fragment, &o).unwrap();
+            assert_eq!(
+                src.matches("#define NDF_NO_DIFFUSE 1").count(),
+                1,
+                "{light:?}"
+            );
+            assert!(src.contains("#ifndef NDF_NO_DIFFUSE\nuniform vec3 ndf_kd;"));
+            assert_eq!(src.matches("uniform vec3 ndf_kd;").count(), 1);
+            assert!(src.contains("#ifdef NDF_NO_DIFFUSE\n    // K_d = 0"));
+            let lambert = ShaderOptions {
+                brdf: ShaderBrdf::Lambert,
+                ..o
+            };
+            assert!(source(&b, Stage::Fragment, &lambert).is_err());
+        }
+        let spec = ShaderSpec::of(&b);
+        let o = ShaderOptions {
+            no_diffuse: true,
+            ..Default::default()
+        };
+        let part = |options, first, last| LodPart {
+            spec: spec.clone(),
+            options,
+            first,
+            last,
+        };
+        let src = lod_switch_source(&[part(o, 0, 1), part(o, 2, 3)], (8, 8), Stage::Fragment, &o)
+            .unwrap();
+        assert_eq!(src.matches("#define NDF_NO_DIFFUSE 1").count(), 1);
+        let mixed = [part(o, 0, 1), part(ShaderOptions::default(), 2, 3)];
+        let e = lod_switch_source(&mixed, (8, 8), Stage::Fragment, &o).unwrap_err();
+        assert!(e.to_string().contains("diffuse term"), "{e}");
     }
 }

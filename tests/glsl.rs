@@ -124,6 +124,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                     } else {
                                         ShDiffuse::Moments
                                     },
+                                    ..Default::default()
                                 };
                                 let name = format!(
                                     "{method}{lobes}-c{}-{brdf:?}-{sampling:?}-p{}-{format}",
@@ -238,7 +239,22 @@ fn every_specialization_compiles_as_glsl_330_core() {
     let Some(tool) = validator() else { return };
     let dir = tempfile::tempdir().unwrap();
     let mut files = Vec::new();
+    // K_d = 0 (NDF_NO_DIFFUSE): one variant per method, lighting and probe flag (the first
+    // with a specular BRDF).
+    let mut seen = Vec::new();
+    let mut without = Vec::new();
     for (name, spec, opts) in variants() {
+        let key = (spec.method, opts.light, opts.probe);
+        if opts.brdf != ShaderBrdf::Lambert && !seen.contains(&key) {
+            seen.push(key);
+            let opts = ShaderOptions {
+                no_diffuse: true,
+                ..opts
+            };
+            without.push((format!("{name}-nokd"), spec, opts));
+        }
+    }
+    for (name, spec, opts) in variants().into_iter().chain(without) {
         let src = source_for(&spec, Stage::Fragment, &opts).unwrap();
         // GLSL 3.30's character set is ASCII (non-ASCII even in comments trips some drivers).
         assert!(src.is_ascii(), "{name} has non-ASCII characters");

@@ -1702,6 +1702,7 @@ fn run(cli: Cli) -> Result<u8> {
                     ndfmap::glsl::ShaderLight::EnvPrefiltered,
                     ndfmap::glsl::ShaderLight::EnvSh,
                 ][pick("light", &light, &["point", "env-prefiltered", "env-sh"])?],
+                ..Default::default()
             };
             let stage =
                 [Stage::Fragment, Stage::Vertex][pick("stage", &stage, &["fragment", "vertex"])?];

@@ -185,6 +185,7 @@ unsafe fn shader(
                 ShaderLight::PointAndEnvPrefiltered,
             ],
         )?,
+        ..Default::default()
     };
     let format = choose("format", o.format, &FORMATS)?;
     for t in 0..b.bake.textures.len() {

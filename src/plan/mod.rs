@@ -530,7 +530,9 @@ impl<'a> WholeMap<'a> {
     /// samples).
     pub fn new(plan: &'a Plan, map: &'a NormalMap, env_texels: usize) -> Result<WholeMap<'a>> {
         let brdfs = plan.scene.brdfs();
-        let env = match plan.scene.environment_light()? {
+        let sh_route = plan.parts.iter().any(|p| p.config.method == Method::Sh)
+            && brdfs.iter().any(|b| b.has_specular());
+        let env = match plan.scene.environment_light(sh_route)? {
             Some(light) => {
                 let options = crate::envlight::EvalOptions {
                     first_level: plan.levels[0],
@@ -607,23 +609,29 @@ struct Measure<'a> {
     levels: usize,
     /// The finest map level measured.
     from: usize,
-    bakes: std::cell::RefCell<Vec<(Config, std::rc::Rc<Vec<Bake>>)>>,
+    bakes: std::cell::RefCell<Vec<(Config, usize, std::rc::Rc<Bake>)>>,
 }
 
 impl Measure<'_> {
-    /// The sample bakes of `config`, baked on first use.
-    fn bakes(&self, config: Config) -> Result<std::rc::Rc<Vec<Bake>>> {
-        if let Some((_, b)) = self.bakes.borrow().iter().find(|(c, _)| *c == config) {
+    /// The bake of `config` on sample map `i`, baked on first use (a sample map standing for
+    /// none of the levels measured is never baked: a scene whose finest level is coarse skips
+    /// the fine crops).
+    fn bake(&self, config: Config, i: usize) -> Result<std::rc::Rc<Bake>> {
+        if let Some((_, _, b)) = self
+            .bakes
+            .borrow()
+            .iter()
+            .find(|(c, j, _)| *c == config && *j == i)
+        {
             return Ok(b.clone());
         }
-        let b: Vec<Bake> = self
-            .samples
-            .maps
-            .iter()
-            .map(|(map, _)| crate::methods::bake_with(map, config.method, &config.bake_options()))
-            .collect::<Result<_>>()?;
-        let b = std::rc::Rc::new(b);
-        self.bakes.borrow_mut().push((config, b.clone()));
+        let map = &self.samples.maps[i].0;
+        let b = std::rc::Rc::new(crate::methods::bake_with(
+            map,
+            config.method,
+            &config.bake_options(),
+        )?);
+        self.bakes.borrow_mut().push((config, i, b.clone()));
         Ok(b)
     }
 
@@ -645,14 +653,13 @@ impl Measure<'_> {
         // Per map level: Σ squared relative errors over samples, count.
         let mut acc = vec![(0.0f64, 0.0f64, 0usize); self.levels];
         let mut alpha_max = vec![Vec::<f64>::new(); self.levels];
-        let bakes = self.bakes(config)?;
-        for (i, ((_, stands), bake)) in self.samples.maps.iter().zip(bakes.iter()).enumerate() {
+        for (i, (_, stands)) in self.samples.maps.iter().enumerate() {
             let inside = |l: &Option<usize>| l.is_some_and(|l| (from..=to).contains(&l));
             let Some(first) = stands.iter().position(inside) else {
                 continue;
             };
             let last = stands.iter().rposition(inside).unwrap_or(first);
-            let bake = edit(bake.clone())?;
+            let bake = edit(Bake::clone(&*self.bake(config, i)?))?;
             let errors = match self.exact.get(i).and_then(Option::as_ref) {
                 Some(exact) => exact.evaluate_levels(&[&bake], first..=last),
                 None => Vec::new(),
@@ -815,7 +822,10 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     // Measure.
     let measure_levels = range[1] + 1;
     let samples = samples(map, measure_levels)?;
-    let env = match scene.environment_light()? {
+    // The SH route's L′ tables only when an SH candidate is measured under a specular BRDF.
+    let sh_route = candidates(scene).iter().any(|c| c.method == Method::Sh)
+        && scene.brdfs().iter().any(|b| b.has_specular());
+    let env = match scene.environment_light(sh_route)? {
         Some(light) => {
             let maps: Vec<&NormalMap> = samples.maps.iter().map(|(m, _)| m).collect();
             let first: Vec<Option<usize>> = samples
@@ -1286,8 +1296,8 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     });
     if kd == 0.0 {
         decisions.push(
-            "diffuse term: K_d = 0, the shader's Lambert term is multiplied by a zero uniform \
-             (no define removes its code yet)"
+            "diffuse term: left out (K_d = 0): the shaders compile NDF_NO_DIFFUSE, no ndf_kd \
+             uniform and no Lambert code"
                 .into(),
         );
     }
@@ -1531,6 +1541,8 @@ impl Plan {
                 _ => Sampling::Auto,
             },
             color: p.color,
+            // K_d = 0: no diffuse code (a Lambert scene always has K_d > 0).
+            no_diffuse: !self.shader.diffuse && brdf != ShaderBrdf::Lambert,
             // Both kinds of light: one shader summing both terms (the environment shaders
             // have no colour-texture variant, so a part with colour textures keeps the
             // point-light specialization and the engine's environment pass).

@@ -488,8 +488,10 @@ impl Scene {
 
     /// The environment to light with, when the scene has one: `environment` read (a relative
     /// path against the working directory), or the generated sky (with or without its sun);
-    /// RGB.
-    pub fn environment_light(&self) -> Result<Option<crate::envlight::EnvLight>> {
+    /// RGB. Prepared for the prefiltered route and the diffuse SH only
+    /// ([`crate::envlight::EnvLight::prefiltered_only`]) unless `sh_route` (an SH bake is
+    /// measured under a specular BRDF: eq 26 reads the `L′` tables).
+    pub fn environment_light(&self, sh_route: bool) -> Result<Option<crate::envlight::EnvLight>> {
         if !self.has_environment() {
             return Ok(None);
         }
@@ -506,7 +508,11 @@ impl Scene {
             )
             .map_err(|e| Error::InvalidOption(format!("scene: field 'environment': {e}")))?,
         };
-        Ok(Some(crate::envlight::EnvLight::new(&env)))
+        Ok(Some(if sh_route {
+            crate::envlight::EnvLight::new(&env)
+        } else {
+            crate::envlight::EnvLight::prefiltered_only(&env)
+        }))
     }
 }
 

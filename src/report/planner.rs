@@ -290,6 +290,10 @@ pub struct FrameTime {
     pub plan_ms: f64,
     /// Every part's frame, ms.
     pub parts_ms: Vec<f64>,
+    /// The plan's LOD-switching shader's frame (`lod_switch.frag`, every part in one shader,
+    /// the same view), ms; absent where the plan has none or an older file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub switch_ms: Option<f64>,
 }
 
 /// A frame-times file (`plan_timings --json FILE`).
@@ -324,7 +328,11 @@ impl FrameTimes {
         }
         for r in &t.rows {
             let ok = |v: f64| v.is_finite() && v > 0.0;
-            if !ok(r.full_ms) || !ok(r.plan_ms) || !r.parts_ms.iter().all(|&v| ok(v)) {
+            if !ok(r.full_ms)
+                || !ok(r.plan_ms)
+                || !r.parts_ms.iter().all(|&v| ok(v))
+                || !r.switch_ms.is_none_or(ok)
+            {
                 return Err(bad(format!(
                     "{} {}: a frame time that is not a positive number",
                     r.scene, r.view
@@ -352,15 +360,19 @@ impl FrameTimes {
         }
     }
 
-    /// The frame times of `scene`, per view: `far: plan / full ms (ratio)`.
+    /// The frame times of `scene`, per view: `far: plan / full ms (ratio)`, and where
+    /// measured `, switch ms (ratio to the plan)` for the LOD-switching shader.
     pub fn cell(&self, scene: &str) -> Option<String> {
         let cells: Vec<String> = self
             .rows
             .iter()
             .filter(|r| r.scene == scene)
             .map(|r| {
+                let switch = r.switch_ms.map_or(String::new(), |s| {
+                    format!(", switch {s:.1} ({:.2})", s / r.plan_ms)
+                });
                 format!(
-                    "{}: {:.1} / {:.1} ({:.2})",
+                    "{}: {:.1} / {:.1} ({:.2}){switch}",
                     r.view.strip_prefix("plane-").unwrap_or(&r.view),
                     r.plan_ms,
                     r.full_ms,
@@ -456,7 +468,9 @@ pub fn markdown(section: &Section) -> String {
                 let _ = writeln!(
                     s,
                     "Frame times: `plan_timings` on {} ({} frames, medians; the plan's costliest \
-                     part against the full configuration over the whole plane view, 512²).\n",
+                     part against the full configuration over the whole plane view, 512²; \
+                     `switch`: the plan's LOD-switching shader, every part in one, over the same \
+                     view, and its ratio to the costliest part).\n",
                     t.device, t.frames
                 );
             }
@@ -494,6 +508,7 @@ mod tests {
                     full_ms: 25.0,
                     plan_ms: 5.0,
                     parts_ms: vec![5.0],
+                    switch_ms: None,
                 },
                 FrameTime {
                     scene: "glossy-metal-close".into(),
@@ -501,6 +516,7 @@ mod tests {
                     full_ms: 40.0,
                     plan_ms: 30.0,
                     parts_ms: vec![30.0, 12.0],
+                    switch_ms: Some(36.0),
                 },
             ],
         };
@@ -508,7 +524,15 @@ mod tests {
         assert_eq!(back, t);
         assert_eq!(
             t.cell("glossy-metal-close").unwrap(),
-            "far: 5.0 / 25.0 (0.20); grazing: 30.0 / 40.0 (0.75)"
+            "far: 5.0 / 25.0 (0.20); grazing: 30.0 / 40.0 (0.75), switch 36.0 (1.20)"
+        );
+        // A file without switch times (older plan_timings) still reads.
+        let old = t.to_json().replace("      \"switch_ms\": 36.0\n", "");
+        let old = old.replace("12.0\n      ],", "12.0\n      ]");
+        assert_eq!(
+            FrameTimes::from_json("t", &old).unwrap().rows[1].switch_ms,
+            None,
+            "{old}"
         );
         assert_eq!(t.cell("matte-far"), None);
         // Not a frame-times file, another format, a time that is not positive.
@@ -518,6 +542,9 @@ mod tests {
         assert!(FrameTimes::from_json("t", &other.to_json()).is_err());
         let mut nan = t.clone();
         nan.rows[1].parts_ms[1] = -1.0;
+        let mut zero = t.clone();
+        zero.rows[1].switch_ms = Some(0.0);
+        assert!(FrameTimes::from_json("t", &zero.to_json()).is_err());
         let e = FrameTimes::from_json("t", &nan.to_json())
             .unwrap_err()
             .to_string();
@@ -545,7 +572,9 @@ mod tests {
         };
         let md = markdown(&sec);
         assert!(
-            md.contains("| 1.00 | far: 5.0 / 25.0 (0.20); grazing: 30.0 / 40.0 (0.75) |"),
+            md.contains(
+                "| 1.00 | far: 5.0 / 25.0 (0.20); grazing: 30.0 / 40.0 (0.75), switch 36.0 (1.20) |"
+            ),
             "{md}"
         );
         assert!(

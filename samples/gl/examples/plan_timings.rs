@@ -32,11 +32,125 @@ use ndfmap::ingest::IngestOptions;
 use ndfmap::plan::{FULL, Plan};
 use ndfmap::report::planner::{FRAME_TIMES_FORMAT, FrameTime, FrameTimes};
 use ndfmap::{NormalMap, methods};
-use ndfmap_gl::{BakeRenderer, EnvTextures, Gl, RenderTarget, Route, Scene, env_rotation};
+use ndfmap_gl::glow::{self, HasContext};
+use ndfmap_gl::texture::BakeTextures;
+use ndfmap_gl::{
+    BakeRenderer, BrdfBinding, Camera, EnvTextures, Gl, Lighting, Mesh, Program, RenderTarget,
+    Route, Scene, draw_mesh, env_rotation,
+};
 use std::time::Instant;
 
 const SIZE: u32 = 512;
 const WARM_UP: usize = 3;
+
+/// The plan's LOD-switching shader (`Plan::lod_switch_shader`) with every switch part's
+/// textures (level 0 = the part's first level), drawn like a part's renderer.
+struct Switch {
+    gl: Gl,
+    program: Program,
+    textures: Vec<BakeTextures>,
+    options: ShaderOptions,
+    sh_lmax: Option<usize>,
+    binding: BrdfBinding,
+}
+
+impl Switch {
+    /// Compiles the plan's switch shader over `chains` (per plan part, `bake_chains`' bake);
+    /// `Ok(None)` with the reason printed where the plan has none.
+    fn new(
+        gl: &Gl,
+        plan: &Plan,
+        chains: &[Bake],
+    ) -> Result<Option<Switch>, Box<dyn std::error::Error>> {
+        let addressing = chains[0].addressing;
+        let fragment = match plan.lod_switch_shader(addressing) {
+            Ok(f) => f,
+            Err(e) => {
+                println!("note: no LOD-switching shader: {e}");
+                return Ok(None);
+            }
+        };
+        let parts = plan.lod_switch_parts(addressing);
+        let options = parts[0].0.options;
+        let mut textures = Vec::new();
+        let mut sh_lmax = None;
+        for (p, members) in &parts {
+            let mut bake = chains[members[0]].clone();
+            bake.sizes = bake.sizes[p.first..].to_vec();
+            for t in &mut bake.textures {
+                t.levels = t.levels[p.first..].to_vec();
+            }
+            if bake.method == Method::Sh {
+                sh_lmax = Some(ndfmap::sh::lmax_of(&bake));
+            }
+            textures.push(BakeTextures::upload(gl, &bake, bake.format)?);
+        }
+        let vertex = ndfmap::glsl::source(&chains[0], ndfmap::glsl::Stage::Vertex, &options)?;
+        Ok(Some(Switch {
+            gl: gl.clone(),
+            program: Program::new(gl, &vertex, &fragment)?,
+            textures,
+            options,
+            sh_lmax,
+            binding: BrdfBinding::default(),
+        }))
+    }
+
+    /// Draws `mesh` like `BakeRenderer::draw` / `draw_env` (by the environment `env` when
+    /// the shader is lit by it).
+    fn draw(
+        &self,
+        mesh: &Mesh,
+        camera: &Camera,
+        lighting: &Lighting,
+        env: Option<&EnvTextures>,
+        target: &RenderTarget,
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        let p = &self.program;
+        let mut unit = 0u32;
+        for (k, t) in self.textures.iter().enumerate() {
+            for i in 0..t.len() {
+                // SAFETY: the context is current while `self.gl` lives; the texture lives
+                // while `self` does; fewer than 32 units (the switch refuses more).
+                unsafe {
+                    self.gl.glow().active_texture(glow::TEXTURE0 + unit);
+                    self.gl
+                        .glow()
+                        .bind_texture(glow::TEXTURE_2D, Some(t.raw(i)));
+                }
+                p.set_i32(&ndfmap::glsl::lod_switch_sampler(k, i), unit as i32);
+                unit += 1;
+            }
+        }
+        self.binding.apply(
+            &self.gl,
+            p,
+            &lighting.brdf,
+            self.options.brdf,
+            self.sh_lmax,
+            unit,
+        )?;
+        if let Some(env) = env.filter(|_| self.options.light.is_env()) {
+            env.bind(
+                p,
+                unit + 1,
+                &lighting.brdf,
+                ndfmap::envlight::Route::Prefiltered,
+            );
+            p.set_mat3("ndf_env_rotation", &env_rotation(0.0));
+            if self.options.light == ShaderLight::PointAndEnvPrefiltered {
+                p.set_vec3("ndf_env_color", lighting.color);
+            }
+        }
+        camera.set_uniforms(p, &glam::Mat4::IDENTITY);
+        p.set_vec4("ndf_light", lighting.light);
+        p.set_vec3("ndf_light_color", lighting.color);
+        p.set_vec3("ndf_kd", lighting.kd);
+        p.set_vec3("ndf_ks", lighting.ks);
+        draw_mesh(p, mesh, target)?;
+        Ok(())
+    }
+}
 
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -89,8 +203,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         frames,
         rows: Vec::new(),
     };
-    println!("| plan | view | full ms | plan ms (costliest part) | plan / full | parts ms |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| plan | view | full ms | plan ms (costliest part) | plan / full | switch ms (/ plan) | \
+         parts ms |"
+    );
+    println!("|---|---|---|---|---|---|---|");
     for pair in args.chunks(2) {
         let text = std::fs::read_to_string(&pair[0])?;
         let name = std::path::Path::new(&pair[0])
@@ -110,7 +227,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         plan.check_map(&map)?;
         let env_only = plan.shader.environment && !plan.scene.has_direct();
-        let env = match plan.scene.environment_light()? {
+        // Full light: the GPU upload packs the SH route's L′ tables too (envgpu::pack).
+        let env = match plan.scene.environment_light(true)? {
             Some(light) if plan.shader.environment => Some(EnvTextures::upload(&gl, &light)?),
             _ => None,
         };
@@ -121,9 +239,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // level and every coarser one (a texture whose level 0 is the part's first level, as
         // an engine binds it), so that a view's coarser pixels sample small levels as they
         // do in the full configuration.
-        let chains = ndfmap::plan::bake_chains(&plan, &map)?;
+        let chains: Vec<Bake> = ndfmap::plan::bake_chains(&plan, &map)?
+            .into_iter()
+            .map(|(b, _)| b)
+            .collect();
+        let switch = Switch::new(&gl, &plan, &chains)?;
         let mut renderers = Vec::new();
-        for (i, (p, (mut bake, _))) in plan.parts.iter().zip(chains).enumerate() {
+        for (i, (p, mut bake)) in plan.parts.iter().zip(chains).enumerate() {
             bake.sizes = bake.sizes[p.first..].to_vec();
             for t in &mut bake.textures {
                 t.levels = t.levels[p.first..].to_vec();
@@ -156,7 +278,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let mut lighting = scene.lighting.clone();
             lighting.brdf = plan.scene.brdfs()[0].clone();
             let mut times = vec![Vec::new(); renderers.len()];
+            let mut switch_times = Vec::new();
             for frame in 0..WARM_UP + frames {
+                if let Some(sw) = &switch {
+                    target.clear([0.0, 0.0, 0.0, 1.0]);
+                    gl.finish();
+                    let start = Instant::now();
+                    sw.draw(mesh, &scene.camera, &lighting, env.as_ref(), &target)?;
+                    gl.finish();
+                    if frame >= WARM_UP {
+                        switch_times.push(start.elapsed().as_secs_f64() * 1e3);
+                    }
+                }
                 for ((r, t), &by_env) in renderers.iter().zip(&mut times).zip(&lit_by_env) {
                     target.clear([0.0, 0.0, 0.0, 1.0]);
                     gl.finish();
@@ -188,18 +321,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let medians: Vec<f64> = times.iter_mut().map(|t| median(t)).collect();
             let (full_ms, part_ms) = medians.split_last().ok_or("no renderer")?;
             let worst = part_ms.iter().copied().fold(0.0, f64::max);
+            let switch_ms = (!switch_times.is_empty()).then(|| median(&mut switch_times));
             out.rows.push(FrameTime {
                 scene: name.clone(),
                 view: scene.name.to_string(),
                 full_ms: *full_ms,
                 plan_ms: worst,
                 parts_ms: part_ms.to_vec(),
+                switch_ms,
             });
             println!(
-                "| {} | {} | {full_ms:.2} | {worst:.2} | {:.2} | {} |",
+                "| {} | {} | {full_ms:.2} | {worst:.2} | {:.2} | {} | {} |",
                 pair[0],
                 scene.name,
                 worst / full_ms,
+                switch_ms.map_or("n/a".into(), |s| format!("{s:.2} ({:.2})", s / worst)),
                 part_ms
                     .iter()
                     .map(|m| format!("{m:.2}"))

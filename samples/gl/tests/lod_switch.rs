@@ -63,6 +63,9 @@ struct Setup<'a> {
     sampling: Sampling,
     /// Lit by the point light and this environment (`ShaderLight::PointAndEnvPrefiltered`).
     env: Option<(&'a EnvLight, &'a EnvTextures)>,
+    /// K_d = 0: `NDF_NO_DIFFUSE` (the probe's diffuse must be exactly 0, the specular the
+    /// twin's).
+    no_diffuse: bool,
 }
 
 /// The point light's plus the prefiltered environment's shading of one part at its local
@@ -118,6 +121,7 @@ fn run_case(gl: &Gl, setup: &Setup) {
         } else {
             ShaderLight::Point
         },
+        no_diffuse: setup.no_diffuse,
         ..Default::default()
     };
     // The environment's route is within 5e-3 of its twin (tests/env.rs), the point light's 2e-4.
@@ -270,6 +274,13 @@ fn run_case(gl: &Gl, setup: &Setup) {
                             (d, s)
                         }
                     };
+                    // K_d = 0: no diffuse term in the shader, the twin's specular alone.
+                    let cpu = if setup.no_diffuse {
+                        assert_eq!(p[0], 0.0, "NDF_NO_DIFFUSE: the probe's diffuse");
+                        (0.0, cpu.1)
+                    } else {
+                        cpu
+                    };
                     let err = |gl: f32, cpu: f64, floor: f64| {
                         (gl as f64 - cpu).abs() / (cpu.abs() + floor)
                     };
@@ -289,7 +300,7 @@ fn run_case(gl: &Gl, setup: &Setup) {
                     // The wrong part at the same LOD (its local level clamped to its levels).
                     let w = &twins[wrong];
                     let local = (lod - w.first as f64).clamp(0.0, (w.last - w.first) as f64);
-                    let bad = match setup.env {
+                    let mut bad = match setup.env {
                         Some((light, _)) => both_part(
                             light,
                             w.bake,
@@ -304,6 +315,9 @@ fn run_case(gl: &Gl, setup: &Setup) {
                             (b.diffuse.x, b.specular.x)
                         }
                     };
+                    if setup.no_diffuse {
+                        bad.0 = 0.0;
+                    }
                     wrong_worst =
                         wrong_worst
                             .max(err(p[0], bad.0, 1e-3))
@@ -318,14 +332,15 @@ fn run_case(gl: &Gl, setup: &Setup) {
         }
     }
     println!(
-        "{}: LOD switch {:?}{} GL vs CPU worst {worst:.2e}",
+        "{}: LOD switch {:?}{}{} GL vs CPU worst {worst:.2e}",
         gl.route(),
         setup.sampling,
         if setup.env.is_some() {
             " + environment"
         } else {
             ""
-        }
+        },
+        if setup.no_diffuse { ", K_d = 0" } else { "" },
     );
     assert!(Format::F32 == setup.bakes[0].0.format);
 }
@@ -350,6 +365,7 @@ fn run(route: Route) {
             bakes: three_parts(),
             sampling: Sampling::Auto,
             env: None,
+            no_diffuse: false,
         },
     );
     // Lit by the point light and the generated 64 x 32 sky (sun included), as tests/env.rs.
@@ -367,6 +383,17 @@ fn run(route: Route) {
             bakes: three_parts(),
             sampling: Sampling::Auto,
             env: Some((&light, &env)),
+            no_diffuse: false,
+        },
+    );
+    // K_d = 0 (NDF_NO_DIFFUSE): the point light and the environment, specular only.
+    run_case(
+        &gl,
+        &Setup {
+            bakes: three_parts(),
+            sampling: Sampling::Auto,
+            env: Some((&light, &env)),
+            no_diffuse: true,
         },
     );
     run_case(
@@ -378,6 +405,7 @@ fn run(route: Route) {
             ],
             sampling: Sampling::Anisotropic(4),
             env: None,
+            no_diffuse: false,
         },
     );
 }

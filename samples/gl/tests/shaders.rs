@@ -123,6 +123,7 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
         probe: true,
         vmf_diffuse: case.diffuse,
         sh_diffuse: case.sh_diffuse,
+        ..Default::default()
     };
     let vertex = source(bake, Stage::Vertex, &options).unwrap();
     let fragment = source(bake, Stage::Fragment, &options).unwrap();
