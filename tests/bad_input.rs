@@ -1850,19 +1850,13 @@ fn pbr_material_values_outside_0_1_or_nan_are_refused() {
         }
     }
     let (dir, input) = folder_with_map(8, 8);
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "pbr",
-        "-o",
-        s(&dir.path().join("o")),
-        "--roughness",
-        "1.5",
-    ]);
-    assert_one_line_error(&r, &["roughness 1.5"]);
-    // A fit range below 20°, or not an angle: one line naming it.
-    for (angle, words) in [("10", "fit max angle 10"), ("NaN", "fit max angle NaN")] {
+    // A PBR bake with one bad option (flag, value): one line naming it.
+    for (flag, value, words) in [
+        ("--roughness", "1.5", "roughness 1.5"),
+        // A fit range below 20°, or not an angle.
+        ("--fit-max-angle", "10", "fit max angle 10"),
+        ("--fit-max-angle", "NaN", "fit max angle NaN"),
+    ] {
         let r = ndfmap(&[
             "bake",
             s(&input),
@@ -1870,8 +1864,8 @@ fn pbr_material_values_outside_0_1_or_nan_are_refused() {
             "pbr",
             "-o",
             s(&dir.path().join("o")),
-            "--fit-max-angle",
-            angle,
+            flag,
+            value,
         ]);
         assert_one_line_error(&r, &[words]);
     }

@@ -390,8 +390,9 @@ fn pbr_report_without_filament_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("n.png");
     write_normal_png(&input, 32, 32);
-    let run = ndfmap_with(
-        &[
+    // The report's markdown with Filament's tool hidden (an empty PATH), levels 1 to `last`.
+    let report = |last: &str, more: &[&str]| {
+        let mut args = vec![
             "pbr-report",
             input.to_str().unwrap(),
             "--alpha",
@@ -399,17 +400,19 @@ fn pbr_report_without_filament_says_so() {
             "--first-level",
             "1",
             "--last-level",
-            "3",
+            last,
             "--no-vmf",
-        ],
-        &[("PATH", "")],
-    );
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let text = String::from_utf8_lossy(&run.stdout);
+        ];
+        args.extend_from_slice(more);
+        let run = ndfmap_with(&args, &[("PATH", "")]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        String::from_utf8_lossy(&run.stdout).into_owned()
+    };
+    let text = report("3", &[]);
     assert!(
         text.contains("roughness-prefilter is not on PATH"),
         "{text}"
@@ -427,28 +430,7 @@ fn pbr_report_without_filament_says_so() {
     assert!(text.contains("Scored on all 27 evaluation pairs"), "{text}");
     // A renderer that stays within 50°: the rows scored on the 10 pairs within it (views at
     // 0° and 35°, lights at the zenith and 35°), and the bake fitted for that range.
-    let run = ndfmap_with(
-        &[
-            "pbr-report",
-            input.to_str().unwrap(),
-            "--alpha",
-            "0.1",
-            "--first-level",
-            "1",
-            "--last-level",
-            "2",
-            "--no-vmf",
-            "--fit-max-angle",
-            "50",
-        ],
-        &[("PATH", "")],
-    );
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let text = String::from_utf8_lossy(&run.stdout);
+    let text = report("2", &["--fit-max-angle", "50"]);
     assert!(
         text.contains("Scored on the 10 evaluation pairs with view and light within 50°"),
         "{text}"
