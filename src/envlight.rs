@@ -731,6 +731,29 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
     }
 }
 
+/// Per lobe of [`lobes_of`] (same order), its weight per colour channel: α in every channel,
+/// or with `color` for a vMF bake the lobe's colour texel `α·y` (texture `lobes + j`, eq 22).
+fn lobe_weights(bake: &Bake, texels: &[[f32; 4]], lobes: &[Lobe], color: bool) -> Vec<[f64; 3]> {
+    if !(color && bake.method == Method::Vmf) {
+        return lobes.iter().map(|l| [l.alpha; 3]).collect();
+    }
+    assert!(
+        bake.lobes > 0 && texels.len() >= 2 * bake.lobes,
+        "colour shading needs a mixture bake with colour textures"
+    );
+    let (rmax, amin) = (
+        crate::vmf::r_max(bake.format),
+        crate::vmf::alpha_min(bake.format),
+    );
+    (0..bake.lobes)
+        .filter(|&j| crate::shade::vmf_decode(texels[j], rmax, amin).is_some())
+        .map(|j| {
+            let y = texels[bake.lobes + j];
+            [y[0] as f64, y[1] as f64, y[2] as f64]
+        })
+        .collect()
+}
+
 /// Lambert's `ρ̂_l` for l ≤ 2.
 const LAMBERT: [f64; 3] = [PI, 2.0 * PI / 3.0, PI / 4.0];
 
@@ -793,6 +816,52 @@ pub fn shade_in(
     brdf: &Brdf,
     route: Route,
 ) -> RgbShading {
+    shade_in_with(light, frame, bake, texels, view, brdf, route, false)
+}
+
+/// Environment-lit shading of `bake`'s texel in the environment's frame (texel space) with or
+/// without the colour textures: [`shade_in_with`] with the identity frame.
+pub fn shade_with(
+    light: &EnvLight,
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    view: DVec3,
+    brdf: &Brdf,
+    route: Route,
+    color: bool,
+) -> RgbShading {
+    shade_in_with(
+        light,
+        DMat3::IDENTITY,
+        bake,
+        texels,
+        view,
+        brdf,
+        route,
+        color,
+    )
+}
+
+/// [`shade_in`] with eq 22's per-lobe colour when `color` is set (a vMF bake with colour
+/// textures: texture `lobes + j` holds `α·y` of lobe j): lobe j's diffuse (eq 25) and specular
+/// (prefiltered lookup or eq 26) terms of channel c are weighted by `(α·y)_c` instead of α —
+/// Algorithm 2 line 14 as [`crate::shade::shade_rgb_with`] does it for point lights, and the
+/// environment shaders under `NDF_COLOR`. Without `color` (or for a bake that is not a vMF
+/// mixture) every lobe is weighted by α in every channel ([`shade_in`]).
+///
+/// Panics when `color` is asked of a vMF bake whose texel has no colour textures (as
+/// `shade_rgb_with` does); [`crate::glsl`] refuses such a shader with a typed error.
+#[allow(clippy::too_many_arguments)]
+pub fn shade_in_with(
+    light: &EnvLight,
+    frame: DMat3,
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    view: DVec3,
+    brdf: &Brdf,
+    route: Route,
+    color: bool,
+) -> RgbShading {
     let mut out = RgbShading::default();
     let basis = Basis::new(ENV_LMAX);
     let mut y = vec![0.0f64; count(ENV_LMAX)];
@@ -846,6 +915,8 @@ pub fn shade_in(
         return out;
     }
     let lobes = lobes_of(bake, texels);
+    let weights = lobe_weights(bake, texels, &lobes, color);
+    debug_assert_eq!(lobes.len(), weights.len());
     let sh_route = route == Route::Sh && brdf.has_specular();
     let rho = if sh_route {
         brdf.sh_coefficients(ENV_LMAX)
@@ -861,10 +932,10 @@ pub fn shade_in(
     } else {
         Vec::new()
     };
-    for lobe in &lobes {
+    for (lobe, w) in lobes.iter().zip(&weights) {
         basis.eval_into(frame * lobe.mu, &mut y);
-        for (ch, o) in light.channels.iter().zip(&mut out.diffuse) {
-            *o += lobe.alpha * diffuse_lobe(&ch.sh, &y, lobe).max(0.0);
+        for ((ch, o), wc) in light.channels.iter().zip(&mut out.diffuse).zip(w) {
+            *o += wc * diffuse_lobe(&ch.sh, &y, lobe).max(0.0);
         }
         if !brdf.has_specular() {
             continue;
@@ -898,8 +969,8 @@ pub fn shade_in(
                 })
             }
         };
-        for (o, s) in out.specular.iter_mut().zip(spec) {
-            *o += lobe.alpha * s * g;
+        for ((o, s), wc) in out.specular.iter_mut().zip(spec).zip(w) {
+            *o += wc * s * g;
         }
     }
     out
@@ -1626,5 +1697,92 @@ mod tests {
             }
         }
         assert_eq!(checked, 30);
+    }
+
+    /// A 16 × 16 procedural map with the albedo `colour(n)` of each normal.
+    fn coloured_map(colour: impl Fn(glam::Vec3) -> [f32; 4]) -> crate::NormalMap {
+        let map = crate::procedural::generate(16, 5).map;
+        let albedo = map.normals().iter().map(|&n| colour(n)).collect();
+        map.with_feature(albedo).unwrap()
+    }
+
+    #[test]
+    fn colour_textures_weight_each_lobe_by_its_colour() {
+        // Eq 22 under the environment: with white albedo every lobe's α·y is α and the colour
+        // shading equals the uncoloured one; with two colours (red where the normal leans to
+        // +x, blue elsewhere) each channel equals Σ_j y_j,c × (lobe j alone, shaded with α,
+        // through the uncoloured route) — an independent sum over one-lobe texels — and the
+        // channels differ. Every route, a tilted frame, Lambert / Blinn-Phong / GGX.
+        let sky = crate::environment::coloured_test_sky();
+        let light = EnvLight::new(&sky);
+        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
+        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
+        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
+        let opts = crate::bake::BakeOptions {
+            lobes: 3,
+            ..Default::default()
+        };
+        let white =
+            crate::methods::bake_with(&coloured_map(|_| [1.0; 4]), Method::Vmf, &opts).unwrap();
+        let (red, blue) = ([0.9f32, 0.25, 0.05, 1.0], [0.05f32, 0.3, 0.8, 1.0]);
+        let two = crate::methods::bake_with(
+            &coloured_map(|n| if n.x > 0.0 { red } else { blue }),
+            Method::Vmf,
+            &opts,
+        )
+        .unwrap();
+        assert_eq!(two.textures.len(), 2 * two.lobes);
+        let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs().max(1e-3);
+        let mut differing = 0;
+        for route in [Route::Prefiltered, Route::Sh] {
+            for brdf in &brdfs {
+                for (level, x, y) in [(0, 3, 5), (1, 2, 1), (2, 1, 2), (4, 0, 0)] {
+                    // White albedo: the uncoloured shading (α·y = α up to f32 rounding).
+                    let t = white.texel(level, x, y);
+                    let c = shade_in_with(&light, frame, &white, &t, view, brdf, route, true);
+                    let g = shade_in(&light, frame, &white, &t, view, brdf, route);
+                    for k in 0..3 {
+                        assert!(close(c.diffuse[k], g.diffuse[k], 1e-5), "{c:?} {g:?}");
+                        assert!(close(c.specular[k], g.specular[k], 1e-5), "{c:?} {g:?}");
+                    }
+                    // Two colours: per lobe by hand.
+                    let t = two.texel(level, x, y);
+                    let c = shade_in_with(&light, frame, &two, &t, view, brdf, route, true);
+                    let mut want = RgbShading::default();
+                    for j in 0..two.lobes {
+                        let alpha = t[j][0] as f64;
+                        if alpha <= crate::vmf::alpha_min(two.format) {
+                            continue;
+                        }
+                        let mut one = t.clone();
+                        for (i, o) in one[..two.lobes].iter_mut().enumerate() {
+                            if i != j {
+                                *o = [0.0; 4];
+                            }
+                        }
+                        let s = shade_in(&light, frame, &two, &one, view, brdf, route);
+                        for k in 0..3 {
+                            let yk = t[two.lobes + j][k] as f64 / alpha;
+                            want.diffuse[k] += yk * s.diffuse[k];
+                            want.specular[k] += yk * s.specular[k];
+                        }
+                    }
+                    for k in 0..3 {
+                        assert!(close(c.diffuse[k], want.diffuse[k], 1e-9), "{c:?} {want:?}");
+                        assert!(
+                            close(c.specular[k], want.specular[k], 1e-9),
+                            "{c:?} {want:?}"
+                        );
+                    }
+                    // Colour changes the result: not the uncoloured shading's proportions.
+                    let g = shade_in(&light, frame, &two, &t, view, brdf, route);
+                    if (c.diffuse[0] / g.diffuse[0] - c.diffuse[2] / g.diffuse[2]).abs() > 0.1 {
+                        differing += 1;
+                    }
+                }
+            }
+        }
+        // Most texels mix red and blue lobes unevenly; the channels' ratios differ.
+        assert!(differing >= 12, "{differing}");
     }
 }
