@@ -1433,7 +1433,10 @@ fn colour_shaders_are_given_for_every_environment_light() {
         let vmf = c_bake(map, NDF_METHOD_VMF);
         assert_eq!((*vmf).bake.textures.len(), 2 * (*vmf).bake.lobes);
         for (light, rust) in [
-            (NDF_LIGHT_ENV_PREFILTERED, crate::glsl::ShaderLight::EnvPrefiltered),
+            (
+                NDF_LIGHT_ENV_PREFILTERED,
+                crate::glsl::ShaderLight::EnvPrefiltered,
+            ),
             (NDF_LIGHT_ENV_SH, crate::glsl::ShaderLight::EnvSh),
             (
                 NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
