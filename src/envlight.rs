@@ -850,7 +850,8 @@ pub fn shade_with(
 /// mixture) every lobe is weighted by α in every channel ([`shade_in`]).
 ///
 /// Panics when `color` is asked of a vMF bake whose texel has no colour textures (as
-/// `shade_rgb_with` does); [`crate::glsl`] refuses such a shader with a typed error.
+/// `shade_rgb_with` does); the shader generator (`glsl::source_for`) refuses such a shader
+/// with a typed error.
 #[allow(clippy::too_many_arguments)]
 pub fn shade_in_with(
     light: &EnvLight,
@@ -1737,14 +1738,16 @@ mod tests {
         for route in [Route::Prefiltered, Route::Sh] {
             for brdf in &brdfs {
                 for (level, x, y) in [(0, 3, 5), (1, 2, 1), (2, 1, 2), (4, 0, 0)] {
-                    // White albedo: the uncoloured shading (α·y = α up to f32 rounding).
+                    // White albedo: exactly the uncoloured shading (the colour texel α·1
+                    // is the lobe texel's α, bit for bit).
                     let t = white.texel(level, x, y);
+                    for j in 0..white.lobes {
+                        assert_eq!([t[white.lobes + j][0]; 3], t[white.lobes + j][..3]);
+                        assert_eq!(t[white.lobes + j][0], t[j][0], "lobe {j}");
+                    }
                     let c = shade_in_with(&light, frame, &white, &t, view, brdf, route, true);
                     let g = shade_in(&light, frame, &white, &t, view, brdf, route);
-                    for k in 0..3 {
-                        assert!(close(c.diffuse[k], g.diffuse[k], 1e-5), "{c:?} {g:?}");
-                        assert!(close(c.specular[k], g.specular[k], 1e-5), "{c:?} {g:?}");
-                    }
+                    assert_eq!(c, g);
                     // Two colours: per lobe by hand.
                     let t = two.texel(level, x, y);
                     let c = shade_in_with(&light, frame, &two, &t, view, brdf, route, true);
