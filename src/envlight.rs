@@ -1764,8 +1764,8 @@ mod tests {
                             }
                         }
                         let s = shade_in(&light, frame, &two, &one, view, brdf, route);
-                        for k in 0..3 {
-                            let yk = t[two.lobes + j][k] as f64 / alpha;
+                        for (k, &y) in t[two.lobes + j][..3].iter().enumerate() {
+                            let yk = y as f64 / alpha;
                             want.diffuse[k] += yk * s.diffuse[k];
                             want.specular[k] += yk * s.specular[k];
                         }
