@@ -8,7 +8,9 @@
 //
 // Per texel the method gives isotropic lobes (alpha, mu, |r|, var = 1/kappa; var = 0 is kappa =
 // infinity): plain one lobe of var 0; Toksvig |r| = |m| and Banerjee's kappa; LEAN the mean of
-// its two slope variances and |r| = A(kappa); vMF the decoded lobes of Algorithm 2. Then
+// its two slope variances and |r| = A(kappa); vMF the decoded lobes of Algorithm 2 (with
+// NDF_COLOR each vMF lobe's terms are weighted per channel by its colour texel alpha*y, texture
+// NDF_LOBES + j, instead of alpha: eq 22 / Algorithm 2 line 14 as under a point light). Then
 //   diffuse (eq 25)  alpha sum_{l<=2} rhoL_l A_l sum_m L_lm Y_lm(mu), A_1 = |r|,
 //                    A_2 = max(1 - 3|r| var, 0), clamped at 0 per lobe;
 //   specular         per lobe facing the view (co = v.mu > 0), r = 2 co mu - v, times g(r, mu):
@@ -370,7 +372,18 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
         float var;
         float rlen;
         if (!ndf_vmf_decode(t[j], alpha, mu, var, rlen)) continue;
+#ifdef NDF_COLOR
+        // Eq 22: lobe j weighted per channel by its colour texel alpha*y instead of alpha
+        // (Algorithm 2 line 14, as ndf_vmf.glsl; CPU: envlight::shade_in_with).
+        vec3 dj = vec3(0.0);
+        vec3 sj = vec3(0.0);
+        ndf_env_lobe(1.0, mu, min(rlen, NDF_R_MAX), var, v, NDF_ENV_LP dj, sj);
+        vec3 weight = t[NDF_LOBES + j].rgb;
+        d += weight * dj;
+        s += weight * sj;
+#else
         ndf_env_lobe(alpha, mu, min(rlen, NDF_R_MAX), var, v, NDF_ENV_LP d, s);
+#endif
     }
 #endif
     diffuse = d;

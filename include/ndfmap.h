@@ -71,8 +71,7 @@
  * `ndf_plan_text`: the plan's one fragment shader switching method by level of detail
  * (every part; samplers `ndf_p{k}_tex{i}`, each a texture whose level 0 is part k's first
  * level; `part` ignored). `NDF_STATUS_INVALID_ARGUMENT` with the reason where it is not built
- * (parts lit differently: a part with colour textures under an environment; more than 32
- * samplers).
+ * (parts lit differently, more than 32 samplers).
  */
 #define NDF_PLAN_TEXT_LOD_SWITCH_SHADER 3
 

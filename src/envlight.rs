@@ -98,14 +98,14 @@ impl EnvChannel {
         self.reflected.as_ref().ok_or_else(no_reflected)
     }
 
-    /// `L′(view)` from the table, or NaN in every coefficient where there is none (only
-    /// reached through [`shade_in`] called directly with the SH route on a
-    /// [`EnvLight::prefiltered_only`] light; the fallible entry points refuse that first,
-    /// [`EnvLight::check_routes`]).
+    /// `L′(view)` from the table. Panics on a channel of [`EnvLight::prefiltered_only`] (reached
+    /// only by calling [`shade_in_with`] directly with the SH route on such a light: a
+    /// programming error, which every fallible entry point refuses first with a typed error,
+    /// [`EnvLight::check_routes`]; never a silent NaN).
     fn reflected_at(&self, view: DVec3) -> Vec<f64> {
         match &self.reflected {
             Some(t) => t.at(view),
-            None => vec![f64::NAN; count(ENV_LMAX)],
+            None => panic!("{}", no_reflected()),
         }
     }
 }
@@ -786,6 +786,29 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
     }
 }
 
+/// Per lobe of [`lobes_of`] (same order), its weight per colour channel: α in every channel,
+/// or with `color` for a vMF bake the lobe's colour texel `α·y` (texture `lobes + j`, eq 22).
+fn lobe_weights(bake: &Bake, texels: &[[f32; 4]], lobes: &[Lobe], color: bool) -> Vec<[f64; 3]> {
+    if !(color && bake.method == Method::Vmf) {
+        return lobes.iter().map(|l| [l.alpha; 3]).collect();
+    }
+    assert!(
+        bake.lobes > 0 && texels.len() >= 2 * bake.lobes,
+        "colour shading needs a mixture bake with colour textures"
+    );
+    let (rmax, amin) = (
+        crate::vmf::r_max(bake.format),
+        crate::vmf::alpha_min(bake.format),
+    );
+    (0..bake.lobes)
+        .filter(|&j| crate::shade::vmf_decode(texels[j], rmax, amin).is_some())
+        .map(|j| {
+            let y = texels[bake.lobes + j];
+            [y[0] as f64, y[1] as f64, y[2] as f64]
+        })
+        .collect()
+}
+
 /// Lambert's `ρ̂_l` for l ≤ 2.
 const LAMBERT: [f64; 3] = [PI, 2.0 * PI / 3.0, PI / 4.0];
 
@@ -838,7 +861,7 @@ pub fn shade(
 /// shader does per fragment) and paired with the texel's `c_lm`. Everything that does not
 /// depend on the radiance (lobes, basis, BRDF coefficients, lobe-table lookups, g) is computed
 /// once; each channel is then the single-channel route (the routes are linear in radiance; the
-/// clamps at 0 are per channel, as in the shaders).
+/// clamps at 0 are per channel, as in the shaders). Panics as [`shade_in_with`] does.
 pub fn shade_in(
     light: &EnvLight,
     frame: DMat3,
@@ -847,6 +870,54 @@ pub fn shade_in(
     view: DVec3,
     brdf: &Brdf,
     route: Route,
+) -> RgbShading {
+    shade_in_with(light, frame, bake, texels, view, brdf, route, false)
+}
+
+/// Environment-lit shading of `bake`'s texel in the environment's frame (texel space) with or
+/// without the colour textures: [`shade_in_with`] with the identity frame.
+pub fn shade_with(
+    light: &EnvLight,
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    view: DVec3,
+    brdf: &Brdf,
+    route: Route,
+    color: bool,
+) -> RgbShading {
+    shade_in_with(
+        light,
+        DMat3::IDENTITY,
+        bake,
+        texels,
+        view,
+        brdf,
+        route,
+        color,
+    )
+}
+
+/// [`shade_in`] with eq 22's per-lobe colour when `color` is set (a vMF bake with colour
+/// textures: texture `lobes + j` holds `α·y` of lobe j): lobe j's diffuse (eq 25) and specular
+/// (prefiltered lookup or eq 26) terms of channel c are weighted by `(α·y)_c` instead of α —
+/// Algorithm 2 line 14 as [`crate::shade::shade_rgb_with`] does it for point lights, and the
+/// environment shaders under `NDF_COLOR`. Without `color` (or for a bake that is not a vMF
+/// mixture) every lobe is weighted by α in every channel ([`shade_in`]).
+///
+/// Panics when `color` is asked of a vMF bake whose texel has no colour textures (as
+/// `shade_rgb_with` does; the shader generator, `glsl::source_for`, refuses such a shader
+/// with a typed error), and when the SH route (or an SH bake's specular term) is asked of an
+/// [`EnvLight::prefiltered_only`] light ([`EnvLight::check_routes`] says so beforehand).
+#[allow(clippy::too_many_arguments)]
+pub fn shade_in_with(
+    light: &EnvLight,
+    frame: DMat3,
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    view: DVec3,
+    brdf: &Brdf,
+    route: Route,
+    color: bool,
 ) -> RgbShading {
     let mut out = RgbShading::default();
     let basis = Basis::new(ENV_LMAX);
@@ -901,6 +972,8 @@ pub fn shade_in(
         return out;
     }
     let lobes = lobes_of(bake, texels);
+    let weights = lobe_weights(bake, texels, &lobes, color);
+    debug_assert_eq!(lobes.len(), weights.len());
     let sh_route = route == Route::Sh && brdf.has_specular();
     let rho = if sh_route {
         brdf.sh_coefficients(ENV_LMAX)
@@ -916,10 +989,10 @@ pub fn shade_in(
     } else {
         Vec::new()
     };
-    for lobe in &lobes {
+    for (lobe, w) in lobes.iter().zip(&weights) {
         basis.eval_into(frame * lobe.mu, &mut y);
-        for (ch, o) in light.channels.iter().zip(&mut out.diffuse) {
-            *o += lobe.alpha * diffuse_lobe(&ch.sh, &y, lobe).max(0.0);
+        for ((ch, o), wc) in light.channels.iter().zip(&mut out.diffuse).zip(w) {
+            *o += wc * diffuse_lobe(&ch.sh, &y, lobe).max(0.0);
         }
         if !brdf.has_specular() {
             continue;
@@ -953,8 +1026,8 @@ pub fn shade_in(
                 })
             }
         };
-        for (o, s) in out.specular.iter_mut().zip(spec) {
-            *o += lobe.alpha * s * g;
+        for ((o, s), wc) in out.specular.iter_mut().zip(spec).zip(w) {
+            *o += wc * s * g;
         }
     }
     out
@@ -1708,13 +1781,15 @@ mod tests {
             let bake = crate::methods::bake(&map, m);
             let t = bake.texel(1, 0, 0);
             for brdf in &brdfs {
+                if m == Method::Sh && brdf.has_specular() {
+                    // An SH bake's specular term reads L′: refused below (and a panic if
+                    // shade_in were called anyway).
+                    continue;
+                }
                 let a = shade_in(&full, frame, &bake, &t, view, brdf, Route::Prefiltered);
                 let b = shade_in(&lite, frame, &bake, &t, view, brdf, Route::Prefiltered);
-                assert_eq!(a.diffuse, b.diffuse, "{m} {brdf:?}");
-                if m != Method::Sh {
-                    assert_eq!(a.specular, b.specular, "{m} {brdf:?}");
-                    assert!(a.specular.iter().all(|v| v.is_finite()));
-                }
+                assert_eq!(a, b, "{m} {brdf:?}");
+                assert!(a.specular.iter().chain(&a.diffuse).all(|v| v.is_finite()));
             }
         }
         let vmf = crate::methods::bake(&map, Method::Vmf);
@@ -1764,5 +1839,104 @@ mod tests {
             &options,
         );
         assert_eq!(a.unwrap(), b.unwrap());
+    }
+
+    #[test]
+    #[should_panic(expected = "prefiltered route only")]
+    fn the_sh_route_on_a_prefiltered_only_light_panics_rather_than_shade_nan() {
+        let lite = EnvLight::prefiltered_only(&crate::environment::coloured_test_sky());
+        let bake = crate::methods::bake(&map_of(2, 2, quad_normals()), Method::Vmf);
+        let t = bake.texel(0, 0, 0);
+        let brdf = Brdf::BlinnPhong { s: 32.0 };
+        let _ = shade(&lite, &bake, &t, DVec3::Z, &brdf, Route::Sh);
+    }
+
+    /// A 16 × 16 procedural map with the albedo `colour(n)` of each normal.
+    fn coloured_map(colour: impl Fn(glam::Vec3) -> [f32; 4]) -> crate::NormalMap {
+        let map = crate::procedural::generate(16, 5).map;
+        let albedo = map.normals().iter().map(|&n| colour(n)).collect();
+        map.with_feature(albedo).unwrap()
+    }
+
+    #[test]
+    fn colour_textures_weight_each_lobe_by_its_colour() {
+        // Eq 22 under the environment: with white albedo every lobe's α·y is α and the colour
+        // shading equals the uncoloured one; with two colours (red where the normal leans to
+        // +x, blue elsewhere) each channel equals Σ_j y_j,c × (lobe j alone, shaded with α,
+        // through the uncoloured route) — an independent sum over one-lobe texels — and the
+        // channels differ. Every route, a tilted frame, Lambert / Blinn-Phong / GGX.
+        let sky = crate::environment::coloured_test_sky();
+        let light = EnvLight::new(&sky);
+        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
+        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
+        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
+        let opts = crate::bake::BakeOptions {
+            lobes: 3,
+            ..Default::default()
+        };
+        let white =
+            crate::methods::bake_with(&coloured_map(|_| [1.0; 4]), Method::Vmf, &opts).unwrap();
+        let (red, blue) = ([0.9f32, 0.25, 0.05, 1.0], [0.05f32, 0.3, 0.8, 1.0]);
+        let two = crate::methods::bake_with(
+            &coloured_map(|n| if n.x > 0.0 { red } else { blue }),
+            Method::Vmf,
+            &opts,
+        )
+        .unwrap();
+        assert_eq!(two.textures.len(), 2 * two.lobes);
+        let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs().max(1e-3);
+        let mut differing = 0;
+        for route in [Route::Prefiltered, Route::Sh] {
+            for brdf in &brdfs {
+                for (level, x, y) in [(0, 3, 5), (1, 2, 1), (2, 1, 2), (4, 0, 0)] {
+                    // White albedo: exactly the uncoloured shading (the colour texel α·1
+                    // is the lobe texel's α, bit for bit).
+                    let t = white.texel(level, x, y);
+                    for j in 0..white.lobes {
+                        assert_eq!([t[white.lobes + j][0]; 3], t[white.lobes + j][..3]);
+                        assert_eq!(t[white.lobes + j][0], t[j][0], "lobe {j}");
+                    }
+                    let c = shade_in_with(&light, frame, &white, &t, view, brdf, route, true);
+                    let g = shade_in(&light, frame, &white, &t, view, brdf, route);
+                    assert_eq!(c, g);
+                    // Two colours: per lobe by hand.
+                    let t = two.texel(level, x, y);
+                    let c = shade_in_with(&light, frame, &two, &t, view, brdf, route, true);
+                    let mut want = RgbShading::default();
+                    for j in 0..two.lobes {
+                        let alpha = t[j][0] as f64;
+                        if alpha <= crate::vmf::alpha_min(two.format) {
+                            continue;
+                        }
+                        let mut one = t.clone();
+                        for (i, o) in one[..two.lobes].iter_mut().enumerate() {
+                            if i != j {
+                                *o = [0.0; 4];
+                            }
+                        }
+                        let s = shade_in(&light, frame, &two, &one, view, brdf, route);
+                        for (k, &y) in t[two.lobes + j][..3].iter().enumerate() {
+                            let yk = y as f64 / alpha;
+                            want.diffuse[k] += yk * s.diffuse[k];
+                            want.specular[k] += yk * s.specular[k];
+                        }
+                    }
+                    for k in 0..3 {
+                        assert!(close(c.diffuse[k], want.diffuse[k], 1e-9), "{c:?} {want:?}");
+                        assert!(
+                            close(c.specular[k], want.specular[k], 1e-9),
+                            "{c:?} {want:?}"
+                        );
+                    }
+                    // Colour changes the result: not the uncoloured shading's proportions.
+                    let g = shade_in(&light, frame, &two, &t, view, brdf, route);
+                    if (c.diffuse[0] / g.diffuse[0] - c.diffuse[2] / g.diffuse[2]).abs() > 0.1 {
+                        differing += 1;
+                    }
+                }
+            }
+        }
+        // Most texels mix red and blue lobes unevenly; the channels' ratios differ.
+        assert!(differing >= 12, "{differing}");
     }
 }

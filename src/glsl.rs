@@ -383,12 +383,6 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
                 "environment lighting supports lambert, blinn-phong and ggx".into(),
             ));
         }
-        if options.color {
-            return Err(Error::InvalidOption(
-                "environment lighting has no variant for colour textures (eq 22's per-lobe colour)"
-                    .into(),
-            ));
-        }
     }
     let mut out = String::from("#version 330 core\n");
     out += &format!(

@@ -198,6 +198,49 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
             }
         }
     }
+    // Eq 22 under the environment: vMF bakes with colour textures (NDF_COLOR) lit by either
+    // route and by the point light + environment shader.
+    for light in [
+        ShaderLight::EnvPrefiltered,
+        ShaderLight::EnvSh,
+        ShaderLight::PointAndEnvPrefiltered,
+    ] {
+        for lobes in [3usize, 8] {
+            for brdf in [
+                ShaderBrdf::BlinnPhong,
+                ShaderBrdf::Lambert,
+                ShaderBrdf::Ggx { g: true },
+            ] {
+                for sampling in [Sampling::Hardware, Sampling::Manual] {
+                    for probe in [false, true] {
+                        let spec = ShaderSpec {
+                            method: Method::Vmf,
+                            lobes,
+                            ranges: texture_ranges(Method::Vmf, lobes, true),
+                            format: Format::F16,
+                            aligned: sampling == Sampling::Hardware,
+                            addressing: Addressing::Wrap,
+                            lmax: 0,
+                            biased: false,
+                        };
+                        let opts = ShaderOptions {
+                            light,
+                            brdf,
+                            sampling,
+                            probe,
+                            color: true,
+                            ..Default::default()
+                        };
+                        let name = format!(
+                            "env-colour-{light:?}-vmf{lobes}-{brdf:?}-{sampling:?}-p{}",
+                            probe as u8
+                        );
+                        out.push((name, spec, opts));
+                    }
+                }
+            }
+        }
+    }
     // SH bakes under the SH route (per-fragment rotation into the tangent frame): l* = 0, 1, 2,
     // 4, 8, 10, hardware and anisotropic sampling, mesh and probe.
     for lmax in [0usize, 1, 2, 4, 8, 10] {

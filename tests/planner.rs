@@ -249,3 +249,66 @@ fn bad_scenes_are_one_line_errors_naming_the_field() {
         assert!(!out.exists(), "{text:?}: nothing written");
     }
 }
+
+#[test]
+fn environment_lit_plans_keep_colour_textures_where_colour_varies() {
+    // Issue 16: the environment shaders read eq 22's colour textures, so an environment-only
+    // scene whose colour varies ships them in its vMF parts, and those parts' shaders are the
+    // environment-lit ones with NDF_COLOR.
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("map.png");
+    write_map(&map, 3);
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(
+        &scene,
+        r#"
+lights = ["environment"]
+[material]
+model = "blinn-phong"
+exponent = [64, 256]
+kd = 0.2
+ks = 0.8
+[color]
+varies = true
+[view]
+levels = [1, 6]
+[target]
+error = 0.05
+"#,
+    )
+    .unwrap();
+    let out = dir.path().join("plan");
+    let run = ndfmap(&[
+        "plan",
+        scene.to_str().unwrap(),
+        map.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--explain",
+    ]);
+    let explain = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(
+        explain.contains("colour textures: kept in the vMF ranges"),
+        "{explain}"
+    );
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("plan.json")).unwrap()).unwrap();
+    let mut coloured = 0;
+    for (i, p) in plan["parts"].as_array().unwrap().iter().enumerate() {
+        let frag = std::fs::read_to_string(out.join(format!("part{i}.frag"))).unwrap();
+        assert!(
+            frag.contains("#define NDF_LIGHT_ENV_PREFILTERED 1"),
+            "part {i}"
+        );
+        let vmf = frag.contains("#define NDF_METHOD_VMF 1");
+        assert_eq!(p["color"] == true, vmf, "part {i}: {p}\n{explain}");
+        assert_eq!(frag.contains("#define NDF_COLOR 1"), vmf, "part {i}");
+        coloured += vmf as usize;
+    }
+    assert!(coloured > 0, "no vMF part:\n{explain}");
+}

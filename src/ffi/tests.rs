@@ -1450,6 +1450,62 @@ fn sh_bakes_and_materials_through_the_c_api() {
 }
 
 #[test]
+fn colour_shaders_are_given_for_every_environment_light() {
+    // Eq 22 under the environment (issue 16): a vMF bake of a map with a feature image gives
+    // the colour shader for each environment light, the glsl module's source, with NDF_COLOR
+    // and the environment's code; without colour textures it is still refused.
+    let map = c_map();
+    let colour = rgb8(W, H);
+    let opts = ndf_ingest_options_default();
+    // SAFETY: live map and bakes, valid buffers and options; each freed once.
+    unsafe {
+        let plain_vmf = c_bake(map, NDF_METHOD_VMF);
+        let px = colour.as_ptr().cast();
+        check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, NDF_SAMPLE_UINT8, &opts,) => Ok, "");
+        let vmf = c_bake(map, NDF_METHOD_VMF);
+        assert_eq!((*vmf).bake.textures.len(), 2 * (*vmf).bake.lobes);
+        for (light, rust) in [
+            (
+                NDF_LIGHT_ENV_PREFILTERED,
+                crate::glsl::ShaderLight::EnvPrefiltered,
+            ),
+            (NDF_LIGHT_ENV_SH, crate::glsl::ShaderLight::EnvSh),
+            (
+                NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
+                crate::glsl::ShaderLight::PointAndEnvPrefiltered,
+            ),
+        ] {
+            let o = ndf_shader_options {
+                color: 1,
+                light,
+                ..ndf_shader_options_default()
+            };
+            let want = crate::glsl::source_for(
+                &crate::glsl::ShaderSpec::of(&(*vmf).bake),
+                crate::glsl::Stage::Fragment,
+                &crate::glsl::ShaderOptions {
+                    color: true,
+                    light: rust,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            assert!(want.contains("#define NDF_COLOR 1") && want.contains("ndf_env_texel("));
+            let mut size = 0;
+            check!(ndf_bake_shader_source_size(vmf, 1, &o, &mut size) => Ok, "");
+            let mut buf = vec![0 as c_char; size];
+            let mut written = 0;
+            check!(ndf_bake_shader_source(vmf, 1, &o, buf.as_mut_ptr(), size, &mut written) => Ok, "");
+            assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
+            check!(ndf_bake_shader_source_size(plain_vmf, 1, &o, &mut size) => InvalidArgument, "colour textures");
+        }
+        ndf_bake_free(vmf);
+        ndf_bake_free(plain_vmf);
+        ndf_normal_map_free(map);
+    }
+}
+
+#[test]
 fn shader_source_is_the_glsl_modules_for_the_upload_format() {
     let map = c_map();
     let vmf = c_bake(map, NDF_METHOD_VMF);

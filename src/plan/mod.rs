@@ -947,14 +947,11 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
 
     // Colour.
     let color_measured = map.feature().map(color_variation);
-    // An environment-only scene is shaded by the environment shaders, which shade one
-    // channel: its colour comes from the engine's albedo MIP chain, not from eq 22 textures.
-    let env_only = scene.has_environment() && !scene.has_direct();
-    let color = !env_only
-        && match color_measured {
-            Some(v) => v > COLOR_VARIATION,
-            None => scene.color.varies,
-        };
+    // The same under an environment: its shaders read the eq 22 colour textures too.
+    let color = match color_measured {
+        Some(v) => v > COLOR_VARIATION,
+        None => scene.color.varies,
+    };
 
     // One vMF bake for the plan: every aligned vMF range reads the bake with the most lobes
     // any level needs (one bake instead of one per lobe count), and a range that needs fewer
@@ -1242,14 +1239,6 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
 
     // Colour decisions.
     let colour_line = match (color_measured, color) {
-        _ if env_only && (scene.color.varies || color_measured.is_some()) => format!(
-            "colour textures: left out: the environment shaders have no colour-texture \
-             variant (the engine's albedo MIP chain gives the colour){}",
-            color_measured.map_or(String::new(), |v| format!(
-                "; the albedo varies by {} RMS",
-                pct(v)
-            ))
-        ),
         (Some(v), false) => format!(
             "colour textures: left out: the albedo varies by {} RMS (≤ {}), a constant K_d \
              colour costs about that much error; saves {} bytes of the full configuration",
@@ -1312,11 +1301,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
                 .as_deref()
                 .unwrap_or("the generated sky with a sun"),
             crate::envlight::default_views().len(),
-            if scene.has_direct() && color {
-                "the shaders are the point-light specialization (the environment shaders have \
-                 no colour-texture variant and this plan ships colour textures): the engine draws the \
-                 environment pass with NDF_LIGHT_ENV_PREFILTERED"
-            } else if scene.has_direct() {
+            if scene.has_direct() {
                 "one shader per part is lit by both (NDF_LIGHT_BOTH + NDF_LIGHT_ENV_PREFILTERED: \
                  the point light's and the environment's terms summed from the same filtered \
                  texels)"
@@ -1543,12 +1528,11 @@ impl Plan {
             color: p.color,
             // K_d = 0: no diffuse code (a Lambert scene always has K_d > 0).
             no_diffuse: !self.shader.diffuse && brdf != ShaderBrdf::Lambert,
-            // Both kinds of light: one shader summing both terms (the environment shaders
-            // have no colour-texture variant, so a part with colour textures keeps the
-            // point-light specialization and the engine's environment pass).
-            light: match (self.shader.environment, self.scene.has_direct(), p.color) {
-                (true, false, _) => crate::glsl::ShaderLight::EnvPrefiltered,
-                (true, true, false) => crate::glsl::ShaderLight::PointAndEnvPrefiltered,
+            // Both kinds of light: one shader summing both terms (with or without the colour
+            // textures: the environment shaders read them too).
+            light: match (self.shader.environment, self.scene.has_direct()) {
+                (true, false) => crate::glsl::ShaderLight::EnvPrefiltered,
+                (true, true) => crate::glsl::ShaderLight::PointAndEnvPrefiltered,
                 _ => crate::glsl::ShaderLight::Point,
             },
             ..ShaderOptions::default()
@@ -1620,8 +1604,7 @@ impl Plan {
     /// The plan's one fragment shader switching method by level of detail
     /// ([`crate::glsl::lod_switch_source`] over [`Plan::lod_switch_parts`]), with a header
     /// naming each sampler's files. Fails (saying why) where it is not built: parts lit
-    /// differently (a part with colour textures under an environment keeps the point-light
-    /// shader), more than 32 samplers.
+    /// differently, more than 32 samplers.
     pub fn lod_switch_shader(&self, addressing: crate::ingest::Addressing) -> Result<String> {
         let parts = self.lod_switch_parts(addressing);
         let lod: Vec<crate::glsl::LodPart> = parts.iter().map(|p| p.0.clone()).collect();

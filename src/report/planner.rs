@@ -87,11 +87,9 @@ pub fn measure(plan: &Plan, map: &NormalMap) -> Result<PlannerRow> {
     let plan_alu = (0..plan.parts.len())
         .map(|i| plan.shader(i, addressing).ok().and_then(|s| alu_of(&s)))
         .try_fold(0u32, |a, x| x.map(|x| a.max(x)));
-    // The full configuration's shader is lit like the plan's; an environment-lit one (alone
-    // or with the point light) has no colour-texture variant, so it is compiled without colour.
-    let lit = plan.shader_options(0).light;
+    // The full configuration's shader (with its colour textures) is lit like the plan's.
     let full_options = ShaderOptions {
-        color: !lit.is_env(),
+        color: true,
         ..plan.shader_options(0)
     };
     let full_alu = crate::glsl::source_for(&ShaderSpec::of(&full), Stage::Fragment, &full_options)

@@ -152,14 +152,15 @@ static void shaders(const ndf_bake *bake) {
  * checked here. */
 static const float env_colour[3] = {2.0f, 1.0f, 0.5f};
 
-/* The fragment shader of `bake` lit by `light`: checks the status and that every string of
- * `want` (NULL-terminated) is in the source. */
-static void env_shader(const ndf_bake *bake, ndf_light light, const char *const *want,
-                       const char *what) {
+/* The fragment shader of `bake` lit by `light` (with its colour textures when `color`):
+ * checks the status and that every string of `want` (NULL-terminated) is in the source. */
+static void env_shader(const ndf_bake *bake, ndf_light light, uint32_t color,
+                       const char *const *want, const char *what) {
     ndf_shader_options so = ndf_shader_options_default();
     size_t size = 0, written = 0;
     char *source;
     so.light = light;
+    so.color = color;
     expect(ndf_bake_shader_source_size(bake, NDF_SHADER_STAGE_FRAGMENT, &so, &size), NDF_STATUS_OK,
            what);
     if (size == 0) {
@@ -298,11 +299,49 @@ static void environments(const ndf_bake *vmf, const ndf_bake *sh_bake) {
 
     /* The environment-lit shaders of the vMF bake and the SH bake (its per-fragment rotation
      * constant and texel function); the SH bake has no prefiltered route. */
-    env_shader(vmf, NDF_LIGHT_ENV_SH, vmf_wants, "env shader vmf");
-    env_shader(sh_bake, NDF_LIGHT_ENV_SH, sh_wants, "env shader sh bake");
+    env_shader(vmf, NDF_LIGHT_ENV_SH, 0, vmf_wants, "env shader vmf");
+    env_shader(sh_bake, NDF_LIGHT_ENV_SH, 0, sh_wants, "env shader sh bake");
     so.light = NDF_LIGHT_ENV_PREFILTERED;
     expect(ndf_bake_shader_source_size(sh_bake, NDF_SHADER_STAGE_FRAGMENT, &so, &size),
            NDF_STATUS_INVALID_ARGUMENT, "env shader sh bake prefiltered");
+}
+
+/* Eq 22 under the environment: a vMF bake with colour textures (the map's own pixels as its
+ * albedo) has a colour shader for each environment light; the bake without them is refused. */
+static void colour_environment(const unsigned char *rgb, const ndf_bake *uncoloured) {
+    ndf_ingest_options io = ndf_ingest_options_default();
+    ndf_vmf_options vo = ndf_vmf_options_default();
+    ndf_shader_options so = ndf_shader_options_default();
+    ndf_normal_map *map = NULL;
+    ndf_bake *bake = NULL;
+    size_t size = 0;
+    static const char *const env_wants[] = {"#define NDF_COLOR 1",
+                                            "#define NDF_LIGHT_ENV_PREFILTERED 1",
+                                            "ndf_env_texel(", NULL};
+    static const char *const sh_wants[] = {"#define NDF_COLOR 1", "#define NDF_LIGHT_ENV_SH 1",
+                                           NULL};
+    static const char *const both_wants[] = {"#define NDF_COLOR 1", "#define NDF_LIGHT_BOTH 1",
+                                             "ndf_env_texel(", NULL};
+    expect(ndf_normal_map_from_pixels(rgb, 3 * SIZE * SIZE, SIZE, SIZE, 3, NDF_SAMPLE_UINT8, &io,
+                                      &map),
+           NDF_STATUS_OK, "colour map");
+    expect(ndf_normal_map_attach_feature_pixels(map, rgb, 3 * SIZE * SIZE, SIZE, SIZE, 3,
+                                                NDF_SAMPLE_UINT8, &io),
+           NDF_STATUS_OK, "colour feature");
+    vo.lobes = 2;
+    expect(ndf_bake_vmf(map, &vo, &bake), NDF_STATUS_OK, "colour bake vmf");
+    if (bake != NULL) {
+        env_shader(bake, NDF_LIGHT_ENV_PREFILTERED, 1, env_wants, "env colour prefiltered");
+        env_shader(bake, NDF_LIGHT_ENV_SH, 1, sh_wants, "env colour sh");
+        env_shader(bake, NDF_LIGHT_POINT_AND_ENV_PREFILTERED, 1, both_wants,
+                   "env colour point and env");
+    }
+    so.light = NDF_LIGHT_ENV_PREFILTERED;
+    so.color = 1;
+    expect(ndf_bake_shader_source_size(uncoloured, NDF_SHADER_STAGE_FRAGMENT, &so, &size),
+           NDF_STATUS_INVALID_ARGUMENT, "env colour without colour textures");
+    ndf_bake_free(bake);
+    ndf_normal_map_free(map);
 }
 
 static int calls = 0;
@@ -506,6 +545,7 @@ int main(int argc, char **argv) {
     bad_input(map, bakes[NDF_METHOD_PLAIN], rgb);
     materials();
     environments(bakes[NDF_METHOD_VMF], bakes[NDF_METHOD_SH]);
+    colour_environment(rgb, bakes[NDF_METHOD_VMF]);
 
     for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_SH; m++) {
         ndf_bake_free(bakes[m]);

@@ -254,16 +254,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             lit_by_env.push(options.light.is_env());
             renderers.push(BakeRenderer::new(&gl, &bake, &options)?);
         }
-        // The full configuration (lit like the plan: by the environment without colour when
-        // the plan's shaders are lit by it, alone or with the point light).
+        // The full configuration, with colour (a white albedo where the map has none), lit
+        // like the plan (the environment shaders read the colour textures too).
         let full_env = plan.shader_options(0).light.is_env();
-        if map.feature().is_none() && !full_env {
+        if map.feature().is_none() {
             let n = map.normals().len();
             map = map.with_feature(vec![[1.0; 4]; n])?;
         }
         let full: Bake = methods::bake_with(&map, Method::Vmf, &FULL.bake_options())?;
         let full_options = ShaderOptions {
-            color: !full_env,
+            color: true,
             light: match (full_env, env_only) {
                 (true, true) => ShaderLight::EnvPrefiltered,
                 (true, false) => ShaderLight::PointAndEnvPrefiltered,

@@ -24,7 +24,7 @@ use glam::{DMat3, DVec2, DVec3};
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::{Brdf, Ggx};
 use ndfmap::environment::Sky;
-use ndfmap::envlight::{EnvLight, Route, shade_in};
+use ndfmap::envlight::{EnvLight, Route, shade_in, shade_in_with};
 use ndfmap::format::Format;
 use ndfmap::glsl::{
     ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage, manual_sampling, source,
@@ -129,7 +129,7 @@ fn filtered(
     out
 }
 
-/// The CPU twin of the probe at `uv`, `lod`.
+/// The CPU twin of the probe at `uv`, `lod` (with the colour textures when `color`).
 #[allow(clippy::too_many_arguments)]
 fn cpu(
     light: &EnvLight,
@@ -141,9 +141,10 @@ fn cpu(
     brdf: &Brdf,
     route: Route,
     frame: DMat3,
+    color: bool,
 ) -> Rgb {
     filtered(bake, manual, uv, lod, |t| {
-        let s = shade_in(light, frame, bake, t, v, brdf, route);
+        let s = shade_in_with(light, frame, bake, t, v, brdf, route, color);
         std::array::from_fn(|c| (s.diffuse[c], s.specular[c]))
     })
 }
@@ -211,10 +212,27 @@ fn measure(
     frame: Option<DMat3>,
     views: &[DVec3],
 ) -> (f64, f64) {
+    measure_with(gl, env, light, bake, brdf, route, frame, views, false)
+}
+
+/// [`measure`], with the colour textures (`NDF_COLOR`, eq 22) when `color`.
+#[allow(clippy::too_many_arguments)]
+fn measure_with(
+    gl: &Gl,
+    env: &EnvTextures,
+    light: &EnvLight,
+    bake: &Bake,
+    brdf: &Brdf,
+    route: Route,
+    frame: Option<DMat3>,
+    views: &[DVec3],
+    color: bool,
+) -> (f64, f64) {
     let options = ShaderOptions {
         brdf: ShaderBrdf::of(brdf),
         probe: true,
         light: ShaderLight::env(route),
+        color,
         ..Default::default()
     };
     let vertex = source(bake, Stage::Vertex, &options).unwrap();
@@ -245,7 +263,7 @@ fn measure(
     for (k, &v) in views.iter().enumerate() {
         program.set_vec3("ndf_probe_v", v.as_vec3());
         let (e, a) = probe_levels(gl, &program, bake, k, |uv, lod| {
-            cpu(light, bake, manual, uv, lod, v, brdf, route, frame)
+            cpu(light, bake, manual, uv, lod, v, brdf, route, frame, color)
         });
         worst = worst.max(e);
         worst_abs = worst_abs.max(a);
@@ -421,10 +439,20 @@ fn cpu_both(
     lod: f64,
     (l, h, v): (DVec3, DVec3, DVec3),
     brdf: &Brdf,
+    color: bool,
 ) -> Rgb {
     filtered(bake, manual, uv, lod, |t| {
-        let p = shade_rgb_with(bake, t, l, h, brdf, false, &ShadeOptions::default());
-        let e = shade_in(light, DMat3::IDENTITY, bake, t, v, brdf, Route::Prefiltered);
+        let p = shade_rgb_with(bake, t, l, h, brdf, color, &ShadeOptions::default());
+        let e = shade_in_with(
+            light,
+            DMat3::IDENTITY,
+            bake,
+            t,
+            v,
+            brdf,
+            Route::Prefiltered,
+            color,
+        );
         std::array::from_fn(|c| (p.diffuse[c] + e.diffuse[c], p.specular[c] + e.specular[c]))
     })
 }
@@ -438,7 +466,14 @@ fn both(route: ndfmap_gl::Route) {
         return;
     };
     let all = bakes();
-    let picked = [&all[0], &all[4], &all[5]];
+    let worst = both_of(&gl, &light, &env, &[&all[0], &all[4], &all[5]], false);
+    println!("{route}: largest GL-vs-CPU error of the point + environment shader: {worst:.2e}");
+    assert!(worst <= tolerance(Route::Prefiltered), "{worst:.2e}");
+}
+
+/// The point + environment probe of each of `picked` (with the colour textures when `color`)
+/// against the sum of the twins; the largest error.
+fn both_of(gl: &Gl, light: &EnvLight, env: &EnvTextures, picked: &[&Bake], color: bool) -> f64 {
     let mut worst = 0.0f64;
     for bake in picked {
         for brdf in [
@@ -453,18 +488,19 @@ fn both(route: ndfmap_gl::Route) {
                 brdf: ShaderBrdf::of(&brdf),
                 probe: true,
                 light: ShaderLight::PointAndEnvPrefiltered,
+                color,
                 ..Default::default()
             };
             let vertex = source(bake, Stage::Vertex, &options).unwrap();
             let fragment = source(bake, Stage::Fragment, &options).unwrap();
             assert!(fragment.contains("#define NDF_LIGHT_BOTH 1"));
             assert!(!fragment.contains("#define NDF_LIGHT_ENV 1"));
-            let program = Program::new(&gl, &vertex, &fragment).unwrap_or_else(|e| panic!("{e}"));
-            let textures = BakeTextures::upload(&gl, bake, bake.format).unwrap();
+            let program = Program::new(gl, &vertex, &fragment).unwrap_or_else(|e| panic!("{e}"));
+            let textures = BakeTextures::upload(gl, bake, bake.format).unwrap();
             textures.bind(&program);
             let unit = textures.len() as u32;
             BrdfBinding::default()
-                .apply(&gl, &program, &brdf, options.brdf, None, unit)
+                .apply(gl, &program, &brdf, options.brdf, None, unit)
                 .unwrap();
             env.bind(&program, unit + 1, &brdf, Route::Prefiltered);
             let manual = manual_sampling(&ShaderSpec::of(bake), &options);
@@ -474,15 +510,14 @@ fn both(route: ndfmap_gl::Route) {
                 program.set_vec3("ndf_probe_l", l.as_vec3());
                 program.set_vec3("ndf_probe_h", h.as_vec3());
                 program.set_vec3("ndf_probe_v", v.as_vec3());
-                let (e, _) = probe_levels(&gl, &program, bake, k, |uv, lod| {
-                    cpu_both(&light, bake, manual, uv, lod, (l, h, v), &brdf)
+                let (e, _) = probe_levels(gl, &program, bake, k, |uv, lod| {
+                    cpu_both(light, bake, manual, uv, lod, (l, h, v), &brdf, color)
                 });
                 worst = worst.max(e);
             }
         }
     }
-    println!("{route}: largest GL-vs-CPU error of the point + environment shader: {worst:.2e}");
-    assert!(worst <= tolerance(Route::Prefiltered), "{worst:.2e}");
+    worst
 }
 
 #[test]
@@ -493,4 +528,130 @@ fn point_and_env_shader_matches_the_sum_of_the_twins_through_egl() {
 #[test]
 fn point_and_env_shader_matches_the_sum_of_the_twins_through_osmesa() {
     both(ndfmap_gl::Route::OsMesa);
+}
+
+/// vMF bakes of a map with a two-colour albedo (orange where the normal leans to +x, blue
+/// elsewhere, so lobes of one texel differ in colour and the channels in weight): 3 unaligned
+/// lobes (manual sampling; f32 and f16) and 2 aligned lobes (hardware), each with its colour
+/// textures (`α·y`).
+fn coloured_bakes() -> Vec<Bake> {
+    let map = ndfmap::procedural::generate(16, 5).map;
+    let albedo = map
+        .normals()
+        .iter()
+        .map(|n| {
+            if n.x > 0.0 {
+                [0.9, 0.25, 0.05, 1.0]
+            } else {
+                [0.05, 0.3, 0.8, 1.0]
+            }
+        })
+        .collect();
+    let map = map.with_feature(albedo).unwrap();
+    let v3 = bake_with(
+        &map,
+        Method::Vmf,
+        &BakeOptions {
+            lobes: 3,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let v2 = bake_with(
+        &map,
+        Method::Vmf,
+        &BakeOptions {
+            lobes: 2,
+            align: Some(1.0),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    for b in [&v3, &v2] {
+        assert_eq!(b.textures.len(), 2 * b.lobes, "colour textures baked");
+    }
+    vec![ndfmap::pack::quantize(&v3, Format::F16).unwrap(), v3, v2]
+}
+
+/// Eq 22 under the environment: the `NDF_COLOR` probes of [`coloured_bakes`] under the orange
+/// sun and blue sky, both routes (in the environment's frame and in [`tilted`]) and the point +
+/// environment shader, against the coloured CPU twin (`shade_in_with(.., true)`,
+/// `shade_rgb_with(.., true)`), all three channels. Ignoring the colour textures or swapping
+/// their channels puts the GL result tens of percent off the twin (the albedo's channels differ
+/// by up to 18×); the test also checks that the twin's colour changes the result that much.
+fn colour(route: ndfmap_gl::Route) {
+    let Some((gl, light, env)) = lit_context(route) else {
+        return;
+    };
+    let bakes = coloured_bakes();
+    // The twin's colour matters: against the uncoloured twin the coloured one is far off.
+    let b = &bakes[1];
+    let t = b.texel(0, 2, 3);
+    let v = views()[1];
+    let brdf = Brdf::BlinnPhong { s: 32.0 };
+    let c = shade_in_with(
+        &light,
+        DMat3::IDENTITY,
+        b,
+        &t,
+        v,
+        &brdf,
+        Route::Prefiltered,
+        true,
+    );
+    let g = shade_in(&light, DMat3::IDENTITY, b, &t, v, &brdf, Route::Prefiltered);
+    let ratio: Vec<f64> = (0..3).map(|k| c.diffuse[k] / g.diffuse[k]).collect();
+    assert!(
+        ratio.iter().fold(0.0f64, |a, &x| a.max(x))
+            > 2.0 * ratio.iter().fold(9.0f64, |a, &x| a.min(x)),
+        "{ratio:?}"
+    );
+    let mut failures = Vec::new();
+    println!("{route}: largest GL-vs-CPU error, colour bakes (NDF_COLOR) under the environment");
+    for b in &bakes {
+        for brdf in [
+            Brdf::Lambert,
+            Brdf::BlinnPhong { s: 32.0 },
+            brdfs()[3].clone(),
+        ] {
+            for r in [Route::Prefiltered, Route::Sh] {
+                for frame in [None, Some(tilted())] {
+                    let (e, a) =
+                        measure_with(&gl, &env, &light, b, &brdf, r, frame, &views(), true);
+                    let key = format!(
+                        "{} {}+colour {} {}",
+                        r.name(),
+                        b.label(),
+                        brdf.model(),
+                        if frame.is_some() {
+                            "tilted"
+                        } else {
+                            "env frame"
+                        }
+                    );
+                    println!("  {key:<50} {e:.2e} / {a:.2e}");
+                    if e > tolerance(r) {
+                        failures.push(format!("{key}: {e:.2e}"));
+                    }
+                }
+            }
+        }
+    }
+    let picked: Vec<&Bake> = bakes.iter().collect();
+    let worst = both_of(&gl, &light, &env, &picked, true);
+    println!("  point + environment, colour: {worst:.2e}");
+    if worst > tolerance(Route::Prefiltered) {
+        failures.push(format!("point + environment colour: {worst:.2e}"));
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn colour_bakes_match_the_cpu_twin_through_egl() {
+    colour(ndfmap_gl::Route::Egl);
+}
+
+#[test]
+fn colour_bakes_match_the_cpu_twin_through_osmesa() {
+    colour(ndfmap_gl::Route::OsMesa);
 }

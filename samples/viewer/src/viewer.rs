@@ -512,12 +512,9 @@ impl Viewer {
 
     /// Whether the map's albedo is used as colour by `spec` under the current settings.
     fn uses_color(&self, spec: MethodSpec) -> bool {
-        // The environment shaders light in RGB but read no eq 22 colour textures: the map's
-        // albedo is not used there.
-        self.settings.color
-            && !self.settings.env_lit
-            && self.bakes.has_albedo()
-            && spec.is_mixture()
+        // Under the environment too: its shaders read the eq 22 colour textures (`NDF_COLOR`)
+        // like the point-light ones.
+        self.settings.color && self.bakes.has_albedo() && spec.is_mixture()
     }
 
     /// The bake the current method needs.

@@ -196,3 +196,34 @@ fn environment_mode_draws_the_panorama_behind_the_bake_it_lights() {
         "turning the environment changes nothing (mean difference {d})"
     );
 }
+
+#[test]
+fn environment_mode_draws_colour_bakes_with_their_colour_textures() {
+    // Issue 16: under the environment a vMF bake of the sample (which has an albedo) is drawn
+    // with its eq 22 colour textures, split screen with its coloured reference (vMF J = 1 with
+    // colour, by the same environment shader); --no-color draws it without: they differ.
+    if skip_gl() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    let common = [
+        "--headless",
+        "--view",
+        "sphere",
+        "--env",
+        "sky",
+        "--method",
+        "vmf4a",
+        "--split",
+    ];
+    let run = |extra: &[&str], name: &str| {
+        viewer(&[&common[..], extra].concat(), &path(name));
+        load(&path(name))
+    };
+    let coloured = run(&[], "colour.png");
+    let grey = run(&["--no-color"], "grey.png");
+    assert!(lit_fraction(&coloured) > 0.3);
+    let d = difference(&coloured, &grey, 0..W);
+    assert!(d > 1.0, "the albedo changes nothing (mean difference {d})");
+}
