@@ -1639,7 +1639,7 @@ mod tests {
         let (ts, ps) = (55f64.to_radians(), 30f64.to_radians());
         let n = [(DVec3::Z, 1.0)];
         let table = light.energy_table(&brdf).unwrap();
-        for off in [0.0, 6.0, 20.0] {
+        for off in [0.0, 6.0, 20.0, 40.0] {
             let th = ts - f64::to_radians(off);
             let view = DVec3::new(-th.sin() * ps.cos(), -th.sin() * ps.sin(), th.cos());
             let gt = ground_truth(&light, &n, view, &[brdf.clone()], 40000, 11);
