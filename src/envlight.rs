@@ -604,7 +604,8 @@ fn two_vmf_fit(r: f64, xq: &[f64; MIX_QUANTILES.len()], peak: f64) -> (f64, f64,
         for k in 1..=96 {
             let kc = kappa1 * (k as f64 / 8.0).exp2();
             let at = (r - (1.0 - t) * crate::vmf::a_kappa(kc)) / t;
-            if !(at > 0.0) {
+            // NaN or ≤ 0: κ_c alone carries the whole moment (and more as it grows).
+            if at.is_nan() || at <= 0.0 {
                 break;
             }
             let kt = crate::vmf::kappa_from_r_exact(at.min(1.0));
@@ -1642,7 +1643,7 @@ mod tests {
         for off in [0.0, 6.0, 20.0, 40.0] {
             let th = ts - f64::to_radians(off);
             let view = DVec3::new(-th.sin() * ps.cos(), -th.sin() * ps.sin(), th.cos());
-            let gt = ground_truth(&light, &n, view, &[brdf.clone()], 40000, 11);
+            let gt = ground_truth(&light, &n, view, std::slice::from_ref(&brdf), 40000, 11);
             let f = shade(&light, &bake, &t, view, &brdf, Route::Prefiltered).luminance();
             // The single first-moment vMF (the route before the split), for comparison.
             let [e, blend, _, _, _, _] = light.energy.ggx(0.1, view.z);
