@@ -23,7 +23,8 @@
 //!   `(ω_o·μ, s')` by [`lobe_moments`]: the mean direction is a tabulated blend of μ and the
 //!   reflected direction `r = 2(ω_o·μ)μ − ω_o`, κ_i from the mean's length; the `4(ω_o·ω_h)` Jacobian, the cosine and the horizon are in both — the earlier
 //!   `κ_i = s'/4` about `r` was off by up to 14 % at 80° views under an overcast sky), one
-//!   lookup of the prefiltered environment at `LOD = ½ log2(Ω_s/Ω_p)`, times the lobe's energy
+//!   lookup (GGX: two, a core vMF at the lobe's mode and a tail vMF about its mean, the same
+//!   first moment in total: [`two_vmf_fit`]) of the prefiltered environment at `LOD = ½ log2(Ω_s/Ω_p)`, times the lobe's energy
 //!   `E(ω_o·μ, s') = ∫ w dω_i` from the same table (the "split sum": exact for a constant
 //!   environment), times `g(r, μ)`.
 //! - **Specular, SH route** (eq 26): per lobe `Σ_l ρ̂_l e^{−l²/2κ} Σ_m L′_lm(ω_o) Y_lm(μ)` with
