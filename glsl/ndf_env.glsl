@@ -18,7 +18,11 @@
 //                    2/alpha'^2 - 2); its lobe over incident directions replaced by the vMF of the
 //                    same first moment (table, envlight::lobe_moments: normalize(b mu + (1 - b) r), kappa_i = 2^(log2 kappa_i)); the environment
 //                    convolved with that vMF (LOD = 1/2 log2(kappa_0/kappa_i)) times the lobe
-//                    energy E(co, s') (table);
+//                    energy E(co, s') (table); GGX: two vMFs, a core (kappa_c, share 1 - t,
+//                    looked up at the lobe's mode: block 5's blend) and a tail (kappa_t, share
+//                    t, about the mean) of the same total first moment, fitted to the lobe's
+//                    angular distribution and peak density (blocks 3-5; t = 0 for
+//                    Blinn-Phong: one lookup);
 //     SH (eq 26)     max(sum_l rho_l e^{-l^2 var/2} sum_m L'_lm(v) Y_lm(mu), 0) co.
 // SH bakes (NDF_METHOD_SH, lit by NDF_LIGHT_ENV_SH only; c_lm the texel's coefficients, bands
 // Lambda_l = sqrt(4 pi/(2l+1))):
@@ -51,7 +55,8 @@ float ndf_env_azimuth(vec3 d) {
 
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
 uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
-uniform sampler2D ndf_env_energy;   // lobe table: 3 blocks (energy, blend, log2 kappa_i) of
+uniform sampler2D ndf_env_energy;   // lobe table: 6 blocks (energy, blend, log2 kappa_c,
+                                    // tail share t, log2 kappa_t, core blend) of
                                     // ENERGY_PARAM rows x ENERGY_COS columns
 uniform float ndf_env_kappa0;
 uniform float ndf_env_level_count;
@@ -315,9 +320,20 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
     float e = ndf_env_energy_at(0, pi_row, co);
     float blend = ndf_env_energy_at(1, pi_row, co);
     float log_kappa = ndf_env_energy_at(2, pi_row, co);
+    float tail = ndf_env_energy_at(3, pi_row, co);
     // The lobe's mean direction: a blend of mu and r (CPU: envlight::tilted).
-    vec3 d = ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
-    spec = ndf_env_lookup(ndf_env_frame * d, exp2(log_kappa)) * e;
+    vec3 d = ndf_env_frame * ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
+    if (tail > 0.0) {
+        // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
+        float log_tail = ndf_env_energy_at(4, pi_row, co);
+        float blend_core = ndf_env_energy_at(5, pi_row, co);
+        vec3 dc = ndf_env_frame *
+                  ndf_normalize_or_z(mu * blend_core + r_dir * (1.0 - blend_core));
+        spec = ((1.0 - tail) * ndf_env_lookup(dc, exp2(log_kappa)) +
+                tail * ndf_env_lookup(d, exp2(log_tail))) * e;
+    } else {
+        spec = ndf_env_lookup(d, exp2(log_kappa)) * e;
+    }
 #else
     vec3 sum = vec3(0.0);
     for (int l = 0; l <= NDF_ENV_LMAX; ++l) {

@@ -879,11 +879,12 @@ typedef struct ndf_environment_info {
    */
   uint32_t reflected_rows;
   /**
-   * Columns (33) and rows (49) of `ndf_environment_energy`.
+   * Columns of `ndf_environment_energy` (33 view cosines).
    */
   uint32_t energy_columns;
   /**
-   * Rows of `ndf_environment_energy`.
+   * Rows of `ndf_environment_energy`: 6 blocks of 49 lobe parameters (energy, blend,
+   * `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend; 294).
    */
   uint32_t energy_rows;
   /**

@@ -29,7 +29,7 @@
 //! `count(8) = 81` columns (the coefficients) × `16² = 256` rows (row `iθ·16 + iφ`, the views of
 //! [`crate::environment::projection::view_of`]); the lobe-energy table of the BRDF
 //! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_COS`] columns ×
-//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_i`, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
+//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
 //!
 //! Uniforms ([`uniforms`]): `vec3 ndf_env_sh[81]` (`L_lm`, environment frame, RGB), `ndf_env_kappa0`,
 //! `ndf_env_level_count`, `ndf_env_level[3·16]` (width, height, first row per level, as floats),
@@ -149,7 +149,7 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
 }
 
 /// The lobe table of `brdf` as f32 for upload ([`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows ×
-/// [`ENERGY_COS`] columns: energy, blend, `log2 κ_i`), `None` for a BRDF without a specular lobe.
+/// [`ENERGY_COS`] columns: energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend), `None` for a BRDF without a specular lobe.
 pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
     light
         .energy_table(brdf)
