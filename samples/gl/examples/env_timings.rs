@@ -4,17 +4,21 @@
 //! J = 4 / 6 (unaligned: manual sampling; aligned: hardware), Blinn-Phong s = 256, by the
 //! prefiltered and the SH route, and SH bakes l* = 2, 4, 8 by the SH route (the environment
 //! rotated per fragment into the tangent frame). `--sh-only`: plain (the base) and the SH
-//! bakes only. Each configuration is drawn 3 times untimed (shader
-//! compilation), then `--frames` times (default 20), `glFinish` after each; the median frame
-//! is reported with its ratio to plain's prefiltered frame, all in the same run.
+//! bakes only. `--prefiltered-only`: the prefiltered route only, with the vMF J = 6 aligned
+//! bake with colour textures (eq 22, one more fetch per lobe) beside it. `--ggx A`: GGX α = A
+//! instead of Blinn-Phong (the prefiltered route's two-vMF lobe: a second lookup per lobe).
+//! Each configuration is drawn 3 times untimed (shader compilation), then `--frames` times
+//! (default 20), `glFinish` after each; the median frame is reported with its ratio to plain's
+//! prefiltered frame, all in the same run.
 //!
-//! `cargo run --release -p ndfmap-gl --example env_timings [egl|osmesa] [--frames N] [--sh-only]`.
+//! `cargo run --release -p ndfmap-gl --example env_timings [egl|osmesa] [--frames N]
+//! [--sh-only | --prefiltered-only] [--ggx A]`.
 
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::Brdf;
 use ndfmap::environment::Sky;
 use ndfmap::envlight::{EnvLight, Route as EnvRoute};
-use ndfmap::glsl::{ShaderLight, ShaderOptions};
+use ndfmap::glsl::{ShaderBrdf, ShaderLight, ShaderOptions};
 use ndfmap::methods::{bake, bake_with};
 use ndfmap_gl::{BakeRenderer, EnvTextures, Gl, RenderTarget, Route, Scene, env_rotation};
 use std::time::Instant;
@@ -28,13 +32,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     } else {
         Route::Egl
     };
-    let frames: usize = args
-        .iter()
-        .position(|a| a == "--frames")
-        .and_then(|i| args.get(i + 1))
-        .map(|v| v.parse())
-        .transpose()?
-        .unwrap_or(20);
+    let value = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1));
+    let frames: usize = value("--frames").map(|v| v.parse()).transpose()?.unwrap_or(20);
+    let ggx: Option<f64> = value("--ggx").map(|v| v.parse()).transpose()?;
+    let prefiltered_only = args.iter().any(|a| a == "--prefiltered-only");
     let gl = Gl::new(route)?;
     println!(
         "{route} ({}), {SIZE}² sphere, {frames} frames each",
@@ -47,7 +48,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     .render()?;
     let light = EnvLight::new(&sky);
     let env = EnvTextures::upload(&gl, &light)?;
-    let map = ndfmap::procedural::generate(512, 3).map;
+    let sample = ndfmap::procedural::generate(512, 3);
+    let map = sample.map.clone();
     let mixture = |lobes, align| BakeOptions {
         lobes,
         align,
@@ -70,16 +72,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     ];
     for er in [EnvRoute::Prefiltered, EnvRoute::Sh] {
         for b in &bakes {
-            if !sh_only || (er == EnvRoute::Prefiltered && b.method == Method::Plain) {
+            let wanted = if sh_only {
+                er == EnvRoute::Prefiltered && b.method == Method::Plain
+            } else {
+                !prefiltered_only || er == EnvRoute::Prefiltered
+            };
+            if wanted {
                 configs.push((er, b.clone()));
             }
         }
     }
-    for lmax in [2, 4, 8] {
-        configs.push((EnvRoute::Sh, bake_with(&map, Method::Sh, &sh(lmax))?));
+    if prefiltered_only {
+        let coloured = sample.map.with_feature(sample.albedo.clone())?;
+        let b = bake_with(&coloured, Method::Vmf, &mixture(6, Some(1.0)))?;
+        configs.push((EnvRoute::Prefiltered, b));
+    } else {
+        for lmax in [2, 4, 8] {
+            configs.push((EnvRoute::Sh, bake_with(&map, Method::Sh, &sh(lmax))?));
+        }
     }
     let mut scene = Scene::standard().remove(2);
-    scene.lighting.brdf = Brdf::BlinnPhong { s: 256.0 };
+    scene.lighting.brdf = match ggx {
+        Some(a) => Brdf::ggx(a),
+        None => Brdf::BlinnPhong { s: 256.0 },
+    };
     scene.lighting.color = glam::Vec3::splat(0.25);
     let mesh = scene.shape.mesh(&gl)?;
     let target = RenderTarget::new(&gl, SIZE, SIZE)?;
@@ -91,8 +107,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     for (er, b) in &configs {
         let er = *er;
+        let color = b.method == Method::Vmf && b.textures.len() > b.lobes;
         let options = ShaderOptions {
             light: ShaderLight::env(er),
+            brdf: ShaderBrdf::of(&scene.lighting.brdf),
+            color,
             ..Default::default()
         };
         let r = BakeRenderer::new(&gl, b, &options)?;
@@ -120,7 +139,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let b0 = *base.get_or_insert(median);
         println!(
             "  {:<24} {median:>10.2} {:>8.2}",
-            format!("{} {}", er.name(), b.label()),
+            format!(
+                "{} {}{}",
+                er.name(),
+                b.label(),
+                if color { " + colour" } else { "" }
+            ),
             median / b0
         );
     }
