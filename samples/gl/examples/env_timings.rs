@@ -32,8 +32,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     } else {
         Route::Egl
     };
-    let value = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1));
-    let frames: usize = value("--frames").map(|v| v.parse()).transpose()?.unwrap_or(20);
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+    };
+    let frames: usize = value("--frames")
+        .map(|v| v.parse())
+        .transpose()?
+        .unwrap_or(20);
     let ggx: Option<f64> = value("--ggx").map(|v| v.parse()).transpose()?;
     let prefiltered_only = args.iter().any(|a| a == "--prefiltered-only");
     let gl = Gl::new(route)?;
