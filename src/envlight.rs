@@ -1632,14 +1632,18 @@ mod tests {
     }
 
     /// The generated 64 × 32 sky (sun included), ready to light with.
-    fn sky_light() -> EnvLight {
-        let sky = Sky {
-            width: 64,
+    /// The generated sky (sun included), `width` × `width / 2`.
+    fn sky(width: u32) -> Environment {
+        Sky {
+            width,
             ..Sky::default()
         }
         .render()
-        .unwrap();
-        EnvLight::new(&sky)
+        .unwrap()
+    }
+
+    fn sky_light() -> EnvLight {
+        EnvLight::new(&sky(64))
     }
 
     /// Four tilted normals of a 2 × 2 map whose level-1 texel is their footprint.
@@ -1757,12 +1761,7 @@ mod tests {
         // A flat surface, GGX α = 0.1, the generated sky with its sun; the view reflects the
         // sun's direction (the sun in the lobe's core) and 6° and 20° away from it (the
         // shoulder, the tail). The route against the MIS ground truth of the same light.
-        let sky = Sky {
-            width: 256,
-            ..Sky::default()
-        }
-        .render()
-        .unwrap();
+        let sky = sky(256);
         let light = EnvLight::new(&sky);
         let brdf = Brdf::ggx(0.1);
         let bake = flat_bake(Method::Plain);
@@ -1838,13 +1837,7 @@ mod tests {
     fn lambert_sh_is_eq_25_and_matches_the_ground_truth_of_a_smooth_sky() {
         // Eq 25 against the addition theorem summed over the texels directly:
         // E_2(n) = Σ_t L_t Ω_t Σ_{l≤2} ρ̂_l (2l+1)/(4π) P_l(ω_t·n).
-        let sky = Sky {
-            width: 128,
-            ..Sky::default()
-        }
-        .render()
-        .unwrap()
-        .luminance();
+        let sky = sky(128).luminance();
         let light = EnvLight::grey(sky.clone());
         let bake = flat_bake(Method::Plain);
         let t = bake.texel(0, 0, 0);

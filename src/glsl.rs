@@ -1062,6 +1062,15 @@ mod tests {
         crate::procedural::generate(8, 1).map
     }
 
+    /// A vMF J = 2 bake of [`map`].
+    fn vmf2() -> Bake {
+        let options = BakeOptions {
+            lobes: 2,
+            ..Default::default()
+        };
+        bake_with(&map(), Method::Vmf, &options).unwrap()
+    }
+
     #[test]
     fn texture_ranges_match_what_bakes_produce() {
         let sample = crate::procedural::generate(8, 2);
@@ -1263,15 +1272,7 @@ mod tests {
 
     #[test]
     fn environment_lighting_is_one_define_and_refuses_what_it_lacks() {
-        let b = bake_with(
-            &map(),
-            Method::Vmf,
-            &BakeOptions {
-                lobes: 2,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let b = vmf2();
         let point = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
         assert!(!point.contains("#define NDF_LIGHT_ENV") && !point.contains("void ndf_env_texel("));
         // Both lights: the point-light defines plus NDF_LIGHT_BOTH and the prefiltered route,
@@ -1369,15 +1370,7 @@ mod tests {
         // K_d = 0: NDF_NO_DIFFUSE defined once (also in the LOD-switching shader), the K_d
         // uniform and term only under its #ifndef/#else, refused with Lambert and for parts
         // that disagree; without it no define.
-        let b = bake_with(
-            &map(),
-            Method::Vmf,
-            &BakeOptions {
-                lobes: 2,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let b = vmf2();
         let plain = source(&b, Stage::Fragment, &ShaderOptions::default()).unwrap();
         assert!(!plain.contains("#define NDF_NO_DIFFUSE"));
         for light in [
