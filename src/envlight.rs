@@ -1632,6 +1632,26 @@ mod tests {
     }
 
     /// The generated 64 × 32 sky (sun included), ready to light with.
+    /// The methods the environment routes shade, in the order the tests visit them.
+    const ENV_METHODS: [Method; 5] = [
+        Method::Plain,
+        Method::Toksvig,
+        Method::Lean,
+        Method::Vmf,
+        Method::Sh,
+    ];
+
+    /// A tilted tangent frame (tangent → environment), an oblique view and a BRDF of each
+    /// family (Lambert, Blinn-Phong 32, GGX 0.3): the shared probe of the RGB, prefiltered-only
+    /// and colour tests.
+    fn tilted_probe() -> (DMat3, DVec3, [Brdf; 3]) {
+        (
+            DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6),
+            DVec3::new(0.2, 0.3, 0.93).normalize(),
+            [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)],
+        )
+    }
+
     /// The generated sky (sun included), `width` × `width / 2`.
     fn sky(width: u32) -> Environment {
         Sky {
@@ -1815,13 +1835,7 @@ mod tests {
         );
         assert_eq!(gt.diffuse, 0.0);
         assert!(gt.specular.iter().all(|&v| v == 0.0));
-        for m in [
-            Method::Plain,
-            Method::Toksvig,
-            Method::Lean,
-            Method::Vmf,
-            Method::Sh,
-        ] {
+        for m in ENV_METHODS {
             let bake = flat_bake(m);
             let t = bake.texel(0, 0, 0);
             for route in [Route::Prefiltered, Route::Sh] {
@@ -1998,17 +2012,9 @@ mod tests {
         let light = EnvLight::new(&sky);
         let single: Vec<EnvLight> = (0..3).map(|c| EnvLight::grey(sky.channel(c))).collect();
         let map = map_of(2, 2, quad_normals());
-        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
-        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
-        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
+        let (frame, view, brdfs) = tilted_probe();
         let mut checked = 0;
-        for m in [
-            Method::Plain,
-            Method::Toksvig,
-            Method::Lean,
-            Method::Vmf,
-            Method::Sh,
-        ] {
+        for m in ENV_METHODS {
             let bake = crate::methods::bake(&map, m);
             let t = bake.texel(1, 0, 0);
             for route in [Route::Prefiltered, Route::Sh] {
@@ -2047,16 +2053,8 @@ mod tests {
         let lite = EnvLight::prefiltered_only(&sky);
         assert!(full.has_sh_route() && !lite.has_sh_route());
         let map = map_of(2, 2, quad_normals());
-        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
-        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
-        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
-        for m in [
-            Method::Plain,
-            Method::Toksvig,
-            Method::Lean,
-            Method::Vmf,
-            Method::Sh,
-        ] {
+        let (frame, view, brdfs) = tilted_probe();
+        for m in ENV_METHODS {
             let bake = crate::methods::bake(&map, m);
             let t = bake.texel(1, 0, 0);
             for brdf in &brdfs {
@@ -2146,9 +2144,7 @@ mod tests {
         // channels differ. Every route, a tilted frame, Lambert / Blinn-Phong / GGX.
         let sky = crate::environment::coloured_test_sky();
         let light = EnvLight::new(&sky);
-        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -0.6);
-        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
-        let brdfs = [Brdf::Lambert, Brdf::BlinnPhong { s: 32.0 }, Brdf::ggx(0.3)];
+        let (frame, view, brdfs) = tilted_probe();
         let opts = crate::bake::BakeOptions {
             lobes: 3,
             ..Default::default()
