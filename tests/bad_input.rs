@@ -1707,6 +1707,11 @@ fn with_srgb_chunk(png: &[u8]) -> Vec<u8> {
 }
 
 /// Issue 17: material maps of the wrong size or kind through the CLI.
+/// `ndfmap bake INPUT -m pbr -o OUT OPTIONS...`.
+fn pbr_bake(input: &Path, out: &Path, options: &[&str]) -> std::process::Output {
+    ndfmap(&[&["bake", s(input), "-m", "pbr", "-o", s(out)], options].concat())
+}
+
 #[test]
 fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
     let (dir, input) = folder_with_map(16, 16);
@@ -1715,16 +1720,7 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
     image::GrayImage::from_pixel(8, 16, image::Luma([128]))
         .save(&small)
         .unwrap();
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "pbr",
-        "-o",
-        s(&out),
-        "--roughness-map",
-        s(&small),
-    ]);
+    let r = pbr_bake(&input, &out, &["--roughness-map", s(&small)]);
     assert_one_line_error(&r, &["small.png", "8x16", "16x16"]);
     assert!(!out.exists());
     // A metallic map needs a roughness for the packed texture's G.
@@ -1732,16 +1728,7 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
     image::GrayImage::from_pixel(16, 16, image::Luma([51]))
         .save(&grey)
         .unwrap();
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "pbr",
-        "-o",
-        s(&out),
-        "--metallic-map",
-        s(&grey),
-    ]);
+    let r = pbr_bake(&input, &out, &["--metallic-map", s(&grey)]);
     assert_one_line_error(&r, &["--metallic-map", "--roughness"]);
     // PBR flags with another method.
     let r = ndfmap(&[
@@ -1772,16 +1759,7 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
         .unwrap();
     let flagged = dir.path().join("flagged.png");
     std::fs::write(&flagged, with_srgb_chunk(&png)).unwrap();
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "pbr",
-        "-o",
-        s(&out),
-        "--roughness-map",
-        s(&flagged),
-    ]);
+    let r = pbr_bake(&input, &out, &["--roughness-map", s(&flagged)]);
     assert_success(&r);
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(
@@ -1800,16 +1778,7 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
     // Without the flag, no warning.
     let plain = dir.path().join("plain.png");
     std::fs::write(&plain, &png).unwrap();
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "pbr",
-        "-o",
-        s(&out),
-        "--roughness-map",
-        s(&plain),
-    ]);
+    let r = pbr_bake(&input, &out, &["--roughness-map", s(&plain)]);
     assert_success(&r);
     assert!(!String::from_utf8_lossy(&r.stderr).contains("sRGB"));
 }
@@ -1857,16 +1826,7 @@ fn pbr_material_values_outside_0_1_or_nan_are_refused() {
         ("--fit-max-angle", "10", "fit max angle 10"),
         ("--fit-max-angle", "NaN", "fit max angle NaN"),
     ] {
-        let r = ndfmap(&[
-            "bake",
-            s(&input),
-            "-m",
-            "pbr",
-            "-o",
-            s(&dir.path().join("o")),
-            flag,
-            value,
-        ]);
+        let r = pbr_bake(&input, &dir.path().join("o"), &[flag, value]);
         assert_one_line_error(&r, &[words]);
     }
     assert!(!dir.path().join("o").exists(), "nothing written");

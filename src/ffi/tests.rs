@@ -23,6 +23,19 @@ use crate::bake::Method;
 use crate::format::Format;
 use crate::ingest::{IngestOptions, NormalMap, Samples};
 use crate::methods::bake_with;
+
+/// The C API's environment lights and the shader lights they stand for.
+const ENV_LIGHTS: [(ndf_light, crate::glsl::ShaderLight); 3] = [
+    (
+        NDF_LIGHT_ENV_PREFILTERED,
+        crate::glsl::ShaderLight::EnvPrefiltered,
+    ),
+    (NDF_LIGHT_ENV_SH, crate::glsl::ShaderLight::EnvSh),
+    (
+        NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
+        crate::glsl::ShaderLight::PointAndEnvPrefiltered,
+    ),
+];
 use std::ffi::{CStr, c_char, c_int, c_void};
 use std::ptr::{null, null_mut};
 
@@ -1464,17 +1477,7 @@ fn colour_shaders_are_given_for_every_environment_light() {
         check!(ndf_normal_map_attach_feature_pixels(map, px, colour.len(), W, H, 3, NDF_SAMPLE_UINT8, &opts,) => Ok, "");
         let vmf = c_bake(map, NDF_METHOD_VMF);
         assert_eq!((*vmf).bake.textures.len(), 2 * (*vmf).bake.lobes);
-        for (light, rust) in [
-            (
-                NDF_LIGHT_ENV_PREFILTERED,
-                crate::glsl::ShaderLight::EnvPrefiltered,
-            ),
-            (NDF_LIGHT_ENV_SH, crate::glsl::ShaderLight::EnvSh),
-            (
-                NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
-                crate::glsl::ShaderLight::PointAndEnvPrefiltered,
-            ),
-        ] {
+        for (light, rust) in ENV_LIGHTS {
             let o = ndf_shader_options {
                 color: 1,
                 light,
@@ -1974,17 +1977,7 @@ fn environments_load_and_pack_for_upload() {
         // refused for a method without one.
         let map = c_map();
         let vmf = c_bake(map, NDF_METHOD_VMF);
-        for (light, rust) in [
-            (
-                NDF_LIGHT_ENV_PREFILTERED,
-                crate::glsl::ShaderLight::EnvPrefiltered,
-            ),
-            (NDF_LIGHT_ENV_SH, crate::glsl::ShaderLight::EnvSh),
-            (
-                NDF_LIGHT_POINT_AND_ENV_PREFILTERED,
-                crate::glsl::ShaderLight::PointAndEnvPrefiltered,
-            ),
-        ] {
+        for (light, rust) in ENV_LIGHTS {
             let so = ndf_shader_options {
                 light,
                 ..ndf_shader_options_default()

@@ -37,6 +37,12 @@ fn viewer(args: &[&str], out: &Path) {
     assert!(status.success(), "ndfmap-viewer {args:?} failed");
 }
 
+/// Runs the headless viewer with `common` then `extra` options into `out` and loads the image.
+fn render(common: &[&str], extra: &[&str], out: &Path) -> image::RgbImage {
+    viewer(&[common, extra].concat(), out);
+    load(out)
+}
+
 fn load(path: &Path) -> image::RgbImage {
     image::open(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -157,10 +163,7 @@ fn environment_mode_draws_the_panorama_behind_the_bake_it_lights() {
         "--method",
         "toksvig",
     ];
-    let run = |extra: &[&str], name: &str| {
-        viewer(&[&common[..], extra].concat(), &path(name));
-        load(&path(name))
-    };
+    let run = |extra: &[&str], name: &str| render(&common, extra, &path(name));
     let prefiltered = run(&["--env-route", "prefiltered"], "prefiltered.png");
     let sh = run(&["--env-route", "sh"], "sh.png");
     let turned = run(&["--env-yaw", "180"], "turned.png");
@@ -217,10 +220,7 @@ fn environment_mode_draws_colour_bakes_with_their_colour_textures() {
         "vmf4a",
         "--split",
     ];
-    let run = |extra: &[&str], name: &str| {
-        viewer(&[&common[..], extra].concat(), &path(name));
-        load(&path(name))
-    };
+    let run = |extra: &[&str], name: &str| render(&common, extra, &path(name));
     let coloured = run(&[], "colour.png");
     let grey = run(&["--no-color"], "grey.png");
     assert!(lit_fraction(&coloured) > 0.3);
