@@ -310,7 +310,9 @@ struct EnvArgs {
     /// `sky` for the generated sky with a small bright sun, instead of point lights; the error
     /// is of the luminance, against a Monte Carlo ground truth (MIS of the environment and the
     /// BRDF). Methods: plain, toksvig, lean, vmf, sh (others are left out); BRDFs: lambert,
-    /// blinn-phong, ggx.
+    /// blinn-phong, ggx. With `--feature ALBEDO` the surface is coloured: the ground truth
+    /// weights each normal by its albedo, vMF bakes are shaded with their colour textures
+    /// (eq 22) and the other methods times the footprint's mean albedo (the albedo MIP).
     #[arg(long)]
     env: Option<String>,
     /// vMF specular routes under the environment, comma-separated: prefiltered, sh.
@@ -1540,6 +1542,7 @@ fn run(cli: Cli) -> Result<u8> {
                     first_level: first_level.max(1),
                     texels_per_level: env.env_texels.max(1),
                     samples: env.env_samples.max(1),
+                    color,
                     ..Default::default()
                 };
                 let e = ndfmap::envlight::evaluate(&map, &refs, &brdfs, &light, &routes, &options)?;
