@@ -1313,7 +1313,9 @@ pub fn default_views() -> Vec<DVec3> {
 /// One configuration's environment-lit error.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EnvError {
-    /// The bake's label and route (`vmf6 prefiltered`, `toksvig`, `sh4`).
+    /// The bake's label and route (`vmf6 prefiltered`, `toksvig`, `sh4`); in a colour
+    /// evaluation ([`EvalOptions::color`]) a bake shaded times the albedo MIP says so
+    /// (`toksvig × albedo mip`).
     pub label: String,
     /// The BRDF of the specular term.
     pub brdf: Brdf,
@@ -1583,10 +1585,13 @@ impl Reference {
                         (k, rel(e[0], e[1]), rel(e[2], e[3]))
                     })
                     .collect();
-                let label = match bakes[bi].method {
+                let mut label = match bakes[bi].method {
                     Method::Vmf => format!("{} {}", bakes[bi].label(), route.name()),
                     _ => bakes[bi].label(),
                 };
+                if self.albedo.is_some() && !has_color_textures(bakes[bi]) {
+                    label += " × albedo mip";
+                }
                 errors.push(EnvError {
                     label,
                     brdf: brdf.clone(),
@@ -2468,6 +2473,8 @@ mod tests {
         )
         .unwrap();
         let (c, u) = (&e.errors[0], &e.errors[1]);
+        assert_eq!(c.label, "vmf4 prefiltered");
+        assert_eq!(u.label, "vmf4 prefiltered × albedo mip");
         // Measured: diffuse 3.5 % against 8.5 %, specular 22.6 % against 27.2 % (most of the
         // specular error is the prefiltered route's own, docs/environment.md).
         assert!(

@@ -1535,6 +1535,19 @@ fn run(cli: Cli) -> Result<u8> {
                     }
                 }
             }
+            if color && light.is_some() {
+                // What eq 22's colour buys: each colour vMF bake again without its colour
+                // textures, shaded times the albedo MIP.
+                let stripped: Vec<Bake> = bakes
+                    .iter()
+                    .filter(|b| b.method == Method::Vmf && b.textures.len() >= 2 * b.lobes)
+                    .map(|b| Bake {
+                        textures: b.textures[..b.lobes].to_vec(),
+                        ..b.clone()
+                    })
+                    .collect();
+                bakes.extend(stripped);
+            }
             let refs: Vec<&Bake> = bakes.iter().collect();
             if let Some((name, light)) = light {
                 let t = Instant::now();
