@@ -122,6 +122,73 @@ fn eval_json_reports_every_method_and_level() {
 }
 
 #[test]
+fn eval_under_an_environment_with_an_albedo_scores_colour_and_the_albedo_mip() {
+    // `eval --env --feature`: the coloured ground truth, the vMF bake with its colour textures
+    // and the same bake and the baselines times the albedo MIP, labelled so; without the
+    // albedo the same command scores uncoloured shading and labels nothing.
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 16, 16);
+    let albedo = dir.path().join("albedo.png");
+    image::RgbImage::from_fn(16, 16, |x, y| {
+        image::Rgb([(x * 15) as u8, 90, (y * 15) as u8])
+    })
+    .save(&albedo)
+    .unwrap();
+    let labels = |feature: Option<&Path>| {
+        let mut args = vec![
+            "eval",
+            input.to_str().unwrap(),
+            "--env",
+            "sky",
+            "--methods",
+            "toksvig,vmf",
+            "--lobes",
+            "2",
+            "--env-route",
+            "prefiltered",
+            "--brdf",
+            "blinn-phong",
+            "-s",
+            "32",
+            "--env-texels",
+            "4",
+            "--env-samples",
+            "32",
+            "--json",
+        ];
+        if let Some(f) = feature {
+            args.extend(["--feature", f.to_str().unwrap()]);
+        }
+        let run = ndfmap(&args);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        v["evaluation"]["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| {
+                assert!(e["specular"].as_f64().unwrap().is_finite());
+                e["label"].as_str().unwrap().to_string()
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        labels(Some(&albedo)),
+        [
+            "toksvig × albedo mip",
+            "vmf2 prefiltered",
+            "vmf2 prefiltered × albedo mip"
+        ]
+    );
+    assert_eq!(labels(None), ["toksvig", "vmf2 prefiltered"]);
+}
+
+#[test]
 fn demo_writes_sample_bakes_and_table() {
     let dir = tempfile::tempdir().unwrap();
     let run = ndfmap(&["demo", "-o", dir.path().to_str().unwrap(), "--size", "32"]);
