@@ -64,7 +64,12 @@ impl Switch {
     ) -> Result<Option<Switch>, Box<dyn std::error::Error>> {
         let addressing = chains[0].addressing;
         let fragment = match plan.lod_switch_shader(addressing) {
-            Ok(f) => f,
+            // NDFMAP_SWITCH_FRAG names a fragment shader drawn instead of the generated one
+            // (to time an edited switch; its samplers must be the generated one's).
+            Ok(f) => match std::env::var_os("NDFMAP_SWITCH_FRAG") {
+                Some(file) => std::fs::read_to_string(file)?,
+                None => f,
+            },
             Err(e) => {
                 println!("note: no LOD-switching shader: {e}");
                 return Ok(None);
