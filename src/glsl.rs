@@ -6,7 +6,9 @@
 //! generated block declaring exactly the samplers the method reads (no dead samplers) with their
 //! fetch functions (which undo the bias of unsigned-normalized storage, DESIGN.md "Texture
 //! layouts"), the method's file (`ndf_vmf.glsl` = Algorithm 2, `ndf_tan2005.glsl`,
-//! `ndf_sh.glsl` = eq 12, `ndf_baselines.glsl`), and `ndf_fragment.glsl`. The vertex stage is
+//! `ndf_sh.glsl` = eq 12, `ndf_baselines.glsl`), and the fragment stage ([`FRAGMENT`]: the
+//! pieces `ndf_fragment.glsl`, `ndf_fragment_level.glsl`, `ndf_fragment_both.glsl`,
+//! `ndf_fragment_filter.glsl`, `ndf_fragment_main.glsl`, concatenated). The vertex stage is
 //! `ndf_vertex.glsl`.
 //!
 //! The CPU twin of every fragment shader is [`crate::shade`] (one texel) and
