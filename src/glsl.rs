@@ -535,8 +535,9 @@ pub fn lod_switch_sampler(part: usize, texture: usize) -> String {
 /// shades. Lit by the point light, the prefiltered environment or both ([`ShaderLight`];
 /// the environment's helpers once, its `ndf_env_texel` per part); the SH route is refused.
 /// Each part's shading is called at one place, weighted (1 inside its levels, 1 − f at its
-/// last level, f at the level before its first), so a GPU that runs both sides of a branch
-/// under a mask (llvmpipe) runs each part's code once per pixel, not once per call site.
+/// last level, f at the level before its first): each part's code is in the shader once.
+/// llvmpipe paid for every inlined copy, even one never executed (docs/planner.md, "why the
+/// LOD switch was slow": a one-part switch with three call sites cost 4.5× its part, now 1.0×).
 /// The source only; [`lod_switch`] also gives the samplers.
 pub fn lod_switch_source(
     parts: &[LodPart],
@@ -803,8 +804,8 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
          local LOD clamp(lambda - a, 0, b - a) with\n// weight 1 inside its levels, 1 - f at \
          its last level b (the trilinear blend across the boundary)\n// and f at level a - 1 \
          (the previous part's last): each part's code appears once, called where\n// its \
-         weight is > 0, so a GPU that runs both sides of a branch under a mask (llvmpipe) runs \
-         each\n// part once, not once per call site.\n\
+         weight is > 0 (llvmpipe paid for every inlined copy of a part's shading, even one \
+         never\n// executed).\n\
          void ndf_switch({sig}, vec3 l, vec3 h, out vec3 diffuse,\n\
          \x20               out vec3 specular) {{\n"
     );
@@ -1159,8 +1160,8 @@ mod tests {
         // Each part's functions under its own name, the switch's once.
         for k in 0..3 {
             assert!(src.contains(&format!("#define ndf_shade_texel ndf_p{k}_shade_texel")));
-            // One call site per part (llvmpipe runs every call site under a mask, so three
-            // call sites cost three shadings): weighted, at the part's local LOD.
+            // One call site per part (llvmpipe paid for every inlined copy of a part's
+            // shading, even a never-executed one): weighted, at the part's local LOD.
             assert_eq!(
                 src.matches(&format!("ndf_p{k}_shade(")).count(),
                 1,
