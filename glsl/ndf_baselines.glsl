@@ -22,7 +22,9 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     float len = length(m);
     vec3 mu = len > 1e-12 ? m / len : vec3(0.0, 0.0, 1.0);
     float ft = min(len, 1.0);
+#ifndef NDF_NO_DIFFUSE
     float d = max(dot(m, l), 0.0);
+#endif
 #ifdef NDF_BRDF_BLINN_PHONG
     float den = ft + ndf_s * (1.0 - ft);
     float s_t = den > 0.0 ? ft * ndf_s / den : 0.0;
@@ -70,7 +72,9 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     ndf_tangent_frame(mu, t1, t2);
     vec3 cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
     vec2 dir = vec2(dot(h, t1), dot(h, t2));
+#ifndef NDF_NO_DIFFUSE
     float d = max(dot(m, l), 0.0);
+#endif
 #if defined(NDF_BRDF_TORRANCE_SPARROW)
     float spec = ndf_ts_lobe(dot(mu, h), dir, ndf_sigma, cov) * max(dot(mu, l), 0.0);
 #elif defined(NDF_BRDF_BLINN_PHONG)
@@ -85,6 +89,10 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
     float spec = ndf_iso_lobe(mu, 0.5 * (cov.x + cov.y), h) * max(dot(mu, l), 0.0);
 #endif
 #endif
+#ifndef NDF_NO_DIFFUSE
     diffuse = vec3(d);
+#else
+    diffuse = vec3(0.0);
+#endif
     specular = vec3(spec);
 }

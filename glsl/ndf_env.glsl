@@ -253,6 +253,7 @@ void ndf_env_sh_texel(vec4 t[NDF_TEXTURES], vec3 v,
     const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
     mat3 to_tangent = transpose(ndf_env_frame);
     vec3 c[NDF_ENV_COUNT];
+#ifndef NDF_NO_DIFFUSE
     for (int k = 0; k < NDF_ENV_COUNT; ++k)
         c[k] = k < (LD + 1) * (LD + 1) ? ndf_env_sh[k] : vec3(0.0);
     ndf_env_rotate(c, LD, to_tangent);
@@ -262,6 +263,9 @@ void ndf_env_sh_texel(vec4 t[NDF_TEXTURES], vec3 v,
         for (int k = l * l; k < (l + 1) * (l + 1); ++k) d += w * c[k] * t[k >> 2][k & 3];
     }
     diffuse = max(d, 0.0);
+#else
+    diffuse = vec3(0.0);
+#endif
     specular = vec3(0.0);
 #ifndef NDF_BRDF_LAMBERT
     for (int k = 0; k < NDF_ENV_COUNT; ++k) c[k] = lp[k];
@@ -290,7 +294,11 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #endif
                   inout vec3 diffuse, inout vec3 specular) {
     float y[NDF_ENV_COUNT];
+#if !defined(NDF_NO_DIFFUSE) || defined(NDF_LIGHT_ENV_SH)
+    // The basis at mu: eq 25's, and the SH route's specular.
     ndf_env_basis(ndf_env_frame * mu, y);
+#endif
+#ifndef NDF_NO_DIFFUSE
     // Eq 25 (CPU: diffuse_lobe).
     float a[3] = float[](1.0, r, max(1.0 - 3.0 * r * min(var, 1e12), 0.0));
     const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
@@ -301,6 +309,7 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
         dsum += lambert[l] * a[l] * band;
     }
     diffuse += alpha * max(dsum, 0.0);
+#endif
 #ifndef NDF_BRDF_LAMBERT
     float co = dot(v, mu);
     if (!(co > 0.0)) return;

@@ -80,11 +80,13 @@ float ndf_sh_diffuse_moments(vec4 t[NDF_TEXTURES], float y[NDF_SH_COUNT], vec3 l
 
 void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
     float y[NDF_SH_COUNT];
+#ifndef NDF_NO_DIFFUSE
     ndf_sh_eval(l, y);
 #if NDF_SH_LMAX >= 2 && !defined(NDF_SH_DIFFUSE_SERIES)
     float d = clamp(ndf_sh_diffuse_moments(t, y, l), 0.0, 1.0);
 #else
     float d = clamp(ndf_sh_series(t, y, NDF_SH_LAMBERT), 0.0, 1.0);
+#endif
 #endif
     float spec = 0.0;
 #ifndef NDF_BRDF_LAMBERT
@@ -97,6 +99,10 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 #endif
     spec = f * max(dot(nbar, l), 0.0);
 #endif
+#ifndef NDF_NO_DIFFUSE
     diffuse = vec3(d);
+#else
+    diffuse = vec3(0.0);
+#endif
     specular = vec3(spec);
 }

@@ -35,7 +35,9 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 #endif
         float cos_i = max(dot(mu, l), 0.0);
         float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
+#ifndef NDF_NO_DIFFUSE
         diffuse += weight * cos_i;
+#endif
         specular += weight * lobe;
     }
 }

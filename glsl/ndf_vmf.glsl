@@ -52,10 +52,12 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 #endif
         float cos_i = max(dot(mu, l), 0.0);
         float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
+#ifndef NDF_NO_DIFFUSE
 #ifdef NDF_VMF_DIFFUSE_ALG2
         diffuse += weight * cos_i;
 #else
         diffuse += weight * (min(rlen, 1.0) * cos_i);
+#endif
 #endif
         specular += weight * lobe;
     }

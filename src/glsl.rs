@@ -6,7 +6,9 @@
 //! generated block declaring exactly the samplers the method reads (no dead samplers) with their
 //! fetch functions (which undo the bias of unsigned-normalized storage, DESIGN.md "Texture
 //! layouts"), the method's file (`ndf_vmf.glsl` = Algorithm 2, `ndf_tan2005.glsl`,
-//! `ndf_sh.glsl` = eq 12, `ndf_baselines.glsl`), and `ndf_fragment.glsl`. The vertex stage is
+//! `ndf_sh.glsl` = eq 12, `ndf_baselines.glsl`), and the fragment stage ([`FRAGMENT`]: the
+//! pieces `ndf_fragment.glsl`, `ndf_fragment_level.glsl`, `ndf_fragment_both.glsl`,
+//! `ndf_fragment_filter.glsl`, `ndf_fragment_main.glsl`, concatenated). The vertex stage is
 //! `ndf_vertex.glsl`.
 //!
 //! The CPU twin of every fragment shader is [`crate::shade`] (one texel) and
@@ -47,8 +49,32 @@ pub const SH: &str = include_str!("../glsl/ndf_sh.glsl");
 pub const BASELINES: &str = include_str!("../glsl/ndf_baselines.glsl");
 /// `glsl/ndf_env.glsl`: environment lighting, the SH and prefiltered routes (issue 16).
 pub const ENV: &str = include_str!("../glsl/ndf_env.glsl");
-/// `glsl/ndf_fragment.glsl`: sampling and the fragment entry point.
-pub const FRAGMENT: &str = include_str!("../glsl/ndf_fragment.glsl");
+/// `glsl/ndf_fragment.glsl`: the fragment stage's header comment and output declaration, the
+/// first of the five pieces of the fragment stage ([`FRAGMENT`]).
+pub const FRAGMENT_HEAD: &str = include_str!("../glsl/ndf_fragment.glsl");
+/// `glsl/ndf_fragment_level.glsl`: `ndf_max_level`, the largest MIP level of `ndf_tex0`.
+pub const FRAGMENT_LEVEL: &str = include_str!("../glsl/ndf_fragment_level.glsl");
+/// `glsl/ndf_fragment_both.glsl`: the `NDF_LIGHT_BOTH` globals the entry point sets (the view,
+/// the point light's and the environment's scales); one copy shared by every part of a LOD
+/// switch.
+pub const FRAGMENT_BOTH: &str = include_str!("../glsl/ndf_fragment_both.glsl");
+/// `glsl/ndf_fragment_filter.glsl`: the shading of one texel (`ndf_texel`) and the filtering
+/// (hardware, manual, anisotropic: `ndf_shade`, `ndf_shade_footprint`); renamed per part in a
+/// LOD switch.
+pub const FRAGMENT_FILTER: &str = include_str!("../glsl/ndf_fragment_filter.glsl");
+/// `glsl/ndf_fragment_main.glsl`: the entry points (the probe's and the mesh's `main`).
+pub const FRAGMENT_MAIN: &str = include_str!("../glsl/ndf_fragment_main.glsl");
+/// The fragment stage: sampling and the fragment entry point, the five pieces concatenated
+/// (head, level, both-lights globals, filtering, entry points). [`lod_switch_source`] uses the
+/// pieces apart: the head and the globals once, the level and filtering pieces per part, the
+/// entry points after the switch.
+pub const FRAGMENT: &str = concat!(
+    include_str!("../glsl/ndf_fragment.glsl"),
+    include_str!("../glsl/ndf_fragment_level.glsl"),
+    include_str!("../glsl/ndf_fragment_both.glsl"),
+    include_str!("../glsl/ndf_fragment_filter.glsl"),
+    include_str!("../glsl/ndf_fragment_main.glsl"),
+);
 /// `glsl/ndf_vertex.glsl`: the vertex entry point.
 pub const VERTEX: &str = include_str!("../glsl/ndf_vertex.glsl");
 
@@ -490,23 +516,6 @@ pub fn lod_switch_sampler(part: usize, texture: usize) -> String {
     format!("ndf_p{part}_tex{texture}")
 }
 
-/// [`FRAGMENT`] cut in three: the output declaration (once), the filtering functions (once
-/// per part, renamed) and the entry points (once, after the switch).
-fn fragment_sections() -> Result<(&'static str, &'static str, &'static str)> {
-    const OUT: &str = "layout(location = 0) out vec4 ndf_out;\n";
-    const ENTRY: &str = "#ifdef NDF_PROBE\nuniform vec2 ndf_probe_size;";
-    match (FRAGMENT.find(OUT), FRAGMENT.find(ENTRY)) {
-        (Some(a), Some(b)) if a + OUT.len() <= b => Ok((
-            &FRAGMENT[..a + OUT.len()],
-            &FRAGMENT[a + OUT.len()..b],
-            &FRAGMENT[b..],
-        )),
-        _ => Err(Error::InvalidOption(
-            "glsl/ndf_fragment.glsl lacks the markers the LOD-switching shader splits it at".into(),
-        )),
-    }
-}
-
 /// One shader for a plan that mixes methods across level ranges (issue 18): the fragment
 /// shader (or, for [`Stage::Vertex`], the usual vertex shader) that shades each pixel with the
 /// part whose levels hold its level of detail.
@@ -525,12 +534,40 @@ fn fragment_sections() -> Result<(&'static str, &'static str, &'static str)> {
 /// map) and each part averages its probes at its local LOD (clamped to its levels), then
 /// shades. Lit by the point light, the prefiltered environment or both ([`ShaderLight`];
 /// the environment's helpers once, its `ndf_env_texel` per part); the SH route is refused.
+/// Each part's shading is called at one place, weighted (1 inside its levels, 1 − f at its
+/// last level, f at the level before its first): each part's code is in the shader once.
+/// llvmpipe paid for every inlined copy, even one never executed (docs/planner.md, "why the
+/// LOD switch was slow": a one-part switch with three call sites cost 4.5× its part, now 1.0×).
+/// The source only; [`lod_switch`] also gives the samplers.
 pub fn lod_switch_source(
     parts: &[LodPart],
     map_size: (u32, u32),
     stage: Stage,
     options: &ShaderOptions,
 ) -> Result<String> {
+    lod_switch(parts, map_size, stage, options).map(|s| s.source)
+}
+
+/// A shader of [`lod_switch`]: its source and the samplers it declares.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LodSwitch {
+    /// The source ([`lod_switch_source`]).
+    pub source: String,
+    /// Per part, the samplers the fragment shader declares for it, in texture order:
+    /// `samplers[k][i]` = [`lod_switch_sampler`]`(k, i)` reads the part's texture `i`
+    /// ([`sampled_textures`] of the part: its lobes or the baseline's textures, then its
+    /// colour textures).
+    pub samplers: Vec<Vec<String>>,
+}
+
+/// [`lod_switch_source`] with the samplers of each part, so that a caller binds textures
+/// without reading the source.
+pub fn lod_switch(
+    parts: &[LodPart],
+    map_size: (u32, u32),
+    stage: Stage,
+    options: &ShaderOptions,
+) -> Result<LodSwitch> {
     let bad = |m: String| Err(Error::InvalidOption(m));
     if parts.is_empty() {
         return bad("a LOD-switching shader needs at least one part".into());
@@ -582,7 +619,15 @@ pub fn lod_switch_source(
              {MAX_SAMPLERS} texture units GPUs offer: use one shader per part"
         ));
     }
-    let (head, body, entry) = fragment_sections()?;
+    let sampler_names = parts
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            Ok((0..sampled_textures(&p.spec, &p.options)?)
+                .map(|i| lod_switch_sampler(k, i))
+                .collect())
+        })
+        .collect::<Result<Vec<Vec<String>>>>()?;
     let label: Vec<String> = parts
         .iter()
         .map(|p| format!("L{}-{} {}", p.first, p.last, p.spec.method))
@@ -603,7 +648,10 @@ pub fn lod_switch_source(
     }
     if stage == Stage::Vertex {
         out += VERTEX;
-        return Ok(out);
+        return Ok(LodSwitch {
+            source: out,
+            samplers: sampler_names,
+        });
     }
     let first_spec = &parts[0].spec;
     let first_textures = sampled_textures(first_spec, &parts[0].options)?;
@@ -615,15 +663,14 @@ pub fn lod_switch_source(
     }
     out += "#define NDF_LOD_SWITCH 1\n";
     out += COMMON;
-    out += head;
+    out += FRAGMENT_HEAD;
     let (env_helpers, env_texel) = if options.light.is_env() {
         env_sections()?
     } else {
         (String::new(), String::new())
     };
-    let (globals, body) = both_lights_globals(body)?;
     if options.light == ShaderLight::PointAndEnvPrefiltered {
-        out += &globals;
+        out += FRAGMENT_BOTH;
     }
     out += &env_helpers;
     let probes = if aniso {
@@ -650,7 +697,8 @@ pub fn lod_switch_source(
         let text = bindings(&p.spec, textures, manual)
             + &method_file(p.spec.method)
             + &env_texel
-            + &body
+            + FRAGMENT_LEVEL
+            + FRAGMENT_FILTER
             + probes;
         let names = part_identifiers(&text);
         // Macros the part's text defines for itself (`NDF_ENV_LP`) are undefined after it.
@@ -689,8 +737,11 @@ pub fn lod_switch_source(
         let _ = writeln!(out, "#define NDF_ANISO {n}");
     }
     out += &switch_block(parts, map_size, aniso);
-    out += entry;
-    Ok(out)
+    out += FRAGMENT_MAIN;
+    Ok(LodSwitch {
+        source: out,
+        samplers: sampler_names,
+    })
 }
 
 /// [`env_block`] cut for the LOD-switching shader: the environment's data and lobe helpers
@@ -715,42 +766,11 @@ fn env_sections() -> Result<(String, String)> {
     Ok((whole[..cut].to_string(), whole[cut..].to_string()))
 }
 
-/// The fragment file's filtering section without its `NDF_LIGHT_BOTH` globals (the view and
-/// the two lights' scales the entry point sets), and those globals: the LOD-switching shader
-/// declares them once, shared by every part.
-fn both_lights_globals(body: &str) -> Result<(String, String)> {
-    const START: &str = "#ifdef NDF_LIGHT_BOTH\n// Set by the entry point";
-    let Some(a) = body.find(START) else {
-        return Err(Error::InvalidOption(
-            "glsl/ndf_fragment.glsl lacks the NDF_LIGHT_BOTH globals the LOD-switching shader \
-             shares between parts"
-                .into(),
-        ));
-    };
-    let Some(len) = body[a..].find("#endif\n") else {
-        return Err(Error::InvalidOption(
-            "glsl/ndf_fragment.glsl: the NDF_LIGHT_BOTH globals are not closed".into(),
-        ));
-    };
-    let b = a + len + "#endif\n".len();
-    Ok((
-        body[a..b].to_string(),
-        format!("{}{}", &body[..a], &body[b..]),
-    ))
-}
-
 /// The generated switch of [`lod_switch_source`]: `ndf_shade` (and, anisotropic,
 /// `ndf_shade_footprint`) choosing the part by level of detail, blending two parts across a
 /// boundary.
 fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String {
     let n = parts.len();
-    let list = |f: &dyn Fn(&LodPart) -> usize| {
-        parts
-            .iter()
-            .map(|p| f(p).to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
     let mut s = String::from(
         "\n// ---- the switch: the part holding floor(lambda) shades (CPU twin: sample::shade_switch)\n",
     );
@@ -760,91 +780,90 @@ fn switch_block(parts: &[LodPart], map_size: (u32, u32), aniso: bool) -> String 
         float_literal(map_size.0 as f32),
         float_literal(map_size.1 as f32)
     );
-    let _ = writeln!(
-        s,
-        "const int NDF_PART_FIRST[{n}] = int[]({});",
-        list(&|p| p.first)
-    );
-    let _ = writeln!(
-        s,
-        "const int NDF_PART_LAST[{n}] = int[]({});",
-        list(&|p| p.last)
-    );
-    // One call per part: a dispatch on the part index.
-    let dispatch = |name: &str, args: &str| {
-        let mut d = String::new();
-        for k in 0..n {
-            let call = format!("ndf_p{k}_{name}({args});");
-            if k + 1 == n {
-                let _ = writeln!(d, "    {}{call}", if n > 1 { "else " } else { "" });
-            } else if k == 0 {
-                let _ = writeln!(d, "    if (k == 0) {call}");
-            } else {
-                let _ = writeln!(d, "    else if (k == {k}) {call}");
-            }
-        }
-        d
-    };
-    let _ = writeln!(
-        s,
-        "\n// Part k's shading at its local level of detail (0 = its first level).\n\
-         void ndf_part_shade(int k, vec2 uv, float lod, vec3 l, vec3 h, out vec3 diffuse,\n\
-         \x20                   out vec3 specular) {{\n{}}}",
-        dispatch("shade", "uv, lod, l, h, diffuse, specular")
-    );
-    if aniso {
-        let _ = writeln!(
-            s,
-            "\n// Part k's anisotropic probes at its local level of detail.\n\
-             void ndf_part_probes(int k, vec2 uv, vec2 major, int n, float lod, vec3 l, vec3 h,\n\
-             \x20                    out vec3 diffuse, out vec3 specular) {{\n{}}}",
-            dispatch("shade_probes", "uv, major, n, lod, l, h, diffuse, specular")
-        );
-    }
-    let last = parts[n - 1].last;
-    let _ = writeln!(
-        s,
-        "\n// The part holding level floor(lambda) of the levels shipped, the fraction f, and \
-         lambda.\nint ndf_part_of(float lod, out float lambda, out float f) {{\n    \
-         lambda = clamp(lod, {}, {});\n    int level = int(floor(lambda));\n    \
-         f = lambda - float(level);\n    int k = 0;\n    \
-         for (int i = 1; i < {n}; ++i) if (level >= NDF_PART_FIRST[i]) k = i;\n    \
-         return k;\n}}",
-        float_literal(parts[0].first as f32),
-        float_literal(last as f32)
-    );
-    let (call, sig) = if aniso {
+    let (sig, call) = if aniso {
         (
-            "ndf_part_probes(k{}, uv, major, n, {}, l, h, {});",
             "vec2 uv, vec2 major, int n, float lod",
+            "(uv, major, n, {lod}, l, h, {out});",
         )
     } else {
-        (
-            "ndf_part_shade(k{}, uv, {}, l, h, {});",
-            "vec2 uv, float lod",
+        ("vec2 uv, float lod", "(uv, {lod}, l, h, {out});")
+    };
+    let name = if aniso { "shade_probes" } else { "shade" };
+    let part_call = |k: usize, lod: &str, out: &str| {
+        format!(
+            "ndf_p{k}_{name}{}",
+            call.replace("{lod}", lod).replace("{out}", out)
         )
     };
-    let c = |next: &str, lod: &str, outs: &str| {
-        call.replacen("{}", next, 1)
-            .replacen("{}", lod, 1)
-            .replacen("{}", outs, 1)
-    };
-    let _ = writeln!(
+    let first = parts[0].first;
+    let last = parts[n - 1].last;
+    let _ = write!(
         s,
-        "\n// The switch at level of detail lod: inside a part, its filtering; across a part's \
-         last level,\n// (1 - f) its shading at that level + f the next part's at its first.\n\
+        "\n// The switch at level of detail lod: lambda = lod clamped to the levels shipped, \
+         level = floor(lambda),\n// f = lambda - level. Part k (levels a..b) shades at its \
+         local LOD clamp(lambda - a, 0, b - a) with\n// weight 1 inside its levels, 1 - f at \
+         its last level b (the trilinear blend across the boundary)\n// and f at level a - 1 \
+         (the previous part's last): each part's code appears once, called where\n// its \
+         weight is > 0 (llvmpipe paid for every inlined copy of a part's shading, even one \
+         never\n// executed).\n\
          void ndf_switch({sig}, vec3 l, vec3 h, out vec3 diffuse,\n\
-         \x20               out vec3 specular) {{\n    float lambda;\n    float f;\n    \
-         int k = ndf_part_of(lod, lambda, f);\n    \
-         int local_last = NDF_PART_LAST[k] - NDF_PART_FIRST[k];\n    \
-         float local = min(lambda - float(NDF_PART_FIRST[k]), float(local_last));\n    \
-         if (f == 0.0 || int(floor(lambda)) < NDF_PART_LAST[k]) {{\n        {}\n        \
-         return;\n    }}\n    vec3 d;\n    vec3 s;\n    {}\n    {}\n    \
-         diffuse = (1.0 - f) * diffuse + f * d;\n    specular = (1.0 - f) * specular + f * s;\n}}",
-        c("", "local", "diffuse, specular"),
-        c("", "float(local_last)", "diffuse, specular"),
-        c(" + 1", "0.0", "d, s"),
+         \x20               out vec3 specular) {{\n"
     );
+    if n == 1 {
+        // One part: its weight is 1 at every LOD (lambda <= its last level, where f = 0).
+        let _ = writeln!(
+            s,
+            "    float local = clamp(lod, {}, {}) - {};\n    {}\n}}",
+            float_literal(first as f32),
+            float_literal(last as f32),
+            float_literal(first as f32),
+            part_call(0, "local", "diffuse, specular")
+        );
+    } else {
+        let _ = writeln!(
+            s,
+            "    float lambda = clamp(lod, {}, {});\n    float level = floor(lambda);\n    \
+             float f = lambda - level;\n    diffuse = vec3(0.0);\n    specular = vec3(0.0);\n    \
+             vec3 d;\n    vec3 s;\n    float w;",
+            float_literal(first as f32),
+            float_literal(last as f32),
+        );
+        for (k, p) in parts.iter().enumerate() {
+            let a = float_literal(p.first as f32);
+            let b = float_literal(p.last as f32);
+            // Inside [a, b): 1; at b: 1 - f (f = 0 at the last part's last level); at a - 1
+            // (not for part 0, which starts at the clamp): f.
+            let inner = if p.first == p.last {
+                format!("level == {b} ? 1.0 - f")
+            } else {
+                format!("level >= {a} && level < {b} ? 1.0 : (level == {b} ? 1.0 - f")
+            };
+            let before = if k == 0 {
+                String::new()
+            } else {
+                format!(" : (level == {} ? f", float_literal(p.first as f32 - 1.0))
+            };
+            let closes = if k == 0 { "" } else { ")" };
+            let inner_closes = if p.first == p.last { "" } else { ")" };
+            let _ = writeln!(
+                s,
+                "    // part {k}: levels {}-{}\n    w = {inner}{before} : 0.0{closes}{inner_closes};\n    \
+                 if (w > 0.0) {{\n        {}\n        diffuse += w * d;\n        \
+                 specular += w * s;\n    }}",
+                p.first,
+                p.last,
+                part_call(
+                    k,
+                    &format!(
+                        "clamp(lambda - {a}, 0.0, {})",
+                        float_literal((p.last - p.first) as f32)
+                    ),
+                    "d, s"
+                ),
+            );
+        }
+        s += "}\n";
+    }
     if aniso {
         s += "\n// The anisotropic footprint on the map (sample::aniso_probes), switched by its \
               probes' LOD.\nvoid ndf_shade_footprint(vec2 uv, vec2 dx, vec2 dy, vec3 l, vec3 h, \
@@ -1141,13 +1160,48 @@ mod tests {
         // Each part's functions under its own name, the switch's once.
         for k in 0..3 {
             assert!(src.contains(&format!("#define ndf_shade_texel ndf_p{k}_shade_texel")));
+            // One call site per part (llvmpipe paid for every inlined copy of a part's
+            // shading, even a never-executed one): weighted, at the part's local LOD.
+            assert_eq!(
+                src.matches(&format!("ndf_p{k}_shade(")).count(),
+                1,
+                "part {k}"
+            );
+            let a = 2 * k;
             assert!(src.contains(&format!(
-                "ndf_p{k}_shade(uv, lod, l, h, diffuse, specular);"
+                "ndf_p{k}_shade(uv, clamp(lambda - {a}.0, 0.0, 1.0), l, h, d, s);"
             )));
         }
+        assert!(
+            src.contains("w = level >= 0.0 && level < 1.0 ? 1.0 : (level == 1.0 ? 1.0 - f : 0.0);")
+        );
+        assert!(src.contains(
+            "w = level >= 2.0 && level < 3.0 ? 1.0 : (level == 3.0 ? 1.0 - f : (level == 1.0 ? f : 0.0));"
+        ));
+        assert!(src.contains("float lambda = clamp(lod, 0.0, 5.0);"));
         assert!(src.contains("#define ndf_vmf_decode ndf_p1_vmf_decode"));
-        assert!(src.contains("const int NDF_PART_FIRST[3] = int[](0, 2, 4);"));
-        assert!(src.contains("const int NDF_PART_LAST[3] = int[](1, 3, 5);"));
+        // One part: called once, unweighted (its weight is 1 at every LOD it is clamped to).
+        let one = lod_switch_source(&parts[1..2], (32, 32), Stage::Fragment, &o).unwrap();
+        assert_eq!(one.matches("ndf_p0_shade(").count(), 1);
+        assert!(one.contains(
+            "float local = clamp(lod, 2.0, 3.0) - 2.0;\n    ndf_p0_shade(uv, local, l, h, diffuse, specular);"
+        ));
+        assert!(!one.contains("    w = level"));
+        // The samplers the generator returns are those the source declares per part (its
+        // renaming #defines, in texture order).
+        let switch = lod_switch(&parts, (32, 32), Stage::Fragment, &o).unwrap();
+        assert_eq!(switch.source, src);
+        for (k, n) in [(0, 1), (1, 2), (2, 3)] {
+            let declared: Vec<String> = src
+                .lines()
+                .filter_map(|l| l.strip_prefix("#define ndf_tex")?.split_once(' '))
+                .filter(|(i, _)| i.parse::<usize>().is_ok())
+                .map(|(_, target)| target.to_string())
+                .filter(|t| t.starts_with(&format!("ndf_p{k}_tex")))
+                .collect();
+            assert_eq!(declared.len(), n);
+            assert_eq!(switch.samplers[k], declared, "part {k}");
+        }
         assert!(src.contains("const vec2 NDF_MAP_SIZE = vec2(32.0, 32.0);"));
         // Three part copies (renamed by their #defines) and the switch's.
         assert_eq!(src.matches("void ndf_shade(").count(), 4);

@@ -530,8 +530,9 @@ impl<'a> WholeMap<'a> {
     /// samples).
     pub fn new(plan: &'a Plan, map: &'a NormalMap, env_texels: usize) -> Result<WholeMap<'a>> {
         let brdfs = plan.scene.brdfs();
-        let sh_route = plan.parts.iter().any(|p| p.config.method == Method::Sh)
-            && brdfs.iter().any(|b| b.has_specular());
+        let sh_route = plan
+            .scene
+            .needs_sh_route(plan.parts.iter().map(|p| p.config.method));
         let env = match plan.scene.environment_light(sh_route)? {
             Some(light) => {
                 let options = crate::envlight::EvalOptions {
@@ -823,8 +824,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     let measure_levels = range[1] + 1;
     let samples = samples(map, measure_levels)?;
     // The SH route's L′ tables only when an SH candidate is measured under a specular BRDF.
-    let sh_route = candidates(scene).iter().any(|c| c.method == Method::Sh)
-        && scene.brdfs().iter().any(|b| b.has_specular());
+    let sh_route = scene.needs_sh_route(candidates(scene).iter().map(|c| c.method));
     let env = match scene.environment_light(sh_route)? {
         Some(light) => {
             let maps: Vec<&NormalMap> = samples.maps.iter().map(|(m, _)| m).collect();
@@ -1606,6 +1606,15 @@ impl Plan {
     /// naming each sampler's files. Fails (saying why) where it is not built: parts lit
     /// differently, more than 32 samplers.
     pub fn lod_switch_shader(&self, addressing: crate::ingest::Addressing) -> Result<String> {
+        self.lod_switch(addressing).map(|s| s.source)
+    }
+
+    /// [`Plan::lod_switch_shader`] with the samplers the generator declares per switch part
+    /// ([`crate::glsl::LodSwitch`]).
+    pub fn lod_switch(
+        &self,
+        addressing: crate::ingest::Addressing,
+    ) -> Result<crate::glsl::LodSwitch> {
         let parts = self.lod_switch_parts(addressing);
         let lod: Vec<crate::glsl::LodPart> = parts.iter().map(|p| p.0.clone()).collect();
         let options = lod[0].options;
@@ -1616,7 +1625,7 @@ impl Plan {
             },
             ..options
         };
-        let src = crate::glsl::lod_switch_source(
+        let switch = crate::glsl::lod_switch(
             &lod,
             (self.map.width, self.map.height),
             Stage::Fragment,
@@ -1634,7 +1643,10 @@ impl Plan {
                 p.first, p.last, members
             );
         }
-        Ok(src.replacen('\n', &format!("\n{header}"), 1))
+        Ok(crate::glsl::LodSwitch {
+            source: switch.source.replacen('\n', &format!("\n{header}"), 1),
+            samplers: switch.samplers,
+        })
     }
 }
 
@@ -1835,24 +1847,6 @@ pub struct SwitchPartManifest {
 /// File name of a plan bake's LOD-switching fragment shader.
 pub const LOD_SWITCH_FILE: &str = "lod_switch.frag";
 
-/// The samplers `ndf_p{k}_tex{i}` a LOD-switching shader declares for part `k` (read from its
-/// renaming `#define`s), as `(name, i)`, in texture order.
-fn switch_samplers(source: &str, k: usize) -> Vec<(String, usize)> {
-    let prefix = format!("ndf_p{k}_tex");
-    let mut out: Vec<(String, usize)> = source
-        .lines()
-        .filter_map(|line| {
-            let rest = line.strip_prefix("#define ndf_tex")?;
-            let (_, target) = rest.split_once(' ')?;
-            let i: usize = target.trim().strip_prefix(&prefix)?.parse().ok()?;
-            Some((target.trim().to_string(), i))
-        })
-        .collect();
-    out.sort_by_key(|s| s.1);
-    out.dedup();
-    out
-}
-
 /// File name of texture `name` of part `part` at map level `level`: `p{part}{name}_L{level}`.
 pub fn part_file(part: usize, name: &str, level: usize, format: Format) -> String {
     crate::output::file_name(&format!("p{part}{name}"), level, format)
@@ -1935,7 +1929,7 @@ pub fn write(
     };
     // The LOD-switching shader, where it is built (else the reason, recorded).
     let switch_parts = plan.lod_switch_parts(manifest.addressing);
-    let switch = plan.lod_switch_shader(manifest.addressing);
+    let switch = plan.lod_switch(manifest.addressing);
     manifest.lod_switch = Some(SwitchManifest {
         shader: switch.is_ok().then(|| LOD_SWITCH_FILE.to_string()),
         not_built: switch.as_ref().err().map(|e| e.to_string()),
@@ -1948,12 +1942,18 @@ pub fn write(
                 plan_parts: members.clone(),
                 samplers: switch
                     .as_ref()
-                    .map(|src| switch_samplers(src, k))
+                    .map(|s| {
+                        s.samplers[k]
+                            .iter()
+                            .enumerate()
+                            .map(|(i, name)| (name.clone(), i))
+                            .collect()
+                    })
                     .unwrap_or_default(),
             })
             .collect(),
     });
-    let switch = switch.ok();
+    let switch = switch.ok().map(|s| s.source);
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Write {
         path: dir.to_path_buf(),
         message: e.to_string(),

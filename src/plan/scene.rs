@@ -486,6 +486,15 @@ impl Scene {
         self.lights.contains(&LightKind::Environment)
     }
 
+    /// Whether shading bakes of `methods` under this scene's environment needs the SH route's
+    /// `L′` tables ([`Scene::environment_light`]'s `sh_route`): an SH bake under a specular
+    /// BRDF (eq 26 reads them; Lambert and every other method are shaded without). Planning
+    /// asks it of its candidates, verifying (`WholeMap`) of the plan's parts.
+    pub fn needs_sh_route(&self, methods: impl IntoIterator<Item = crate::bake::Method>) -> bool {
+        methods.into_iter().any(|m| m == crate::bake::Method::Sh)
+            && self.brdfs().iter().any(|b| b.has_specular())
+    }
+
     /// The environment to light with, when the scene has one: `environment` read (a relative
     /// path against the working directory), or the generated sky (with or without its sun);
     /// RGB. Prepared for the prefiltered route and the diffuse SH only
@@ -560,6 +569,21 @@ error = 0.05
             vec![Brdf::BlinnPhong { s: 256.0 }, Brdf::BlinnPhong { s: 16.0 }]
         );
         assert_eq!(t.level_range(11).unwrap(), [0, 4]);
+    }
+
+    #[test]
+    fn the_sh_route_is_needed_by_an_sh_bake_under_a_specular_brdf_only() {
+        use crate::bake::Method;
+        let glossy = Scene::parse("t", GLOSSY).unwrap();
+        assert!(glossy.needs_sh_route([Method::Plain, Method::Sh]));
+        assert!(!glossy.needs_sh_route([Method::Plain, Method::Vmf, Method::Lean]));
+        assert!(!glossy.needs_sh_route([]));
+        let matte = GLOSSY
+            .replace("model = \"blinn-phong\"", "model = \"lambert\"")
+            .replace("exponent = [16, 256]\n", "")
+            .replace("ks = 0.8", "ks = 0.0");
+        let matte = Scene::parse("t", &matte).unwrap();
+        assert!(!matte.needs_sh_route([Method::Sh]));
     }
 
     #[test]

@@ -25,6 +25,10 @@
 //! (`ndfmap plan ... -o out/matte-far` gives `matte-far`): `ndfmap report` shows them in its
 //! planner section when the file is `plan_frame_times.json` in its working directory (or
 //! named by `NDFMAP_PLAN_FRAME_TIMES`).
+//!
+//! `NDFMAP_SWITCH_FRAG=FILE` draws FILE instead of each plan's generated LOD-switching shader
+//! (an edited copy of `lod_switch.frag`, declaring the same samplers): how the switch's cost
+//! was bisected (docs/planner.md, "Issue 18: why the LOD switch was slow").
 
 use ndfmap::bake::{Bake, Method};
 use ndfmap::glsl::{ShaderLight, ShaderOptions};
@@ -64,7 +68,12 @@ impl Switch {
     ) -> Result<Option<Switch>, Box<dyn std::error::Error>> {
         let addressing = chains[0].addressing;
         let fragment = match plan.lod_switch_shader(addressing) {
-            Ok(f) => f,
+            // NDFMAP_SWITCH_FRAG names a fragment shader drawn instead of the generated one
+            // (to time an edited switch; its samplers must be the generated one's).
+            Ok(f) => match std::env::var_os("NDFMAP_SWITCH_FRAG") {
+                Some(file) => std::fs::read_to_string(file)?,
+                None => f,
+            },
             Err(e) => {
                 println!("note: no LOD-switching shader: {e}");
                 return Ok(None);
