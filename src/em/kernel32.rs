@@ -13,6 +13,26 @@
 use super::lanes32::{LANES, Lane, Portable32, Simd32, exp_nonpositive, ln_positive};
 use super::{Active, MAX_LOBES, Sums};
 
+/// Calls `kernel::<S, C>(args)` with the slot count `count` as the constant `C` (0 to
+/// `MAX_LOBES`), so the kernels' loops over slots have fixed trip counts: the compiler then
+/// unrolls them and vectorizes each slot's lanes, where a loop of run-time length was
+/// vectorized across the slots with gathers. (The operations and their order do not change.)
+macro_rules! by_count {
+    ($count:expr, $kernel:ident :: <$s:ty> ($($arg:expr),*)) => {
+        match $count {
+            0 => $kernel::<$s, 0>($($arg),*),
+            1 => $kernel::<$s, 1>($($arg),*),
+            2 => $kernel::<$s, 2>($($arg),*),
+            3 => $kernel::<$s, 3>($($arg),*),
+            4 => $kernel::<$s, 4>($($arg),*),
+            5 => $kernel::<$s, 5>($($arg),*),
+            6 => $kernel::<$s, 6>($($arg),*),
+            7 => $kernel::<$s, 7>($($arg),*),
+            _ => $kernel::<$s, MAX_LOBES>($($arg),*),
+        }
+    };
+}
+
 /// Sixteen samples in structure-of-arrays form: normal components and weights (the tail block
 /// is padded with zero-weight samples, which add exact zeros).
 #[derive(Debug, Clone, Copy)]
@@ -69,13 +89,13 @@ impl Active32 {
 /// with `e^{x_j − max}`, `x_j = ln α_j + ln C(κ_j) − κ_j|n − μ_j|²/2`, and `d[j]` with the
 /// offsets `n − μ_j`, and returns per sample `w · ln Σ_j α_j γ_j(n)` and `w / Σ_j e^{x_j − max}`.
 #[inline(always)]
-fn block_responsibilities<S: Simd32>(
+fn block_responsibilities<S: Simd32, const C: usize>(
     b: &Block32,
     a: &Active32,
     e: &mut [S; MAX_LOBES],
     d: &mut [[S; 3]; MAX_LOBES],
 ) -> (S, S) {
-    let count = a.count.min(MAX_LOBES);
+    let count = C;
     let (x, y, z, w) = (S::load(&b.x), S::load(&b.y), S::load(&b.z), S::load(&b.w));
     let mut max = S::splat(f32::NEG_INFINITY);
     for (j, (ej, dj)) in e.iter_mut().zip(d.iter_mut()).enumerate().take(count) {
@@ -98,7 +118,7 @@ fn block_responsibilities<S: Simd32>(
 
 /// Blocks summed in `f32` lanes before they are added to the `f64` totals (512 samples: the
 /// lane sums' relative rounding stays below 32 ulps).
-const FLUSH_BLOCKS: usize = 32;
+pub(super) const FLUSH_BLOCKS: usize = 32;
 
 /// One single-precision E-step over `blocks` for the lobes of `active`, returning the M-step
 /// sums in `f64`. Compiled for AVX-512, AVX2 and SSE4.2 and chosen at run time; every variant
@@ -106,7 +126,8 @@ const FLUSH_BLOCKS: usize = 32;
 /// is bit-identical on every CPU.
 #[multiversion::multiversion(targets("x86_64+avx512f", "x86_64+avx2+avx", "x86_64+sse4.2"))]
 pub(super) fn e_step32(blocks: &[Block32], active: &Active) -> Sums {
-    e_step_kernel::<Portable32>(blocks, &Active32::new(active))
+    let a = Active32::new(active);
+    by_count!(a.count, e_step_kernel::<Portable32>(blocks, &a))
 }
 
 /// The kernel proper. The moments are accumulated as offsets from the lobe's (f32) centre,
@@ -114,8 +135,8 @@ pub(super) fn e_step32(blocks: &[Block32], active: &Active) -> Sums {
 /// `f32`; `Σ w z · μ_j` is added back in `f64`. That keeps `1 − |r_j|`, and with it κ_j ≈
 /// `1/(1 − |r_j|)`, as accurate as the `f64` kernel's for every storable κ.
 #[inline(always)]
-fn e_step_kernel<S: Simd32>(blocks: &[Block32], active: &Active32) -> Sums {
-    let count = active.count.min(MAX_LOBES);
+fn e_step_kernel<S: Simd32, const C: usize>(blocks: &[Block32], active: &Active32) -> Sums {
+    let count = C;
     let zero = S::splat(0.0);
     let mut sums = Sums::default();
     let mut e = [zero; MAX_LOBES];
@@ -126,7 +147,7 @@ fn e_step_kernel<S: Simd32>(blocks: &[Block32], active: &Active32) -> Sums {
         let mut acc = [[zero; 4]; MAX_LOBES];
         let mut log_likelihood = zero;
         for b in run {
-            let (ll, scale) = block_responsibilities(b, active, &mut e, &mut d);
+            let (ll, scale) = block_responsibilities::<S, C>(b, active, &mut e, &mut d);
             log_likelihood = log_likelihood.add(ll);
             for ((a, ej), dj) in acc.iter_mut().zip(&e).zip(&d).take(count) {
                 let wz = ej.mul(scale);
@@ -180,16 +201,17 @@ pub(super) fn feature_sums(
     features: &[FeatureBlock],
     active: &Active,
 ) -> ([f64; MAX_LOBES], [[f64; 4]; MAX_LOBES]) {
-    feature_kernel::<Portable32>(blocks, features, &Active32::new(active))
+    let a = Active32::new(active);
+    by_count!(a.count, feature_kernel::<Portable32>(blocks, features, &a))
 }
 
 #[inline(always)]
-fn feature_kernel<S: Simd32>(
+fn feature_kernel<S: Simd32, const C: usize>(
     blocks: &[Block32],
     features: &[FeatureBlock],
     active: &Active32,
 ) -> ([f64; MAX_LOBES], [[f64; 4]; MAX_LOBES]) {
-    let count = active.count.min(MAX_LOBES);
+    let count = C;
     let zero = S::splat(0.0);
     let mut weight = [0.0f64; MAX_LOBES];
     let mut sums = [[0.0f64; 4]; MAX_LOBES];
@@ -201,7 +223,7 @@ fn feature_kernel<S: Simd32>(
     {
         let mut acc = [[zero; 5]; MAX_LOBES];
         for (b, f) in run.iter().zip(fruns) {
-            let (_, scale) = block_responsibilities(b, active, &mut e, &mut d);
+            let (_, scale) = block_responsibilities::<S, C>(b, active, &mut e, &mut d);
             let y = [
                 S::load(&f[0]),
                 S::load(&f[1]),
@@ -224,6 +246,165 @@ fn feature_kernel<S: Simd32>(
         }
     }
     (weight, sums)
+}
+
+/// The slots of up to sixteen texels side by side for [`e_step_lanes`]: lane `t` holds texel
+/// `t`'s [`Active32`] constants. A slot a texel does not use has offset −∞ (it adds exact zeros
+/// to that texel's sums); a lane no texel uses has one slot of offset 0 (finite, discarded).
+pub(super) struct LaneLobes {
+    /// The most slots any texel uses.
+    count: usize,
+    /// Per lane, the slots its texel uses.
+    counts: [usize; LANES],
+    mu: [[Lane; MAX_LOBES]; 3],
+    half_kappa: [Lane; MAX_LOBES],
+    offset: [Lane; MAX_LOBES],
+}
+
+impl LaneLobes {
+    /// No texels yet: every lane unused.
+    pub(super) fn new() -> Self {
+        let mut offset = [[f32::NEG_INFINITY; LANES]; MAX_LOBES];
+        offset[0] = [0.0; LANES];
+        LaneLobes {
+            count: 1,
+            counts: [0; LANES],
+            mu: [[[0.0; LANES]; MAX_LOBES]; 3],
+            half_kappa: [[0.0; LANES]; MAX_LOBES],
+            offset,
+        }
+    }
+
+    /// Puts the slots of `a` (one texel's E-step) into lane `t`.
+    pub(super) fn set(&mut self, t: usize, a: &Active) {
+        let a32 = Active32::new(a);
+        let count = a32.count.min(MAX_LOBES);
+        for s in 0..MAX_LOBES {
+            for c in 0..3 {
+                self.mu[c][s][t] = a32.mu[c][s];
+            }
+            self.half_kappa[s][t] = a32.half_kappa[s];
+            self.offset[s][t] = a32.offset[s];
+        }
+        self.counts[t] = count;
+        self.count = self.count.max(count);
+    }
+}
+
+/// Quantities summed per texel by [`e_step_lanes`]: the log-likelihood, then per slot `Σ w z`
+/// and `Σ w z (n − μ)`.
+const QUANTITIES: usize = 1 + 4 * MAX_LOBES;
+
+/// Partial sums of one texel lane: `[quantity][texel]` in `f64`.
+type Node = [[f64; LANES]; QUANTITIES];
+
+/// [`e_step32`] for up to sixteen texels at once, one texel per lane: `lanes[b * LANES + l]`
+/// holds sample `l` of block `b` of every texel (lane `t`: texel `t`, padded with zero-weight
+/// samples beyond its own blocks), `blocks ≤ FLUSH_BLOCKS`. Each texel's sums have the bits
+/// [`e_step32`] gives for it alone: per sample position `l` the same `f32` operations over its
+/// blocks in the same order, then the same `f64` pairwise tree over `l` as `lane_sum`, with
+/// the padding adding exact zeros. Multiversioned like [`e_step32`].
+#[multiversion::multiversion(targets("x86_64+avx512f", "x86_64+avx2+avx", "x86_64+sse4.2"))]
+pub(super) fn e_step_lanes(lanes: &[Block32], blocks: usize, lobes: &LaneLobes) -> [Sums; LANES] {
+    by_count!(
+        lobes.count,
+        lanes_kernel::<Portable32>(lanes, blocks, lobes)
+    )
+}
+
+/// The leaves of `lane_sum`'s tree in an order that evaluates it with a stack (each pair
+/// merged as soon as both halves are done): the tree adds `l` and `l + 8`, then `+ 4`, `+ 2`,
+/// `+ 1`.
+const TREE_ORDER: [usize; LANES] = [0, 8, 4, 12, 2, 10, 6, 14, 1, 9, 5, 13, 3, 11, 7, 15];
+
+#[inline(always)]
+fn lanes_kernel<S: Simd32, const C: usize>(
+    lanes: &[Block32],
+    blocks: usize,
+    k: &LaneLobes,
+) -> [Sums; LANES] {
+    debug_assert!(blocks <= FLUSH_BLOCKS && lanes.len() >= blocks * LANES);
+    let count = C;
+    let used = 1 + 4 * count;
+    let zero = S::splat(0.0);
+    let mut e = [zero; MAX_LOBES];
+    let mut d = [[zero; 3]; MAX_LOBES];
+    let mut stack: [Node; 5] = [[[0.0; LANES]; QUANTITIES]; 5];
+    let mut heights = [0u32; 5];
+    let mut top = 0;
+    for &l in &TREE_ORDER {
+        let mut acc = [[zero; 4]; MAX_LOBES];
+        let mut log_likelihood = zero;
+        for b in 0..blocks {
+            let blk = &lanes[b * LANES + l];
+            let (x, y, z, w) = (
+                S::load(&blk.x),
+                S::load(&blk.y),
+                S::load(&blk.z),
+                S::load(&blk.w),
+            );
+            let mut max = S::splat(f32::NEG_INFINITY);
+            for (j, (ej, dj)) in e.iter_mut().zip(d.iter_mut()).enumerate().take(count) {
+                let dx = x.sub(S::load(&k.mu[0][j]));
+                let dy = y.sub(S::load(&k.mu[1][j]));
+                let dz = z.sub(S::load(&k.mu[2][j]));
+                *dj = [dx, dy, dz];
+                let d2 = dx.mul(dx).add(dy.mul(dy)).add(dz.mul(dz));
+                let v = S::load(&k.offset[j]).sub(S::load(&k.half_kappa[j]).mul(d2));
+                *ej = v;
+                max = S::select_gt(v, max, v, max);
+            }
+            let mut sum = S::splat(0.0);
+            for ej in e.iter_mut().take(count) {
+                *ej = exp_nonpositive(ej.sub(max));
+                sum = sum.add(*ej);
+            }
+            let (ll, scale) = (w.mul(max.add(ln_positive(sum))), w.div(sum));
+            log_likelihood = log_likelihood.add(ll);
+            for ((a, ej), dj) in acc.iter_mut().zip(&e).zip(&d).take(count) {
+                let wz = ej.mul(scale);
+                a[0] = a[0].add(wz);
+                a[1] = a[1].add(wz.mul(dj[0]));
+                a[2] = a[2].add(wz.mul(dj[1]));
+                a[3] = a[3].add(wz.mul(dj[2]));
+            }
+        }
+        let node = &mut stack[top];
+        node[0] = log_likelihood.to_array().map(f64::from);
+        for (s, a) in acc.iter().enumerate().take(count) {
+            for (c, v) in a.iter().enumerate() {
+                node[1 + 4 * s + c] = v.to_array().map(f64::from);
+            }
+        }
+        heights[top] = 0;
+        top += 1;
+        while top >= 2 && heights[top - 1] == heights[top - 2] {
+            let (lo, hi) = stack.split_at_mut(top - 1);
+            let (left, right) = (&mut lo[top - 2], &hi[0]);
+            for (a, b) in left.iter_mut().zip(right.iter()).take(used) {
+                for (a, b) in a.iter_mut().zip(b) {
+                    *a += *b;
+                }
+            }
+            heights[top - 2] += 1;
+            top -= 1;
+        }
+    }
+    debug_assert_eq!(top, 1);
+    let root = &stack[0];
+    let mut out: [Sums; LANES] = std::array::from_fn(|_| Sums::default());
+    for (t, sums) in out.iter_mut().enumerate() {
+        let count = k.counts[t];
+        sums.log_likelihood += root[0][t];
+        for j in 0..count {
+            sums.weight[j] += root[1 + 4 * j][t];
+            for c in 0..3 {
+                let offset = 0.0 + root[1 + 4 * j + 1 + c][t];
+                sums.moment[c][j] = sums.weight[j] * k.mu[c][j][t] as f64 + offset;
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]
