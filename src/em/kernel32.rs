@@ -54,35 +54,97 @@ pub(super) const PAD_BLOCK32: Block32 = Block32 {
 /// Samples per lane slot of a block.
 pub(super) const LANES32: usize = LANES;
 
-/// Per-slot constants of one single-precision E-step (the slots of an [`Active`]).
+/// Per-slot constants of one single-precision E-step (the slots of an [`Active`]), one value
+/// per lane: the same in every lane for one texel's E-step ([`e_step32`]), one texel per lane
+/// for [`e_step_lanes`]. Kept as whole lanes (not one `f32` per slot) so that the kernels load
+/// each slot's constants as one vector: with contiguous per-slot scalars the compiler
+/// vectorized across the slots instead of across the lanes.
 struct Active32 {
     count: usize,
-    mu: [[f32; MAX_LOBES]; 3],
+    mu: [[Lane; MAX_LOBES]; 3],
     /// κ/2.
-    half_kappa: [f32; MAX_LOBES],
-    /// `ln α + ln(κ/(2π(1 − e^{−2κ})))`, computed in `f64`.
-    offset: [f32; MAX_LOBES],
+    half_kappa: [Lane; MAX_LOBES],
+    /// `ln α + ln(κ/(2π(1 − e^{−2κ})))`, computed in `f64`; −∞ for an unused slot.
+    offset: [Lane; MAX_LOBES],
 }
 
 impl Active32 {
-    /// The single-precision constants of `a`'s slots.
+    /// No slots: every offset −∞.
+    fn empty() -> Self {
+        Active32 {
+            count: 0,
+            mu: [[[0.0; LANES]; MAX_LOBES]; 3],
+            half_kappa: [[0.0; LANES]; MAX_LOBES],
+            offset: [[f32::NEG_INFINITY; LANES]; MAX_LOBES],
+        }
+    }
+
+    /// The single-precision constants of `a`'s slots, in every lane.
     fn new(a: &Active) -> Self {
-        let mut out = Active32 {
-            count: a.count,
-            mu: [[0.0; MAX_LOBES]; 3],
-            half_kappa: [0.0; MAX_LOBES],
-            offset: [f32::NEG_INFINITY; MAX_LOBES],
-        };
-        for s in 0..a.count {
-            let (mu, kappa) = (a.mu[s], a.kappa[s]);
-            out.mu[0][s] = mu.x as f32;
-            out.mu[1][s] = mu.y as f32;
-            out.mu[2][s] = mu.z as f32;
-            out.half_kappa[s] = (0.5 * kappa) as f32;
-            out.offset[s] = a.log_scaled[s] as f32;
+        let mut out = Active32::empty();
+        out.count = a.count;
+        for s in 0..a.count.min(MAX_LOBES) {
+            let c = slot32(a, s);
+            for k in 0..3 {
+                out.mu[k][s] = [c[k]; LANES];
+            }
+            out.half_kappa[s] = [c[3]; LANES];
+            out.offset[s] = [c[4]; LANES];
         }
         out
     }
+}
+
+/// Slot `s`'s single-precision constants: μ, κ/2 and the offset.
+fn slot32(a: &Active, s: usize) -> [f32; 5] {
+    let (mu, kappa) = (a.mu[s], a.kappa[s]);
+    [
+        mu.x as f32,
+        mu.y as f32,
+        mu.z as f32,
+        (0.5 * kappa) as f32,
+        a.log_scaled[s] as f32,
+    ]
+}
+
+/// Runs `$body` with `$j` = 0, 1, … `$c − 1` (`$c` a constant ≤ 8) as straight-line code: a
+/// loop over the slots, even of constant length, was vectorized across the slots (with
+/// gathers) instead of across the lanes.
+macro_rules! unroll {
+    ($c:expr, $j:ident => $body:block) => {
+        if $c > 0 {
+            let $j = 0;
+            $body
+        }
+        if $c > 1 {
+            let $j = 1;
+            $body
+        }
+        if $c > 2 {
+            let $j = 2;
+            $body
+        }
+        if $c > 3 {
+            let $j = 3;
+            $body
+        }
+        if $c > 4 {
+            let $j = 4;
+            $body
+        }
+        if $c > 5 {
+            let $j = 5;
+            $body
+        }
+        if $c > 6 {
+            let $j = 6;
+            $body
+        }
+        if $c > 7 {
+            let $j = 7;
+            $body
+        }
+    };
 }
 
 /// Responsibilities of the samples of `b` (Algorithm 1 line 5 in log space): fills `e[j]`
@@ -95,24 +157,23 @@ fn block_responsibilities<S: Simd32, const C: usize>(
     e: &mut [S; MAX_LOBES],
     d: &mut [[S; 3]; MAX_LOBES],
 ) -> (S, S) {
-    let count = C;
     let (x, y, z, w) = (S::load(&b.x), S::load(&b.y), S::load(&b.z), S::load(&b.w));
     let mut max = S::splat(f32::NEG_INFINITY);
-    for (j, (ej, dj)) in e.iter_mut().zip(d.iter_mut()).enumerate().take(count) {
-        let dx = x.sub(S::splat(a.mu[0][j]));
-        let dy = y.sub(S::splat(a.mu[1][j]));
-        let dz = z.sub(S::splat(a.mu[2][j]));
-        *dj = [dx, dy, dz];
+    unroll!(C, j => {
+        let dx = x.sub(S::load(&a.mu[0][j]));
+        let dy = y.sub(S::load(&a.mu[1][j]));
+        let dz = z.sub(S::load(&a.mu[2][j]));
+        d[j] = [dx, dy, dz];
         let d2 = dx.mul(dx).add(dy.mul(dy)).add(dz.mul(dz));
-        let v = S::splat(a.offset[j]).sub(S::splat(a.half_kappa[j]).mul(d2));
-        *ej = v;
+        let v = S::load(&a.offset[j]).sub(S::load(&a.half_kappa[j]).mul(d2));
+        e[j] = v;
         max = S::select_gt(v, max, v, max);
-    }
+    });
     let mut sum = S::splat(0.0);
-    for ej in e.iter_mut().take(count) {
-        *ej = exp_nonpositive(ej.sub(max));
-        sum = sum.add(*ej);
-    }
+    unroll!(C, j => {
+        e[j] = exp_nonpositive(e[j].sub(max));
+        sum = sum.add(e[j]);
+    });
     (w.mul(max.add(ln_positive(sum))), w.div(sum))
 }
 
@@ -149,13 +210,14 @@ fn e_step_kernel<S: Simd32, const C: usize>(blocks: &[Block32], active: &Active3
         for b in run {
             let (ll, scale) = block_responsibilities::<S, C>(b, active, &mut e, &mut d);
             log_likelihood = log_likelihood.add(ll);
-            for ((a, ej), dj) in acc.iter_mut().zip(&e).zip(&d).take(count) {
-                let wz = ej.mul(scale);
+            unroll!(C, j => {
+                let (a, dj) = (&mut acc[j], &d[j]);
+                let wz = e[j].mul(scale);
                 a[0] = a[0].add(wz);
                 a[1] = a[1].add(wz.mul(dj[0]));
                 a[2] = a[2].add(wz.mul(dj[1]));
                 a[3] = a[3].add(wz.mul(dj[2]));
-            }
+            });
         }
         sums.log_likelihood += lane_sum(log_likelihood.to_array());
         for (j, a) in acc.iter().enumerate().take(count) {
@@ -167,7 +229,7 @@ fn e_step_kernel<S: Simd32, const C: usize>(blocks: &[Block32], active: &Active3
     }
     for (c, o) in offsets.iter().enumerate() {
         for (j, oj) in o.iter().enumerate().take(count) {
-            sums.moment[c][j] = sums.weight[j] * active.mu[c][j] as f64 + oj;
+            sums.moment[c][j] = sums.weight[j] * active.mu[c][j][0] as f64 + oj;
         }
     }
     sums
@@ -230,13 +292,14 @@ fn feature_kernel<S: Simd32, const C: usize>(
                 S::load(&f[2]),
                 S::load(&f[3]),
             ];
-            for (a, ej) in acc.iter_mut().zip(&e).take(count) {
-                let wz = ej.mul(scale);
+            unroll!(C, j => {
+                let a = &mut acc[j];
+                let wz = e[j].mul(scale);
                 a[0] = a[0].add(wz);
                 for c in 0..4 {
                     a[c + 1] = a[c + 1].add(wz.mul(y[c]));
                 }
-            }
+            });
         }
         for (j, a) in acc.iter().enumerate().take(count) {
             weight[j] += lane_sum(a[0].to_array());
@@ -249,45 +312,44 @@ fn feature_kernel<S: Simd32, const C: usize>(
 }
 
 /// The slots of up to sixteen texels side by side for [`e_step_lanes`]: lane `t` holds texel
-/// `t`'s [`Active32`] constants. A slot a texel does not use has offset −∞ (it adds exact zeros
-/// to that texel's sums); a lane no texel uses has one slot of offset 0 (finite, discarded).
+/// `t`'s constants. A slot a texel does not use has offset −∞ (it adds exact zeros to that
+/// texel's sums); a lane no texel uses has one slot of offset 0 (finite, discarded).
 pub(super) struct LaneLobes {
-    /// The most slots any texel uses.
-    count: usize,
+    slots: Active32,
     /// Per lane, the slots its texel uses.
     counts: [usize; LANES],
-    mu: [[Lane; MAX_LOBES]; 3],
-    half_kappa: [Lane; MAX_LOBES],
-    offset: [Lane; MAX_LOBES],
 }
 
 impl LaneLobes {
     /// No texels yet: every lane unused.
     pub(super) fn new() -> Self {
-        let mut offset = [[f32::NEG_INFINITY; LANES]; MAX_LOBES];
-        offset[0] = [0.0; LANES];
+        let mut slots = Active32::empty();
+        slots.count = 1;
+        slots.offset[0] = [0.0; LANES];
         LaneLobes {
-            count: 1,
+            slots,
             counts: [0; LANES],
-            mu: [[[0.0; LANES]; MAX_LOBES]; 3],
-            half_kappa: [[0.0; LANES]; MAX_LOBES],
-            offset,
         }
     }
 
     /// Puts the slots of `a` (one texel's E-step) into lane `t`.
     pub(super) fn set(&mut self, t: usize, a: &Active) {
-        let a32 = Active32::new(a);
-        let count = a32.count.min(MAX_LOBES);
+        let count = a.count.min(MAX_LOBES);
+        let k = &mut self.slots;
         for s in 0..MAX_LOBES {
-            for c in 0..3 {
-                self.mu[c][s][t] = a32.mu[c][s];
+            let c = if s < count {
+                slot32(a, s)
+            } else {
+                [0.0, 0.0, 0.0, 0.0, f32::NEG_INFINITY]
+            };
+            for (m, &v) in k.mu.iter_mut().zip(&c[..3]) {
+                m[s][t] = v;
             }
-            self.half_kappa[s][t] = a32.half_kappa[s];
-            self.offset[s][t] = a32.offset[s];
+            k.half_kappa[s][t] = c[3];
+            k.offset[s][t] = c[4];
         }
         self.counts[t] = count;
-        self.count = self.count.max(count);
+        k.count = k.count.max(count);
     }
 }
 
@@ -307,7 +369,7 @@ type Node = [[f64; LANES]; QUANTITIES];
 #[multiversion::multiversion(targets("x86_64+avx512f", "x86_64+avx2+avx", "x86_64+sse4.2"))]
 pub(super) fn e_step_lanes(lanes: &[Block32], blocks: usize, lobes: &LaneLobes) -> [Sums; LANES] {
     by_count!(
-        lobes.count,
+        lobes.slots.count,
         lanes_kernel::<Portable32>(lanes, blocks, lobes)
     )
 }
@@ -337,37 +399,16 @@ fn lanes_kernel<S: Simd32, const C: usize>(
         let mut log_likelihood = zero;
         for b in 0..blocks {
             let blk = &lanes[b * LANES + l];
-            let (x, y, z, w) = (
-                S::load(&blk.x),
-                S::load(&blk.y),
-                S::load(&blk.z),
-                S::load(&blk.w),
-            );
-            let mut max = S::splat(f32::NEG_INFINITY);
-            for (j, (ej, dj)) in e.iter_mut().zip(d.iter_mut()).enumerate().take(count) {
-                let dx = x.sub(S::load(&k.mu[0][j]));
-                let dy = y.sub(S::load(&k.mu[1][j]));
-                let dz = z.sub(S::load(&k.mu[2][j]));
-                *dj = [dx, dy, dz];
-                let d2 = dx.mul(dx).add(dy.mul(dy)).add(dz.mul(dz));
-                let v = S::load(&k.offset[j]).sub(S::load(&k.half_kappa[j]).mul(d2));
-                *ej = v;
-                max = S::select_gt(v, max, v, max);
-            }
-            let mut sum = S::splat(0.0);
-            for ej in e.iter_mut().take(count) {
-                *ej = exp_nonpositive(ej.sub(max));
-                sum = sum.add(*ej);
-            }
-            let (ll, scale) = (w.mul(max.add(ln_positive(sum))), w.div(sum));
+            let (ll, scale) = block_responsibilities::<S, C>(blk, &k.slots, &mut e, &mut d);
             log_likelihood = log_likelihood.add(ll);
-            for ((a, ej), dj) in acc.iter_mut().zip(&e).zip(&d).take(count) {
-                let wz = ej.mul(scale);
+            unroll!(C, j => {
+                let (a, dj) = (&mut acc[j], &d[j]);
+                let wz = e[j].mul(scale);
                 a[0] = a[0].add(wz);
                 a[1] = a[1].add(wz.mul(dj[0]));
                 a[2] = a[2].add(wz.mul(dj[1]));
                 a[3] = a[3].add(wz.mul(dj[2]));
-            }
+            });
         }
         let node = &mut stack[top];
         node[0] = log_likelihood.to_array().map(f64::from);
@@ -400,7 +441,7 @@ fn lanes_kernel<S: Simd32, const C: usize>(
             sums.weight[j] += root[1 + 4 * j][t];
             for c in 0..3 {
                 let offset = 0.0 + root[1 + 4 * j + 1 + c][t];
-                sums.moment[c][j] = sums.weight[j] * k.mu[c][j][t] as f64 + offset;
+                sums.moment[c][j] = sums.weight[j] * k.slots.mu[c][j][t] as f64 + offset;
             }
         }
     }
