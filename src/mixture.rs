@@ -893,27 +893,7 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
         };
         for lo in (0..count).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK as usize).min(count);
-            // Jobs of JOB_TEXELS texels, each writing its own slices of the level's planes.
-            let mut jobs: Vec<Job> = (lo..hi)
-                .step_by(JOB_TEXELS)
-                .map(|first| Job {
-                    first,
-                    texels: Vec::with_capacity(j),
-                    colors: Vec::new(),
-                })
-                .collect();
-            for plane in &mut out.texels {
-                for (job, part) in jobs.iter_mut().zip(plane[lo..hi].chunks_mut(JOB_TEXELS)) {
-                    job.texels.push(part);
-                }
-            }
-            if let Some(c) = out.colors.as_mut() {
-                for plane in c {
-                    for (job, part) in jobs.iter_mut().zip(plane[lo..hi].chunks_mut(JOB_TEXELS)) {
-                        job.colors.push(part);
-                    }
-                }
-            }
+            let jobs = Job::split(&mut out, lo..hi);
             // Workers poll the cancellation flag between jobs (and EM between iterations).
             jobs.into_par_iter().try_for_each_init(
                 || (Gather::<M>::default(), Batch::<M>::default()),
@@ -967,7 +947,40 @@ struct Job<'p> {
     colors: Vec<&'p mut [[f32; 4]]>,
 }
 
-impl Job<'_> {
+impl<'p> Job<'p> {
+    /// Texels `range` of a level's planes cut into jobs of [`JOB_TEXELS`] texels, each with
+    /// its own slices of every plane.
+    fn split(fit: &'p mut LevelFit, range: std::ops::Range<usize>) -> Vec<Job<'p>> {
+        let mut jobs: Vec<Job> = range
+            .clone()
+            .step_by(JOB_TEXELS)
+            .map(|first| Job {
+                first,
+                texels: Vec::with_capacity(fit.texels.len()),
+                colors: Vec::new(),
+            })
+            .collect();
+        for plane in &mut fit.texels {
+            for (job, part) in jobs
+                .iter_mut()
+                .zip(plane[range.clone()].chunks_mut(JOB_TEXELS))
+            {
+                job.texels.push(part);
+            }
+        }
+        if let Some(c) = fit.colors.as_mut() {
+            for plane in c {
+                for (job, part) in jobs
+                    .iter_mut()
+                    .zip(plane[range.clone()].chunks_mut(JOB_TEXELS))
+                {
+                    job.colors.push(part);
+                }
+            }
+        }
+        jobs
+    }
+
     /// Stores the job's texel `i` (colours become `α_j y_j`, as [`LevelFit::set`]).
     fn store<M: Model>(&mut self, i: usize, fit: &TexelFit<M::C>) {
         for (plane, v) in self.texels.iter_mut().zip(&fit.texels) {
@@ -1167,6 +1180,42 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
             colors: src.has_feature().then(|| planes(j, texels, true)),
             texels: planes(j, texels, true),
         };
+        // The texels that take the closed form do not depend on their neighbours: fitted
+        // first, in parallel, and written in place; the wavefronts then run EM on the rest.
+        let mut closed = vec![false; texels];
+        let closed_form = |x: u32, y: u32| {
+            level.x.taps(x as usize).count() * level.y.taps(y as usize).count() <= j
+        };
+        if (0..rows).any(|r| (0..w).any(|x| closed_form(x, y0 + r))) {
+            Job::split(&mut out, 0..texels)
+                .into_par_iter()
+                .zip(closed.par_chunks_mut(JOB_TEXELS))
+                .try_for_each_init(Gather::<M>::default, |g, (mut job, flags)| {
+                    if cancel.is_cancelled() {
+                        return Err(Error::Cancelled);
+                    }
+                    for (i, flag) in flags.iter_mut().enumerate() {
+                        let t = (job.first + i) as u32;
+                        let (x, y) = (t % w, y0 + t / w);
+                        if !closed_form(x, y) {
+                            continue;
+                        }
+                        g.collect(src, level, x, y, cap);
+                        if g.normals.len() <= j
+                            && M::closed_form_when_aligned(options, g.min_alpha())
+                        {
+                            let fit = g.one_per_normal();
+                            let fit = match parent_of_texel(x, y) {
+                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
+                                None => fit,
+                            };
+                            job.store::<M>(i, &fit);
+                            *flag = true;
+                        }
+                    }
+                    Ok(())
+                })?;
+        }
         // One gathering buffer per worker for all the rows (a wavefront holds few texels:
         // fresh buffers per wavefront would allocate per texel).
         let gathers = PerThread::<Gather<M>>::new();
@@ -1177,13 +1226,15 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
             // Local rows r with x = d − 2r in [0, w).
             let r_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
             let r_hi = (d / 2).min(rows - 1);
-            if r_lo > r_hi {
+            if r_lo > r_hi || (r_lo..=r_hi).all(|r| closed[(r * w + d - 2 * r) as usize]) {
                 continue;
             }
             let done = &out;
+            let closed = &closed;
             // Workers poll the cancellation flag between texels.
             let results: Vec<(u32, u32, TexelFit<M::C>)> = (r_lo..=r_hi)
                 .into_par_iter()
+                .filter(|&r| !closed[(r * w + d - 2 * r) as usize])
                 .map(|r| {
                     gathers.with(|g| {
                         if cancel.is_cancelled() {
@@ -1192,16 +1243,6 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
                         let (x, y) = (d - 2 * r, y0 + r);
                         let parent = parent_of_texel(x, y);
                         g.collect(src, level, x, y, cap);
-                        if g.normals.len() <= j
-                            && M::closed_form_when_aligned(options, g.min_alpha())
-                        {
-                            let fit = g.one_per_normal();
-                            let fit = match &parent {
-                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
-                                None => fit,
-                            };
-                            return Some((x, r, fit));
-                        }
                         // The previously visited neighbours and the parent pull (at most
                         // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
                         let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
