@@ -2529,6 +2529,100 @@ mod tests {
         }
     }
 
+    /// The bits of a fit that the bake stores or acts on.
+    fn fit_bits(f: &EmFit) -> Vec<u64> {
+        let mut out = vec![
+            u64::from(f.iterations),
+            u64::from(f.converged),
+            f.log_likelihood.to_bits(),
+            f.total_weight.to_bits(),
+        ];
+        for (l, y) in f.lobes().iter().zip(f.features()) {
+            out.extend([l.alpha, l.mu.x, l.mu.y, l.mu.z, l.kappa].map(f64::to_bits));
+            out.extend(y.map(f64::to_bits));
+        }
+        out
+    }
+
+    /// [`fit_batch`] (texels side by side in the lanes) gives every texel the bits [`fit`]
+    /// gives it alone: texels of 1 to 513 samples (the largest beyond the lane path), with
+    /// zero weights, unusable normals and features, J = 1, 3 and 6, with and without
+    /// over-relaxation, more texels than one lane group.
+    #[test]
+    fn batched_fits_equal_single_fits_bit_for_bit() {
+        let mut rng = Rng(31);
+        let sizes = [
+            16, 16, 3, 64, 17, 1, 256, 16, 40, 512, 513, 64, 16, 16, 100, 16, 16, 64, 7, 16, 33,
+        ];
+        let (mut normals, mut weights, mut features, mut ranges) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for &n in &sizes {
+            let truth = random_mixture(&mut rng, 1 + n % 4);
+            let first = normals.len();
+            for (i, v) in sample_mixture(&mut rng, &truth, n).into_iter().enumerate() {
+                normals.push(if i % 11 == 5 { Vec3::ZERO } else { v });
+                weights.push(if i % 7 == 2 { 0.0 } else { 0.1 + rng.uniform() });
+                features.push([rng.uniform() as f32, 0.5, v.x, 1.0]);
+            }
+            ranges.push(first..normals.len());
+        }
+        for (j, overrelax, with_features) in [(6, true, true), (3, false, false), (1, true, false)]
+        {
+            let options = EmOptions {
+                overrelax,
+                max_iterations: 12,
+                ..EmOptions::default()
+            };
+            let inputs: Vec<EmInput> = ranges
+                .iter()
+                .map(|r| {
+                    let input =
+                        EmInput::new(&normals[r.clone()]).with_weights(&weights[r.clone()]);
+                    if with_features {
+                        input.with_features(&features[r.clone()])
+                    } else {
+                        input
+                    }
+                })
+                .collect();
+            let inits: Vec<[Lobe; MAX_LOBES]> = inputs
+                .iter()
+                .map(|input| {
+                    let c: Vec<Lobe> = input.normals.iter().map(|&v| init_single(v)).collect();
+                    let mut init = [Lobe::EMPTY; MAX_LOBES];
+                    farthest_first_into(&c, &mut init[..j]);
+                    init
+                })
+                .collect();
+            let mut batched = vec![None; inputs.len()];
+            fit_batch(
+                &inputs,
+                &inits,
+                j,
+                &options,
+                &mut BatchScratch::default(),
+                &mut |i, f| {
+                    assert!(batched[i].is_none(), "texel {i} handed out twice");
+                    batched[i] = Some(fit_bits(f));
+                },
+            );
+            let mut scratch = EmScratch::new();
+            let mut iterations = 0;
+            for (i, (input, init)) in inputs.iter().zip(&inits).enumerate() {
+                let single = fit(input, &init[..j], &options, None, &mut scratch);
+                iterations += single.iterations;
+                assert_eq!(
+                    batched[i].as_ref(),
+                    Some(&fit_bits(&single)),
+                    "texel {i} ({} samples), J = {j}",
+                    sizes[i]
+                );
+            }
+            // The texels iterate different numbers of times, so the lanes fall out of step.
+            assert!(iterations > 3 * inputs.len() as u32, "{iterations}");
+        }
+    }
+
     /// The dispatched (vectorized) E-step gives the same bits as the portable kernel.
     #[test]
     fn e_step_variants_are_bit_identical() {
