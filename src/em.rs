@@ -2576,8 +2576,7 @@ mod tests {
             let inputs: Vec<EmInput> = ranges
                 .iter()
                 .map(|r| {
-                    let input =
-                        EmInput::new(&normals[r.clone()]).with_weights(&weights[r.clone()]);
+                    let input = EmInput::new(&normals[r.clone()]).with_weights(&weights[r.clone()]);
                     if with_features {
                         input.with_features(&features[r.clone()])
                     } else {
@@ -2587,10 +2586,9 @@ mod tests {
                 .collect();
             let inits: Vec<[Lobe; MAX_LOBES]> = inputs
                 .iter()
-                .map(|input| {
-                    let c: Vec<Lobe> = input.normals.iter().map(|&v| init_single(v)).collect();
+                .map(|_| {
                     let mut init = [Lobe::EMPTY; MAX_LOBES];
-                    farthest_first_into(&c, &mut init[..j]);
+                    init[..j].copy_from_slice(&random_mixture(&mut rng, j));
                     init
                 })
                 .collect();
@@ -2607,10 +2605,10 @@ mod tests {
                 },
             );
             let mut scratch = EmScratch::new();
-            let mut iterations = 0;
+            let mut iterations = std::collections::BTreeSet::new();
             for (i, (input, init)) in inputs.iter().zip(&inits).enumerate() {
                 let single = fit(input, &init[..j], &options, None, &mut scratch);
-                iterations += single.iterations;
+                iterations.insert(single.iterations);
                 assert_eq!(
                     batched[i].as_ref(),
                     Some(&fit_bits(&single)),
@@ -2619,7 +2617,7 @@ mod tests {
                 );
             }
             // The texels iterate different numbers of times, so the lanes fall out of step.
-            assert!(iterations > 3 * inputs.len() as u32, "{iterations}");
+            assert!(iterations.len() >= 3, "{iterations:?}");
         }
     }
 
