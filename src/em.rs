@@ -3,8 +3,9 @@
 //! material features (eq 22, from eq 27) and coherent lobes for hardware interpolation (eq 29,
 //! and the main text's eq 23).
 //!
-//! The baker calls [`fit`] for every texel of every MIP level, so nothing is allocated once an
-//! [`EmScratch`] has warmed up, and results are deterministic: the same input and options give
+//! The baker calls [`fit`] for every texel of every MIP level (the unaligned pass's texels of up
+//! to 512 samples through `fit_batch`, sixteen texels per SIMD pass, with the same bits), so
+//! nothing is allocated once an [`EmScratch`] has warmed up, and results are deterministic: the same input and options give
 //! the same bits on every thread and every x86-64 CPU (the E-step's AVX-512, AVX2 and portable
 //! variants perform identical IEEE operations; partial sums are kept per lane and reduced in a
 //! fixed order).
@@ -2605,10 +2606,8 @@ mod tests {
                 },
             );
             let mut scratch = EmScratch::new();
-            let mut iterations = std::collections::BTreeSet::new();
             for (i, (input, init)) in inputs.iter().zip(&inits).enumerate() {
                 let single = fit(input, &init[..j], &options, None, &mut scratch);
-                iterations.insert(single.iterations);
                 assert_eq!(
                     batched[i].as_ref(),
                     Some(&fit_bits(&single)),
@@ -2616,8 +2615,6 @@ mod tests {
                     sizes[i]
                 );
             }
-            // The texels iterate different numbers of times, so the lanes fall out of step.
-            assert!(iterations.len() >= 3, "{iterations:?}");
         }
     }
 

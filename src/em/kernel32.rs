@@ -85,8 +85,8 @@ impl Active32 {
         out.count = a.count;
         for s in 0..a.count.min(MAX_LOBES) {
             let c = slot32(a, s);
-            for k in 0..3 {
-                out.mu[k][s] = [c[k]; LANES];
+            for (m, &v) in out.mu.iter_mut().zip(&c[..3]) {
+                m[s] = [v; LANES];
             }
             out.half_kappa[s] = [c[3]; LANES];
             out.offset[s] = [c[4]; LANES];
