@@ -3,8 +3,9 @@
 //! material features (eq 22, from eq 27) and coherent lobes for hardware interpolation (eq 29,
 //! and the main text's eq 23).
 //!
-//! The baker calls [`fit`] for every texel of every MIP level, so nothing is allocated once an
-//! [`EmScratch`] has warmed up, and results are deterministic: the same input and options give
+//! The baker calls [`fit`] for every texel of every MIP level (the unaligned pass's texels of up
+//! to 512 samples through `fit_batch`, sixteen texels per SIMD pass, with the same bits), so
+//! nothing is allocated once an [`EmScratch`] has warmed up, and results are deterministic: the same input and options give
 //! the same bits on every thread and every x86-64 CPU (the E-step's AVX-512, AVX2 and portable
 //! variants perform identical IEEE operations; partial sums are kept per lane and reduced in a
 //! fixed order).
@@ -1006,157 +1007,408 @@ pub fn fit(
     alignment: Option<&Alignment>,
     scratch: &mut EmScratch,
 ) -> EmFit {
-    let j_count = init.len();
-    assert!(
-        (1..=MAX_LOBES).contains(&j_count),
-        "em::fit: {j_count} lobes requested, 1..={MAX_LOBES} supported"
-    );
     let (total, original_total) = scratch.prepare(input, options.precision);
     scratch.log_likelihoods.clear();
-
-    let mut lobes = [Lobe::EMPTY; MAX_LOBES];
-    let mut alpha_sum = 0.0;
-    for (dst, src) in lobes.iter_mut().zip(init) {
-        *dst = Lobe::new(src.alpha, src.mu, src.kappa);
-        alpha_sum += dst.alpha;
-    }
-    if is_positive(alpha_sum) && alpha_sum.is_finite() {
-        for l in &mut lobes[..j_count] {
-            l.alpha /= alpha_sum;
-        }
-    } else {
-        for l in &mut lobes[..j_count] {
-            l.alpha = 1.0 / j_count as f64;
-        }
-    }
-    let mut pull = [DVec3::ZERO; MAX_LOBES];
-    let form = alignment.map_or(AlignmentForm::MainText, |a| a.form);
-    if let Some(a) = alignment {
-        for (j, p) in pull.iter_mut().enumerate().take(j_count) {
-            *p = a.pull(j);
-        }
-    }
-
-    let mut result = EmFit {
-        lobes,
-        features: [[0.0; 4]; MAX_LOBES],
-        len: j_count,
-        iterations: 0,
-        converged: true,
-        log_likelihood: 0.0,
-        total_weight: original_total,
-        kappa_estimator: options.kappa_estimator,
-    };
-    if !is_positive(total) {
-        return result;
-    }
-
+    let mut run = FitRun::new(init, options, alignment, total);
     let samples = match scratch.precision {
         Precision::F64 => Samples::F64(&scratch.blocks),
         Precision::F32 => Samples::F32(&scratch.blocks32),
     };
-    // The objective EM climbs: the mean log-likelihood, plus eq 28's log prior Σ_j μ_j·P_j
-    // under eq 29 (eq 23 has no objective of its own, so it is never over-relaxed).
-    let appendix = form == AlignmentForm::Appendix;
-    let prior = |lobes: &[Lobe]| -> f64 {
-        if !appendix {
-            return 0.0;
-        }
-        lobes
-            .iter()
-            .zip(&pull)
-            .filter(|(l, _)| is_positive(l.alpha))
-            .map(|(l, p)| l.mu.dot(*p))
-            .sum()
-    };
-    let accelerate = options.overrelax && (appendix || pull.iter().all(|p| *p == DVec3::ZERO));
-    let mut active = Active::new(&lobes[..j_count]);
-    let mut sums = e_step_chunked(samples, &active);
-    let mut ll = sums.log_likelihood / total;
-    let mut objective = ll + prior(&lobes[..j_count]);
-    scratch.log_likelihoods.push(ll);
-    let mut iterations = 0;
-    let mut converged = false;
-    // Adaptive over-relaxation (Salakhutdinov & Roweis 2003): step η times as far as EM
-    // does, growing η while the objective rises, back to the plain EM step (η = 1) when not.
-    let mut eta = 1.0;
-    // |r_j| of the current lobes (what over-relaxation extrapolates), kept with them.
-    let mut rlen = [0.0; MAX_LOBES];
-    if accelerate {
-        for (r, l) in rlen.iter_mut().zip(&lobes[..j_count]) {
-            *r = options.kappa_estimator.r_from_kappa(l.kappa);
-        }
+    while let Some(active) = run.pending() {
+        let sums = e_step_chunked(samples, active);
+        run.feed(sums, options, input, &mut scratch.log_likelihoods);
     }
-    while iterations < options.max_iterations && !input.cancelled() {
-        let mut plain = lobes;
-        let mut plain_r = rlen;
-        m_step(
-            &mut plain[..j_count],
-            &mut plain_r,
-            &active,
-            &sums,
-            total,
-            (&pull, form),
-            options.kappa_estimator,
-        );
-        iterations += 1;
-        let (mut trial, mut trial_r) = if eta > 1.0 {
-            overrelax(
-                (&lobes[..j_count], &rlen),
-                (&plain, &plain_r),
-                eta,
-                options.kappa_estimator,
-            )
-        } else {
-            (plain, plain_r)
-        };
-        let mut trial_active = Active::new(&trial[..j_count]);
-        let mut trial_sums = e_step_chunked(samples, &trial_active);
-        let mut trial_ll = trial_sums.log_likelihood / total;
-        let mut trial_objective = trial_ll + prior(&trial[..j_count]);
-        let rose = trial_objective >= objective; // false for NaN
-        if eta > 1.0 && !rose {
-            // Rejected: take the plain EM step instead (one more E-step).
-            eta = 1.0;
-            (trial, trial_r) = (plain, plain_r);
-            trial_active = Active::new(&trial[..j_count]);
-            trial_sums = e_step_chunked(samples, &trial_active);
-            trial_ll = trial_sums.log_likelihood / total;
-            trial_objective = trial_ll + prior(&trial[..j_count]);
-        } else if accelerate {
-            eta = (eta * OVERRELAX_GROWTH).min(OVERRELAX_MAX);
-        }
-        scratch.log_likelihoods.push(trial_ll);
-        let done = (trial_objective - objective).abs()
-            <= options.tolerance * trial_objective.abs().max(1.0);
-        (lobes, rlen, active, sums, ll, objective) = (
-            trial,
-            trial_r,
-            trial_active,
-            trial_sums,
-            trial_ll,
-            trial_objective,
-        );
-        if done {
-            converged = true;
-            break;
-        }
-    }
-
-    result.lobes = lobes;
-    result.iterations = iterations;
-    result.converged = converged;
-    result.log_likelihood = ll;
-    if let Some(features) = input.features {
+    let mut result = run.result(original_total, options);
+    if let Some(features) = input.features
+        && run.fitted()
+    {
         result.features = match samples {
             Samples::F32(blocks) => {
-                let (weight, sums) = kernel32::feature_sums(blocks, &scratch.features32, &active);
-                features_from_sums(&active, &weight, &sums)
+                let (weight, sums) =
+                    kernel32::feature_sums(blocks, &scratch.features32, &run.active);
+                features_from_sums(&run.active, &weight, &sums)
             }
-            Samples::F64(_) => lobe_features(samples, &scratch.index, features, &active),
+            Samples::F64(_) => lobe_features(samples, &scratch.index, features, &run.active),
         };
     }
     result
+}
+
+/// Which E-step a [`FitRun`] waits for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// The initial lobes' (Algorithm 1's first E-step).
+    Start,
+    /// The trial step's (EM's, or over-relaxed when η > 1).
+    Trial,
+    /// EM's plain step's, after an over-relaxed trial was rejected.
+    Plain,
+    /// None: the fit is finished.
+    Done,
+}
+
+/// One texel's EM (Algorithm 1 with adaptive over-relaxation) as a state machine that stops
+/// at every E-step: [`FitRun::pending`] names the lobes whose E-step it needs next and
+/// [`FitRun::feed`] takes its sums. [`fit`] runs one texel this way; [`fit_batch`] runs many
+/// side by side, computing the E-steps of up to sixteen texels in one pass. Both perform the
+/// same operations in the same order, so a texel's result has the same bits either way.
+struct FitRun {
+    j_count: usize,
+    /// The current lobes, the `|r_j|` their κ stand for, their active slots and E-step sums.
+    lobes: [Lobe; MAX_LOBES],
+    rlen: [f64; MAX_LOBES],
+    active: Active,
+    sums: Sums,
+    ll: f64,
+    objective: f64,
+    pull: [DVec3; MAX_LOBES],
+    appendix: bool,
+    accelerate: bool,
+    /// `Σ` of the scaled weights (the E-step's N).
+    total: f64,
+    eta: f64,
+    iterations: u32,
+    converged: bool,
+    /// EM's plain step and the trial whose E-step is pending.
+    plain: [Lobe; MAX_LOBES],
+    plain_r: [f64; MAX_LOBES],
+    trial: [Lobe; MAX_LOBES],
+    trial_r: [f64; MAX_LOBES],
+    trial_active: Active,
+    phase: Phase,
+}
+
+impl FitRun {
+    /// Sanitizes `init` (see [`fit`]) and waits for the first E-step, or is done at once when
+    /// the samples have no weight (`total` ≤ 0).
+    fn new(init: &[Lobe], options: &EmOptions, alignment: Option<&Alignment>, total: f64) -> Self {
+        let j_count = init.len();
+        assert!(
+            (1..=MAX_LOBES).contains(&j_count),
+            "em::fit: {j_count} lobes requested, 1..={MAX_LOBES} supported"
+        );
+        let mut lobes = [Lobe::EMPTY; MAX_LOBES];
+        let mut alpha_sum = 0.0;
+        for (dst, src) in lobes.iter_mut().zip(init) {
+            *dst = Lobe::new(src.alpha, src.mu, src.kappa);
+            alpha_sum += dst.alpha;
+        }
+        if is_positive(alpha_sum) && alpha_sum.is_finite() {
+            for l in &mut lobes[..j_count] {
+                l.alpha /= alpha_sum;
+            }
+        } else {
+            for l in &mut lobes[..j_count] {
+                l.alpha = 1.0 / j_count as f64;
+            }
+        }
+        let mut pull = [DVec3::ZERO; MAX_LOBES];
+        let form = alignment.map_or(AlignmentForm::MainText, |a| a.form);
+        if let Some(a) = alignment {
+            for (j, p) in pull.iter_mut().enumerate().take(j_count) {
+                *p = a.pull(j);
+            }
+        }
+        // The objective EM climbs: the mean log-likelihood, plus eq 28's log prior Σ_j μ_j·P_j
+        // under eq 29 (eq 23 has no objective of its own, so it is never over-relaxed).
+        let appendix = form == AlignmentForm::Appendix;
+        let accelerate = options.overrelax && (appendix || pull.iter().all(|p| *p == DVec3::ZERO));
+        let fitted = is_positive(total);
+        // |r_j| of the current lobes (what over-relaxation extrapolates), kept with them.
+        let mut rlen = [0.0; MAX_LOBES];
+        if accelerate && fitted {
+            for (r, l) in rlen.iter_mut().zip(&lobes[..j_count]) {
+                *r = options.kappa_estimator.r_from_kappa(l.kappa);
+            }
+        }
+        let active = if fitted {
+            Active::new(&lobes[..j_count])
+        } else {
+            Active::new(&[])
+        };
+        FitRun {
+            j_count,
+            lobes,
+            rlen,
+            active,
+            sums: Sums::default(),
+            ll: 0.0,
+            objective: 0.0,
+            pull,
+            appendix,
+            accelerate,
+            total,
+            // Adaptive over-relaxation (Salakhutdinov & Roweis 2003): step η times as far as
+            // EM does, growing η while the objective rises, back to the plain EM step (η = 1)
+            // when not.
+            eta: 1.0,
+            iterations: 0,
+            converged: !fitted,
+            plain: lobes,
+            plain_r: rlen,
+            trial: lobes,
+            trial_r: rlen,
+            trial_active: Active::new(&[]),
+            phase: if fitted { Phase::Start } else { Phase::Done },
+        }
+    }
+
+    /// Whether the samples had weight (so EM ran and the final lobes' slots are meaningful).
+    fn fitted(&self) -> bool {
+        is_positive(self.total)
+    }
+
+    /// The lobes whose E-step the run needs next (None: finished).
+    fn pending(&self) -> Option<&Active> {
+        match self.phase {
+            Phase::Start => Some(&self.active),
+            Phase::Trial | Phase::Plain => Some(&self.trial_active),
+            Phase::Done => None,
+        }
+    }
+
+    /// The mean log-likelihood plus, under eq 29, eq 28's log prior.
+    fn objective_of(&self, ll: f64, lobes: &[Lobe]) -> f64 {
+        let prior: f64 = if self.appendix {
+            lobes
+                .iter()
+                .zip(&self.pull)
+                .filter(|(l, _)| is_positive(l.alpha))
+                .map(|(l, p)| l.mu.dot(*p))
+                .sum()
+        } else {
+            0.0
+        };
+        ll + prior
+    }
+
+    /// Takes the sums of the pending E-step and advances to the next one (or finishes),
+    /// appending every accepted E-step's log-likelihood to `history`.
+    fn feed(&mut self, sums: Sums, options: &EmOptions, input: &EmInput, history: &mut Vec<f64>) {
+        let j = self.j_count;
+        match self.phase {
+            Phase::Start => {
+                self.ll = sums.log_likelihood / self.total;
+                self.objective = self.objective_of(self.ll, &self.lobes[..j]);
+                self.sums = sums;
+                history.push(self.ll);
+                self.step(options, input);
+            }
+            Phase::Trial | Phase::Plain => {
+                let trial_ll = sums.log_likelihood / self.total;
+                let trial_objective = self.objective_of(trial_ll, &self.trial[..j]);
+                if self.phase == Phase::Trial {
+                    let rose = trial_objective >= self.objective; // false for NaN
+                    if self.eta > 1.0 && !rose {
+                        // Rejected: take the plain EM step instead (one more E-step).
+                        self.eta = 1.0;
+                        (self.trial, self.trial_r) = (self.plain, self.plain_r);
+                        self.trial_active = Active::new(&self.trial[..j]);
+                        self.phase = Phase::Plain;
+                        return;
+                    } else if self.accelerate {
+                        self.eta = (self.eta * OVERRELAX_GROWTH).min(OVERRELAX_MAX);
+                    }
+                }
+                history.push(trial_ll);
+                let done = (trial_objective - self.objective).abs()
+                    <= options.tolerance * trial_objective.abs().max(1.0);
+                self.lobes = self.trial;
+                self.rlen = self.trial_r;
+                std::mem::swap(&mut self.active, &mut self.trial_active);
+                self.sums = sums;
+                self.ll = trial_ll;
+                self.objective = trial_objective;
+                if done {
+                    self.converged = true;
+                    self.phase = Phase::Done;
+                } else {
+                    self.step(options, input);
+                }
+            }
+            Phase::Done => {}
+        }
+    }
+
+    /// The M-step from the current sums and the trial it proposes (over-relaxed when η > 1),
+    /// or the end of the run when the iterations ran out or the fit was cancelled.
+    fn step(&mut self, options: &EmOptions, input: &EmInput) {
+        if self.iterations >= options.max_iterations || input.cancelled() {
+            self.phase = Phase::Done;
+            return;
+        }
+        let j = self.j_count;
+        let form = if self.appendix {
+            AlignmentForm::Appendix
+        } else {
+            AlignmentForm::MainText
+        };
+        (self.plain, self.plain_r) = (self.lobes, self.rlen);
+        m_step(
+            &mut self.plain[..j],
+            &mut self.plain_r,
+            &self.active,
+            &self.sums,
+            self.total,
+            (&self.pull, form),
+            options.kappa_estimator,
+        );
+        self.iterations += 1;
+        (self.trial, self.trial_r) = if self.eta > 1.0 {
+            overrelax(
+                (&self.lobes[..j], &self.rlen),
+                (&self.plain, &self.plain_r),
+                self.eta,
+                options.kappa_estimator,
+            )
+        } else {
+            (self.plain, self.plain_r)
+        };
+        self.trial_active = Active::new(&self.trial[..j]);
+        self.phase = Phase::Trial;
+    }
+
+    /// The fit so far, without features.
+    fn result(&self, total_weight: f64, options: &EmOptions) -> EmFit {
+        EmFit {
+            lobes: self.lobes,
+            features: [[0.0; 4]; MAX_LOBES],
+            len: self.j_count,
+            iterations: self.iterations,
+            converged: self.converged,
+            log_likelihood: self.ll,
+            total_weight,
+            kappa_estimator: options.kappa_estimator,
+        }
+    }
+}
+
+/// Largest texel, in blocks of sixteen samples, that [`fit_batch`] fits in lanes with other
+/// texels (one run of the single-precision kernel's `f32` sums: 512 samples); larger texels
+/// are fitted one by one.
+const BATCH_MAX_BLOCKS: usize = kernel32::FLUSH_BLOCKS;
+
+/// One texel of a [`fit_batch`] call fitted in lanes: its input, its blocks in
+/// [`BatchScratch::blocks`] (and features), the original `Σ w`.
+struct BatchTexel {
+    input: usize,
+    first: usize,
+    blocks: usize,
+    first_feature: Option<usize>,
+    original_total: f64,
+}
+
+/// Reusable working memory for [`fit_batch`] (one per worker thread).
+#[derive(Default)]
+pub(crate) struct BatchScratch {
+    /// The scratch of texels fitted one by one, and where each texel's samples are prepared.
+    pub(crate) single: EmScratch,
+    blocks: Vec<Block32>,
+    features: Vec<FeatureBlock>,
+    texels: Vec<BatchTexel>,
+    runs: Vec<FitRun>,
+    pending: Vec<usize>,
+    lanes: Vec<Block32>,
+    history: Vec<f64>,
+}
+
+/// Fits the texels `inputs[i]` from `inits[i][..j]` without alignment, as [`fit`] would one by
+/// one, and hands each result to `out(i, fit)` (in no particular order). Texels of up to 512
+/// samples in single precision run side by side: every round, the pending E-steps of up to
+/// sixteen texels are computed in one pass, one texel per SIMD lane
+/// (`kernel32::e_step_lanes`), so the per-call overheads of a small texel (the horizontal
+/// sums, the dispatch) are shared. Each texel performs the same operations in the same order
+/// as in [`fit`], so its result has the same bits.
+///
+/// # Panics
+/// As [`fit`], and if `inputs` and `inits` differ in length.
+pub(crate) fn fit_batch(
+    inputs: &[EmInput],
+    inits: &[[Lobe; MAX_LOBES]],
+    j: usize,
+    options: &EmOptions,
+    scratch: &mut BatchScratch,
+    out: &mut dyn FnMut(usize, &EmFit),
+) {
+    assert_eq!(inputs.len(), inits.len(), "fit_batch: one init per input");
+    let s = scratch;
+    s.blocks.clear();
+    s.features.clear();
+    s.texels.clear();
+    s.runs.clear();
+    for (i, (input, init)) in inputs.iter().zip(inits).enumerate() {
+        let small = input.normals.len() <= BATCH_MAX_BLOCKS * LANES32;
+        if options.precision != Precision::F32 || !small {
+            out(i, &fit(input, &init[..j], options, None, &mut s.single));
+            continue;
+        }
+        let (total, original_total) = s.single.prepare(input, Precision::F32);
+        let run = FitRun::new(&init[..j], options, None, total);
+        if run.pending().is_none() {
+            out(i, &run.result(original_total, options));
+            continue;
+        }
+        let first = s.blocks.len();
+        s.blocks.extend_from_slice(&s.single.blocks32);
+        let first_feature = input.features.map(|_| {
+            let f = s.features.len();
+            s.features.extend_from_slice(&s.single.features32);
+            f
+        });
+        s.texels.push(BatchTexel {
+            input: i,
+            first,
+            blocks: s.single.blocks32.len(),
+            first_feature,
+            original_total,
+        });
+        s.runs.push(run);
+    }
+    loop {
+        s.pending.clear();
+        s.pending
+            .extend((0..s.runs.len()).filter(|&k| s.runs[k].pending().is_some()));
+        if s.pending.is_empty() {
+            break;
+        }
+        for group in s.pending.chunks(LANES32) {
+            let blocks = group.iter().map(|&k| s.texels[k].blocks).max().unwrap_or(0);
+            let mut lobes = kernel32::LaneLobes::new();
+            s.lanes.clear();
+            s.lanes.resize(blocks * LANES32, PAD_BLOCK32);
+            for (t, &k) in group.iter().enumerate() {
+                if let Some(active) = s.runs[k].pending() {
+                    lobes.set(t, active);
+                }
+                let tx = &s.texels[k];
+                for (b, src) in s.blocks[tx.first..tx.first + tx.blocks].iter().enumerate() {
+                    for l in 0..LANES32 {
+                        let dst = &mut s.lanes[b * LANES32 + l];
+                        (dst.x[t], dst.y[t], dst.z[t], dst.w[t]) =
+                            (src.x[l], src.y[l], src.z[l], src.w[l]);
+                    }
+                }
+            }
+            let sums = kernel32::e_step_lanes(&s.lanes, blocks, &lobes);
+            for (sums, &k) in sums.into_iter().zip(group) {
+                s.history.clear();
+                let input = &inputs[s.texels[k].input];
+                s.runs[k].feed(sums, options, input, &mut s.history);
+            }
+        }
+    }
+    for (tx, run) in s.texels.iter().zip(&s.runs) {
+        let mut result = run.result(tx.original_total, options);
+        if let Some(ff) = tx.first_feature {
+            let (weight, sums) = kernel32::feature_sums(
+                &s.blocks[tx.first..tx.first + tx.blocks],
+                &s.features[ff..ff + tx.blocks],
+                &run.active,
+            );
+            result.features = features_from_sums(&run.active, &weight, &sums);
+        }
+        out(tx.input, &result);
+    }
 }
 
 /// Factor by which the over-relaxation step η grows after an accepted step.
@@ -2275,6 +2527,94 @@ mod tests {
         for k in -20..20 {
             let s = 2f64.powi(k);
             assert!((ln1(s) - s.ln()).abs() <= 2.3e-16 * s.ln().abs());
+        }
+    }
+
+    /// The bits of a fit that the bake stores or acts on.
+    fn fit_bits(f: &EmFit) -> Vec<u64> {
+        let mut out = vec![
+            u64::from(f.iterations),
+            u64::from(f.converged),
+            f.log_likelihood.to_bits(),
+            f.total_weight.to_bits(),
+        ];
+        for (l, y) in f.lobes().iter().zip(f.features()) {
+            out.extend([l.alpha, l.mu.x, l.mu.y, l.mu.z, l.kappa].map(f64::to_bits));
+            out.extend(y.map(f64::to_bits));
+        }
+        out
+    }
+
+    /// [`fit_batch`] (texels side by side in the lanes) gives every texel the bits [`fit`]
+    /// gives it alone: texels of 1 to 513 samples (the largest beyond the lane path), with
+    /// zero weights, unusable normals and features, J = 1, 3 and 6, with and without
+    /// over-relaxation, more texels than one lane group.
+    #[test]
+    fn batched_fits_equal_single_fits_bit_for_bit() {
+        let mut rng = Rng(31);
+        let sizes = [
+            16, 16, 3, 64, 17, 1, 256, 16, 40, 512, 513, 64, 16, 16, 100, 16, 16, 64, 7, 16, 33,
+        ];
+        let (mut normals, mut weights, mut features, mut ranges) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for &n in &sizes {
+            let truth = random_mixture(&mut rng, 1 + n % 4);
+            let first = normals.len();
+            for (i, v) in sample_mixture(&mut rng, &truth, n).into_iter().enumerate() {
+                normals.push(if i % 11 == 5 { Vec3::ZERO } else { v });
+                weights.push(if i % 7 == 2 { 0.0 } else { 0.1 + rng.uniform() });
+                features.push([rng.uniform() as f32, 0.5, v.x, 1.0]);
+            }
+            ranges.push(first..normals.len());
+        }
+        for (j, overrelax, with_features) in [(6, true, true), (3, false, false), (1, true, false)]
+        {
+            let options = EmOptions {
+                overrelax,
+                max_iterations: 12,
+                ..EmOptions::default()
+            };
+            let inputs: Vec<EmInput> = ranges
+                .iter()
+                .map(|r| {
+                    let input = EmInput::new(&normals[r.clone()]).with_weights(&weights[r.clone()]);
+                    if with_features {
+                        input.with_features(&features[r.clone()])
+                    } else {
+                        input
+                    }
+                })
+                .collect();
+            let inits: Vec<[Lobe; MAX_LOBES]> = inputs
+                .iter()
+                .map(|_| {
+                    let mut init = [Lobe::EMPTY; MAX_LOBES];
+                    init[..j].copy_from_slice(&random_mixture(&mut rng, j));
+                    init
+                })
+                .collect();
+            let mut batched = vec![None; inputs.len()];
+            fit_batch(
+                &inputs,
+                &inits,
+                j,
+                &options,
+                &mut BatchScratch::default(),
+                &mut |i, f| {
+                    assert!(batched[i].is_none(), "texel {i} handed out twice");
+                    batched[i] = Some(fit_bits(f));
+                },
+            );
+            let mut scratch = EmScratch::new();
+            for (i, (input, init)) in inputs.iter().zip(&inits).enumerate() {
+                let single = fit(input, &init[..j], &options, None, &mut scratch);
+                assert_eq!(
+                    batched[i].as_ref(),
+                    Some(&fit_bits(&single)),
+                    "texel {i} ({} samples), J = {j}",
+                    sizes[i]
+                );
+            }
         }
     }
 

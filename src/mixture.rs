@@ -29,7 +29,7 @@ use crate::bake::{
     Bake, BakeOptions, CancelFlag, MAX_ALIGN_STRENGTH, MAX_EM_ITERATIONS, MAX_EM_TOLERANCE, Method,
     Progress, Texture,
 };
-use crate::em::{self, Alignment, AlignmentForm, EmInput, EmOptions, EmScratch, MAX_LOBES};
+use crate::em::{self, Alignment, AlignmentForm, EmInput, EmOptions, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::format::{Format, ValueRange};
 use crate::ingest::NormalMap;
@@ -128,6 +128,21 @@ pub(crate) trait Model: Sync {
         neighbours: Option<&[&[Self::C]]>,
         scratch: &mut Self::Scratch,
     ) -> TexelFit<Self::C>;
+    /// Fits several texels without alignment, `inputs[i]` from `inits[i][..J]`, handing each
+    /// result to `out(i, fit)` (in any order); the same fits as [`Model::fit`] one by one,
+    /// which is what this default does.
+    fn fit_batch(
+        inputs: &[EmInput],
+        inits: &[[Self::C; MAX_LOBES]],
+        pass: (&BakeOptions, &EmOptions),
+        scratch: &mut Self::Scratch,
+        out: &mut dyn FnMut(usize, &TexelFit<Self::C>),
+    ) {
+        let j = pass.0.lobes;
+        for (i, (input, init)) in inputs.iter().zip(inits).enumerate() {
+            out(i, &Self::fit(input, &init[..j], pass, None, scratch));
+        }
+    }
     /// Whether, in the aligned pass, a texel with no more samples than components, the
     /// lightest of weight fraction `min_alpha`, may take the closed-form fit (one component
     /// per sample) in its parent's slots instead of running the pulled EM: true when the pull
@@ -142,7 +157,7 @@ pub(crate) struct VmfModel;
 
 impl Model for VmfModel {
     type C = Lobe;
-    type Scratch = EmScratch;
+    type Scratch = em::BatchScratch;
     const METHOD: Method = Method::Vmf;
     const EMPTY: Lobe = Lobe::EMPTY;
     const NAMES: [&'static str; MAX_LOBES] = [
@@ -211,19 +226,31 @@ impl Model for VmfModel {
         init: &[Lobe],
         (options, em): (&BakeOptions, &EmOptions),
         neighbours: Option<&[&[Lobe]]>,
-        scratch: &mut EmScratch,
+        scratch: &mut em::BatchScratch,
     ) -> TexelFit<Lobe> {
         let alignment = neighbours.map(|neighbours| Alignment {
             strength: options.align.unwrap_or(0.0),
             neighbours,
             form: options.align_form,
         });
-        let f = em::fit(input, init, em, alignment.as_ref(), scratch);
-        let mut out = TexelFit::empty(Lobe::EMPTY);
-        for (j, l) in f.lobes().iter().enumerate() {
-            (out.comps[j], out.colors[j], out.texels[j]) = (*l, f.features()[j], f.texel(j));
-        }
-        out
+        vmf_texel_fit(&em::fit(
+            input,
+            init,
+            em,
+            alignment.as_ref(),
+            &mut scratch.single,
+        ))
+    }
+    fn fit_batch(
+        inputs: &[EmInput],
+        inits: &[[Lobe; MAX_LOBES]],
+        (options, em): (&BakeOptions, &EmOptions),
+        scratch: &mut em::BatchScratch,
+        out: &mut dyn FnMut(usize, &TexelFit<Lobe>),
+    ) {
+        em::fit_batch(inputs, inits, options.lobes, em, scratch, &mut |i, f| {
+            out(i, &vmf_texel_fit(f))
+        });
     }
     fn texel(c: &Lobe) -> [f64; 4] {
         c.texel()
@@ -237,6 +264,15 @@ impl Model for VmfModel {
         options.align_form == AlignmentForm::Appendix
             && c * ALIGN_NEIGHBOURS as f64 <= CLOSED_FORM_TILT * KAPPA_MAX * min_alpha
     }
+}
+
+/// A vMF fit's lobes, features and texels as a [`TexelFit`].
+fn vmf_texel_fit(f: &em::EmFit) -> TexelFit<Lobe> {
+    let mut out = TexelFit::empty(Lobe::EMPTY);
+    for (j, l) in f.lobes().iter().enumerate() {
+        (out.comps[j], out.colors[j], out.texels[j]) = (*l, f.features()[j], f.texel(j));
+    }
+    out
 }
 
 /// Tan et al. 2005's planar Gaussians ([`crate::tan2005`]): the paper's comparison row.
@@ -602,15 +638,6 @@ pub(crate) fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]
 }
 
 impl LevelFit {
-    /// An empty level of `texels` texels of `j` components, to be filled by [`LevelFit::push`],
-    /// with colour planes when `colors`.
-    pub(crate) fn with_capacity(texels: usize, j: usize, colors: bool) -> Self {
-        LevelFit {
-            colors: colors.then(|| planes(j, texels, false)),
-            texels: planes(j, texels, false),
-        }
-    }
-
     /// The J components of texel `t`, read back from their texels.
     pub(crate) fn components<M: Model>(&self, t: usize, j: usize) -> [M::C; MAX_LOBES] {
         let mut out = [M::EMPTY; MAX_LOBES];
@@ -618,18 +645,6 @@ impl LevelFit {
             *o = M::from_texel(plane[t]);
         }
         out
-    }
-
-    /// Appends one texel's result (colours become `α_j y_j`).
-    pub(crate) fn push<M: Model>(&mut self, fit: &TexelFit<M::C>) {
-        if let Some(dst) = self.colors.as_mut() {
-            for ((plane, c), y) in dst.iter_mut().zip(&fit.comps).zip(&fit.colors) {
-                plane.push(y.map(|v| (M::alpha(c) * v) as f32));
-            }
-        }
-        for (plane, t) in self.texels.iter_mut().zip(&fit.texels) {
-            plane.push(t.map(|v| v as f32));
-        }
     }
 
     /// Stores texel `t`'s result (colours become `α_j y_j`) into a level made with zeroed
@@ -849,12 +864,8 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
         let cap = self.options.mode.sample_cap((w * h) as usize);
         let em = &self.passes.0;
         let (src, options, cancel) = (self.src, self.options, self.cancel);
-        let fit_texel = |g: &mut Gather<M>, x: u32, y: u32| -> TexelFit<M::C> {
-            g.skip_features = !colors;
-            g.collect(src, level, x, y, cap);
-            if g.normals.len() <= j {
-                return g.one_per_normal();
-            }
+        // The children's components of texel (x, y), seeding its EM.
+        let seed = |g: &mut Gather<M>, x: u32, y: u32| -> [M::C; MAX_LOBES] {
             g.candidates.clear();
             for (py, wy) in cy.taps(y as usize) {
                 for (px, wx) in cx.taps(x as usize) {
@@ -873,23 +884,46 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
             }
             let mut init = [M::EMPTY; MAX_LOBES];
             M::init_from_children(&g.candidates, &mut init[..j]);
-            g.fit(&init[..j], (options, em), None, cancel)
+            init
         };
-        let count = (y1 - y0) * w;
-        let mut out = LevelFit::with_capacity(count as usize, j, colors);
+        let count = ((y1 - y0) * w) as usize;
+        let mut out = LevelFit {
+            colors: colors.then(|| planes(j, count, true)),
+            texels: planes(j, count, true),
+        };
         for lo in (0..count).step_by(PROGRESS_CHUNK as usize) {
-            let hi = (lo + PROGRESS_CHUNK).min(count);
-            // Workers poll the cancellation flag between texels.
-            let results: Vec<TexelFit<M::C>> = (lo..hi)
-                .into_par_iter()
-                .map_init(Gather::<M>::default, |g, t| {
-                    (!cancel.is_cancelled()).then(|| fit_texel(g, t % w, y0 + t / w))
-                })
-                .collect::<Option<_>>()
-                .ok_or(Error::Cancelled)?;
-            for r in &results {
-                out.push::<M>(r);
-            }
+            let hi = (lo + PROGRESS_CHUNK as usize).min(count);
+            let jobs = Job::split(&mut out, lo..hi);
+            // Workers poll the cancellation flag between jobs (and EM between iterations).
+            jobs.into_par_iter().try_for_each_init(
+                || (Gather::<M>::default(), Batch::<M>::default()),
+                |(g, batch), mut job| -> Result<()> {
+                    if cancel.is_cancelled() {
+                        return Err(Error::Cancelled);
+                    }
+                    g.skip_features = !colors;
+                    batch.clear();
+                    let len = job.texels.first().map_or(0, |p| p.len());
+                    for i in 0..len {
+                        let t = (job.first + i) as u32;
+                        let (x, y) = (t % w, y0 + t / w);
+                        g.collect(src, level, x, y, cap);
+                        if g.normals.len() <= j {
+                            job.store::<M>(i, &g.one_per_normal());
+                            continue;
+                        }
+                        let init = seed(g, x, y);
+                        batch.push(i, g, init);
+                    }
+                    batch.fit(g, (options, em), cancel, &mut |i, fit| {
+                        job.store::<M>(i, fit)
+                    });
+                    if cancel.is_cancelled() {
+                        return Err(Error::Cancelled);
+                    }
+                    Ok(())
+                },
+            )?;
             progress(hi as f64 / count as f64)?;
         }
         Ok(Rows {
@@ -898,6 +932,133 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
             h: y1 - y0,
             fit: out,
         })
+    }
+}
+
+/// Texels per parallel job of the unaligned pass: gathered, fitted side by side
+/// ([`Model::fit_batch`]) and written straight into the level's planes.
+const JOB_TEXELS: usize = 256;
+
+/// A job's texels: from texel `first` of the rows, its slices of the level's texel planes and
+/// (when colours are kept) colour planes, one per slot.
+struct Job<'p> {
+    first: usize,
+    texels: Vec<&'p mut [[f32; 4]]>,
+    colors: Vec<&'p mut [[f32; 4]]>,
+}
+
+impl<'p> Job<'p> {
+    /// Texels `range` of a level's planes cut into jobs of [`JOB_TEXELS`] texels, each with
+    /// its own slices of every plane.
+    fn split(fit: &'p mut LevelFit, range: std::ops::Range<usize>) -> Vec<Job<'p>> {
+        let mut jobs: Vec<Job> = range
+            .clone()
+            .step_by(JOB_TEXELS)
+            .map(|first| Job {
+                first,
+                texels: Vec::with_capacity(fit.texels.len()),
+                colors: Vec::new(),
+            })
+            .collect();
+        for plane in &mut fit.texels {
+            for (job, part) in jobs
+                .iter_mut()
+                .zip(plane[range.clone()].chunks_mut(JOB_TEXELS))
+            {
+                job.texels.push(part);
+            }
+        }
+        if let Some(c) = fit.colors.as_mut() {
+            for plane in c {
+                for (job, part) in jobs
+                    .iter_mut()
+                    .zip(plane[range.clone()].chunks_mut(JOB_TEXELS))
+                {
+                    job.colors.push(part);
+                }
+            }
+        }
+        jobs
+    }
+
+    /// Stores the job's texel `i` (colours become `α_j y_j`, as [`LevelFit::set`]).
+    fn store<M: Model>(&mut self, i: usize, fit: &TexelFit<M::C>) {
+        for (plane, v) in self.texels.iter_mut().zip(&fit.texels) {
+            plane[i] = v.map(|v| v as f32);
+        }
+        for ((plane, c), y) in self.colors.iter_mut().zip(&fit.comps).zip(&fit.colors) {
+            plane[i] = y.map(|v| (M::alpha(c) * v) as f32);
+        }
+    }
+}
+
+/// The gathered samples and seeds of a job's texels that need EM, fitted together.
+struct Batch<M: Model> {
+    normals: Vec<Vec3>,
+    weights: Vec<f64>,
+    features: Vec<[f32; 4]>,
+    /// Per texel: its index in the job and its samples' range.
+    texels: Vec<(usize, std::ops::Range<usize>)>,
+    inits: Vec<[M::C; MAX_LOBES]>,
+}
+
+impl<M: Model> Default for Batch<M> {
+    fn default() -> Self {
+        Batch {
+            normals: Vec::new(),
+            weights: Vec::new(),
+            features: Vec::new(),
+            texels: Vec::new(),
+            inits: Vec::new(),
+        }
+    }
+}
+
+impl<M: Model> Batch<M> {
+    fn clear(&mut self) {
+        self.normals.clear();
+        self.weights.clear();
+        self.features.clear();
+        self.texels.clear();
+        self.inits.clear();
+    }
+
+    /// Adds the job's texel `i`: the samples `g` collected, seeded with `init`.
+    fn push(&mut self, i: usize, g: &Gather<M>, init: [M::C; MAX_LOBES]) {
+        let first = self.normals.len();
+        self.normals.extend_from_slice(&g.normals);
+        self.weights.extend_from_slice(&g.weights);
+        self.features.extend_from_slice(&g.features);
+        self.texels.push((i, first..self.normals.len()));
+        self.inits.push(init);
+    }
+
+    /// Fits every texel added, handing `out(i, fit)` the job's texel `i`'s fit.
+    fn fit(
+        &self,
+        g: &mut Gather<M>,
+        pass: (&BakeOptions, &EmOptions),
+        cancel: &CancelFlag,
+        out: &mut dyn FnMut(usize, &TexelFit<M::C>),
+    ) {
+        let with_features = !self.features.is_empty();
+        let inputs: Vec<EmInput> = self
+            .texels
+            .iter()
+            .map(|(_, r)| {
+                let input = EmInput::new(&self.normals[r.clone()])
+                    .with_weights(&self.weights[r.clone()])
+                    .with_cancel(cancel.as_atomic());
+                if with_features {
+                    input.with_features(&self.features[r.clone()])
+                } else {
+                    input
+                }
+            })
+            .collect();
+        M::fit_batch(&inputs, &self.inits, pass, &mut g.scratch, &mut |k, fit| {
+            out(self.texels[k].0, fit)
+        });
     }
 }
 
@@ -1019,6 +1180,42 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
             colors: src.has_feature().then(|| planes(j, texels, true)),
             texels: planes(j, texels, true),
         };
+        // The texels that take the closed form do not depend on their neighbours: fitted
+        // first, in parallel, and written in place; the wavefronts then run EM on the rest.
+        let mut closed = vec![false; texels];
+        let closed_form = |x: u32, y: u32| {
+            level.x.taps(x as usize).count() * level.y.taps(y as usize).count() <= j
+        };
+        if (0..rows).any(|r| (0..w).any(|x| closed_form(x, y0 + r))) {
+            Job::split(&mut out, 0..texels)
+                .into_par_iter()
+                .zip(closed.par_chunks_mut(JOB_TEXELS))
+                .try_for_each_init(Gather::<M>::default, |g, (mut job, flags)| {
+                    if cancel.is_cancelled() {
+                        return Err(Error::Cancelled);
+                    }
+                    for (i, flag) in flags.iter_mut().enumerate() {
+                        let t = (job.first + i) as u32;
+                        let (x, y) = (t % w, y0 + t / w);
+                        if !closed_form(x, y) {
+                            continue;
+                        }
+                        g.collect(src, level, x, y, cap);
+                        if g.normals.len() <= j
+                            && M::closed_form_when_aligned(options, g.min_alpha())
+                        {
+                            let fit = g.one_per_normal();
+                            let fit = match parent_of_texel(x, y) {
+                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
+                                None => fit,
+                            };
+                            job.store::<M>(i, &fit);
+                            *flag = true;
+                        }
+                    }
+                    Ok(())
+                })?;
+        }
         // One gathering buffer per worker for all the rows (a wavefront holds few texels:
         // fresh buffers per wavefront would allocate per texel).
         let gathers = PerThread::<Gather<M>>::new();
@@ -1029,13 +1226,15 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
             // Local rows r with x = d − 2r in [0, w).
             let r_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
             let r_hi = (d / 2).min(rows - 1);
-            if r_lo > r_hi {
+            if r_lo > r_hi || (r_lo..=r_hi).all(|r| closed[(r * w + d - 2 * r) as usize]) {
                 continue;
             }
             let done = &out;
+            let closed = &closed;
             // Workers poll the cancellation flag between texels.
             let results: Vec<(u32, u32, TexelFit<M::C>)> = (r_lo..=r_hi)
                 .into_par_iter()
+                .filter(|&r| !closed[(r * w + d - 2 * r) as usize])
                 .map(|r| {
                     gathers.with(|g| {
                         if cancel.is_cancelled() {
@@ -1044,16 +1243,6 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
                         let (x, y) = (d - 2 * r, y0 + r);
                         let parent = parent_of_texel(x, y);
                         g.collect(src, level, x, y, cap);
-                        if g.normals.len() <= j
-                            && M::closed_form_when_aligned(options, g.min_alpha())
-                        {
-                            let fit = g.one_per_normal();
-                            let fit = match &parent {
-                                Some(p) => into_slots::<M>(&fit, j, &p[..j]),
-                                None => fit,
-                            };
-                            return Some((x, r, fit));
-                        }
                         // The previously visited neighbours and the parent pull (at most
                         // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
                         let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];

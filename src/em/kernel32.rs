@@ -13,6 +13,26 @@
 use super::lanes32::{LANES, Lane, Portable32, Simd32, exp_nonpositive, ln_positive};
 use super::{Active, MAX_LOBES, Sums};
 
+/// Calls `kernel::<S, C>(args)` with the slot count `count` as the constant `C` (0 to
+/// `MAX_LOBES`), so the kernels' loops over slots have fixed trip counts: the compiler then
+/// unrolls them and vectorizes each slot's lanes, where a loop of run-time length was
+/// vectorized across the slots with gathers. (The operations and their order do not change.)
+macro_rules! by_count {
+    ($count:expr, $kernel:ident :: <$s:ty> ($($arg:expr),*)) => {
+        match $count {
+            0 => $kernel::<$s, 0>($($arg),*),
+            1 => $kernel::<$s, 1>($($arg),*),
+            2 => $kernel::<$s, 2>($($arg),*),
+            3 => $kernel::<$s, 3>($($arg),*),
+            4 => $kernel::<$s, 4>($($arg),*),
+            5 => $kernel::<$s, 5>($($arg),*),
+            6 => $kernel::<$s, 6>($($arg),*),
+            7 => $kernel::<$s, 7>($($arg),*),
+            _ => $kernel::<$s, MAX_LOBES>($($arg),*),
+        }
+    };
+}
+
 /// Sixteen samples in structure-of-arrays form: normal components and weights (the tail block
 /// is padded with zero-weight samples, which add exact zeros).
 #[derive(Debug, Clone, Copy)]
@@ -34,71 +54,132 @@ pub(super) const PAD_BLOCK32: Block32 = Block32 {
 /// Samples per lane slot of a block.
 pub(super) const LANES32: usize = LANES;
 
-/// Per-slot constants of one single-precision E-step (the slots of an [`Active`]).
+/// Per-slot constants of one single-precision E-step (the slots of an [`Active`]), one value
+/// per lane: the same in every lane for one texel's E-step ([`e_step32`]), one texel per lane
+/// for [`e_step_lanes`]. Kept as whole lanes (not one `f32` per slot) so that the kernels load
+/// each slot's constants as one vector: with contiguous per-slot scalars the compiler
+/// vectorized across the slots instead of across the lanes.
 struct Active32 {
     count: usize,
-    mu: [[f32; MAX_LOBES]; 3],
+    mu: [[Lane; MAX_LOBES]; 3],
     /// κ/2.
-    half_kappa: [f32; MAX_LOBES],
-    /// `ln α + ln(κ/(2π(1 − e^{−2κ})))`, computed in `f64`.
-    offset: [f32; MAX_LOBES],
+    half_kappa: [Lane; MAX_LOBES],
+    /// `ln α + ln(κ/(2π(1 − e^{−2κ})))`, computed in `f64`; −∞ for an unused slot.
+    offset: [Lane; MAX_LOBES],
 }
 
 impl Active32 {
-    /// The single-precision constants of `a`'s slots.
+    /// No slots: every offset −∞.
+    fn empty() -> Self {
+        Active32 {
+            count: 0,
+            mu: [[[0.0; LANES]; MAX_LOBES]; 3],
+            half_kappa: [[0.0; LANES]; MAX_LOBES],
+            offset: [[f32::NEG_INFINITY; LANES]; MAX_LOBES],
+        }
+    }
+
+    /// The single-precision constants of `a`'s slots, in every lane.
     fn new(a: &Active) -> Self {
-        let mut out = Active32 {
-            count: a.count,
-            mu: [[0.0; MAX_LOBES]; 3],
-            half_kappa: [0.0; MAX_LOBES],
-            offset: [f32::NEG_INFINITY; MAX_LOBES],
-        };
-        for s in 0..a.count {
-            let (mu, kappa) = (a.mu[s], a.kappa[s]);
-            out.mu[0][s] = mu.x as f32;
-            out.mu[1][s] = mu.y as f32;
-            out.mu[2][s] = mu.z as f32;
-            out.half_kappa[s] = (0.5 * kappa) as f32;
-            out.offset[s] = a.log_scaled[s] as f32;
+        let mut out = Active32::empty();
+        out.count = a.count;
+        for s in 0..a.count.min(MAX_LOBES) {
+            let c = slot32(a, s);
+            for (m, &v) in out.mu.iter_mut().zip(&c[..3]) {
+                m[s] = [v; LANES];
+            }
+            out.half_kappa[s] = [c[3]; LANES];
+            out.offset[s] = [c[4]; LANES];
         }
         out
     }
+}
+
+/// Slot `s`'s single-precision constants: μ, κ/2 and the offset.
+fn slot32(a: &Active, s: usize) -> [f32; 5] {
+    let (mu, kappa) = (a.mu[s], a.kappa[s]);
+    [
+        mu.x as f32,
+        mu.y as f32,
+        mu.z as f32,
+        (0.5 * kappa) as f32,
+        a.log_scaled[s] as f32,
+    ]
+}
+
+/// Runs `$body` with `$j` = 0, 1, … `$c − 1` (`$c` a constant ≤ 8) as straight-line code: a
+/// loop over the slots, even of constant length, was vectorized across the slots (with
+/// gathers) instead of across the lanes.
+macro_rules! unroll {
+    ($c:expr, $j:ident => $body:block) => {
+        if $c > 0 {
+            let $j = 0;
+            $body
+        }
+        if $c > 1 {
+            let $j = 1;
+            $body
+        }
+        if $c > 2 {
+            let $j = 2;
+            $body
+        }
+        if $c > 3 {
+            let $j = 3;
+            $body
+        }
+        if $c > 4 {
+            let $j = 4;
+            $body
+        }
+        if $c > 5 {
+            let $j = 5;
+            $body
+        }
+        if $c > 6 {
+            let $j = 6;
+            $body
+        }
+        if $c > 7 {
+            let $j = 7;
+            $body
+        }
+    };
 }
 
 /// Responsibilities of the samples of `b` (Algorithm 1 line 5 in log space): fills `e[j]`
 /// with `e^{x_j − max}`, `x_j = ln α_j + ln C(κ_j) − κ_j|n − μ_j|²/2`, and `d[j]` with the
 /// offsets `n − μ_j`, and returns per sample `w · ln Σ_j α_j γ_j(n)` and `w / Σ_j e^{x_j − max}`.
 #[inline(always)]
-fn block_responsibilities<S: Simd32>(
+fn block_responsibilities<S: Simd32, const C: usize>(
     b: &Block32,
     a: &Active32,
     e: &mut [S; MAX_LOBES],
     d: &mut [[S; 3]; MAX_LOBES],
 ) -> (S, S) {
-    let count = a.count.min(MAX_LOBES);
     let (x, y, z, w) = (S::load(&b.x), S::load(&b.y), S::load(&b.z), S::load(&b.w));
     let mut max = S::splat(f32::NEG_INFINITY);
-    for (j, (ej, dj)) in e.iter_mut().zip(d.iter_mut()).enumerate().take(count) {
-        let dx = x.sub(S::splat(a.mu[0][j]));
-        let dy = y.sub(S::splat(a.mu[1][j]));
-        let dz = z.sub(S::splat(a.mu[2][j]));
-        *dj = [dx, dy, dz];
+    unroll!(C, j => {
+        let dx = x.sub(S::load(&a.mu[0][j]));
+        let dy = y.sub(S::load(&a.mu[1][j]));
+        let dz = z.sub(S::load(&a.mu[2][j]));
+        d[j] = [dx, dy, dz];
         let d2 = dx.mul(dx).add(dy.mul(dy)).add(dz.mul(dz));
-        let v = S::splat(a.offset[j]).sub(S::splat(a.half_kappa[j]).mul(d2));
-        *ej = v;
+        let v = S::load(&a.offset[j]).sub(S::load(&a.half_kappa[j]).mul(d2));
+        e[j] = v;
         max = S::select_gt(v, max, v, max);
-    }
+    });
     let mut sum = S::splat(0.0);
-    for ej in e.iter_mut().take(count) {
-        *ej = exp_nonpositive(ej.sub(max));
-        sum = sum.add(*ej);
-    }
+    unroll!(C, j => {
+        e[j] = exp_nonpositive(e[j].sub(max));
+        sum = sum.add(e[j]);
+    });
     (w.mul(max.add(ln_positive(sum))), w.div(sum))
 }
 
 /// Blocks summed in `f32` lanes before they are added to the `f64` totals (512 samples: the
 /// lane sums' relative rounding stays below 32 ulps).
-const FLUSH_BLOCKS: usize = 32;
+pub(super) const FLUSH_BLOCKS: usize = 32;
 
 /// One single-precision E-step over `blocks` for the lobes of `active`, returning the M-step
 /// sums in `f64`. Compiled for AVX-512, AVX2 and SSE4.2 and chosen at run time; every variant
@@ -106,7 +187,8 @@ const FLUSH_BLOCKS: usize = 32;
 /// is bit-identical on every CPU.
 #[multiversion::multiversion(targets("x86_64+avx512f", "x86_64+avx2+avx", "x86_64+sse4.2"))]
 pub(super) fn e_step32(blocks: &[Block32], active: &Active) -> Sums {
-    e_step_kernel::<Portable32>(blocks, &Active32::new(active))
+    let a = Active32::new(active);
+    by_count!(a.count, e_step_kernel::<Portable32>(blocks, &a))
 }
 
 /// The kernel proper. The moments are accumulated as offsets from the lobe's (f32) centre,
@@ -114,8 +196,8 @@ pub(super) fn e_step32(blocks: &[Block32], active: &Active) -> Sums {
 /// `f32`; `Σ w z · μ_j` is added back in `f64`. That keeps `1 − |r_j|`, and with it κ_j ≈
 /// `1/(1 − |r_j|)`, as accurate as the `f64` kernel's for every storable κ.
 #[inline(always)]
-fn e_step_kernel<S: Simd32>(blocks: &[Block32], active: &Active32) -> Sums {
-    let count = active.count.min(MAX_LOBES);
+fn e_step_kernel<S: Simd32, const C: usize>(blocks: &[Block32], active: &Active32) -> Sums {
+    let count = C;
     let zero = S::splat(0.0);
     let mut sums = Sums::default();
     let mut e = [zero; MAX_LOBES];
@@ -126,15 +208,16 @@ fn e_step_kernel<S: Simd32>(blocks: &[Block32], active: &Active32) -> Sums {
         let mut acc = [[zero; 4]; MAX_LOBES];
         let mut log_likelihood = zero;
         for b in run {
-            let (ll, scale) = block_responsibilities(b, active, &mut e, &mut d);
+            let (ll, scale) = block_responsibilities::<S, C>(b, active, &mut e, &mut d);
             log_likelihood = log_likelihood.add(ll);
-            for ((a, ej), dj) in acc.iter_mut().zip(&e).zip(&d).take(count) {
-                let wz = ej.mul(scale);
+            unroll!(C, j => {
+                let (a, dj) = (&mut acc[j], &d[j]);
+                let wz = e[j].mul(scale);
                 a[0] = a[0].add(wz);
                 a[1] = a[1].add(wz.mul(dj[0]));
                 a[2] = a[2].add(wz.mul(dj[1]));
                 a[3] = a[3].add(wz.mul(dj[2]));
-            }
+            });
         }
         sums.log_likelihood += lane_sum(log_likelihood.to_array());
         for (j, a) in acc.iter().enumerate().take(count) {
@@ -146,7 +229,7 @@ fn e_step_kernel<S: Simd32>(blocks: &[Block32], active: &Active32) -> Sums {
     }
     for (c, o) in offsets.iter().enumerate() {
         for (j, oj) in o.iter().enumerate().take(count) {
-            sums.moment[c][j] = sums.weight[j] * active.mu[c][j] as f64 + oj;
+            sums.moment[c][j] = sums.weight[j] * active.mu[c][j][0] as f64 + oj;
         }
     }
     sums
@@ -180,16 +263,17 @@ pub(super) fn feature_sums(
     features: &[FeatureBlock],
     active: &Active,
 ) -> ([f64; MAX_LOBES], [[f64; 4]; MAX_LOBES]) {
-    feature_kernel::<Portable32>(blocks, features, &Active32::new(active))
+    let a = Active32::new(active);
+    by_count!(a.count, feature_kernel::<Portable32>(blocks, features, &a))
 }
 
 #[inline(always)]
-fn feature_kernel<S: Simd32>(
+fn feature_kernel<S: Simd32, const C: usize>(
     blocks: &[Block32],
     features: &[FeatureBlock],
     active: &Active32,
 ) -> ([f64; MAX_LOBES], [[f64; 4]; MAX_LOBES]) {
-    let count = active.count.min(MAX_LOBES);
+    let count = C;
     let zero = S::splat(0.0);
     let mut weight = [0.0f64; MAX_LOBES];
     let mut sums = [[0.0f64; 4]; MAX_LOBES];
@@ -201,20 +285,21 @@ fn feature_kernel<S: Simd32>(
     {
         let mut acc = [[zero; 5]; MAX_LOBES];
         for (b, f) in run.iter().zip(fruns) {
-            let (_, scale) = block_responsibilities(b, active, &mut e, &mut d);
+            let (_, scale) = block_responsibilities::<S, C>(b, active, &mut e, &mut d);
             let y = [
                 S::load(&f[0]),
                 S::load(&f[1]),
                 S::load(&f[2]),
                 S::load(&f[3]),
             ];
-            for (a, ej) in acc.iter_mut().zip(&e).take(count) {
-                let wz = ej.mul(scale);
+            unroll!(C, j => {
+                let a = &mut acc[j];
+                let wz = e[j].mul(scale);
                 a[0] = a[0].add(wz);
                 for c in 0..4 {
                     a[c + 1] = a[c + 1].add(wz.mul(y[c]));
                 }
-            }
+            });
         }
         for (j, a) in acc.iter().enumerate().take(count) {
             weight[j] += lane_sum(a[0].to_array());
@@ -224,6 +309,143 @@ fn feature_kernel<S: Simd32>(
         }
     }
     (weight, sums)
+}
+
+/// The slots of up to sixteen texels side by side for [`e_step_lanes`]: lane `t` holds texel
+/// `t`'s constants. A slot a texel does not use has offset −∞ (it adds exact zeros to that
+/// texel's sums); a lane no texel uses has one slot of offset 0 (finite, discarded).
+pub(super) struct LaneLobes {
+    slots: Active32,
+    /// Per lane, the slots its texel uses.
+    counts: [usize; LANES],
+}
+
+impl LaneLobes {
+    /// No texels yet: every lane unused.
+    pub(super) fn new() -> Self {
+        let mut slots = Active32::empty();
+        slots.count = 1;
+        slots.offset[0] = [0.0; LANES];
+        LaneLobes {
+            slots,
+            counts: [0; LANES],
+        }
+    }
+
+    /// Puts the slots of `a` (one texel's E-step) into lane `t`.
+    pub(super) fn set(&mut self, t: usize, a: &Active) {
+        let count = a.count.min(MAX_LOBES);
+        let k = &mut self.slots;
+        for s in 0..MAX_LOBES {
+            let c = if s < count {
+                slot32(a, s)
+            } else {
+                [0.0, 0.0, 0.0, 0.0, f32::NEG_INFINITY]
+            };
+            for (m, &v) in k.mu.iter_mut().zip(&c[..3]) {
+                m[s][t] = v;
+            }
+            k.half_kappa[s][t] = c[3];
+            k.offset[s][t] = c[4];
+        }
+        self.counts[t] = count;
+        k.count = k.count.max(count);
+    }
+}
+
+/// Quantities summed per texel by [`e_step_lanes`]: the log-likelihood, then per slot `Σ w z`
+/// and `Σ w z (n − μ)`.
+const QUANTITIES: usize = 1 + 4 * MAX_LOBES;
+
+/// Partial sums of one texel lane: `[quantity][texel]` in `f64`.
+type Node = [[f64; LANES]; QUANTITIES];
+
+/// [`e_step32`] for up to sixteen texels at once, one texel per lane: `lanes[b * LANES + l]`
+/// holds sample `l` of block `b` of every texel (lane `t`: texel `t`, padded with zero-weight
+/// samples beyond its own blocks), `blocks ≤ FLUSH_BLOCKS`. Each texel's sums have the bits
+/// [`e_step32`] gives for it alone: per sample position `l` the same `f32` operations over its
+/// blocks in the same order, then the same `f64` pairwise tree over `l` as `lane_sum`, with
+/// the padding adding exact zeros. Multiversioned like [`e_step32`].
+#[multiversion::multiversion(targets("x86_64+avx512f", "x86_64+avx2+avx", "x86_64+sse4.2"))]
+pub(super) fn e_step_lanes(lanes: &[Block32], blocks: usize, lobes: &LaneLobes) -> [Sums; LANES] {
+    by_count!(
+        lobes.slots.count,
+        lanes_kernel::<Portable32>(lanes, blocks, lobes)
+    )
+}
+
+/// The leaves of `lane_sum`'s tree in an order that evaluates it with a stack (each pair
+/// merged as soon as both halves are done): the tree adds `l` and `l + 8`, then `+ 4`, `+ 2`,
+/// `+ 1`.
+const TREE_ORDER: [usize; LANES] = [0, 8, 4, 12, 2, 10, 6, 14, 1, 9, 5, 13, 3, 11, 7, 15];
+
+#[inline(always)]
+fn lanes_kernel<S: Simd32, const C: usize>(
+    lanes: &[Block32],
+    blocks: usize,
+    k: &LaneLobes,
+) -> [Sums; LANES] {
+    debug_assert!(blocks <= FLUSH_BLOCKS && lanes.len() >= blocks * LANES);
+    let count = C;
+    let used = 1 + 4 * count;
+    let zero = S::splat(0.0);
+    let mut e = [zero; MAX_LOBES];
+    let mut d = [[zero; 3]; MAX_LOBES];
+    let mut stack: [Node; 5] = [[[0.0; LANES]; QUANTITIES]; 5];
+    let mut heights = [0u32; 5];
+    let mut top = 0;
+    for &l in &TREE_ORDER {
+        let mut acc = [[zero; 4]; MAX_LOBES];
+        let mut log_likelihood = zero;
+        for b in 0..blocks {
+            let blk = &lanes[b * LANES + l];
+            let (ll, scale) = block_responsibilities::<S, C>(blk, &k.slots, &mut e, &mut d);
+            log_likelihood = log_likelihood.add(ll);
+            unroll!(C, j => {
+                let (a, dj) = (&mut acc[j], &d[j]);
+                let wz = e[j].mul(scale);
+                a[0] = a[0].add(wz);
+                a[1] = a[1].add(wz.mul(dj[0]));
+                a[2] = a[2].add(wz.mul(dj[1]));
+                a[3] = a[3].add(wz.mul(dj[2]));
+            });
+        }
+        let node = &mut stack[top];
+        node[0] = log_likelihood.to_array().map(f64::from);
+        for (s, a) in acc.iter().enumerate().take(count) {
+            for (c, v) in a.iter().enumerate() {
+                node[1 + 4 * s + c] = v.to_array().map(f64::from);
+            }
+        }
+        heights[top] = 0;
+        top += 1;
+        while top >= 2 && heights[top - 1] == heights[top - 2] {
+            let (lo, hi) = stack.split_at_mut(top - 1);
+            let (left, right) = (&mut lo[top - 2], &hi[0]);
+            for (a, b) in left.iter_mut().zip(right.iter()).take(used) {
+                for (a, b) in a.iter_mut().zip(b) {
+                    *a += *b;
+                }
+            }
+            heights[top - 2] += 1;
+            top -= 1;
+        }
+    }
+    debug_assert_eq!(top, 1);
+    let root = &stack[0];
+    let mut out: [Sums; LANES] = std::array::from_fn(|_| Sums::default());
+    for (t, sums) in out.iter_mut().enumerate() {
+        let count = k.counts[t];
+        sums.log_likelihood += root[0][t];
+        for j in 0..count {
+            sums.weight[j] += root[1 + 4 * j][t];
+            for c in 0..3 {
+                let offset = 0.0 + root[1 + 4 * j + 1 + c][t];
+                sums.moment[c][j] = sums.weight[j] * k.slots.mu[c][j][t] as f64 + offset;
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]
