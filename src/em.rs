@@ -2606,8 +2606,12 @@ mod tests {
                 },
             );
             let mut scratch = EmScratch::new();
+            // Lanes must finish at different iterations for the batch to be tested at all
+            // (measured: 2 to 12 of at most 12 for J = 3 and 6).
+            let mut iterations = std::collections::BTreeSet::new();
             for (i, (input, init)) in inputs.iter().zip(&inits).enumerate() {
                 let single = fit(input, &init[..j], &options, None, &mut scratch);
+                iterations.insert(single.iterations);
                 assert_eq!(
                     batched[i].as_ref(),
                     Some(&fit_bits(&single)),
@@ -2615,6 +2619,11 @@ mod tests {
                     sizes[i]
                 );
             }
+            // (One lobe is the weighted mean after one M-step: J = 1 always stops at 2.)
+            assert!(
+                j == 1 || iterations.len() >= 3,
+                "J = {j}: iterations {iterations:?}"
+            );
         }
     }
 
