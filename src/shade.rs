@@ -78,18 +78,84 @@ const UNIFORM_VARIANCE: f64 = 1e6;
 /// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
 /// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
 /// [`crate::vmf::r_max`]) before κ is computed ([`vmf_decode`], every α > 0 kept):
-/// `s' = κs/(κ+s)` computed as `s/(1 + s/κ)` (eq 20), `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`;
-/// diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
+/// the specular lobe by the default rule ([`VmfSpecular::Convolved`],
+/// [`crate::vmf::blinn_phong_convolved`]; [`vmf_lobe_with`] takes eq 20's
+/// `s' = κs/(κ+s)`, `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}` too); diffuse `α(ω_i·μ)`, specular
+/// `α B_s (ω_i·μ)`.
 /// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
 /// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe.
 pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shading {
+    vmf_lobe_with(theta, l, h, s, r_max, VmfSpecular::default())
+}
+
+/// [`vmf_lobe`] with the specular rule `rule`.
+pub fn vmf_lobe_with(
+    theta: [f32; 4],
+    l: DVec3,
+    h: DVec3,
+    s: f64,
+    r_max: f64,
+    rule: VmfSpecular,
+) -> Shading {
     let Some(t) = vmf_decode(theta, r_max, 0.0) else {
         return Shading::default();
     };
     let cos_i = t.mu.dot(l).max(0.0);
     Shading {
         diffuse: t.alpha * cos_i,
-        specular: t.alpha * blinn_phong(t.mu.dot(h), s / (1.0 + s * t.var)) * cos_i,
+        specular: t.alpha * rule.lobe(t.mu.dot(h), s, t.var) * cos_i,
+    }
+}
+
+/// How a vMF lobe widens the Blinn-Phong lobe `(s+1)/(2π)(n·ω_h)^s` (Algorithm 2 lines
+/// 12–13): the specular term of every vMF evaluation under Blinn-Phong (point lights; the
+/// environment light's prefiltered lookups keep eq 20's `s'`, `crate::envlight`). The other
+/// methods keep their published rules.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VmfSpecular {
+    /// Eq 20 as published: `s' = κs/(κ+s)` (as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
+    /// Overshoots the exact convolution (eq 14) at the peak by `≈ s/(κ+s)·…`: 6 % at κ = 20,
+    /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The shaders'
+    /// `NDF_VMF_SPECULAR_EQ20`.
+    Eq20,
+    /// The closed-form vMF ⊛ Blinn-Phong lobe ([`crate::vmf::blinn_phong_convolved`]): within
+    /// 0.5 % of eq 14 up to one lobe width from μ. The default.
+    #[default]
+    Convolved,
+    /// Eq 14 by quadrature ([`crate::brdf::convolution::convolve_vmf`]): the exact
+    /// convolution, the bound on what any rule can give. CPU only (a few hundred Bessel-function
+    /// evaluations per lobe: for measurements, `ndfmap eval --vmf-specular exact`); no shader
+    /// has it.
+    Exact,
+}
+
+impl VmfSpecular {
+    /// The widened Blinn-Phong lobe (without the cosine) at `ω_h·μ = c` for exponent `s` and a
+    /// vMF lobe of variance `var = 1/κ` (`var = 0`: κ = ∞, the lobe itself).
+    pub fn lobe(self, c: f64, s: f64, var: f64) -> f64 {
+        match self {
+            VmfSpecular::Eq20 => blinn_phong(c, s / (1.0 + s * var)),
+            VmfSpecular::Convolved => {
+                let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                crate::vmf::blinn_phong_convolved(c, s, kappa)
+            }
+            VmfSpecular::Exact => {
+                let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                let f = |b: f64| blinn_phong(b.cos(), s);
+                let theta = c.clamp(-1.0, 1.0).acos();
+                crate::brdf::convolution::convolve_vmf(&f, 1.0 / s.max(1e-6).sqrt(), kappa, theta)
+            }
+        }
+    }
+
+    /// The name used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            VmfSpecular::Eq20 => "eq20",
+            VmfSpecular::Convolved => "convolved",
+            VmfSpecular::Exact => "exact",
+        }
     }
 }
 
@@ -150,6 +216,8 @@ pub enum VmfDiffuse {
 pub struct ShadeOptions {
     /// The vMF lobes' diffuse term.
     pub vmf_diffuse: VmfDiffuse,
+    /// The vMF lobes' specular rule under Blinn-Phong.
+    pub vmf_specular: VmfSpecular,
     /// The SH texels' diffuse term.
     pub sh_diffuse: crate::sh::ShDiffuse,
 }
@@ -169,7 +237,8 @@ pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &B
 /// Filtered shading of `bake`'s method from one texel's values under any [`Brdf`]: the CPU
 /// twin of the method's shader, with the clamps of the format the bake was read in
 /// ([`Bake::format`]). Each method's NDF estimate widens the BRDF's lobe by that BRDF's rule:
-/// - Blinn-Phong: eq 20 for vMF lobes (`s' = κs/(κ+s)`), Toksvig's and Tan's `s' = s/(1+sσ²)`,
+/// - Blinn-Phong: for vMF lobes [`ShadeOptions::vmf_specular`] (default the closed-form
+///   convolution, [`crate::vmf::blinn_phong_convolved`]; eq 20's `s' = κs/(κ+s)` on request), Toksvig's and Tan's `s' = s/(1+sσ²)`,
 ///   LEAN's and Olano–North's covariance ([`widened_lobe`]);
 /// - eq 18: eq 21 for vMF lobes (`σ'² = σ² + 1/(2κ)`), the variance or covariance added to the
 ///   lobe's ([`torrance_sparrow_lobe`]);
@@ -364,7 +433,8 @@ struct Component {
 /// One mixture component of a texel (vMF lobe or Tan 2005 Gaussian), decoded and shaded with
 /// unit weight under `brdf`, or `None` for an empty component: the terms of [`shade_with`]'s
 /// mixture arm before they are weighted by α (or by the colour `α·y`).
-/// vMF, Blinn-Phong: Algorithm 2 lines 7–14 (`s' = κs/(κ+s)`, eq 20); see [`vmf_lobe`].
+/// vMF, Blinn-Phong: Algorithm 2 lines 7–14 with [`ShadeOptions::vmf_specular`]'s lobe; see
+/// [`vmf_lobe`].
 fn mixture_component(
     bake: &Bake,
     texel: [f32; 4],
@@ -402,6 +472,9 @@ fn mixture_component(
     };
     let cos_i = mu.dot(l).max(0.0);
     let lobe = match brdf {
+        Brdf::BlinnPhong { s } if bake.method == Method::Vmf => {
+            options.vmf_specular.lobe(mu.dot(h), *s, var)
+        }
         Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
         b => iso_lobe(b, mu, var, h),
     };
