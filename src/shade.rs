@@ -142,9 +142,7 @@ impl VmfSpecular {
             }
             VmfSpecular::Exact => {
                 let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
-                let f = |b: f64| blinn_phong(b.cos(), s);
-                let theta = c.clamp(-1.0, 1.0).acos();
-                crate::brdf::convolution::convolve_vmf(&f, 1.0 / s.max(1e-6).sqrt(), kappa, theta)
+                exact_convolution(c, s, kappa)
             }
         }
     }
@@ -158,6 +156,98 @@ impl VmfSpecular {
         }
     }
 }
+
+/// `I₀ₑ(x) = e^{−x} I₀(x)` by Abramowitz & Stegun 9.8.1–9.8.2 (relative error below 2·10⁻⁷):
+/// the fast Bessel function of [`exact_convolution`] (a measurement; the full-precision one is
+/// `brdf::convolution::bessel_i0e`).
+fn bessel_i0e_fast(x: f64) -> f64 {
+    let x = x.max(0.0);
+    if x <= 3.75 {
+        let t = (x / 3.75) * (x / 3.75);
+        let p = 1.0
+            + t * (3.5156229
+                + t * (3.0899424
+                    + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))));
+        p * (-x).exp()
+    } else {
+        let t = 3.75 / x;
+        let p = 0.39894228
+            + t * (0.01328592
+                + t * (0.00225319
+                    + t * (-0.00157565
+                        + t * (0.00916281
+                            + t * (-0.02057706
+                                + t * (0.02635537 + t * (-0.01647633 + t * 0.00392377)))))));
+        p / x.sqrt()
+    }
+}
+
+/// Eq 14 for one vMF lobe under the Blinn-Phong lobe `(s+1)/(2π)(n·ω_h)^s`, by quadrature, at
+/// `ω_h·μ = c`: `∫ B(β) sin β · 2π C(κ) e^{κ(cos(θ−β)−1)} I₀ₑ(κ sin θ sin β) dβ` over the polar
+/// angle β of n from ω_h (the azimuth in closed form, as `brdf::convolution::convolve_vmf`),
+/// restricted to where both factors exceed `e^{−46}` of their peaks — `cos^s β > e^{−46}` and
+/// `2κ sin²((θ−β)/2) < 46` — and integrated there with 32 8-point Gauss–Legendre panels (at
+/// most 0.3 of the Blinn-Phong lobe's width and 0.6 of the vMF lobe's each). Agrees with
+/// `convolve_vmf` to 10⁻⁵ (test below) at a third of its cost: what `VmfSpecular::Exact` uses.
+fn exact_convolution(c: f64, s: f64, kappa: f64) -> f64 {
+    use std::f64::consts::PI;
+    if kappa.is_infinite() {
+        return blinn_phong(c, s);
+    }
+    if !(kappa > 0.0) {
+        // The uniform lobe: the Blinn-Phong lobe's unit mass over the sphere's 4π.
+        return 1.0 / (4.0 * PI);
+    }
+    let theta = c.clamp(-1.0, 1.0).acos();
+    let beta_s = if s > 0.0 {
+        (-46.0 / s).exp().acos().min(0.5 * PI)
+    } else {
+        0.5 * PI
+    };
+    let x = 23.0 / kappa;
+    let delta = if x >= 1.0 { PI } else { 2.0 * x.sqrt().asin() };
+    let (lo, hi) = ((theta - delta).max(0.0), (theta + delta).min(beta_s));
+    if !(hi > lo) {
+        return 0.0;
+    }
+    let norm = 2.0 * PI * kappa / (2.0 * PI * -(-2.0 * kappa).exp_m1());
+    let (st, panels) = (theta.sin(), 32);
+    let step = (hi - lo) / panels as f64;
+    let mut sum = 0.0;
+    for p in 0..panels {
+        let mid = lo + (p as f64 + 0.5) * step;
+        for (xi, wi) in GL8_X.iter().zip(GL8_W) {
+            let beta = mid + 0.5 * step * xi;
+            let half = (0.5 * (theta - beta)).sin();
+            let ring =
+                (-2.0 * kappa * half * half).exp() * bessel_i0e_fast(kappa * st * beta.sin());
+            sum += wi * blinn_phong(beta.cos(), s) * beta.sin() * ring;
+        }
+    }
+    0.5 * step * norm * sum
+}
+
+/// The 8-point Gauss–Legendre nodes and weights on [−1, 1].
+const GL8_X: [f64; 8] = [
+    -0.960_289_856_497_536_3,
+    -0.796_666_477_413_626_7,
+    -0.525_532_409_916_329,
+    -0.183_434_642_495_649_8,
+    0.183_434_642_495_649_8,
+    0.525_532_409_916_329,
+    0.796_666_477_413_626_7,
+    0.960_289_856_497_536_3,
+];
+const GL8_W: [f64; 8] = [
+    0.101_228_536_290_376_26,
+    0.222_381_034_453_374_47,
+    0.313_706_645_877_887_3,
+    0.362_683_783_378_362,
+    0.362_683_783_378_362,
+    0.313_706_645_877_887_3,
+    0.222_381_034_453_374_47,
+    0.101_228_536_290_376_26,
+];
 
 /// Toksvig's texel decoded: the mean normal `n̄`, its direction (+Z when `n̄ = 0`) and its
 /// length `|n̄|` clamped to 1.
@@ -543,6 +633,28 @@ pub fn shade_rgb_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_fast_exact_convolution_is_the_full_quadrature() {
+        // VmfSpecular::Exact's windowed quadrature against brdf::convolution's full one.
+        for s in [32.0f64, 256.0, 2048.0] {
+            for kappa in [0.5, 5.0, 30.0, 300.0, 1e4, 1e6] {
+                let w = (1.0 / kappa + 1.0 / s).sqrt();
+                for x in [0.0, 0.7, 1.5, 3.0] {
+                    let theta = (x * w).min(1.5);
+                    let f = |b: f64| blinn_phong(b.cos(), s);
+                    let full =
+                        crate::brdf::convolution::convolve_vmf(&f, 1.0 / s.sqrt(), kappa, theta);
+                    let fast = exact_convolution(theta.cos(), s, kappa);
+                    let peak = blinn_phong(1.0, s);
+                    assert!(
+                        (fast - full).abs() <= 1e-5 * full + 1e-9 * peak,
+                        "s={s} κ={kappa} θ={theta}: {fast} vs {full}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn colour_shading_with_white_albedo_is_the_scalar_shading() {

@@ -861,12 +861,21 @@ mod tests {
         for s in [32.0f64, 256.0, 2048.0] {
             for kappa in [2.0, 5.0, 10.0, 20.0, 50.0, 200.0, 1e3, 1e5] {
                 let w = (1.0 / kappa + 1.0 / s).sqrt();
-                for (x, tol) in [(0.0, 0.01), (0.5, 0.01), (1.0, 0.01), (1.5, 0.02), (2.0, 0.03)] {
+                for (x, tol) in [
+                    (0.0, 0.01),
+                    (0.5, 0.01),
+                    (1.0, 0.01),
+                    (1.5, 0.02),
+                    (2.0, 0.03),
+                ] {
                     let theta = x * w;
                     let exact = convolved_by_quadrature(s, kappa, theta);
                     let rule = blinn_phong_convolved(theta.cos(), s, kappa);
                     let rel = (rule / exact - 1.0).abs();
-                    assert!(rel < tol, "s={s} κ={kappa} θ={theta}: {rule} vs {exact} ({rel})");
+                    assert!(
+                        rel < tol,
+                        "s={s} κ={kappa} θ={theta}: {rule} vs {exact} ({rel})"
+                    );
                     let eq20 = blinn_phong_filtered(theta.cos(), s, kappa);
                     eq20_worst = eq20_worst.max((eq20 / exact - 1.0).abs());
                 }
