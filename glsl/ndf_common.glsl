@@ -185,18 +185,21 @@ float ndf_vmf_half_norm(float x) {
 // cos_h = dot(mu, h), var = 1/kappa. 0 where kappa c + eta <= 0. CPU: vmf::blinn_phong_convolved.
 float ndf_vmf_blinn_phong(float cos_h, float s, float var) {
     if (!(s > 0.0)) return 1.0 / (2.0 * NDF_PI);
-    float a = (s + 1.0) / (2.0 * NDF_PI);
     float k = 1.0 / var;
     float eta = s + 1.0;
     float omc = clamp(1.0 - cos_h, 0.0, 2.0);
     float num = k * (1.0 - omc) + eta;
     if (!(num > 0.0)) return 0.0;
     float k2s2 = k * k * omc * (2.0 - omc);
-    float r = sqrt(k2s2 + num * num);
-    float d = -2.0 * k * eta * omc / (r + k + eta);
-    float omcm = k2s2 / (r * (r + num));
-    float e = d + eta * omcm + s * log(num / r);
-    return a * ndf_vmf_half_norm(k) / ndf_vmf_half_norm(r) * exp(e);
+    float r2 = k2s2 + num * num;
+    float ir = inversesqrt(r2);
+    float r = r2 * ir;
+    float e = -2.0 * k * eta * omc / (r + k + eta) + eta * k2s2 * ir / (r + num) + s * log(num * ir);
+    // g(kappa)/g(R) = kappa/R where both are >= 9 (1 - e^(-18) is 1 in f32): the usual case,
+    // so the exponentials of ndf_vmf_half_norm run only for broad lobes.
+    float g = k * ir;
+    if (k < 9.0 || r < 9.0) g = ndf_vmf_half_norm(k) / ndf_vmf_half_norm(r);
+    return (s + 1.0) / (2.0 * NDF_PI) * g * exp(e);
 }
 
 // The specular lobe of an isotropic NDF estimate around mu with per-axis angular variance var
