@@ -109,7 +109,7 @@ pub fn vmf_lobe_with(
 
 /// How a vMF lobe widens the Blinn-Phong lobe `(s+1)/(2π)(n·ω_h)^s` (Algorithm 2 lines
 /// 12–13): the specular term of every vMF evaluation under Blinn-Phong (point lights; the
-/// environment light's prefiltered lookups keep eq 20's `s'`, `crate::envlight`). The other
+/// environment light's prefiltered lookups keep eq 20's `s'`, module `envlight`). The other
 /// methods keep their published rules.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -194,7 +194,7 @@ fn exact_convolution(c: f64, s: f64, kappa: f64) -> f64 {
     if kappa.is_infinite() {
         return blinn_phong(c, s);
     }
-    if !(kappa > 0.0) {
+    if !crate::vmf::is_positive(kappa) {
         // The uniform lobe: the Blinn-Phong lobe's unit mass over the sphere's 4π.
         return 1.0 / (4.0 * PI);
     }
@@ -207,7 +207,7 @@ fn exact_convolution(c: f64, s: f64, kappa: f64) -> f64 {
     let x = 23.0 / kappa;
     let delta = if x >= 1.0 { PI } else { 2.0 * x.sqrt().asin() };
     let (lo, hi) = ((theta - delta).max(0.0), (theta + delta).min(beta_s));
-    if !(hi > lo) {
+    if !crate::vmf::is_positive(hi - lo) {
         return 0.0;
     }
     let norm = 2.0 * PI * kappa / (2.0 * PI * -(-2.0 * kappa).exp_m1());

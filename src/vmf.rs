@@ -526,7 +526,7 @@ pub fn blinn_phong_convolved(cos_h_mu: f64, s: f64, kappa: f64) -> f64 {
     let omc = (1.0 - cos_h_mu).clamp(0.0, 2.0);
     let c = 1.0 - omc;
     let num = k * c + eta;
-    if !(num > 0.0) {
+    if !is_positive(num) {
         return 0.0;
     }
     let r = (k * k * omc * (2.0 - omc) + num * num).sqrt();

@@ -280,14 +280,14 @@ fn half_norm_f32(x: f32) -> f32 {
 
 /// `ndf_vmf_blinn_phong` (glsl/ndf_common.glsl) in f32, operation for operation.
 fn vmf_blinn_phong_f32(cos_h: f32, s: f32, var: f32) -> f32 {
-    if !(s > 0.0) {
+    if s.is_nan() || s <= 0.0 {
         return 1.0 / (2.0 * std::f32::consts::PI);
     }
     let k = 1.0 / var;
     let eta = s + 1.0;
     let omc = (1.0 - cos_h).clamp(0.0, 2.0);
     let num = k * (1.0 - omc) + eta;
-    if !(num > 0.0) {
+    if num.is_nan() || num <= 0.0 {
         return 0.0;
     }
     let k2s2 = k * k * omc * (2.0 - omc);
