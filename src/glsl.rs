@@ -169,9 +169,9 @@ pub struct ShaderOptions {
     pub probe: bool,
     /// The vMF lobes' diffuse term (`NDF_VMF_DIFFUSE_ALG2` for Algorithm 2 as written).
     pub vmf_diffuse: crate::shade::VmfDiffuse,
-    /// The vMF lobes' specular rule under Blinn-Phong (`NDF_VMF_SPECULAR_EQ20` for the paper's
-    /// eq 20; the default is the closed-form convolution). `VmfSpecular::Exact` has no shader
-    /// and is refused.
+    /// The vMF lobes' specular rule under Blinn-Phong (the default is the paper's eq 20;
+    /// `NDF_VMF_SPECULAR_CONVOLVED` for the closed-form convolution). `VmfSpecular::Exact` has
+    /// no shader and is refused.
     pub vmf_specular: crate::shade::VmfSpecular,
     /// The SH texels' diffuse term (`NDF_SH_DIFFUSE_SERIES` for eq 12's series).
     pub sh_diffuse: crate::sh::ShDiffuse,
@@ -353,7 +353,7 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     if options.vmf_specular == crate::shade::VmfSpecular::Exact {
         return Err(Error::InvalidOption(
             "the exact vMF convolution (quadrature) is a CPU measurement: no shader has it \
-             (use convolved or eq20)"
+             (use eq20 or convolved)"
                 .into(),
         ));
     }
@@ -929,8 +929,8 @@ fn defines(
     if spec.method == Method::Vmf && options.vmf_diffuse == crate::shade::VmfDiffuse::Algorithm2 {
         d("NDF_VMF_DIFFUSE_ALG2", "1", Part);
     }
-    if spec.method == Method::Vmf && options.vmf_specular == crate::shade::VmfSpecular::Eq20 {
-        d("NDF_VMF_SPECULAR_EQ20", "1", Part);
+    if spec.method == Method::Vmf && options.vmf_specular == crate::shade::VmfSpecular::Convolved {
+        d("NDF_VMF_SPECULAR_CONVOLVED", "1", Part);
     }
     if spec.method == Method::Sh && options.sh_diffuse == crate::sh::ShDiffuse::Series {
         d("NDF_SH_DIFFUSE_SERIES", "1", Part);

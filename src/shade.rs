@@ -78,10 +78,10 @@ const UNIFORM_VARIANCE: f64 = 1e6;
 /// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
 /// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
 /// [`crate::vmf::r_max`]) before κ is computed ([`vmf_decode`], every α > 0 kept):
-/// the specular lobe by the default rule ([`VmfSpecular::Convolved`],
-/// [`crate::vmf::blinn_phong_convolved`]; [`vmf_lobe_with`] takes eq 20's
-/// `s' = κs/(κ+s)`, `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}` too); diffuse `α(ω_i·μ)`, specular
-/// `α B_s (ω_i·μ)`.
+/// the specular lobe by the default rule, eq 20 ([`VmfSpecular::Eq20`]):
+/// `s' = κs/(κ+s)` computed as `s/(1 + s/κ)`, `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`
+/// ([`vmf_lobe_with`] takes the closed-form convolution, [`VmfSpecular::Convolved`], too);
+/// diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
 /// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
 /// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe.
 pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shading {
@@ -116,12 +116,14 @@ pub fn vmf_lobe_with(
 pub enum VmfSpecular {
     /// Eq 20 as published: `s' = κs/(κ+s)` (as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
     /// Overshoots the exact convolution (eq 14) at the peak by `≈ s/(κ+s)·…`: 6 % at κ = 20,
-    /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The shaders'
-    /// `NDF_VMF_SPECULAR_EQ20`.
+    /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The default:
+    /// the cheapest rule in the shaders, and on real maps closer than
+    /// [`VmfSpecular::Convolved`] at s = 256 and 2048, farther at s = 32 (`docs/baker.md`).
+    #[default]
     Eq20,
     /// The closed-form vMF ⊛ Blinn-Phong lobe ([`crate::vmf::blinn_phong_convolved`]): within
-    /// 0.5 % of eq 14 up to one lobe width from μ. The default.
-    #[default]
+    /// 0.5 % of eq 14 up to one lobe width from μ. Opt-in (`--vmf-specular convolved`); the
+    /// shaders' `NDF_VMF_SPECULAR_CONVOLVED`.
     Convolved,
     /// Eq 14 by quadrature ([`crate::brdf::convolution::convolve_vmf`]): the exact
     /// convolution, the bound on what any rule can give. CPU only (a few hundred Bessel-function
@@ -327,8 +329,9 @@ pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &B
 /// Filtered shading of `bake`'s method from one texel's values under any [`Brdf`]: the CPU
 /// twin of the method's shader, with the clamps of the format the bake was read in
 /// ([`Bake::format`]). Each method's NDF estimate widens the BRDF's lobe by that BRDF's rule:
-/// - Blinn-Phong: for vMF lobes [`ShadeOptions::vmf_specular`] (default the closed-form
-///   convolution, [`crate::vmf::blinn_phong_convolved`]; eq 20's `s' = κs/(κ+s)` on request), Toksvig's and Tan's `s' = s/(1+sσ²)`,
+/// - Blinn-Phong: for vMF lobes [`ShadeOptions::vmf_specular`] (default eq 20's
+///   `s' = κs/(κ+s)`; the closed-form convolution, [`crate::vmf::blinn_phong_convolved`], on
+///   request), Toksvig's and Tan's `s' = s/(1+sσ²)`,
 ///   LEAN's and Olano–North's covariance ([`widened_lobe`]);
 /// - eq 18: eq 21 for vMF lobes (`σ'² = σ² + 1/(2κ)`), the variance or covariance added to the
 ///   lobe's ([`torrance_sparrow_lobe`]);

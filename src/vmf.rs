@@ -7,8 +7,8 @@
 //!   one clamp ([`R_MAX`], [`KAPPA_MAX`]) used everywhere, and the exact inverse `A⁻¹`;
 //! - the texture form of a lobe, `(α, α·r)` (Sec 7.3, DESIGN.md "Texture layouts");
 //! - the spherical-harmonic coefficients of a vMF lobe, eq 19;
-//! - the convolved Blinn-Phong lobe, eq 20, its closer closed form [`blinn_phong_convolved`]
-//!   (the default under Blinn-Phong), and the convolved Torrance–Sparrow roughness, eq 21.
+//! - the convolved Blinn-Phong lobe, eq 20 (the default under Blinn-Phong), its closer closed
+//!   form [`blinn_phong_convolved`] (opt-in), and the convolved Torrance–Sparrow roughness, eq 21.
 //!
 //! Main types and functions: [`Lobe`], [`density`], [`log_density`], [`a_kappa`],
 //! [`kappa_from_r`], [`kappa_from_r_exact`], [`r_from_kappa`].
@@ -494,7 +494,7 @@ fn half_norm(x: f64) -> f64 {
     x / -(-2.0 * x).exp_m1()
 }
 
-/// The vMF ⊛ Blinn-Phong lobe (eq 14 for one vMF lobe under `(s+1)/(2π)(n·ω_h)^s`), the default
+/// The vMF ⊛ Blinn-Phong lobe (eq 14 for one vMF lobe under `(s+1)/(2π)(n·ω_h)^s`), the opt-in
 /// rule for vMF lobes under Blinn-Phong in place of eq 20 (`shade::VmfSpecular::Convolved`).
 /// `cos_h_mu` is `ω_h·μ`, `s` the exponent, `kappa` the lobe's κ.
 ///

@@ -182,26 +182,34 @@ fn kappa_from_an_f16_mean_length_is_clamped_to_what_f16_can_hold() {
                     "{format} s={s}"
                 );
                 assert!(out.specular <= PEAK_BOUND * (s + 1.0) / (2.0 * PI));
-                // The κ cap keeps the lobe sharp but finite. Eq 20: s' = κs/(κ+s) ≤ κ_max(format).
+                // The κ cap keeps the lobe sharp but finite. Eq 20 (the default rule):
+                // s' = κs/(κ+s) ≤ κ_max(format).
                 let kmax = kappa_banerjee(r_max(format));
                 let s_eff = kmax * s / (kmax + s);
                 let want = (s_eff + 1.0) / (2.0 * PI);
-                let eq20 = ShadeOptions {
-                    vmf_specular: VmfSpecular::Eq20,
+                assert!(
+                    (out.specular - want).abs() <= 0.02 * want,
+                    "{format} level {level} s={s}: {} vs {want}",
+                    out.specular
+                );
+                // The closed-form convolution (opt-in): the rule's value at κ_max.
+                let convolved = ShadeOptions {
+                    vmf_specular: VmfSpecular::Convolved,
                     ..Default::default()
                 };
-                let e = shade_with(&q, &t, DVec3::Z, DVec3::Z, &Brdf::BlinnPhong { s }, &eq20);
-                assert!(
-                    (e.specular - want).abs() <= 0.02 * want,
-                    "{format} level {level} s={s}: {} vs {want}",
-                    e.specular
+                let c = shade_with(
+                    &q,
+                    &t,
+                    DVec3::Z,
+                    DVec3::Z,
+                    &Brdf::BlinnPhong { s },
+                    &convolved,
                 );
-                // The default (closed-form convolution): the rule's value at κ_max.
                 let conv = blinn_phong_convolved(1.0, s, kmax);
                 assert!(
-                    (out.specular - conv).abs() <= 0.02 * conv,
+                    (c.specular - conv).abs() <= 0.02 * conv,
                     "{format} level {level} s={s}: {} vs {conv}",
-                    out.specular
+                    c.specular
                 );
             }
         }
@@ -278,7 +286,7 @@ fn half_norm_f32(x: f32) -> f32 {
     }
 }
 
-/// `ndf_vmf_blinn_phong` (glsl/ndf_common.glsl) in f32, operation for operation.
+/// `ndf_vmf_blinn_phong` (glsl/ndf_common.glsl, `NDF_VMF_SPECULAR_CONVOLVED`) in f32, operation for operation.
 fn vmf_blinn_phong_f32(cos_h: f32, s: f32, var: f32) -> f32 {
     if s.is_nan() || s <= 0.0 {
         return 1.0 / (2.0 * std::f32::consts::PI);

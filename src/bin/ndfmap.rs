@@ -168,9 +168,9 @@ enum Command {
         /// algorithm2 (α max(ω_i·μ, 0)).
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
-        /// vmf: the lobes' specular rule under Blinn-Phong, convolved (the closed-form vMF ⊛
-        /// Blinn-Phong lobe, the default) or eq20 (the paper's s' = κs/(κ+s)).
-        #[arg(long, default_value = "convolved")]
+        /// vmf: the lobes' specular rule under Blinn-Phong, eq20 (the paper's s' = κs/(κ+s),
+        /// the default) or convolved (the closed-form vMF ⊛ Blinn-Phong lobe).
+        #[arg(long, default_value = "eq20")]
         vmf_specular: String,
         /// sh: the diffuse term, moments (a Gaussian cosine with the moments of bands 0-2, the
         /// default) or series (eq 12 with Lambert's truncated clamped cosine).
@@ -285,10 +285,10 @@ enum Command {
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
         /// vMF specular rule under Blinn-Phong, comma-separated to compare in one run (labels
-        /// then name the rule): convolved (the closed-form vMF ⊛ Blinn-Phong lobe, the
-        /// default), eq20 (the paper's s' = κs/(κ+s)) or exact (eq 14 by quadrature: CPU only,
-        /// slow, the bound on what any rule can give).
-        #[arg(long, value_delimiter = ',', default_value = "convolved")]
+        /// then name the rule): eq20 (the paper's s' = κs/(κ+s), the default), convolved (the
+        /// closed-form vMF ⊛ Blinn-Phong lobe) or exact (eq 14 by quadrature: CPU only, slow,
+        /// the bound on what any rule can give).
+        #[arg(long, value_delimiter = ',', default_value = "eq20")]
         vmf_specular: Vec<String>,
         /// SH diffuse term: moments (default) or series (eq 12 with Lambert's truncated clamped
         /// cosine).
@@ -1486,7 +1486,7 @@ fn run(cli: Cli) -> Result<u8> {
                     choice::<ndfmap::shade::VmfSpecular>(
                         "vmf-specular",
                         r.trim(),
-                        "convolved, eq20, exact",
+                        "eq20, convolved, exact",
                     )
                 })
                 .collect::<Result<Vec<_>>>()?;
@@ -1739,7 +1739,7 @@ fn run(cli: Cli) -> Result<u8> {
                 color,
                 probe,
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
-                vmf_specular: choice("vmf-specular", &vmf_specular, "convolved, eq20")?,
+                vmf_specular: choice("vmf-specular", &vmf_specular, "eq20, convolved")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
                 light: [
                     ndfmap::glsl::ShaderLight::Point,

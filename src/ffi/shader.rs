@@ -38,11 +38,12 @@ pub const NDF_VMF_DIFFUSE_ALGORITHM2: ndf_vmf_diffuse = 1;
 
 /// The vMF lobes' specular rule under Blinn-Phong: one of the `NDF_VMF_SPECULAR_*` values.
 pub type ndf_vmf_specular = u32;
+/// The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`. Default (0: a
+/// zero-initialised struct gets it).
+pub const NDF_VMF_SPECULAR_EQ20: ndf_vmf_specular = 0;
 /// The closed-form vMF ⊛ Blinn-Phong lobe (within 0.5 % of the exact convolution, eq 14, up to
-/// one lobe width). Default.
-pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 0;
-/// The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
-pub const NDF_VMF_SPECULAR_EQ20: ndf_vmf_specular = 1;
+/// one lobe width; costlier in the shader).
+pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 1;
 
 /// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
 pub type ndf_sh_diffuse = u32;
@@ -122,12 +123,12 @@ pub struct ndf_shader_options {
     /// `NDF_LIGHT_POINT`.
     pub light: ndf_light,
     /// vMF bakes under Blinn-Phong: the lobes' specular rule, `NDF_VMF_SPECULAR_*`. Default
-    /// `NDF_VMF_SPECULAR_CONVOLVED`.
+    /// `NDF_VMF_SPECULAR_EQ20`.
     pub vmf_specular: ndf_vmf_specular,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
-/// textures, no colour, the mean-vector vMF diffuse term, the closed-form vMF specular rule, the
+/// textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
 /// moments SH diffuse term, the mesh variant.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
@@ -143,7 +144,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         probe: 0,
         sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
         light: NDF_LIGHT_POINT,
-        vmf_specular: NDF_VMF_SPECULAR_CONVOLVED,
+        vmf_specular: NDF_VMF_SPECULAR_EQ20,
     };
     guard_value(o, || o)
 }
@@ -185,7 +186,7 @@ unsafe fn shader(
         vmf_specular: choose(
             "vmf_specular",
             o.vmf_specular,
-            &[VmfSpecular::Convolved, VmfSpecular::Eq20],
+            &[VmfSpecular::Eq20, VmfSpecular::Convolved],
         )?,
         sh_diffuse: choose(
             "sh_diffuse",

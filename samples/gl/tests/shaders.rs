@@ -97,8 +97,8 @@ fn label(c: &Case) -> String {
         } else {
             ""
         },
-        if c.specular == VmfSpecular::Eq20 {
-            " eq20"
+        if c.specular == VmfSpecular::Convolved {
+            " convolved"
         } else {
             ""
         }
@@ -382,8 +382,9 @@ fn cases() -> Vec<Case> {
             });
         }
     }
-    // The paper's eq 20 as the vMF lobes' specular rule (the alternative to the closed-form
-    // convolution), broad and sharp exponents, f32 and f16.
+    // The closed-form vMF ⊛ Blinn-Phong lobe as the vMF lobes' specular rule (the opt-in
+    // alternative to the default eq 20; NDF_VMF_SPECULAR_CONVOLVED), broad and sharp exponents,
+    // f32 and f16.
     for b in [&bakes[4], &aligned] {
         for format in [Format::F32, Format::F16] {
             for s in [64.0, 1024.0] {
@@ -393,7 +394,7 @@ fn cases() -> Vec<Case> {
                     sampling: Sampling::Manual,
                     color: false,
                     diffuse: VmfDiffuse::default(),
-                    specular: VmfSpecular::Eq20,
+                    specular: VmfSpecular::Convolved,
                     sh_diffuse: ShDiffuse::default(),
                 });
             }
