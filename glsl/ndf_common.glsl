@@ -167,10 +167,50 @@ float ndf_tab_lobe(float theta, float kappa) {
 }
 #endif
 
+// The convolved vMF rule's helpers, only where a shader (or, LOD-switch shaders, whose parts
+// define their options after this file, any part) may use them.
+#if defined(NDF_VMF_SPECULAR_CONVOLVED) || defined(NDF_LOD_SWITCH)
+// x / (1 - e^(-2x)), 1/2 at x = 0: 2 pi times the vMF normalization C(x) (eq 15) without sinh
+// or e^x; the series 1/2 + x/2 below 1e-3, where f32's 1 - e^(-2x) cancels. CPU: vmf::half_norm.
+float ndf_vmf_half_norm(float x) {
+    if (x < 1e-3) return 0.5 + 0.5 * x;
+    if (x > 19.0) return x;
+    return x / (1.0 - exp(-2.0 * x));
+}
+
+// The vMF (*) Blinn-Phong lobe, the opt-in vMF rule under Blinn-Phong (NDF_VMF_SPECULAR_CONVOLVED;
+// eq 20 is the default): eq 14 for the lobe (s+1)/(2 pi) c^s written A e^(eta(c-1)) q(c),
+// eta = s + 1, A = (s+1)/(2 pi), q(c) = c^s e^(eta(1-c)); the vMF-vMF product in closed form and
+// q at the product lobe's centre, c_m = (kappa c + eta)/R, R = |kappa mu + eta h|:
+// B = A g(kappa)/g(R) exp(R - kappa - eta + eta (1 - c_m) + s ln c_m), with
+// R - kappa - eta = -2 kappa eta (1 - c)/(R + kappa + eta) and
+// 1 - c_m = kappa^2 (1 - c^2)/(R (R + kappa c + eta)) (no cancellation in f32).
+// cos_h = dot(mu, h), var = 1/kappa. 0 where kappa c + eta <= 0. CPU: vmf::blinn_phong_convolved.
+float ndf_vmf_blinn_phong(float cos_h, float s, float var) {
+    if (!(s > 0.0)) return 1.0 / (2.0 * NDF_PI);
+    float k = 1.0 / var;
+    float eta = s + 1.0;
+    float omc = clamp(1.0 - cos_h, 0.0, 2.0);
+    float num = k * (1.0 - omc) + eta;
+    if (!(num > 0.0)) return 0.0;
+    float k2s2 = k * k * omc * (2.0 - omc);
+    float r2 = k2s2 + num * num;
+    float ir = inversesqrt(r2);
+    float r = r2 * ir;
+    float e = -2.0 * k * eta * omc / (r + k + eta) + eta * k2s2 * ir / (r + num) + s * log(num * ir);
+    // g(kappa)/g(R) = kappa/R where both are >= 9 (1 - e^(-18) is 1 in f32): the usual case,
+    // so the exponentials of ndf_vmf_half_norm run only for broad lobes.
+    float g = k * ir;
+    if (k < 9.0 || r < 9.0) g = ndf_vmf_half_norm(k) / ndf_vmf_half_norm(r);
+    return (s + 1.0) / (2.0 * NDF_PI) * g * exp(e);
+}
+#endif
+
 // The specular lobe of an isotropic NDF estimate around mu with per-axis angular variance var
 // (1/kappa for a vMF lobe), without the cosine and g: eq 21 (Torrance-Sparrow),
 // alpha'^2 = alpha^2 + c var (GGX), eq 14 from the table at kappa = 1/var (tabulated), 0 for
-// Lambert. Blinn-Phong is handled by each method (eq 20 and its relatives). CPU: shade::iso_lobe.
+// Lambert. Blinn-Phong: s' = s/(1 + s var) (eq 20's form; vMF lobes use ndf_vmf_blinn_phong with
+// NDF_VMF_SPECULAR_CONVOLVED). CPU: shade::iso_lobe.
 float ndf_iso_lobe(vec3 mu, float var, vec3 h) {
 #if defined(NDF_BRDF_TORRANCE_SPARROW)
     vec3 t1;

@@ -11,9 +11,12 @@
 //                variance 1/kappa = (1 - |r|)(1 + |r|) / (|r| (3 - |r|^2)) (Banerjee's
 //                kappa inverted, without the cancellation of 1 - |r|^2; at most 1e6, the
 //                uniform lobe's, for r = 0; vmf::inverse_kappa)
-//   lines 12-13  s' = kappa*s / (kappa + s) as s / (1 + s/kappa), B = (s' + 1)/(2 pi)
-//                (w_h . mu)^s' (eq 20); other BRDFs: ndf_iso_lobe with var = 1/kappa (eq 21
-//                for Torrance-Sparrow, alpha'^2 = alpha^2 + c/kappa for GGX, eq 14 tabulated)
+//   lines 12-13  Blinn-Phong: the paper's eq 20, s' = kappa*s / (kappa + s) as
+//                s / (1 + s/kappa), B = (s' + 1)/(2 pi) (w_h . mu)^s', or with
+//                NDF_VMF_SPECULAR_CONVOLVED the closed-form vMF (*) Blinn-Phong lobe
+//                (ndf_vmf_blinn_phong; vmf::blinn_phong_convolved; shade::VmfSpecular);
+//                other BRDFs: ndf_iso_lobe with var = 1/kappa (eq 21 for Torrance-Sparrow,
+//                alpha'^2 = alpha^2 + c/kappa for GGX, eq 14 tabulated)
 //   line 14      rho += alpha*y (K_s B + K_d)(w_i . mu); the K_d and K_s terms are returned apart.
 //                The K_d term uses max(w_i . alpha r, 0) = alpha |r| (w_i . mu) unless
 //                NDF_VMF_DIFFUSE_ALG2 asks for line 14 as written (shade::VmfDiffuse).
@@ -51,7 +54,11 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         vec3 weight = vec3(alpha);
 #endif
         float cos_i = max(dot(mu, l), 0.0);
+#if defined(NDF_BRDF_BLINN_PHONG) && defined(NDF_VMF_SPECULAR_CONVOLVED)
+        float lobe = ndf_vmf_blinn_phong(dot(mu, h), ndf_s, var) * cos_i;
+#else
         float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
+#endif
 #ifndef NDF_NO_DIFFUSE
 #ifdef NDF_VMF_DIFFUSE_ALG2
         diffuse += weight * cos_i;

@@ -579,6 +579,11 @@ typedef uint32_t ndf_sh_diffuse;
 typedef uint32_t ndf_light;
 
 /**
+ * The vMF lobes' specular rule under Blinn-Phong: one of the `NDF_VMF_SPECULAR_*` values.
+ */
+typedef uint32_t ndf_vmf_specular;
+
+/**
  * Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
  */
 typedef struct ndf_shader_options {
@@ -634,6 +639,11 @@ typedef struct ndf_shader_options {
    * `NDF_LIGHT_POINT`.
    */
   ndf_light light;
+  /**
+   * vMF bakes under Blinn-Phong: the lobes' specular rule, `NDF_VMF_SPECULAR_*`. Default
+   * `NDF_VMF_SPECULAR_EQ20`.
+   */
+  ndf_vmf_specular vmf_specular;
 } ndf_shader_options;
 
 /**
@@ -1180,6 +1190,18 @@ typedef struct ndf_environment_info {
  * Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
  */
 #define NDF_VMF_DIFFUSE_ALGORITHM2 1
+
+/**
+ * The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`. Default (0: a
+ * zero-initialised struct gets it).
+ */
+#define NDF_VMF_SPECULAR_EQ20 0
+
+/**
+ * The closed-form vMF ⊛ Blinn-Phong lobe (within 0.5 % of the exact convolution, eq 14, up to
+ * one lobe width; costlier in the shader).
+ */
+#define NDF_VMF_SPECULAR_CONVOLVED 1
 
 /**
  * `E[max(ω_i·n, 0)]` for a Gaussian cosine with the moments bands 0–2 give (l* ≥ 2; lower
@@ -1732,8 +1754,8 @@ ndf_status ndf_bake_container_file(const struct ndf_bake *bake,
 
 /**
  * The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
- * textures, no colour, the mean-vector vMF diffuse term, the moments SH diffuse term, the mesh
- * variant.
+ * textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
+ * moments SH diffuse term, the mesh variant.
  */
 struct ndf_shader_options ndf_shader_options_default(void);
 

@@ -195,6 +195,10 @@ pub struct ShaderOptions {
     pub probe: bool,
     /// The vMF lobes' diffuse term (`NDF_VMF_DIFFUSE_ALG2` for Algorithm 2 as written).
     pub vmf_diffuse: crate::shade::VmfDiffuse,
+    /// The vMF lobes' specular rule under Blinn-Phong (the default is the paper's eq 20;
+    /// `NDF_VMF_SPECULAR_CONVOLVED` for the closed-form convolution). `VmfSpecular::Exact` has
+    /// no shader and is refused.
+    pub vmf_specular: crate::shade::VmfSpecular,
     /// The SH texels' diffuse term (`NDF_SH_DIFFUSE_SERIES` for eq 12's series).
     pub sh_diffuse: crate::sh::ShDiffuse,
     /// No diffuse term (a scene with K_d = 0; `NDF_NO_DIFFUSE`): the shader declares no
@@ -371,6 +375,13 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         return Err(Error::InvalidOption(format!(
             "anisotropic sampling with {n} probes (expected 2 to 16)"
         )));
+    }
+    if options.vmf_specular == crate::shade::VmfSpecular::Exact {
+        return Err(Error::InvalidOption(
+            "the exact vMF convolution (quadrature) is a CPU measurement: no shader has it \
+             (use eq20 or convolved)"
+                .into(),
+        ));
     }
     if options.no_diffuse && options.brdf == ShaderBrdf::Lambert {
         return Err(Error::InvalidOption(
@@ -936,6 +947,9 @@ fn defines(
     }
     if spec.method == Method::Vmf && options.vmf_diffuse == crate::shade::VmfDiffuse::Algorithm2 {
         d("NDF_VMF_DIFFUSE_ALG2", "1", Part);
+    }
+    if spec.method == Method::Vmf && options.vmf_specular == crate::shade::VmfSpecular::Convolved {
+        d("NDF_VMF_SPECULAR_CONVOLVED", "1", Part);
     }
     if spec.method == Method::Sh && options.sh_diffuse == crate::sh::ShDiffuse::Series {
         d("NDF_SH_DIFFUSE_SERIES", "1", Part);

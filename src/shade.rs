@@ -78,20 +78,178 @@ const UNIFORM_VARIANCE: f64 = 1e6;
 /// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
 /// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
 /// [`crate::vmf::r_max`]) before κ is computed ([`vmf_decode`], every α > 0 kept):
-/// `s' = κs/(κ+s)` computed as `s/(1 + s/κ)` (eq 20), `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`;
+/// the specular lobe by the default rule, eq 20 ([`VmfSpecular::Eq20`]):
+/// `s' = κs/(κ+s)` computed as `s/(1 + s/κ)`, `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`
+/// ([`vmf_lobe_with`] takes the closed-form convolution, [`VmfSpecular::Convolved`], too);
 /// diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
 /// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
 /// `θ.yzw/α` would be 0/0 = NaN. A zero `r` (κ = 0) is a uniform lobe.
 pub fn vmf_lobe(theta: [f32; 4], l: DVec3, h: DVec3, s: f64, r_max: f64) -> Shading {
+    vmf_lobe_with(theta, l, h, s, r_max, VmfSpecular::default())
+}
+
+/// [`vmf_lobe`] with the specular rule `rule`.
+pub fn vmf_lobe_with(
+    theta: [f32; 4],
+    l: DVec3,
+    h: DVec3,
+    s: f64,
+    r_max: f64,
+    rule: VmfSpecular,
+) -> Shading {
     let Some(t) = vmf_decode(theta, r_max, 0.0) else {
         return Shading::default();
     };
     let cos_i = t.mu.dot(l).max(0.0);
     Shading {
         diffuse: t.alpha * cos_i,
-        specular: t.alpha * blinn_phong(t.mu.dot(h), s / (1.0 + s * t.var)) * cos_i,
+        specular: t.alpha * rule.lobe(t.mu.dot(h), s, t.var) * cos_i,
     }
 }
+
+/// How a vMF lobe widens the Blinn-Phong lobe `(s+1)/(2π)(n·ω_h)^s` (Algorithm 2 lines
+/// 12–13): the specular term of every vMF evaluation under Blinn-Phong (point lights; the
+/// environment light's prefiltered lookups keep eq 20's `s'`, module `envlight`). The other
+/// methods keep their published rules.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VmfSpecular {
+    /// Eq 20 as published: `s' = κs/(κ+s)` (as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
+    /// Overshoots the exact convolution (eq 14) at the peak by `≈ s/(κ+s)·…`: 6 % at κ = 20,
+    /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The default:
+    /// the cheapest rule in the shaders, and on real maps closer than
+    /// [`VmfSpecular::Convolved`] at s = 256 and 2048, farther at s = 32 (`docs/baker.md`).
+    #[default]
+    Eq20,
+    /// The closed-form vMF ⊛ Blinn-Phong lobe ([`crate::vmf::blinn_phong_convolved`]): within
+    /// 0.5 % of eq 14 up to one lobe width from μ. Opt-in (`--vmf-specular convolved`); the
+    /// shaders' `NDF_VMF_SPECULAR_CONVOLVED`.
+    Convolved,
+    /// Eq 14 by quadrature ([`crate::brdf::convolution::convolve_vmf`]): the exact
+    /// convolution, the bound on what any rule can give. CPU only (a few hundred Bessel-function
+    /// evaluations per lobe: for measurements, `ndfmap eval --vmf-specular exact`); no shader
+    /// has it.
+    Exact,
+}
+
+impl VmfSpecular {
+    /// The widened Blinn-Phong lobe (without the cosine) at `ω_h·μ = c` for exponent `s` and a
+    /// vMF lobe of variance `var = 1/κ` (`var = 0`: κ = ∞, the lobe itself).
+    pub fn lobe(self, c: f64, s: f64, var: f64) -> f64 {
+        match self {
+            VmfSpecular::Eq20 => blinn_phong(c, s / (1.0 + s * var)),
+            VmfSpecular::Convolved => {
+                let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                crate::vmf::blinn_phong_convolved(c, s, kappa)
+            }
+            VmfSpecular::Exact => {
+                let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                exact_convolution(c, s, kappa)
+            }
+        }
+    }
+
+    /// The name used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            VmfSpecular::Eq20 => "eq20",
+            VmfSpecular::Convolved => "convolved",
+            VmfSpecular::Exact => "exact",
+        }
+    }
+}
+
+/// `I₀ₑ(x) = e^{−x} I₀(x)` by Abramowitz & Stegun 9.8.1–9.8.2 (relative error below 2·10⁻⁷):
+/// the fast Bessel function of [`exact_convolution`] (a measurement; the full-precision one is
+/// `brdf::convolution::bessel_i0e`).
+fn bessel_i0e_fast(x: f64) -> f64 {
+    let x = x.max(0.0);
+    if x <= 3.75 {
+        let t = (x / 3.75) * (x / 3.75);
+        let p = 1.0
+            + t * (3.5156229
+                + t * (3.0899424
+                    + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))));
+        p * (-x).exp()
+    } else {
+        let t = 3.75 / x;
+        let p = 0.39894228
+            + t * (0.01328592
+                + t * (0.00225319
+                    + t * (-0.00157565
+                        + t * (0.00916281
+                            + t * (-0.02057706
+                                + t * (0.02635537 + t * (-0.01647633 + t * 0.00392377)))))));
+        p / x.sqrt()
+    }
+}
+
+/// Eq 14 for one vMF lobe under the Blinn-Phong lobe `(s+1)/(2π)(n·ω_h)^s`, by quadrature, at
+/// `ω_h·μ = c`: `∫ B(β) sin β · 2π C(κ) e^{κ(cos(θ−β)−1)} I₀ₑ(κ sin θ sin β) dβ` over the polar
+/// angle β of n from ω_h (the azimuth in closed form, as `brdf::convolution::convolve_vmf`),
+/// restricted to where both factors exceed `e^{−46}` of their peaks — `cos^s β > e^{−46}` and
+/// `2κ sin²((θ−β)/2) < 46` — and integrated there with 32 8-point Gauss–Legendre panels (at
+/// most 0.3 of the Blinn-Phong lobe's width and 0.6 of the vMF lobe's each). Agrees with
+/// `convolve_vmf` to 10⁻⁵ (test below) at a third of its cost: what `VmfSpecular::Exact` uses.
+fn exact_convolution(c: f64, s: f64, kappa: f64) -> f64 {
+    use std::f64::consts::PI;
+    if kappa.is_infinite() {
+        return blinn_phong(c, s);
+    }
+    if !crate::vmf::is_positive(kappa) {
+        // The uniform lobe: the Blinn-Phong lobe's unit mass over the sphere's 4π.
+        return 1.0 / (4.0 * PI);
+    }
+    let theta = c.clamp(-1.0, 1.0).acos();
+    let beta_s = if s > 0.0 {
+        (-46.0 / s).exp().acos().min(0.5 * PI)
+    } else {
+        0.5 * PI
+    };
+    let x = 23.0 / kappa;
+    let delta = if x >= 1.0 { PI } else { 2.0 * x.sqrt().asin() };
+    let (lo, hi) = ((theta - delta).max(0.0), (theta + delta).min(beta_s));
+    if !crate::vmf::is_positive(hi - lo) {
+        return 0.0;
+    }
+    let norm = 2.0 * PI * kappa / (2.0 * PI * -(-2.0 * kappa).exp_m1());
+    let (st, panels) = (theta.sin(), 32);
+    let step = (hi - lo) / panels as f64;
+    let mut sum = 0.0;
+    for p in 0..panels {
+        let mid = lo + (p as f64 + 0.5) * step;
+        for (xi, wi) in GL8_X.iter().zip(GL8_W) {
+            let beta = mid + 0.5 * step * xi;
+            let half = (0.5 * (theta - beta)).sin();
+            let ring =
+                (-2.0 * kappa * half * half).exp() * bessel_i0e_fast(kappa * st * beta.sin());
+            sum += wi * blinn_phong(beta.cos(), s) * beta.sin() * ring;
+        }
+    }
+    0.5 * step * norm * sum
+}
+
+/// The 8-point Gauss–Legendre nodes and weights on [−1, 1].
+const GL8_X: [f64; 8] = [
+    -0.960_289_856_497_536_3,
+    -0.796_666_477_413_626_7,
+    -0.525_532_409_916_329,
+    -0.183_434_642_495_649_8,
+    0.183_434_642_495_649_8,
+    0.525_532_409_916_329,
+    0.796_666_477_413_626_7,
+    0.960_289_856_497_536_3,
+];
+const GL8_W: [f64; 8] = [
+    0.101_228_536_290_376_26,
+    0.222_381_034_453_374_47,
+    0.313_706_645_877_887_3,
+    0.362_683_783_378_362,
+    0.362_683_783_378_362,
+    0.313_706_645_877_887_3,
+    0.222_381_034_453_374_47,
+    0.101_228_536_290_376_26,
+];
 
 /// Toksvig's texel decoded: the mean normal `n̄`, its direction (+Z when `n̄ = 0`) and its
 /// length `|n̄|` clamped to 1.
@@ -150,6 +308,8 @@ pub enum VmfDiffuse {
 pub struct ShadeOptions {
     /// The vMF lobes' diffuse term.
     pub vmf_diffuse: VmfDiffuse,
+    /// The vMF lobes' specular rule under Blinn-Phong.
+    pub vmf_specular: VmfSpecular,
     /// The SH texels' diffuse term.
     pub sh_diffuse: crate::sh::ShDiffuse,
 }
@@ -169,7 +329,9 @@ pub fn shade_brdf(bake: &Bake, texels: &[[f32; 4]], l: DVec3, h: DVec3, brdf: &B
 /// Filtered shading of `bake`'s method from one texel's values under any [`Brdf`]: the CPU
 /// twin of the method's shader, with the clamps of the format the bake was read in
 /// ([`Bake::format`]). Each method's NDF estimate widens the BRDF's lobe by that BRDF's rule:
-/// - Blinn-Phong: eq 20 for vMF lobes (`s' = κs/(κ+s)`), Toksvig's and Tan's `s' = s/(1+sσ²)`,
+/// - Blinn-Phong: for vMF lobes [`ShadeOptions::vmf_specular`] (default eq 20's
+///   `s' = κs/(κ+s)`; the closed-form convolution, [`crate::vmf::blinn_phong_convolved`], on
+///   request), Toksvig's and Tan's `s' = s/(1+sσ²)`,
 ///   LEAN's and Olano–North's covariance ([`widened_lobe`]);
 /// - eq 18: eq 21 for vMF lobes (`σ'² = σ² + 1/(2κ)`), the variance or covariance added to the
 ///   lobe's ([`torrance_sparrow_lobe`]);
@@ -364,7 +526,8 @@ struct Component {
 /// One mixture component of a texel (vMF lobe or Tan 2005 Gaussian), decoded and shaded with
 /// unit weight under `brdf`, or `None` for an empty component: the terms of [`shade_with`]'s
 /// mixture arm before they are weighted by α (or by the colour `α·y`).
-/// vMF, Blinn-Phong: Algorithm 2 lines 7–14 (`s' = κs/(κ+s)`, eq 20); see [`vmf_lobe`].
+/// vMF, Blinn-Phong: Algorithm 2 lines 7–14 with [`ShadeOptions::vmf_specular`]'s lobe; see
+/// [`vmf_lobe`].
 fn mixture_component(
     bake: &Bake,
     texel: [f32; 4],
@@ -402,6 +565,9 @@ fn mixture_component(
     };
     let cos_i = mu.dot(l).max(0.0);
     let lobe = match brdf {
+        Brdf::BlinnPhong { s } if bake.method == Method::Vmf => {
+            options.vmf_specular.lobe(mu.dot(h), *s, var)
+        }
         Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
         b => iso_lobe(b, mu, var, h),
     };
@@ -470,6 +636,28 @@ pub fn shade_rgb_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_fast_exact_convolution_is_the_full_quadrature() {
+        // VmfSpecular::Exact's windowed quadrature against brdf::convolution's full one.
+        for s in [32.0f64, 256.0, 2048.0] {
+            for kappa in [0.5, 5.0, 30.0, 300.0, 1e4, 1e6] {
+                let w = (1.0 / kappa + 1.0 / s).sqrt();
+                for x in [0.0, 0.7, 1.5, 3.0] {
+                    let theta = (x * w).min(1.5);
+                    let f = |b: f64| blinn_phong(b.cos(), s);
+                    let full =
+                        crate::brdf::convolution::convolve_vmf(&f, 1.0 / s.sqrt(), kappa, theta);
+                    let fast = exact_convolution(theta.cos(), s, kappa);
+                    let peak = blinn_phong(1.0, s);
+                    assert!(
+                        (fast - full).abs() <= 1e-5 * full + 1e-9 * peak,
+                        "s={s} κ={kappa} θ={theta}: {fast} vs {full}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn colour_shading_with_white_albedo_is_the_scalar_shading() {

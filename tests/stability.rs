@@ -14,8 +14,8 @@ use ndfmap::ingest::{Addressing, BadNormals, Channels, NormalMap, Samples};
 use ndfmap::methods::{bake, bake_with};
 use ndfmap::pack::quantize;
 use ndfmap::report::stability::{ENERGY_BOUND, ENERGY_EXEMPT, PEAK_BOUND, cases, sweep};
-use ndfmap::shade::{shade_brdf, vmf_lobe};
-use ndfmap::vmf::{R_MAX, kappa_banerjee, r_max};
+use ndfmap::shade::{ShadeOptions, VmfSpecular, shade_brdf, shade_with, vmf_lobe, vmf_lobe_with};
+use ndfmap::vmf::{R_MAX, blinn_phong_convolved, kappa_banerjee, r_max};
 use std::f64::consts::PI;
 
 #[test]
@@ -182,7 +182,8 @@ fn kappa_from_an_f16_mean_length_is_clamped_to_what_f16_can_hold() {
                     "{format} s={s}"
                 );
                 assert!(out.specular <= PEAK_BOUND * (s + 1.0) / (2.0 * PI));
-                // The κ cap keeps the lobe sharp but finite: s' = κs/(κ+s) ≤ κ_max(format).
+                // The κ cap keeps the lobe sharp but finite. Eq 20 (the default rule):
+                // s' = κs/(κ+s) ≤ κ_max(format).
                 let kmax = kappa_banerjee(r_max(format));
                 let s_eff = kmax * s / (kmax + s);
                 let want = (s_eff + 1.0) / (2.0 * PI);
@@ -190,6 +191,25 @@ fn kappa_from_an_f16_mean_length_is_clamped_to_what_f16_can_hold() {
                     (out.specular - want).abs() <= 0.02 * want,
                     "{format} level {level} s={s}: {} vs {want}",
                     out.specular
+                );
+                // The closed-form convolution (opt-in): the rule's value at κ_max.
+                let convolved = ShadeOptions {
+                    vmf_specular: VmfSpecular::Convolved,
+                    ..Default::default()
+                };
+                let c = shade_with(
+                    &q,
+                    &t,
+                    DVec3::Z,
+                    DVec3::Z,
+                    &Brdf::BlinnPhong { s },
+                    &convolved,
+                );
+                let conv = blinn_phong_convolved(1.0, s, kmax);
+                assert!(
+                    (c.specular - conv).abs() <= 0.02 * conv,
+                    "{format} level {level} s={s}: {} vs {conv}",
+                    c.specular
                 );
             }
         }
@@ -255,9 +275,54 @@ fn toksvig_from_a_two_channel_mean_loses_the_roughness_the_three_channel_mean_ke
     );
 }
 
+/// `ndf_vmf_half_norm` in f32.
+fn half_norm_f32(x: f32) -> f32 {
+    if x < 1e-3 {
+        0.5 + 0.5 * x
+    } else if x > 19.0 {
+        x
+    } else {
+        x / (1.0 - (-2.0 * x).exp())
+    }
+}
+
+/// `ndf_vmf_blinn_phong` (glsl/ndf_common.glsl, `NDF_VMF_SPECULAR_CONVOLVED`) in f32, operation for operation.
+fn vmf_blinn_phong_f32(cos_h: f32, s: f32, var: f32) -> f32 {
+    if s.is_nan() || s <= 0.0 {
+        return 1.0 / (2.0 * std::f32::consts::PI);
+    }
+    let k = 1.0 / var;
+    let eta = s + 1.0;
+    let omc = (1.0 - cos_h).clamp(0.0, 2.0);
+    let num = k * (1.0 - omc) + eta;
+    if num.is_nan() || num <= 0.0 {
+        return 0.0;
+    }
+    let k2s2 = k * k * omc * (2.0 - omc);
+    let r2 = k2s2 + num * num;
+    let ir = 1.0 / r2.sqrt();
+    let r = r2 * ir;
+    let e =
+        -2.0 * k * eta * omc / (r + k + eta) + eta * k2s2 * ir / (r + num) + s * (num * ir).ln();
+    let g = if k < 9.0 || r < 9.0 {
+        half_norm_f32(k) / half_norm_f32(r)
+    } else {
+        k * ir
+    };
+    (s + 1.0) / (2.0 * std::f32::consts::PI) * g * e.exp()
+}
+
 /// The shaders' vMF lobe in f32 (glsl/ndf_vmf.glsl + ndf_common.glsl): decode, κ with the
-/// format's clamp, eq 20, `ndf_pow`'s conventions.
-fn vmf_lobe_f32(theta: [f32; 4], l: Vec3, h: Vec3, s: f32, r_max: f32) -> (f32, f32) {
+/// format's clamp, the specular rule (eq 20 with `ndf_pow`'s conventions, or the closed-form
+/// convolution).
+fn vmf_lobe_f32(
+    theta: [f32; 4],
+    l: Vec3,
+    h: Vec3,
+    s: f32,
+    r_max: f32,
+    rule: VmfSpecular,
+) -> (f32, f32) {
     let alpha = theta[0];
     let (mut mu, mut var) = (Vec3::Z, 1e6f32);
     // GLSL's `!(alpha > NDF_ALPHA_MIN)` (0 here, as vmf_lobe): NaN and non-positive α are
@@ -284,7 +349,11 @@ fn vmf_lobe_f32(theta: [f32; 4], l: Vec3, h: Vec3, s: f32, r_max: f32) -> (f32, 
         }
     };
     let cos_i = mu.dot(l).max(0.0);
-    let b = (s_eff + 1.0) / (2.0 * std::f32::consts::PI) * ndf_pow(mu.dot(h), s_eff);
+    let b = if rule == VmfSpecular::Eq20 {
+        (s_eff + 1.0) / (2.0 * std::f32::consts::PI) * ndf_pow(mu.dot(h), s_eff)
+    } else {
+        vmf_blinn_phong_f32(mu.dot(h), s, var)
+    };
     (alpha * cos_i, alpha * b * cos_i)
 }
 
@@ -320,11 +389,20 @@ fn f32_shader_math_agrees_with_the_f64_cpu_path_on_extreme_lobes() {
             for format in Format::ALL {
                 let rm = r_max(format);
                 for &s in &[1.0f64, 10.0, 128.0, 1e4, 1e6] {
-                    for &(l, v) in &dirs {
+                    for (&(l, v), rule) in dirs
+                        .iter()
+                        .flat_map(|d| [(d, VmfSpecular::Eq20), (d, VmfSpecular::Convolved)])
+                    {
                         let h = half_vector(l, v);
-                        let d64 = vmf_lobe(theta, l, h, s, rm);
-                        let (d32, s32) =
-                            vmf_lobe_f32(theta, l.as_vec3(), h.as_vec3(), s as f32, rm as f32);
+                        let d64 = vmf_lobe_with(theta, l, h, s, rm, rule);
+                        let (d32, s32) = vmf_lobe_f32(
+                            theta,
+                            l.as_vec3(),
+                            h.as_vec3(),
+                            s as f32,
+                            rm as f32,
+                            rule,
+                        );
                         for (a, b) in [(d64.diffuse, d32 as f64), (d64.specular, s32 as f64)] {
                             assert!(a.is_finite() && b.is_finite() && a >= 0.0 && b >= 0.0);
                         }
@@ -341,7 +419,7 @@ fn f32_shader_math_agrees_with_the_f64_cpu_path_on_extreme_lobes() {
                             worst = worst.max(err);
                             assert!(
                                 err < 2e-3,
-                                "|r|={r_len} α={alpha} {format} s={s} l={l}: f64 {} f32 {s32}",
+                                "|r|={r_len} α={alpha} {format} s={s} l={l} {rule:?}: f64 {} f32 {s32}",
                                 d64.specular
                             );
                         }

@@ -168,6 +168,10 @@ enum Command {
         /// algorithm2 (α max(ω_i·μ, 0)).
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// vmf: the lobes' specular rule under Blinn-Phong, eq20 (the paper's s' = κs/(κ+s),
+        /// the default) or convolved (the closed-form vMF ⊛ Blinn-Phong lobe).
+        #[arg(long, default_value = "eq20")]
+        vmf_specular: String,
         /// sh: the diffuse term, moments (a Gaussian cosine with the moments of bands 0-2, the
         /// default) or series (eq 12 with Lambert's truncated clamped cosine).
         #[arg(long, default_value = "moments")]
@@ -280,6 +284,12 @@ enum Command {
         /// vMF diffuse term: mean-vector (default) or algorithm2.
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// vMF specular rule under Blinn-Phong, comma-separated to compare in one run (labels
+        /// then name the rule): eq20 (the paper's s' = κs/(κ+s), the default), convolved (the
+        /// closed-form vMF ⊛ Blinn-Phong lobe) or exact (eq 14 by quadrature: CPU only, slow,
+        /// the bound on what any rule can give).
+        #[arg(long, value_delimiter = ',', default_value = "eq20")]
+        vmf_specular: Vec<String>,
         /// SH diffuse term: moments (default) or series (eq 12 with Lambert's truncated clamped
         /// cosine).
         #[arg(long, default_value = "moments")]
@@ -1449,6 +1459,7 @@ fn run(cli: Cli) -> Result<u8> {
             ggx_g,
             ggx_c,
             vmf_diffuse,
+            vmf_specular,
             sh_diffuse,
             first_level,
             formats,
@@ -1469,7 +1480,18 @@ fn run(cli: Cli) -> Result<u8> {
             let shading = ndfmap::shade::ShadeOptions {
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
+                ..Default::default()
             };
+            let vmf_rules = vmf_specular
+                .iter()
+                .map(|r| {
+                    choice::<ndfmap::shade::VmfSpecular>(
+                        "vmf-specular",
+                        r.trim(),
+                        "eq20, convolved, exact",
+                    )
+                })
+                .collect::<Result<Vec<_>>>()?;
             let brdfs = eval_brdfs(&brdf, &s, &sigma, &alpha, ggx_g, &ggx_c)?;
             let mut methods = parse_methods(&methods)?;
             let routes = env
@@ -1579,19 +1601,39 @@ fn run(cli: Cli) -> Result<u8> {
                 return Ok(0);
             }
             let t = Instant::now();
-            let mut errors = evaluate_with(
-                &map,
-                &refs,
-                &brdfs,
-                &default_directions(),
-                first_level,
-                &shading,
-            );
-            // Errors come bake by bake, BRDF by BRDF: name the codec of compressed bakes.
-            for (i, e) in errors.iter_mut().enumerate() {
-                if let Some(Some(l)) = codec_labels.get(i / brdfs.len().max(1)) {
-                    e.label = l.clone();
+            let mut errors = Vec::new();
+            for (ri, &rule) in vmf_rules.iter().enumerate() {
+                // Bakes the rule does not touch are measured under the first rule only.
+                let rule_bakes: Vec<(usize, &Bake)> = refs
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, b)| ri == 0 || b.method == Method::Vmf)
+                    .map(|(i, b)| (i, *b))
+                    .collect();
+                let these: Vec<&Bake> = rule_bakes.iter().map(|(_, b)| *b).collect();
+                let mut e = evaluate_with(
+                    &map,
+                    &these,
+                    &brdfs,
+                    &default_directions(),
+                    first_level,
+                    &ndfmap::shade::ShadeOptions {
+                        vmf_specular: rule,
+                        ..shading
+                    },
+                );
+                // Errors come bake by bake, BRDF by BRDF: name the codec of compressed bakes,
+                // and the rule when several are compared.
+                for (j, e) in e.iter_mut().enumerate() {
+                    let (i, b) = rule_bakes[j / brdfs.len().max(1)];
+                    if let Some(Some(l)) = codec_labels.get(i) {
+                        e.label = l.clone();
+                    }
+                    if vmf_rules.len() > 1 && b.method == Method::Vmf {
+                        e.label = format!("{} {}", e.label, rule.name());
+                    }
                 }
+                errors.extend(e);
             }
             // How well lobe j lines up across neighbouring texels (Sec 7.3), per vMF bake.
             let coherence: Vec<(String, Vec<Option<f64>>)> = bakes
@@ -1644,6 +1686,7 @@ fn run(cli: Cli) -> Result<u8> {
             sampling,
             max_anisotropy,
             vmf_diffuse,
+            vmf_specular,
             sh_diffuse,
             addressing,
             stage,
@@ -1712,6 +1755,7 @@ fn run(cli: Cli) -> Result<u8> {
                 color,
                 probe,
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
+                vmf_specular: choice("vmf-specular", &vmf_specular, "eq20, convolved")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
                 light: [
                     ndfmap::glsl::ShaderLight::Point,

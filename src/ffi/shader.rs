@@ -5,7 +5,7 @@ use super::bake::{FORMATS, ndf_bake, ndf_format};
 use super::{Out, Outcome, arg, choose, fail, guard, guard_value, ndf_status, read_options};
 use crate::glsl::{Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage};
 use crate::sh::ShDiffuse;
-use crate::shade::VmfDiffuse;
+use crate::shade::{VmfDiffuse, VmfSpecular};
 use std::ffi::c_char;
 
 /// A shader stage: one of the `NDF_SHADER_STAGE_*` values.
@@ -35,6 +35,15 @@ pub type ndf_vmf_diffuse = u32;
 pub const NDF_VMF_DIFFUSE_MEAN_VECTOR: ndf_vmf_diffuse = 0;
 /// Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
 pub const NDF_VMF_DIFFUSE_ALGORITHM2: ndf_vmf_diffuse = 1;
+
+/// The vMF lobes' specular rule under Blinn-Phong: one of the `NDF_VMF_SPECULAR_*` values.
+pub type ndf_vmf_specular = u32;
+/// The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`. Default (0: a
+/// zero-initialised struct gets it).
+pub const NDF_VMF_SPECULAR_EQ20: ndf_vmf_specular = 0;
+/// The closed-form vMF ⊛ Blinn-Phong lobe (within 0.5 % of the exact convolution, eq 14, up to
+/// one lobe width; costlier in the shader).
+pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 1;
 
 /// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
 pub type ndf_sh_diffuse = u32;
@@ -113,11 +122,14 @@ pub struct ndf_shader_options {
     /// Blinn-Phong or GGX; no colour). Default
     /// `NDF_LIGHT_POINT`.
     pub light: ndf_light,
+    /// vMF bakes under Blinn-Phong: the lobes' specular rule, `NDF_VMF_SPECULAR_*`. Default
+    /// `NDF_VMF_SPECULAR_EQ20`.
+    pub vmf_specular: ndf_vmf_specular,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
-/// textures, no colour, the mean-vector vMF diffuse term, the moments SH diffuse term, the mesh
-/// variant.
+/// textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
+/// moments SH diffuse term, the mesh variant.
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
     let o = ndf_shader_options {
@@ -132,6 +144,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         probe: 0,
         sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
         light: NDF_LIGHT_POINT,
+        vmf_specular: NDF_VMF_SPECULAR_EQ20,
     };
     guard_value(o, || o)
 }
@@ -170,6 +183,11 @@ unsafe fn shader(
         color: o.color != 0,
         probe: o.probe != 0,
         vmf_diffuse: choose("vmf_diffuse", o.vmf_diffuse, &diffuse)?,
+        vmf_specular: choose(
+            "vmf_specular",
+            o.vmf_specular,
+            &[VmfSpecular::Eq20, VmfSpecular::Convolved],
+        )?,
         sh_diffuse: choose(
             "sh_diffuse",
             o.sh_diffuse,

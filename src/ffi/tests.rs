@@ -1509,6 +1509,57 @@ fn colour_shaders_are_given_for_every_environment_light() {
 }
 
 #[test]
+fn the_vmf_specular_rule_defaults_to_eq_20_and_convolved_is_opt_in() {
+    // 0 (a zero-initialised field, and ndf_shader_options_default) is eq 20: the shader without
+    // NDF_VMF_SPECULAR_CONVOLVED, the Rust default's source; 1 is the closed-form convolution.
+    let map = c_map();
+    let vmf = c_bake(map, NDF_METHOD_VMF);
+    let o = ndf_shader_options_default();
+    assert_eq!(o.vmf_specular, 0);
+    assert_eq!(NDF_VMF_SPECULAR_EQ20, 0);
+    // SAFETY: every pointer is NULL or valid for what it claims; freed once.
+    unsafe {
+        let spec = crate::glsl::ShaderSpec::of(&(*vmf).bake);
+        for (value, rule) in [
+            (NDF_VMF_SPECULAR_EQ20, crate::shade::VmfSpecular::Eq20),
+            (
+                NDF_VMF_SPECULAR_CONVOLVED,
+                crate::shade::VmfSpecular::Convolved,
+            ),
+        ] {
+            let opts = ndf_shader_options {
+                vmf_specular: value,
+                ..o
+            };
+            let rust_opts = crate::glsl::ShaderOptions {
+                vmf_specular: rule,
+                ..Default::default()
+            };
+            let want =
+                crate::glsl::source_for(&spec, crate::glsl::Stage::Fragment, &rust_opts).unwrap();
+            assert_eq!(
+                want.contains("#define NDF_VMF_SPECULAR_CONVOLVED"),
+                rule == crate::shade::VmfSpecular::Convolved
+            );
+            let mut size = 0;
+            check!(ndf_bake_shader_source_size(vmf, 1, &opts, &mut size) => Ok, "");
+            let mut buf = vec![0 as c_char; size];
+            let mut written = 0;
+            check!(ndf_bake_shader_source(vmf, 1, &opts, buf.as_mut_ptr(), size, &mut written) => Ok, "");
+            assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
+        }
+        let mut n = 0;
+        let bad = ndf_shader_options {
+            vmf_specular: 2,
+            ..o
+        };
+        check!(ndf_bake_shader_source_size(vmf, 1, &bad, &mut n) => InvalidArgument, "unknown vmf_specular value 2");
+        ndf_bake_free(vmf);
+        ndf_normal_map_free(map);
+    }
+}
+
+#[test]
 fn shader_source_is_the_glsl_modules_for_the_upload_format() {
     let map = c_map();
     let vmf = c_bake(map, NDF_METHOD_VMF);

@@ -29,7 +29,7 @@ use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, Stage, source};
 use ndfmap::methods::{bake, bake_with};
 use ndfmap::sample::{Filtering, anisotropic, shade_at};
 use ndfmap::sh::ShDiffuse;
-use ndfmap::shade::{ShadeOptions, VmfDiffuse, shade_rgb_with};
+use ndfmap::shade::{ShadeOptions, VmfDiffuse, VmfSpecular, shade_rgb_with};
 use ndfmap_gl::{
     BakeTextures, BrdfBinding, Gl, Program, RenderTarget, Route, draw_fullscreen, glow,
     read_rgba_f32,
@@ -76,12 +76,13 @@ struct Case {
     sampling: Sampling,
     color: bool,
     diffuse: VmfDiffuse,
+    specular: VmfSpecular,
     sh_diffuse: ShDiffuse,
 }
 
 fn label(c: &Case) -> String {
     format!(
-        "{} {} {:?}{}{}{}",
+        "{} {} {:?}{}{}{}{}",
         c.bake.label(),
         c.brdf.model(),
         c.sampling,
@@ -93,6 +94,11 @@ fn label(c: &Case) -> String {
         },
         if c.sh_diffuse == ShDiffuse::Series {
             " series"
+        } else {
+            ""
+        },
+        if c.specular == VmfSpecular::Convolved {
+            " convolved"
         } else {
             ""
         }
@@ -122,6 +128,7 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
         color: case.color,
         probe: true,
         vmf_diffuse: case.diffuse,
+        vmf_specular: case.specular,
         sh_diffuse: case.sh_diffuse,
         ..Default::default()
     };
@@ -150,6 +157,7 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
         color: case.color,
         shading: ShadeOptions {
             vmf_diffuse: case.diffuse,
+            vmf_specular: case.specular,
             sh_diffuse: case.sh_diffuse,
         },
         ..Filtering::new(case.brdf.clone())
@@ -270,6 +278,7 @@ fn cases() -> Vec<Case> {
                         sampling,
                         color,
                         diffuse: VmfDiffuse::default(),
+                        specular: VmfSpecular::default(),
                         sh_diffuse: ShDiffuse::default(),
                     });
                 }
@@ -321,6 +330,7 @@ fn cases() -> Vec<Case> {
                 brdf,
                 sampling: Sampling::Auto,
                 diffuse: VmfDiffuse::default(),
+                specular: VmfSpecular::default(),
                 sh_diffuse: ShDiffuse::default(),
             });
         }
@@ -334,6 +344,7 @@ fn cases() -> Vec<Case> {
                 sampling: Sampling::Anisotropic(8),
                 color: false,
                 diffuse: VmfDiffuse::default(),
+                specular: VmfSpecular::default(),
                 sh_diffuse: ShDiffuse::default(),
             });
         }
@@ -352,6 +363,7 @@ fn cases() -> Vec<Case> {
                 sampling: Sampling::Hardware,
                 color: false,
                 diffuse: VmfDiffuse::default(),
+                specular: VmfSpecular::default(),
                 sh_diffuse,
             });
         }
@@ -365,8 +377,27 @@ fn cases() -> Vec<Case> {
                 sampling,
                 color: false,
                 diffuse: VmfDiffuse::Algorithm2,
+                specular: VmfSpecular::default(),
                 sh_diffuse: ShDiffuse::default(),
             });
+        }
+    }
+    // The closed-form vMF ⊛ Blinn-Phong lobe as the vMF lobes' specular rule (the opt-in
+    // alternative to the default eq 20; NDF_VMF_SPECULAR_CONVOLVED), broad and sharp exponents,
+    // f32 and f16.
+    for b in [&bakes[4], &aligned] {
+        for format in [Format::F32, Format::F16] {
+            for s in [64.0, 1024.0] {
+                out.push(Case {
+                    bake: ndfmap::pack::quantize(b, format).unwrap(),
+                    brdf: Brdf::BlinnPhong { s },
+                    sampling: Sampling::Manual,
+                    color: false,
+                    diffuse: VmfDiffuse::default(),
+                    specular: VmfSpecular::Convolved,
+                    sh_diffuse: ShDiffuse::default(),
+                });
+            }
         }
     }
     out
