@@ -167,9 +167,10 @@ float ndf_tab_lobe(float theta, float kappa) {
 }
 #endif
 
-// The convolved vMF rule's helpers, only where a shader (or, LOD-switch shaders, whose parts
-// define their options after this file, any part) may use them.
-#if defined(NDF_VMF_SPECULAR_CONVOLVED) || defined(NDF_LOD_SWITCH)
+// The convolved vMF rule's helpers, only where a shader uses them (a LOD-switch shader, whose
+// parts define their options after this file, defines NDF_LOD_SWITCH_VMF_CONVOLVED before it
+// when any part does).
+#if defined(NDF_VMF_SPECULAR_CONVOLVED) || defined(NDF_LOD_SWITCH_VMF_CONVOLVED)
 // x / (1 - e^(-2x)), 1/2 at x = 0: 2 pi times the vMF normalization C(x) (eq 15) without sinh
 // or e^x; the series 1/2 + x/2 below 1e-3, where f32's 1 - e^(-2x) cancels. CPU: vmf::half_norm.
 float ndf_vmf_half_norm(float x) {

@@ -625,8 +625,14 @@ impl Radiance {
     /// The radiance in direction `d` as the piecewise-constant function it is (the texel's
     /// value): what the ground truth integrates.
     pub fn nearest(&self, d: DVec3) -> f64 {
+        self.values[self.index_of(d)] as f64
+    }
+
+    /// The index into [`Radiance::values`] of the texel `d` falls in ([`Radiance::nearest`]'s
+    /// texel): one lookup for several radiances on the same grid.
+    pub fn index_of(&self, d: DVec3) -> usize {
         let (x, y) = self.grid().texel_of(d);
-        self.values[(y * self.width + x) as usize] as f64
+        (y * self.width + x) as usize
     }
 
     /// Bilinear lookup (wrapping in φ, clamped at the poles): what a GPU's linear filter gives.

@@ -184,6 +184,10 @@ impl EnvLight {
     }
 
     fn from_channels(channels: [EnvChannel; 3], luminance: Radiance) -> EnvLight {
+        // `ground_truth_with` reads every channel at the luminance's texel index.
+        debug_assert!(channels.iter().all(|c| {
+            (c.radiance.width(), c.radiance.height()) == (luminance.width(), luminance.height())
+        }));
         EnvLight {
             channels,
             sampler: EnvSampler::new(&luminance),
@@ -402,11 +406,16 @@ pub fn ground_truth_with(
         return out;
     };
     let env = &light.luminance;
-    // The radiance normal j reflects from direction ω (luminance of its colour times L).
-    let value = |j: usize, d: DVec3, luminance: f64| match albedo {
+    // The luminance in direction ω and the texel it came from (every channel shares the grid).
+    let radiance = |d: DVec3| {
+        let texel = env.index_of(d);
+        (env.values()[texel] as f64, texel)
+    };
+    // The radiance normal j reflects from that texel (luminance of its colour times L).
+    let value = |j: usize, texel: usize, luminance: f64| match albedo {
         None => luminance,
         Some(a) => (0..3)
-            .map(|c| LUMINANCE[c] * a[j][c] * light.channels[c].radiance.nearest(d))
+            .map(|c| LUMINANCE[c] * a[j][c] * light.channels[c].radiance.values()[texel] as f64)
             .sum(),
     };
     let total_w: f64 = normals.iter().map(|n| n.1).sum();
@@ -434,10 +443,10 @@ pub fn ground_truth_with(
             rng.range(0.0, 1.0),
         ];
         let (le, _) = sampler.sample(env, ue);
-        let lv = env.nearest(le);
+        let (lv, texel) = radiance(le);
         let pe = lv / sampler.total();
         if pe > 0.0 {
-            let v = value(j, le, lv);
+            let v = value(j, texel, lv);
             let cos = n.dot(le).max(0.0);
             x[0] += cos * v / (pe + cos / PI);
             for (b, brdf) in brdfs.iter().enumerate() {
@@ -457,9 +466,9 @@ pub fn ground_truth_with(
             let phi = 2.0 * PI * u2;
             let l = t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt();
             let cos = n.dot(l).max(0.0);
-            let lv = env.nearest(l);
+            let (lv, texel) = radiance(l);
             if cos > 0.0 && lv > 0.0 {
-                x[0] += cos * value(j, l, lv) / (cos / PI + sampler.pdf(env, l));
+                x[0] += cos * value(j, texel, lv) / (cos / PI + sampler.pdf(env, l));
             }
         }
         // BRDF samples for each specular term.
@@ -470,10 +479,10 @@ pub fn ground_truth_with(
                 if oh > 0.0 {
                     let l = 2.0 * oh * h - view;
                     let f = specular_integrand(brdf, n, view, l);
-                    let lv = env.nearest(l);
+                    let (lv, texel) = radiance(l);
                     if f > 0.0 && lv > 0.0 {
                         let p = half_pdf_to_light(brdf, n, view, l) + sampler.pdf(env, l);
-                        x[1 + b] += f * value(j, l, lv) / p;
+                        x[1 + b] += f * value(j, texel, lv) / p;
                     }
                 }
             }
@@ -1627,9 +1636,7 @@ impl Reference {
             views: self.views.len(),
         })
     }
-}
 
-impl Reference {
     /// The luminance `bake`'s texel of task `ti` is scored by: [`shade`]'s, or with colour
     /// ([`EvalOptions::color`]) eq 22's coloured shading for a bake with colour textures and
     /// the shading times the footprint's mean albedo for any other.

@@ -673,6 +673,13 @@ pub fn lod_switch(
         }
     }
     out += "#define NDF_LOD_SWITCH 1\n";
+    // The convolved vMF rule's helpers live in the common code, before any part's defines.
+    if parts.iter().any(|p| {
+        p.spec.method == Method::Vmf
+            && p.options.vmf_specular == crate::shade::VmfSpecular::Convolved
+    }) {
+        out += "#define NDF_LOD_SWITCH_VMF_CONVOLVED 1\n";
+    }
     out += COMMON;
     out += FRAGMENT_HEAD;
     let (env_helpers, env_texel) = if options.light.is_env() {
@@ -1171,6 +1178,21 @@ mod tests {
             }
         }
         assert_eq!(src.matches("uniform sampler2D ndf_tex").count(), 6);
+        // The convolved vMF rule's helpers only where a part uses that rule.
+        assert!(!src.contains("#define NDF_LOD_SWITCH_VMF_CONVOLVED"));
+        let convolved = ShaderOptions {
+            vmf_specular: crate::shade::VmfSpecular::Convolved,
+            ..o
+        };
+        let mut with_rule = parts.clone();
+        with_rule[2].options = convolved;
+        let src2 = lod_switch_source(&with_rule, (32, 32), Stage::Fragment, &o).unwrap();
+        let common = src2.find("#define NDF_LOD_SWITCH_VMF_CONVOLVED 1").unwrap();
+        assert!(common < src2.find("float ndf_vmf_half_norm(").unwrap());
+        assert_eq!(
+            src2.matches("#define NDF_VMF_SPECULAR_CONVOLVED 1").count(),
+            1
+        );
         // Each part's functions under its own name, the switch's once.
         for k in 0..3 {
             assert!(src.contains(&format!("#define ndf_shade_texel ndf_p{k}_shade_texel")));

@@ -475,6 +475,21 @@ fn lod_switch_variants() -> Vec<(String, (Vec<LodPart>, (u32, u32)), ShaderOptio
                 }
             }
         }
+        // The opt-in convolved vMF rule in a switch: its helpers come before every part.
+        let o = ShaderOptions {
+            vmf_specular: ndfmap::shade::VmfSpecular::Convolved,
+            ..Default::default()
+        };
+        let vmfs = vec![
+            spec(Method::Plain, 0, Format::Unorm8, false, addressing),
+            spec(Method::Vmf, 3, Format::Unorm16, true, addressing),
+            spec(Method::Vmf, 8, Format::F32, false, addressing),
+        ];
+        out.push((
+            format!("switch_{addressing:?}_vmf_convolved"),
+            (chain(vmfs, o), (1000, 600)),
+            o,
+        ));
         let o = ShaderOptions {
             sampling: Sampling::Anisotropic(8),
             ..Default::default()

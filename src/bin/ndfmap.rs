@@ -1564,8 +1564,13 @@ fn run(cli: Cli) -> Result<u8> {
                     .iter()
                     .filter(|b| b.method == Method::Vmf && b.textures.len() >= 2 * b.lobes)
                     .map(|b| Bake {
+                        method: b.method,
+                        sizes: b.sizes.clone(),
                         textures: b.textures[..b.lobes].to_vec(),
-                        ..b.clone()
+                        addressing: b.addressing,
+                        lobes: b.lobes,
+                        parameters: b.parameters.clone(),
+                        format: b.format,
                     })
                     .collect();
                 bakes.extend(stripped);
