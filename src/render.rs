@@ -401,6 +401,13 @@ pub fn lod_image(scene: &Scene, size: (u32, u32)) -> Vec<f64> {
 
 /// The nearest finest-level normal at `uv` (GL `NEAREST` on level 0, wrapped or clamped).
 pub fn nearest_normal(map: &NormalMap, uv: DVec2) -> DVec3 {
+    let (x, y) = nearest_texel(map, uv);
+    map.normal(x, y).as_dvec3()
+}
+
+/// The texel of `map` that `uv` falls in, by the map's addressing: [`nearest_normal`]'s texel
+/// (for reading other per-texel data, e.g. the albedo, at the same place).
+pub fn nearest_texel(map: &NormalMap, uv: DVec2) -> (u32, u32) {
     let idx = |u: f64, n: u32| -> u32 {
         let i = (u * n as f64).floor() as i64;
         match map.addressing() {
@@ -408,8 +415,7 @@ pub fn nearest_normal(map: &NormalMap, uv: DVec2) -> DVec3 {
             Addressing::Clamp => i.clamp(0, n as i64 - 1) as u32,
         }
     };
-    map.normal(idx(uv.x, map.width()), idx(uv.y, map.height()))
-        .as_dvec3()
+    (idx(uv.x, map.width()), idx(uv.y, map.height()))
 }
 
 /// Mixes a row index into a seed (splitmix64 of both): one independent stream per row.

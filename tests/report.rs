@@ -180,3 +180,28 @@ fn report_writes_markdown_json_plots_and_images() {
         }
     }
 }
+
+/// `--env-albedo` needs `--env` and one image per map: one clear line each, before any
+/// measuring (and no report written).
+#[test]
+fn env_albedo_is_refused_without_env_or_with_the_wrong_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rep");
+    let run = |extra: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
+            .args(["report", "--sample-size", "16", "--no-stability", "--no-planner"])
+            .args(extra)
+            .arg("-o")
+            .arg(&out)
+            .env("NDFMAP_DATA", dir.path().join("no-maps-here"))
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "{extra:?}");
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let e = run(&["--env-albedo", "a.png"]);
+    assert!(e.contains("--env-albedo") && e.contains("--env too"), "{e}");
+    let e = run(&["--env", "sky", "--env-albedo", "a.png,b.png"]);
+    assert!(e.contains("2 images for 1 maps"), "{e}");
+    assert!(!out.join("report.md").exists());
+}

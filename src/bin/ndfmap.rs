@@ -2509,6 +2509,12 @@ struct ReportArgs {
     /// (docs/environment.md); the material's BRDF must be lambert, blinn-phong or ggx.
     #[arg(long)]
     env: Option<String>,
+    /// Albedo images (linear-RGB colour, each the size of its map), comma-separated, one per
+    /// map in the maps' order (`-` for a map without): the --env section then scores colour —
+    /// the ground truth with each normal's albedo, vMF by eq 22's colour, every other
+    /// configuration times the albedo MIP (docs/environment.md).
+    #[arg(long, value_delimiter = ',')]
+    env_albedo: Vec<PathBuf>,
     /// Ground-truth MIS iterations per pixel under --env.
     #[arg(long, default_value_t = 64)]
     env_samples: usize,
@@ -2728,6 +2734,11 @@ fn report(a: ReportArgs) -> Result<()> {
         env_texels: 0,
     }
     .load(false)?;
+    if env.is_none() && !a.env_albedo.is_empty() {
+        return Err(Error::InvalidOption(
+            "--env-albedo colours the --env section: give --env too".into(),
+        ));
+    }
     if env.is_some() {
         if a.env_samples == 0 || !(1..=16).contains(&a.env_subpixels) {
             return Err(Error::InvalidOption(format!(
@@ -2779,6 +2790,31 @@ fn report(a: ReportArgs) -> Result<()> {
         }]
     } else {
         ndfmap::report::load_maps(&maps)?
+    };
+    // Each map's albedo for the --env section, checked (and read) before the long run.
+    let env_albedo: Vec<Option<NormalMap>> = if a.env_albedo.is_empty() {
+        vec![None; inputs.len()]
+    } else if a.env_albedo.len() != inputs.len() {
+        return Err(Error::InvalidOption(format!(
+            "--env-albedo: {} images for {} maps (one per map, `-` for none)",
+            a.env_albedo.len(),
+            inputs.len()
+        )));
+    } else {
+        inputs
+            .iter()
+            .zip(&a.env_albedo)
+            .map(|(input, path)| {
+                (path.as_os_str() != "-")
+                    .then(|| {
+                        input
+                            .map
+                            .clone()
+                            .with_feature_file(path, &IngestOptions::default())
+                    })
+                    .transpose()
+            })
+            .collect::<Result<_>>()?
     };
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
@@ -2832,11 +2868,12 @@ fn report(a: ReportArgs) -> Result<()> {
             rows: Vec::new(),
             skipped: Vec::new(),
         };
-        for input in &inputs {
+        for (input, coloured) in inputs.iter().zip(&env_albedo) {
             bar.inc_length(1);
             progress(Progress::Step(&format!("environment: {}", input.name)));
             let scenes = ndfmap::report::views(&options, input.map.width());
-            measure(&input.name, &input.map, &scenes, light, &mut section)?;
+            let map = coloured.as_ref().unwrap_or(&input.map);
+            measure(&input.name, map, &scenes, light, &mut section)?;
             progress(Progress::Done);
         }
         rep.env = Some(section);

@@ -7,6 +7,14 @@
 //! jittered sub-pixel rays hit, MIS of the environment and the BRDF), whose noise is measured
 //! from its samples and stated with the errors.
 //!
+//! Colour: a map with an albedo (its feature image, `report --env-albedo`) is scored as `eval
+//! --env --feature` scores it in texel space: the ground truth reflects each sub-pixel
+//! normal's own albedo ([`envlight::ground_truth_with`]), vMF bakes with colour textures are
+//! shaded by eq 22's per-lobe colour, and every other configuration — and each colour vMF bake
+//! again without its colour textures, labelled `× albedo mip` — by its shading times the
+//! albedo MIP sampled like the bake (trilinear at the pixel's level of detail), which is what an
+//! engine shading with a separate albedo texture draws.
+//!
 //! Frames: every pixel is shaded in the tangent frame its centre ray hits
 //! ([`crate::render::Hit::frame`], the same construction as the shaders' per-fragment frame),
 //! turned into the environment's frame (the render world: +Z up) by [`envlight::shade_in`] —
@@ -20,7 +28,8 @@ use crate::error::Result;
 use crate::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
 use crate::ingest::NormalMap;
 use crate::methods::bake_with;
-use crate::render::{Scene, nearest_normal, pixel_geometry};
+use crate::pyramid::{pyramid, reduce};
+use crate::render::{Scene, nearest_texel, pixel_geometry};
 use crate::sample::{bilinear, level_weights, lod, trilinear};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -98,13 +107,16 @@ pub struct EnvSection {
     pub skipped: Vec<String>,
 }
 
-/// A configuration: its label, bake and route.
+/// A configuration: its label, bake, route and whether its colour textures shade it (eq 22).
 struct EnvConfig {
     label: String,
     bake: Bake,
     route: Route,
+    color: bool,
 }
 
+/// The configurations measured; with an albedo (`map`'s feature), each vMF bake carries colour
+/// textures and is measured twice: with them (eq 22) and without (`× albedo mip`).
 fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>> {
     let mut out = Vec::new();
     for m in [Method::Plain, Method::Toksvig, Method::Lean] {
@@ -112,6 +124,7 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
             label: m.to_string(),
             bake: bake_with(map, m, &BakeOptions::default())?,
             route: Route::Prefiltered,
+            color: false,
         });
     }
     for &l in &options.sh_lmax {
@@ -123,6 +136,7 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
             label: format!("sh{l}"),
             bake: bake_with(map, Method::Sh, &o)?,
             route: Route::Sh,
+            color: false,
         });
     }
     for &j in &options.lobes {
@@ -131,20 +145,77 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
             ..BakeOptions::default()
         };
         let bake = bake_with(map, Method::Vmf, &o)?;
+        let color = bake.textures.len() >= 2 * bake.lobes;
         for route in [Route::Prefiltered, Route::Sh] {
             out.push(EnvConfig {
                 label: format!("vmf{j} {}", route.name()),
                 bake: bake.clone(),
                 route,
+                color,
             });
+        }
+        if color {
+            // What eq 22's colour buys: the same lobes without their colour textures.
+            let lobes_only = Bake {
+                method: bake.method,
+                sizes: bake.sizes.clone(),
+                textures: bake.textures[..bake.lobes].to_vec(),
+                addressing: bake.addressing,
+                lobes: bake.lobes,
+                parameters: bake.parameters.clone(),
+                format: bake.format,
+            };
+            for route in [Route::Prefiltered, Route::Sh] {
+                out.push(EnvConfig {
+                    label: format!("vmf{j} {}", route.name()),
+                    bake: lobes_only.clone(),
+                    route,
+                    color: false,
+                });
+            }
+        }
+    }
+    if map.feature().is_some() {
+        for c in out.iter_mut().filter(|c| !c.color) {
+            c.label += " × albedo mip";
         }
     }
     Ok(out)
 }
 
+/// The albedo MIP of `map`'s feature (linear RGB): per level of `map`'s pyramid, each texel's
+/// footprint-weighted mean albedo ([`reduce`]), what an engine samples beside the bake.
+fn albedo_mip(map: &NormalMap, feature: &[[f32; 4]]) -> Vec<Vec<DVec3>> {
+    let finest: Vec<f64> = feature
+        .iter()
+        .flat_map(|t| [t[0] as f64, t[1] as f64, t[2] as f64])
+        .collect();
+    pyramid(map.width(), map.height())
+        .iter()
+        .map(|level| {
+            reduce(&finest, 3, map.width(), level)
+                .chunks_exact(3)
+                .map(|c| DVec3::new(c[0], c[1], c[2]))
+                .collect()
+        })
+        .collect()
+}
+
+/// The albedo MIP sampled as `bake`'s textures are (trilinear at `lod_v`; `bake` gives the
+/// level sizes and addressing, which are the map's).
+fn sample_albedo(mip: &[Vec<DVec3>], bake: &Bake, uv: glam::DVec2, lod_v: f64) -> DVec3 {
+    let mut a = DVec3::ZERO;
+    for (level, lw) in level_weights(lod_v, bake.level_count().min(mip.len())) {
+        for (index, bw) in bilinear(bake, level, uv) {
+            a += lw * bw * mip[level][index];
+        }
+    }
+    a
+}
+
 /// The environment-lit shading of `bake` at `uv` and level of detail `lod_v`, sampled as its
-/// shader does (manual: every texel of the trilinear footprint shaded, then blended): the
-/// Rec. 709 luminance of the RGB result (what the ground truth, of the luminance, measures).
+/// shader does (manual: every texel of the trilinear footprint shaded, then blended), with
+/// eq 22's colour when `color`: the RGB result.
 #[allow(clippy::too_many_arguments)]
 fn shade_sampled(
     light: &EnvLight,
@@ -155,20 +226,23 @@ fn shade_sampled(
     view: DVec3,
     brdf: &Brdf,
     route: Route,
-) -> crate::brdf::Shading {
+    color: bool,
+) -> envlight::RgbShading {
     let manual = manual_sampling(&ShaderSpec::of(bake), &ShaderOptions::default());
     if !manual {
         let t = trilinear(bake, uv, lod_v);
-        return envlight::shade_in(light, frame, bake, &t, view, brdf, route).luminance();
+        return envlight::shade_in_with(light, frame, bake, &t, view, brdf, route, color);
     }
-    let mut out = crate::brdf::Shading::default();
+    let mut out = envlight::RgbShading::default();
     let mut texel = vec![[0.0f32; 4]; bake.textures.len()];
     for (level, lw) in level_weights(lod_v, bake.level_count()) {
         for (index, bw) in bilinear(bake, level, uv) {
             bake.texel_into(level, index, &mut texel);
-            let s = envlight::shade_in(light, frame, bake, &texel, view, brdf, route).luminance();
-            out.diffuse += lw * bw * s.diffuse;
-            out.specular += lw * bw * s.specular;
+            let s = envlight::shade_in_with(light, frame, bake, &texel, view, brdf, route, color);
+            for c in 0..3 {
+                out.diffuse[c] += lw * bw * s.diffuse[c];
+                out.specular[c] += lw * bw * s.specular[c];
+            }
         }
     }
     out
@@ -176,8 +250,8 @@ fn shade_sampled(
 
 /// Measures `map` (named `name`) in `scenes` (planes and the sphere), lit by `light` with the
 /// scenes' material (its BRDF must be one the environment routes implement), and appends the
-/// ground truths, rows and skipped views to `section`. Deterministic for the options' seed,
-/// whatever the thread count.
+/// ground truths, rows and skipped views to `section`; a map with a feature is scored in colour
+/// (module docs). Deterministic for the options' seed, whatever the thread count.
 pub fn measure(
     name: &str,
     map: &NormalMap,
@@ -188,6 +262,8 @@ pub fn measure(
     let options = section.options.clone();
     let configs = configs(map, &options)?;
     let size = (map.width(), map.height());
+    let feature = map.feature();
+    let mip = feature.map(|f| albedo_mip(map, f));
     for scene in scenes {
         let material = &scene.material;
         envlight::check_brdf(&material.brdf)?;
@@ -202,6 +278,7 @@ pub fn measure(
                 let g = pixel_geometry(scene, x, y)?;
                 let view = (scene.camera.eye - g.hit.p).normalize();
                 let mut normals = Vec::with_capacity((k * k) as usize);
+                let mut albedo = Vec::new();
                 for sy in 0..k {
                     for sx in 0..k {
                         let fx = x as f64 + (sx as f64 + 0.5) / k as f64;
@@ -211,13 +288,26 @@ pub fn measure(
                             return None; // partly covered: left out
                         };
                         let (t, b, n) = hit.frame();
-                        let m = nearest_normal(map, hit.uv);
+                        let (tx, ty) = nearest_texel(map, hit.uv);
+                        let m = map.normal(tx, ty).as_dvec3();
                         normals.push(((t * m.x + b * m.y + n * m.z).normalize(), 1.0));
+                        if let Some(f) = feature {
+                            let a = f[(ty * map.width() + tx) as usize];
+                            albedo.push(DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64));
+                        }
                     }
                 }
                 let seed = options.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                let e =
-                    envlight::ground_truth(light, &normals, view, &brdfs, options.samples, seed);
+                let albedo = feature.is_some().then_some(albedo.as_slice());
+                let e = envlight::ground_truth_with(
+                    light,
+                    &normals,
+                    albedo,
+                    view,
+                    &brdfs,
+                    options.samples,
+                    seed,
+                );
                 let gt = material.radiance(1.0, e.diffuse, e.specular[0]);
                 let se = ((material.kd * e.diffuse_se).powi(2)
                     + (material.ks * e.specular_se[0]).powi(2))
@@ -227,10 +317,13 @@ pub fn measure(
                 let (ft, fb, fn_) = g.hit.frame();
                 let frame = DMat3::from_cols(ft, fb, fn_);
                 let view_t = frame.transpose() * view;
+                let pixel_albedo = mip
+                    .as_ref()
+                    .map(|m| sample_albedo(m, &configs[0].bake, g.hit.uv, lod_v));
                 let values = configs
                     .iter()
                     .map(|c| {
-                        let s = shade_sampled(
+                        let mut s = shade_sampled(
                             light,
                             &c.bake,
                             g.hit.uv,
@@ -239,7 +332,15 @@ pub fn measure(
                             view_t,
                             &material.brdf,
                             c.route,
+                            c.color,
                         );
+                        if let (Some(a), false) = (pixel_albedo, c.color) {
+                            for (ch, a) in a.to_array().into_iter().enumerate() {
+                                s.diffuse[ch] *= a;
+                                s.specular[ch] *= a;
+                            }
+                        }
+                        let s = s.luminance();
                         material.radiance(1.0, s.diffuse, s.specular)
                     })
                     .collect();
@@ -454,5 +555,126 @@ mod tests {
                 g.noise
             );
         }
+    }
+
+    /// The 16 × 16 procedural map coloured by its normals: red where they lean to +x, blue
+    /// elsewhere (or white).
+    fn coloured(white: bool) -> NormalMap {
+        let map = crate::procedural::generate(16, 5).map;
+        let albedo = map
+            .normals()
+            .iter()
+            .map(|n| match (white, n.x > 0.0) {
+                (true, _) => [1.0f32, 1.0, 1.0, 1.0],
+                (false, true) => [0.9, 0.25, 0.05, 1.0],
+                (false, false) => [0.05, 0.3, 0.8, 1.0],
+            })
+            .collect();
+        map.with_feature(albedo).unwrap()
+    }
+
+    fn small_views() -> Vec<Scene> {
+        let report = ReportOptions {
+            image_size: 12,
+            zoom_lods: vec![1.0, 2.5],
+            exponent: 32.0,
+            ..ReportOptions::default()
+        };
+        views(&report, 16)
+    }
+
+    fn options() -> EnvImageOptions {
+        EnvImageOptions {
+            subpixels: 2,
+            samples: 128,
+            seed: 11,
+            lobes: vec![3],
+            sh_lmax: vec![2],
+        }
+    }
+
+    /// A white albedo scores every configuration as no albedo does (the coloured ground truth
+    /// is the uncoloured one to f32 rounding; eq 22 with `y = 1` is α; the albedo MIP is 1),
+    /// under the labels of a coloured run, with the lobes-only vMF rows beside the colour ones.
+    #[test]
+    fn a_white_albedo_scores_like_no_albedo() {
+        let light = EnvLight::new(&crate::environment::coloured_test_sky());
+        let scenes = small_views();
+        let white = coloured(true);
+        let plain = crate::procedural::generate(16, 5).map;
+        let mut a = section(options());
+        measure("m", &white, &scenes, &light, &mut a).unwrap();
+        let mut b = section(options());
+        measure("m", &plain, &scenes, &light, &mut b).unwrap();
+        for r in &b.rows {
+            let colour_label = if r.config.starts_with("vmf") {
+                r.config.clone()
+            } else {
+                format!("{} × albedo mip", r.config)
+            };
+            for label in [colour_label, format!("{} × albedo mip", r.config)] {
+                let c = a
+                    .rows
+                    .iter()
+                    .find(|c| c.view == r.view && c.config == label)
+                    .unwrap_or_else(|| panic!("{label} in {}", r.view));
+                assert!(
+                    (c.error - r.error).abs() <= 1e-5 * r.error.max(1e-3),
+                    "{label} {}: {} against {}",
+                    r.view,
+                    c.error,
+                    r.error
+                );
+            }
+        }
+        assert_eq!(a.rows.len(), b.rows.len() + 2 * scenes.len());
+    }
+
+    /// A map whose colour follows its normals under a broad orange sun facing the red ones:
+    /// where a pixel's footprint mixes both colours, the albedo MIP times the shading is wrong
+    /// and eq 22's per-lobe colour is not, so the colour vMF rows must beat the same lobes
+    /// times the albedo MIP in the coarse zoom view; and colour changes the ground truth.
+    #[test]
+    fn eq_22_colour_beats_the_albedo_mip_where_colours_mix() {
+        let sky = crate::environment::Sky {
+            width: 128,
+            sun_deg: (45.0, 0.0),
+            sun_radius_deg: 15.0,
+            sun: [40.0, 20.0, 8.0],
+            ..crate::environment::Sky::default()
+        }
+        .render()
+        .unwrap();
+        let light = EnvLight::new(&sky);
+        let scenes = small_views();
+        assert!(scenes[0].name == "zoom1" && scenes[1].name == "zoom2.5");
+        let map = coloured(false);
+        let mut a = section(options());
+        measure("m", &map, &scenes, &light, &mut a).unwrap();
+        let err = |view: &str, label: &str| {
+            a.rows
+                .iter()
+                .find(|r| r.view == view && r.config == label)
+                .unwrap()
+                .error
+        };
+        // Measured: zoom1 36.1 % against 40.3 %, zoom2.5 47.0 % against 49.0 % (most of it the
+        // tiny setup's own error: 2 × 2 sub-pixel normals against a trilinear footprint of a
+        // 16² map, and 11 % ground-truth noise); the albedo MIP's own share, in quadrature,
+        // 18 % and 14 %.
+        for view in [&scenes[0].name, &scenes[1].name] {
+            let (c, u) = (
+                err(view, "vmf3 prefiltered"),
+                err(view, "vmf3 prefiltered × albedo mip"),
+            );
+            assert!(
+                u * u - c * c > 0.01,
+                "{view}: eq 22 {c} against albedo mip {u}"
+            );
+        }
+        let mut grey = section(options());
+        let plain = crate::procedural::generate(16, 5).map;
+        measure("m", &plain, &scenes, &light, &mut grey).unwrap();
+        assert_ne!(grey.ground_truth, a.ground_truth);
     }
 }
