@@ -1899,7 +1899,9 @@ mod tests {
             mean_fit(&m, &exact),
         );
         assert!(lf <= lb + 1e-3 && lb <= lx + 1e-3, "{lf} {lb} {lx}");
-        assert!(lx - lf < 0.3, "fast is within 0.3 nats of exact: {lf} {lx}");
+        // Exact mode's extra starts (em::fit_restarts) find better optima: 0.30 nats per
+        // normal above fast on this map (0.84 → 1.14), where one start each gave < 0.3.
+        assert!(lx - lf < 0.5, "fast is within 0.5 nats of exact: {lf} {lx}");
         let toksvig = crate::methods::bake(&m, Method::Toksvig);
         let e = evaluate(
             &m,
