@@ -740,7 +740,10 @@ pub fn seed_from_children_into(candidates: &[Lobe], out: &mut [Lobe]) {
 
 mod kernel32;
 mod lanes32;
+mod restart;
 mod simd;
+
+pub use restart::{SMALL_TEXEL, SPLIT_MERGE_ROUNDS, fit_restarts};
 
 use kernel32::{Block32, FeatureBlock, LANES32, PAD_BLOCK32};
 use simd::{LANES, Lane, Portable, Simd, exp_nonpositive, ln_positive};

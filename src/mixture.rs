@@ -233,6 +233,10 @@ impl Model for VmfModel {
             neighbours,
             form: options.align_form,
         });
+        if alignment.is_none() && options.mode == crate::bake::FitMode::Exact {
+            // Exact mode: several starts, the best kept (em::fit_restarts, issue 14).
+            return vmf_texel_fit(&em::fit_restarts(input, init, em, &mut scratch.single));
+        }
         vmf_texel_fit(&em::fit(
             input,
             init,
@@ -248,6 +252,14 @@ impl Model for VmfModel {
         scratch: &mut em::BatchScratch,
         out: &mut dyn FnMut(usize, &TexelFit<Lobe>),
     ) {
+        if options.mode == crate::bake::FitMode::Exact {
+            // Exact mode fits each texel from several starts (em::fit_restarts), one by one.
+            for (i, (input, init)) in inputs.iter().zip(inits).enumerate() {
+                let f = em::fit_restarts(input, &init[..options.lobes], em, &mut scratch.single);
+                out(i, &vmf_texel_fit(&f));
+            }
+            return;
+        }
         em::fit_batch(inputs, inits, options.lobes, em, scratch, &mut |i, f| {
             out(i, &vmf_texel_fit(f))
         });
@@ -1797,16 +1809,24 @@ mod tests {
     #[test]
     fn output_does_not_depend_on_thread_count() {
         let m = bumpy(16, 12);
-        for method in [Method::Vmf, Method::Tan2005] {
+        for (method, mode) in [
+            (Method::Vmf, FitMode::Balanced),
+            (Method::Vmf, FitMode::Exact),
+            (Method::Tan2005, FitMode::Balanced),
+        ] {
             for align in [None, Some(0.2)] {
+                let o = BakeOptions {
+                    mode,
+                    ..opts(5, align)
+                };
                 let run = |threads| {
                     rayon::ThreadPoolBuilder::new()
                         .num_threads(threads)
                         .build()
                         .unwrap()
-                        .install(|| bake_with(&m, method, &opts(5, align)).unwrap())
+                        .install(|| bake_with(&m, method, &o).unwrap())
                 };
-                assert_eq!(run(1).textures, run(4).textures, "{method}");
+                assert_eq!(run(1).textures, run(4).textures, "{method} {mode:?}");
             }
         }
     }
@@ -1879,7 +1899,9 @@ mod tests {
             mean_fit(&m, &exact),
         );
         assert!(lf <= lb + 1e-3 && lb <= lx + 1e-3, "{lf} {lb} {lx}");
-        assert!(lx - lf < 0.3, "fast is within 0.3 nats of exact: {lf} {lx}");
+        // Exact mode's extra starts (em::fit_restarts) find better optima: 0.30 nats per
+        // normal above fast on this map (0.84 → 1.14), where one start each gave < 0.3.
+        assert!(lx - lf < 0.5, "fast is within 0.5 nats of exact: {lf} {lx}");
         let toksvig = crate::methods::bake(&m, Method::Toksvig);
         let e = evaluate(
             &m,
