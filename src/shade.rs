@@ -569,6 +569,7 @@ fn mixture_component(
             options.vmf_specular.lobe(mu.dot(h), *s, var)
         }
         Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
+        Brdf::Ggx(g) if bake.method == Method::Vmf => ggx(mu.dot(h), g.widened_vmf(var)),
         b => iso_lobe(b, mu, var, h),
     };
     let diffuse = match (bake.method, options.vmf_diffuse) {
