@@ -4,10 +4,12 @@
 //! for several widening rules of the same lobes, split by the kind of texel:
 //! `cargo run --release --example ggx_widening_split -- MAP [ALPHAS]`.
 //!
-//! Rules: `c = 1, 2, 3, 4` (`α'² = α² + c/κ`), `conv` (the peak-matched vMF ⊛ GGX rule of
-//! [`ndfmap::brdf::ggx_vmf_peak_alpha`]) and `exact` (each lobe shaded with eq 14 of the GGX lobe by
-//! quadrature, [`ndfmap::brdf::convolution::convolve_vmf`], tabulated in κ and θ and
-//! interpolated: the bound on what any rule for these lobes gives).
+//! Rules: `c = 1, 2, 3, 4` (`α'² = α² + c/κ`; c = 2 is the default), `conv` (the opt-in
+//! peak-matched rule, [`ndfmap::brdf::Ggx::widened_vmf`] at c = 2), `exact` (each lobe shaded
+//! with eq 14 of the GGX lobe by quadrature, [`ndfmap::brdf::convolution::convolve_vmf`],
+//! tabulated finely in κ and θ and interpolated: the bound on what any rule for these lobes
+//! gives) and `table` (GGX given as a tabulated BRDF, 1024 samples: the shaders' existing
+//! eq 14 table, [`ndfmap::brdf::tabulated::lookup`], what `--brdf FILE` gives).
 //!
 //! Texel kinds: by the lobe-weighted mean of `t = (1/κ)/α²` (how wide the NDF lobes are against
 //! the BRDF lobe), and whether the footprint holds one finest normal only (repeated 8-bit
@@ -17,7 +19,8 @@
 use glam::DVec3;
 use ndfmap::bake::{BakeOptions, Method};
 use ndfmap::brdf::convolution::convolve_vmf;
-use ndfmap::brdf::{ggx, half_vector};
+use ndfmap::brdf::tabulated::lookup;
+use ndfmap::brdf::{Tabulated, ggx, half_vector};
 use ndfmap::eval::default_directions;
 use ndfmap::methods::bake_with;
 use ndfmap::shade::vmf_decode;
@@ -83,7 +86,7 @@ impl ExactTable {
     }
 }
 
-const RULES: [&str; 6] = ["c=1", "c=2", "c=3", "c=4", "conv", "exact"];
+const RULES: [&str; 7] = ["c=1", "c=2", "c=3", "c=4", "conv", "exact", "table"];
 const KINDS: [&str; 6] = ["t<0.01", "0.01-0.1", "0.1-1", "1-10", "t>10", "one normal"];
 
 fn main() {
@@ -114,11 +117,16 @@ fn main() {
     let levels: Vec<usize> = (2..=7).collect();
     for &alpha in &alphas {
         let table = ExactTable::new(alpha);
+        let tab = Tabulated::sample("ggx", 1024, &|t: f64| ggx(t.cos(), alpha), None).unwrap();
         let rule = |r: usize, c: f64, var: f64| -> f64 {
             match r {
                 0..=3 => ggx(c, (alpha * alpha + (r + 1) as f64 * var).sqrt().min(1.0)),
-                4 => ggx(c, ndfmap::brdf::ggx_vmf_peak_alpha(alpha, var)),
-                _ => table.lobe(c, var),
+                4 => ggx(c, ndfmap::brdf::Ggx::new(alpha).widened_vmf(var)),
+                5 => table.lobe(c, var),
+                _ => {
+                    let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                    lookup(tab.table(), c.clamp(-1.0, 1.0).acos(), kappa)
+                }
             }
         };
         // per level: [rule] err², G², and per kind the same plus texel counts

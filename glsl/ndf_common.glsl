@@ -208,12 +208,12 @@ float ndf_vmf_blinn_phong(float cos_h, float s, float var) {
 
 #if defined(NDF_BRDF_GGX)
 // T(a) = a + 1 - 1/(e^a E1(a)) for a > 0: for a >= 1 the continued fraction
-// 1/(a + 3 - 4/(a + 5 - 9/(a + 7 - ...))) to 16 terms, below E1 from its series to 14 terms.
+// 1/(a + 3 - 4/(a + 5 - 9/(a + 7 - ...))) to 32 terms, below E1 from its series to 16 terms.
 // CPU: brdf::vmf_ggx_tail.
 float ndf_vmf_ggx_tail(float a) {
     if (a >= 1.0) {
         float s = 0.0;
-        for (int n = 16; n >= 1; --n) {
+        for (int n = 32; n >= 1; --n) {
             float nf = float(n);
             s = nf * nf / (a + 2.0 * nf + 1.0 - s);
         }
@@ -221,7 +221,7 @@ float ndf_vmf_ggx_tail(float a) {
     }
     float term = 1.0;
     float sum = 0.0;
-    for (int n = 1; n <= 14; ++n) {
+    for (int n = 1; n <= 16; ++n) {
         float nf = float(n);
         term *= -a / nf;
         sum -= term / nf;
@@ -230,7 +230,8 @@ float ndf_vmf_ggx_tail(float a) {
     return a + 1.0 - 1.0 / (exp(a) * e1);
 }
 
-// The GGX roughness a vMF lobe of variance var = 1/kappa widens ndf_alpha to (point lights):
+// The GGX roughness a vMF lobe of variance var = 1/kappa widens ndf_alpha to under point lights
+// with NDF_VMF_SPECULAR_CONVOLVED (the default is ndf_iso_lobe's alpha^2 + c var):
 // alpha'^2 = alpha^2 + c m(a) var, a = alpha^2/(2 var), m = 1 + a T/(1 - T) (1 for wide NDF
 // lobes, 2 for narrow ones); at c = 2 the GGX lobe with the exact convolution's peak. At most 1;
 // var <= 0 gives alpha. CPU: Ggx::widened_vmf.
