@@ -295,7 +295,7 @@ impl Ggx {
     /// `c = 2` this is [`ggx_vmf_peak_alpha`]: the lobe with the peak of the exact convolution
     /// (eq 14); another `c` scales that widening by `c/2` (`c = 0`: no widening). The constant
     /// rule [`Ggx::widened`] (`m = 1`) leaves narrow NDF lobes too sharp (half the widening
-    /// their peak needs): on the near-flat metal map this rule's error is 4–13× lower; on rough
+    /// their peak needs): on the near-flat metal map this rule's error is 3–13× lower; on rough
     /// maps, where a single GGX cannot follow the convolution's shoulders, `c = 2` is better
     /// (`docs/pbr.md`, "vMF J = 6 under GGX"). GLSL: `ndf_vmf_ggx_alpha`.
     pub fn widened_vmf(&self, var: f64) -> f64 {
