@@ -86,6 +86,15 @@ impl ExactTable {
     }
 }
 
+/// One row's sums: per rule Σ(F − G)², ΣG², and per texel kind the same and the texel count.
+type RowSums = (
+    [f64; RULES.len()],
+    f64,
+    [[f64; RULES.len()]; KINDS.len()],
+    [f64; KINDS.len()],
+    [usize; KINDS.len()],
+);
+
 const RULES: [&str; 7] = ["c=1", "c=2", "c=3", "c=4", "conv", "exact", "table"];
 const KINDS: [&str; 6] = ["t<0.01", "0.01-0.1", "0.1-1", "1-10", "t>10", "one normal"];
 
@@ -143,13 +152,7 @@ fn main() {
         for &k in &levels {
             let (lw, lh) = (w >> k, h >> k);
             let side = 1usize << k;
-            let rows: Vec<(
-                [f64; RULES.len()],
-                f64,
-                [[f64; RULES.len()]; KINDS.len()],
-                [f64; KINDS.len()],
-                [usize; KINDS.len()],
-            )> = (0..lh)
+            let rows: Vec<RowSums> = (0..lh)
                 .into_par_iter()
                 .map(|y| {
                     let mut err = [0.0f64; RULES.len()];
@@ -225,7 +228,7 @@ fn main() {
                 for r in 0..RULES.len() {
                     err[r] += e[r];
                     for q in 0..KINDS.len() {
-                        kind_err[q][r] += ke[q][r] / 1.0;
+                        kind_err[q][r] += ke[q][r];
                     }
                 }
                 g2 += g;
