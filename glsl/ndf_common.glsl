@@ -207,6 +207,48 @@ float ndf_vmf_blinn_phong(float cos_h, float s, float var) {
 }
 #endif
 
+#if defined(NDF_BRDF_GGX)
+// T(a) = a + 1 - 1/(e^a E1(a)) for a > 0: for a >= 1 the continued fraction
+// 1/(a + 3 - 4/(a + 5 - 9/(a + 7 - ...))) to 32 terms, below E1 from its series to 16 terms.
+// CPU: brdf::vmf_ggx_tail.
+float ndf_vmf_ggx_tail(float a) {
+    if (a >= 1.0) {
+        float s = 0.0;
+        for (int n = 32; n >= 1; --n) {
+            float nf = float(n);
+            s = nf * nf / (a + 2.0 * nf + 1.0 - s);
+        }
+        return s;
+    }
+    float term = 1.0;
+    float sum = 0.0;
+    for (int n = 1; n <= 16; ++n) {
+        float nf = float(n);
+        term *= -a / nf;
+        sum -= term / nf;
+    }
+    float e1 = -0.5772156649 - log(max(a, 1e-37)) + sum;
+    return a + 1.0 - 1.0 / (exp(a) * e1);
+}
+
+// The GGX roughness a vMF lobe of variance var = 1/kappa widens ndf_alpha to under point lights
+// with NDF_VMF_SPECULAR_CONVOLVED (the default is ndf_iso_lobe's alpha^2 + c var):
+// alpha'^2 = alpha^2 + c m(a) var, a = alpha^2/(2 var), m = 1 + a T/(1 - T) (1 for wide NDF
+// lobes, 2 for narrow ones); at c = 2 the GGX lobe with the exact convolution's peak. At most 1;
+// var <= 0 gives alpha. CPU: Ggx::widened_vmf.
+float ndf_vmf_ggx_alpha(float var) {
+    float a2 = ndf_alpha * ndf_alpha;
+    if (!(var > 0.0)) return min(ndf_alpha, 1.0);
+    float a = 0.5 * a2 / var;
+    float m = 2.0;
+    if (a <= 1e12) {
+        float t = ndf_vmf_ggx_tail(a);
+        m = 1.0 + a * t / (1.0 - t);
+    }
+    return min(sqrt(a2 + ndf_ggx_c * m * var), 1.0);
+}
+#endif
+
 // The specular lobe of an isotropic NDF estimate around mu with per-axis angular variance var
 // (1/kappa for a vMF lobe), without the cosine and g: eq 21 (Torrance-Sparrow),
 // alpha'^2 = alpha^2 + c var (GGX), eq 14 from the table at kappa = 1/var (tabulated), 0 for

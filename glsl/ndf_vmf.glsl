@@ -15,8 +15,11 @@
 //                s / (1 + s/kappa), B = (s' + 1)/(2 pi) (w_h . mu)^s', or with
 //                NDF_VMF_SPECULAR_CONVOLVED the closed-form vMF (*) Blinn-Phong lobe
 //                (ndf_vmf_blinn_phong; vmf::blinn_phong_convolved; shade::VmfSpecular);
-//                other BRDFs: ndf_iso_lobe with var = 1/kappa (eq 21 for Torrance-Sparrow,
-//                alpha'^2 = alpha^2 + c/kappa for GGX, eq 14 tabulated)
+//                GGX: ndf_iso_lobe, alpha'^2 = alpha^2 + c/kappa, or with
+//                NDF_VMF_SPECULAR_CONVOLVED ndf_vmf_ggx_alpha, alpha'^2 = alpha^2 +
+//                c m(kappa alpha^2/2)/kappa with m from 1 (wide lobes) to 2 (narrow): at c = 2
+//                the peak of the exact convolution (Ggx::widened_vmf); other BRDFs:
+//                ndf_iso_lobe with var = 1/kappa (eq 21 for Torrance-Sparrow, eq 14 tabulated)
 //   line 14      rho += alpha*y (K_s B + K_d)(w_i . mu); the K_d and K_s terms are returned apart.
 //                The K_d term uses max(w_i . alpha r, 0) = alpha |r| (w_i . mu) unless
 //                NDF_VMF_DIFFUSE_ALG2 asks for line 14 as written (shade::VmfDiffuse).
@@ -56,6 +59,8 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         float cos_i = max(dot(mu, l), 0.0);
 #if defined(NDF_BRDF_BLINN_PHONG) && defined(NDF_VMF_SPECULAR_CONVOLVED)
         float lobe = ndf_vmf_blinn_phong(dot(mu, h), ndf_s, var) * cos_i;
+#elif defined(NDF_BRDF_GGX) && defined(NDF_VMF_SPECULAR_CONVOLVED)
+        float lobe = ndf_ggx(mu, h, ndf_vmf_ggx_alpha(var)) * cos_i;
 #else
         float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
 #endif

@@ -579,7 +579,8 @@ typedef uint32_t ndf_sh_diffuse;
 typedef uint32_t ndf_light;
 
 /**
- * The vMF lobes' specular rule under Blinn-Phong: one of the `NDF_VMF_SPECULAR_*` values.
+ * The vMF lobes' specular rule under Blinn-Phong and GGX: one of the `NDF_VMF_SPECULAR_*`
+ * values.
  */
 typedef uint32_t ndf_vmf_specular;
 
@@ -640,8 +641,8 @@ typedef struct ndf_shader_options {
    */
   ndf_light light;
   /**
-   * vMF bakes under Blinn-Phong: the lobes' specular rule, `NDF_VMF_SPECULAR_*`. Default
-   * `NDF_VMF_SPECULAR_EQ20`.
+   * vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
+   * `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_EQ20`.
    */
   ndf_vmf_specular vmf_specular;
 } ndf_shader_options;
@@ -1199,7 +1200,8 @@ typedef struct ndf_environment_info {
 
 /**
  * The closed-form vMF ⊛ Blinn-Phong lobe (within 0.5 % of the exact convolution, eq 14, up to
- * one lobe width; costlier in the shader).
+ * one lobe width; costlier in the shader); under GGX the peak-matched widening
+ * `α'² = α² + c·m(κα²/2)/κ` (the exact convolution's peak at c = 2) instead of `α² + c/κ`.
  */
 #define NDF_VMF_SPECULAR_CONVOLVED 1
 

@@ -189,6 +189,56 @@ pub fn smith_visibility(cos_i: f64, cos_o: f64, alpha: f64) -> f64 {
 /// elsewhere (0.5, 0.75, 1, 2) on the shared maps.
 pub const GGX_WIDENING_C: f64 = 2.0;
 
+/// The roughness of the GGX lobe whose peak equals the peak of GGX α convolved with a vMF lobe
+/// of per-axis variance `var = 1/κ` (eq 14 at θ = 0): `α'² = α²/(1 − T(a)) + 2/κ`,
+/// `a = κα²/2`, at most 1; `var ≤ 0` gives α.
+///
+/// Derivation (small angles: GGX in slope space is `1/(πα²(1 + |m|²/α²)²)`, the vMF lobe a
+/// Gaussian of per-axis variance 1/κ): the convolution's peak is
+/// `(κ/2π) ∫₀^∞ e^{−a x}/(1 + x)² dx · a/a = (1/(πα²)) · a (1 − a eᵃ E₁(a))`, and a GGX lobe
+/// peaks at `1/(πα'²)`, so `α'² = α²/(a(1 − a eᵃE₁(a)))`. With the continued fraction
+/// `eᵃE₁(a) = 1/(a + 1 − T)`, `T = 1²/(a + 3 − 2²/(a + 5 − 3²/(a + 7 − …)))`
+/// ([`vmf_ggx_tail`]), this is `α²/(1 − T) + 2/κ` with no cancellation. Its widening
+/// `c(a) = κ(α'² − α²)` runs from 2 for NDF lobes much wider than the BRDF lobe (a → 0: the
+/// convolution is the vMF lobe, peak κ/2π) to 4 for narrow ones (a → ∞: the peak falls by
+/// `4/(κα²)`, twice what `c = 2` gives): the constant `c = 2` leaves narrow NDF lobes too
+/// sharp (`docs/pbr.md`, "vMF J = 6 under GGX").
+pub fn ggx_vmf_peak_alpha(alpha: f64, var: f64) -> f64 {
+    let a2 = alpha * alpha;
+    if var.is_nan() || var <= 0.0 {
+        return alpha.min(1.0);
+    }
+    let a = 0.5 * a2 / var;
+    (a2 / (1.0 - vmf_ggx_tail(a)) + 2.0 * var).sqrt().min(1.0)
+}
+
+/// `T(a) = a + 1 − 1/(eᵃE₁(a))` for `a > 0`, in (0, 1) ([`ggx_vmf_peak_alpha`]): for `a ≥ 1`
+/// the continued fraction `1²/(a + 3 − 2²/(a + 5 − …))` to 32 terms, below the series
+/// `E₁(a) = −γ − ln a − Σ (−a)ⁿ/(n·n!)` to 16 terms (`1 − T` to better than 10⁻⁸ relative;
+/// `brdf::tests::vmf_ggx_tail_matches_e1`). The GLSL twin `ndf_vmf_ggx_tail` uses the same
+/// terms in the same order.
+pub fn vmf_ggx_tail(a: f64) -> f64 {
+    if a >= 1.0 {
+        let mut s = 0.0;
+        for n in (1..=32).rev() {
+            let nf = n as f64;
+            s = nf * nf / (a + 2.0 * nf + 1.0 - s);
+        }
+        s
+    } else {
+        // E₁(a) = −γ − ln a + a − a²/4 + a³/18 − …: the sum Σ_{n≥1} (−1)^{n+1} aⁿ/(n·n!).
+        let mut term = 1.0;
+        let mut sum = 0.0;
+        for n in 1..=16 {
+            let nf = n as f64;
+            term *= -a / nf;
+            sum -= term / nf;
+        }
+        let e1 = -0.577_215_664_901_532_9 - a.max(f64::MIN_POSITIVE).ln() + sum;
+        a + 1.0 - 1.0 / (a.exp() * e1)
+    }
+}
+
 /// A GGX / Trowbridge–Reitz specular lobe ([`ggx`]) and its g factor.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Ggx {
@@ -234,6 +284,34 @@ impl Ggx {
         (self.alpha * self.alpha + self.widening * var.max(0.0))
             .sqrt()
             .min(1.0)
+    }
+
+    /// The roughness a vMF lobe of variance `var = 1/κ` widens this GGX lobe to under point
+    /// lights with the opt-in rule `shade::VmfSpecular::Convolved` (the shaders'
+    /// `NDF_VMF_SPECULAR_CONVOLVED`; the default is [`Ggx::widened`]): `α'² = α² + c·m(a)/κ`,
+    /// at most 1, with
+    /// `a = κα²/2` and `m(a) = 1 + a·T(a)/(1 − T(a))` ([`vmf_ggx_tail`]) running from 1
+    /// (NDF lobes much wider than the BRDF lobe) to 2 (much narrower). At the default
+    /// `c = 2` this is [`ggx_vmf_peak_alpha`]: the lobe with the peak of the exact convolution
+    /// (eq 14); another `c` scales that widening by `c/2` (`c = 0`: no widening). The constant
+    /// rule [`Ggx::widened`] (`m = 1`) leaves narrow NDF lobes too sharp (half the widening
+    /// their peak needs): on the near-flat metal map this rule's error is 3–13× lower; on rough
+    /// maps, where a single GGX cannot follow the convolution's shoulders, `c = 2` is better
+    /// (`docs/pbr.md`, "vMF J = 6 under GGX"). GLSL: `ndf_vmf_ggx_alpha`.
+    pub fn widened_vmf(&self, var: f64) -> f64 {
+        let a2 = self.alpha * self.alpha;
+        if var.is_nan() || var <= 0.0 {
+            return self.alpha.min(1.0);
+        }
+        let a = 0.5 * a2 / var;
+        // m = 2 − 2/a + …: exact to 10⁻¹² beyond a = 10¹² (and a·T would be ∞·0 at a = ∞).
+        let m = if a <= 1e12 {
+            let t = vmf_ggx_tail(a);
+            1.0 + a * t / (1.0 - t)
+        } else {
+            2.0
+        };
+        (a2 + self.widening * m * var).sqrt().min(1.0)
     }
 }
 
@@ -601,6 +679,67 @@ mod tests {
             }
         }
         assert_eq!(torrance_sparrow_lobe(-0.1, DVec2::X, 0.1, [0.0; 3]), 0.0);
+    }
+
+    /// `∫₀^∞ e^{−ax}/(1 + x)² dx` by Gauss–Legendre panels (geometric from 10⁻⁴·min(1, 1/a)
+    /// to where `e^{−ax}` is below 10⁻²⁰), independent of E₁'s series and continued fraction.
+    fn peak_integral(a: f64) -> f64 {
+        let (x, w) = crate::harmonics::gauss_legendre(16);
+        let end = 46.0 / a;
+        let mut edges = vec![0.0];
+        let mut e = 1e-4 * (1.0f64).min(1.0 / a);
+        while e < end {
+            edges.push(e);
+            e *= 1.3;
+        }
+        edges.push(end);
+        let mut sum = 0.0;
+        for p in edges.windows(2) {
+            let (mid, half) = (0.5 * (p[0] + p[1]), 0.5 * (p[1] - p[0]));
+            for (xi, wi) in x.iter().zip(&w) {
+                let u = mid + half * xi;
+                sum += half * wi * (-a * u).exp() / ((1.0 + u) * (1.0 + u));
+            }
+        }
+        sum
+    }
+
+    #[test]
+    fn vmf_ggx_tail_matches_e1() {
+        // 1 − a eᵃE₁(a) = ∫ e^{−ax}/(1 + x)² dx = (1 − T)/(a + 1 − T): both branches (the
+        // series below a = 1, the continued fraction from 1 on) and the switch between them.
+        let mut worst: f64 = 0.0;
+        for a in [
+            1e-6, 1e-3, 0.01, 0.1, 0.3, 0.7, 0.999_999, 1.0, 1.5, 3.0, 10.0, 100.0, 1e4, 1e6,
+        ] {
+            let t = vmf_ggx_tail(a);
+            assert!(t > 0.0 && t < 1.0, "a={a}: T={t}");
+            let got = (1.0 - t) / (a + 1.0 - t);
+            let want = peak_integral(a);
+            worst = worst.max((got / want - 1.0).abs());
+            assert!((got / want - 1.0).abs() < 1e-8, "a={a}: {got} vs {want}");
+        }
+        eprintln!("vmf_ggx_tail: worst relative error {worst:e}");
+        // The peak rule: c(a) = κ(α'² − α²) from 2 (wide NDF lobes) to 4 (narrow ones).
+        let g = Ggx::new(0.1);
+        let c_of = |var: f64| (g.widened_vmf(var).powi(2) - 0.01) / var;
+        assert!((c_of(1e-7) - 4.0).abs() < 1e-3, "{}", c_of(1e-7));
+        // The wide limit comes slowly (c ≈ 2 + 2a(−γ − ln a)): a = 0.05 gives 2.198, and
+        // α = 0.01 under 1/κ = 0.05 (a = 10⁻³) 2.011.
+        assert!((c_of(0.1) - 2.198).abs() < 1e-3, "{}", c_of(0.1));
+        let sharp = Ggx::new(0.01);
+        let c_wide = (sharp.widened_vmf(0.05).powi(2) - 1e-4) / 0.05;
+        assert!((c_wide - 2.0).abs() < 0.02, "{c_wide}");
+        assert_eq!(g.widened_vmf(0.0), 0.1);
+        assert_eq!(g.widened_vmf(1e6), 1.0);
+        assert!((ggx_vmf_peak_alpha(0.1, 1e-3) - g.widened_vmf(1e-3)).abs() < 1e-15);
+        let half = Ggx {
+            widening: 1.0,
+            ..Ggx::new(0.1)
+        };
+        assert!(
+            ((half.widened_vmf(1e-3).powi(2) - 0.01) * 2.0 - (c_of(1e-3) * 1e-3)).abs() < 1e-15
+        );
     }
 
     #[test]

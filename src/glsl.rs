@@ -195,9 +195,10 @@ pub struct ShaderOptions {
     pub probe: bool,
     /// The vMF lobes' diffuse term (`NDF_VMF_DIFFUSE_ALG2` for Algorithm 2 as written).
     pub vmf_diffuse: crate::shade::VmfDiffuse,
-    /// The vMF lobes' specular rule under Blinn-Phong (the default is the paper's eq 20;
-    /// `NDF_VMF_SPECULAR_CONVOLVED` for the closed-form convolution). `VmfSpecular::Exact` has
-    /// no shader and is refused.
+    /// The vMF lobes' specular rule under Blinn-Phong and GGX (the default is the paper's eq 20,
+    /// GGX's `α'² = α² + c/κ`; `NDF_VMF_SPECULAR_CONVOLVED` for the closed-form convolution,
+    /// GGX's peak-matched widening `Ggx::widened_vmf`). `VmfSpecular::Exact` has no shader and
+    /// is refused.
     pub vmf_specular: crate::shade::VmfSpecular,
     /// The SH texels' diffuse term (`NDF_SH_DIFFUSE_SERIES` for eq 12's series).
     pub sh_diffuse: crate::sh::ShDiffuse,

@@ -108,7 +108,8 @@ pub fn vmf_lobe_with(
 }
 
 /// How a vMF lobe widens the Blinn-Phong lobe `(s+1)/(2π)(n·ω_h)^s` (Algorithm 2 lines
-/// 12–13): the specular term of every vMF evaluation under Blinn-Phong (point lights; the
+/// 12–13), and with [`VmfSpecular::Convolved`] also the GGX lobe: the specular term of every
+/// vMF evaluation under Blinn-Phong (point lights; the
 /// environment light's prefiltered lookups keep eq 20's `s'`, module `envlight`). The other
 /// methods keep their published rules.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -123,7 +124,10 @@ pub enum VmfSpecular {
     Eq20,
     /// The closed-form vMF ⊛ Blinn-Phong lobe ([`crate::vmf::blinn_phong_convolved`]): within
     /// 0.5 % of eq 14 up to one lobe width from μ. Opt-in (`--vmf-specular convolved`); the
-    /// shaders' `NDF_VMF_SPECULAR_CONVOLVED`.
+    /// shaders' `NDF_VMF_SPECULAR_CONVOLVED`. Under GGX it selects the peak-matched widening
+    /// [`crate::brdf::Ggx::widened_vmf`] (`α'² = α² + c·m(κα²/2)/κ`, m from 1 to 2: at c = 2
+    /// the peak of the exact vMF ⊛ GGX convolution) in place of `α'² = α² + c/κ`
+    /// ([`crate::brdf::Ggx::widened`]); `docs/pbr.md` has what each gives on the maps.
     Convolved,
     /// Eq 14 by quadrature ([`crate::brdf::convolution::convolve_vmf`]): the exact
     /// convolution, the bound on what any rule can give. CPU only (a few hundred Bessel-function
@@ -569,6 +573,11 @@ fn mixture_component(
             options.vmf_specular.lobe(mu.dot(h), *s, var)
         }
         Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
+        Brdf::Ggx(g)
+            if bake.method == Method::Vmf && options.vmf_specular == VmfSpecular::Convolved =>
+        {
+            ggx(mu.dot(h), g.widened_vmf(var))
+        }
         b => iso_lobe(b, mu, var, h),
     };
     let diffuse = match (bake.method, options.vmf_diffuse) {
@@ -657,6 +666,56 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn convolved_ggx_vmf_lobes_use_the_peak_matched_widening() {
+        // One lobe per texel, shaded by hand with each rule: eq 20's option keeps
+        // α'² = α² + c/κ, the convolved one takes Ggx::widened_vmf; they differ.
+        let sample = crate::procedural::generate(16, 5);
+        let b = crate::methods::bake_with(
+            &sample.map,
+            Method::Vmf,
+            &crate::bake::BakeOptions {
+                lobes: 1,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let g = Ggx::new(0.1);
+        let brdf = Brdf::Ggx(g);
+        let (l, h) = (DVec3::new(0.1, 0.0, 1.0).normalize(), DVec3::Z);
+        let t = b.texel(2, 1, 1);
+        let lobe = vmf_decode(t[0], crate::vmf::r_max(b.format), 0.0).unwrap();
+        let cos_i = lobe.mu.dot(l).max(0.0);
+        let mut differ = false;
+        for (rule, alpha) in [
+            (VmfSpecular::Eq20, g.widened(lobe.var)),
+            (VmfSpecular::Convolved, g.widened_vmf(lobe.var)),
+        ] {
+            let got = shade_with(
+                &b,
+                &t,
+                l,
+                h,
+                &brdf,
+                &ShadeOptions {
+                    vmf_specular: rule,
+                    ..Default::default()
+                },
+            );
+            let want = lobe.alpha * ggx(lobe.mu.dot(h), alpha) * cos_i;
+            assert!(
+                (got.specular - want).abs() <= 1e-12 * want,
+                "{rule:?}: {got:?} vs {want}"
+            );
+            differ |= alpha != g.widened(lobe.var);
+        }
+        assert!(
+            differ,
+            "the texel's lobe must be widened (var {})",
+            lobe.var
+        );
     }
 
     #[test]

@@ -168,8 +168,9 @@ enum Command {
         /// algorithm2 (α max(ω_i·μ, 0)).
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
-        /// vmf: the lobes' specular rule under Blinn-Phong, eq20 (the paper's s' = κs/(κ+s),
-        /// the default) or convolved (the closed-form vMF ⊛ Blinn-Phong lobe).
+        /// vmf: the lobes' specular rule, eq20 (the paper's s' = κs/(κ+s), the default; GGX:
+        /// α'² = α² + c/κ) or convolved (the closed-form vMF ⊛ Blinn-Phong lobe; GGX: the
+        /// peak-matched widening α'² = α² + c·m(κα²/2)/κ).
         #[arg(long, default_value = "eq20")]
         vmf_specular: String,
         /// sh: the diffuse term, moments (a Gaussian cosine with the moments of bands 0-2, the
@@ -284,10 +285,11 @@ enum Command {
         /// vMF diffuse term: mean-vector (default) or algorithm2.
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
-        /// vMF specular rule under Blinn-Phong, comma-separated to compare in one run (labels
-        /// then name the rule): eq20 (the paper's s' = κs/(κ+s), the default), convolved (the
-        /// closed-form vMF ⊛ Blinn-Phong lobe) or exact (eq 14 by quadrature: CPU only, slow,
-        /// the bound on what any rule can give).
+        /// vMF specular rule, comma-separated to compare in one run (labels then name the
+        /// rule): eq20 (the paper's s' = κs/(κ+s), the default; GGX: α'² = α² + c/κ),
+        /// convolved (the closed-form vMF ⊛ Blinn-Phong lobe; GGX: the peak-matched widening
+        /// α'² = α² + c·m(κα²/2)/κ) or exact (Blinn-Phong only: eq 14 by quadrature, CPU only,
+        /// slow, the bound on what any rule can give).
         #[arg(long, value_delimiter = ',', default_value = "eq20")]
         vmf_specular: Vec<String>,
         /// SH diffuse term: moments (default) or series (eq 12 with Lambert's truncated clamped

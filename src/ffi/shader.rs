@@ -36,13 +36,15 @@ pub const NDF_VMF_DIFFUSE_MEAN_VECTOR: ndf_vmf_diffuse = 0;
 /// Algorithm 2 line 14 as written: `α max(ω_i·μ, 0)`.
 pub const NDF_VMF_DIFFUSE_ALGORITHM2: ndf_vmf_diffuse = 1;
 
-/// The vMF lobes' specular rule under Blinn-Phong: one of the `NDF_VMF_SPECULAR_*` values.
+/// The vMF lobes' specular rule under Blinn-Phong and GGX: one of the `NDF_VMF_SPECULAR_*`
+/// values.
 pub type ndf_vmf_specular = u32;
 /// The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`. Default (0: a
 /// zero-initialised struct gets it).
 pub const NDF_VMF_SPECULAR_EQ20: ndf_vmf_specular = 0;
 /// The closed-form vMF ⊛ Blinn-Phong lobe (within 0.5 % of the exact convolution, eq 14, up to
-/// one lobe width; costlier in the shader).
+/// one lobe width; costlier in the shader); under GGX the peak-matched widening
+/// `α'² = α² + c·m(κα²/2)/κ` (the exact convolution's peak at c = 2) instead of `α² + c/κ`.
 pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 1;
 
 /// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
@@ -122,8 +124,8 @@ pub struct ndf_shader_options {
     /// Blinn-Phong or GGX; no colour). Default
     /// `NDF_LIGHT_POINT`.
     pub light: ndf_light,
-    /// vMF bakes under Blinn-Phong: the lobes' specular rule, `NDF_VMF_SPECULAR_*`. Default
-    /// `NDF_VMF_SPECULAR_EQ20`.
+    /// vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
+    /// `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_EQ20`.
     pub vmf_specular: ndf_vmf_specular,
 }
 

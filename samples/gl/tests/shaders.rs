@@ -398,6 +398,20 @@ fn cases() -> Vec<Case> {
                     sh_diffuse: ShDiffuse::default(),
                 });
             }
+            // Under GGX the same option selects the peak-matched widening
+            // (ndf_vmf_ggx_alpha: the continued fraction for sharp lobes, E1's series for
+            // broad ones), sharp and rough.
+            for alpha in [0.05, 0.3] {
+                out.push(Case {
+                    bake: ndfmap::pack::quantize(b, format).unwrap(),
+                    brdf: Brdf::ggx(alpha),
+                    sampling: Sampling::Manual,
+                    color: false,
+                    diffuse: VmfDiffuse::default(),
+                    specular: VmfSpecular::Convolved,
+                    sh_diffuse: ShDiffuse::default(),
+                });
+            }
         }
     }
     out
