@@ -207,7 +207,8 @@ float ndf_vmf_blinn_phong(float cos_h, float s, float var) {
 }
 #endif
 
-#if defined(NDF_BRDF_GGX)
+#if defined(NDF_BRDF_GGX) && (defined(NDF_VMF_SPECULAR_CONVOLVED) || defined(NDF_LOD_SWITCH_VMF_CONVOLVED))
+// The convolved vMF rule under GGX (as above, only where a shader uses it).
 // T(a) = a + 1 - 1/(e^a E1(a)) for a > 0: for a >= 1 the continued fraction
 // 1/(a + 3 - 4/(a + 5 - 9/(a + 7 - ...))) to 32 terms, below E1 from its series to 16 terms.
 // CPU: brdf::vmf_ggx_tail.
