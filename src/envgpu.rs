@@ -22,14 +22,14 @@
 //! fixed-point weights (8 bits on many), a relative error of 1/256 of the difference between
 //! neighbouring texels, which next to a sun of radiance 10⁶ is far above the route's own
 //! error. The atlas's height is checked against the GL runtime's `GL_MAX_TEXTURE_SIZE` at
-//! upload (a 16384-wide panorama: 16384 × 14336, as level 1's grid is capped at 4096).
+//! upload (a 16384-wide panorama: 16384 × 10240, as level 1's grid is capped at 4096).
 //!
 //! **RGB, `RGB32F` rather than `RGBA16F`**: every radiance-dependent array (atlas, `L′`,
 //! `L_lm`) holds the three channels interleaved. Half floats would halve the bytes (8 instead
 //! of 12 per texel with the padding channel) but stop at 65504 — below the radiance of a real
 //! sun in an HDR panorama (10⁵–10⁹) — and keep 11 significant bits, which would turn GL = CPU
 //! agreement next to a sun from 10⁻⁷ into 10⁻³ of the value. A 1024 × 512 panorama's atlas is
-//! 1024 × 2040 × 12 B ≈ 25 MB (it was 1024 × 528 when every level's lobe was narrower than its
+//! 1024 × 1920 × 12 B ≈ 24 MB (it was 1024 × 528 when every level's lobe was narrower than its
 //! texels), the `L′` table 81 × 256 × 12 B ≈ 0.25 MB. The lobe-energy tables
 //! do not depend on the radiance: one `R32F` table per BRDF family serves all three channels.
 //!

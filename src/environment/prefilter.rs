@@ -37,7 +37,7 @@
 //!
 //! **Memory**: level 1 and 2 each as many texels as the environment (below [`GRID_CAP`]), then a
 //! quarter per pair: `1 + 2·(1 + ¼ + …) ≤ 3.7` times the environment's texels, all levels
-//! included.
+//! included (3.75 at most for environments so small that the 16 × 8 levels dominate).
 //!
 //! Level k is made from a sharper level j convolved with the increment κ_Δ that makes band
 //! l = 1 exact, `A_1(κ_Δ)·A_1(κ_j) = A_1(κ_k)` ([`increment`]; in the small-angle limit

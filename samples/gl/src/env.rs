@@ -27,7 +27,7 @@ pub struct EnvTextures {
 }
 
 impl EnvTextures {
-    /// Uploads `light`, RGB (about 26 MB for a 1024 × 512 panorama, the atlas 25 MB of it).
+    /// Uploads `light`, RGB (about 24 MB for a 1024 × 512 panorama, almost all of it the atlas).
     pub fn upload(gl: &Gl, light: &EnvLight) -> Result<EnvTextures> {
         let upload = envgpu::pack(light)?;
         let mut made = Vec::new();
