@@ -39,7 +39,7 @@
 
 const int NDF_ENV_LMAX = 8;
 const int NDF_ENV_COUNT = 81;
-const int NDF_ENV_MAX_LEVELS = 16;
+const int NDF_ENV_MAX_LEVELS = 24;  // envgpu::MAX_LEVELS
 const int NDF_ENV_GRID = 16;        // projection::REFLECTED_GRID
 const int NDF_ENV_ENERGY_COS = 33;  // envlight::ENERGY_COS
 const int NDF_ENV_ENERGY_PARAM = 49;
@@ -58,15 +58,19 @@ uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Uploa
 uniform sampler2D ndf_env_energy;   // lobe table: 6 blocks (energy, blend, log2 kappa_c,
                                     // tail share t, log2 kappa_t, core blend) of
                                     // ENERGY_PARAM rows x ENERGY_COS columns
-uniform float ndf_env_kappa0;
+uniform float ndf_env_kappa0;      // level 0's nominal kappa, W*H/pi
+uniform float ndf_env_kappa1;      // level 1's kappa; level k >= 1 has kappa1 / 2^(k-1)
 uniform float ndf_env_level_count;
-uniform float ndf_env_level[3 * NDF_ENV_MAX_LEVELS];  // width, height, first row
+uniform vec4 ndf_env_level[NDF_ENV_MAX_LEVELS];  // width, height, first row, first column
 
-// Bilinear lookup of level k at direction d (CPU: Radiance::bilinear): wrap in phi, clamp rows.
+// Bilinear lookup of level k at direction d (CPU: Radiance::bilinear): wrap in phi within the
+// level's rectangle of the atlas, clamp rows.
 vec3 ndf_env_bilinear(int k, vec3 d) {
-    int w = int(ndf_env_level[3 * k]);
-    int h = int(ndf_env_level[3 * k + 1]);
-    int row = int(ndf_env_level[3 * k + 2]);
+    vec4 l = ndf_env_level[k];
+    int w = int(l.x);
+    int h = int(l.y);
+    int row = int(l.z);
+    int col = int(l.w);
     d = ndf_normalize_or_z(d);
     float u = (ndf_env_azimuth(d) + NDF_PI) / (2.0 * NDF_PI);
     float v = acos(clamp(d.z, -1.0, 1.0)) / NDF_PI;
@@ -79,7 +83,8 @@ vec3 ndf_env_bilinear(int k, vec3 d) {
     int xi = int(x0);
     int yi = int(y0);
     int xa = xi - w * int(floor(float(xi) / float(w)));
-    int xb = (xa + 1) - w * ((xa + 1) / w);
+    int xb = (xa + 1) - w * ((xa + 1) / w) + col;
+    xa += col;
     int ya = clamp(yi, 0, h - 1) + row;
     int yb = clamp(yi + 1, 0, h - 1) + row;
     vec3 a = texelFetch(ndf_env_atlas, ivec2(xa, ya), 0).rgb;
@@ -89,22 +94,27 @@ vec3 ndf_env_bilinear(int k, vec3 d) {
     return (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * e);
 }
 
-// The environment convolved with a normalized vMF lobe of concentration kappa about d
-// (CPU: Prefiltered::lod, Prefiltered::lookup).
+// The environment convolved with a normalized vMF lobe of concentration kappa about d: the
+// two levels around kappa blended linearly in kappa (CPU: Prefiltered::blend, ::lookup).
 vec3 ndf_env_lookup(vec3 d, float kappa) {
-    float last = ndf_env_level_count - 1.0;
-    float lod;
-    if (isnan(kappa) || kappa >= ndf_env_kappa0) {
-        lod = 0.0;
-    } else if (kappa <= 0.0) {
-        lod = last;
+    int last = int(ndf_env_level_count) - 1;
+    float last_kappa = ndf_env_kappa1 * exp2(-float(last - 1));
+    int i = 0;
+    float t = 0.0;
+    if (isnan(kappa) || kappa >= ndf_env_kappa0 || last == 0) {
+        i = 0;
+    } else if (kappa <= last_kappa) {
+        i = last;
+    } else if (kappa >= ndf_env_kappa1) {
+        float span = ndf_env_kappa0 - ndf_env_kappa1;
+        t = span > 0.0 ? clamp((ndf_env_kappa0 - kappa) / span, 0.0, 1.0) : 1.0;
     } else {
-        lod = clamp(0.5 * log2(ndf_env_kappa0 / kappa), 0.0, last);
+        i = min(1 + int(floor(max(log2(ndf_env_kappa1 / kappa), 0.0))), last - 1);
+        float ki = ndf_env_kappa1 * exp2(-float(i - 1));
+        t = clamp((ki - kappa) / (0.5 * ki), 0.0, 1.0);
     }
-    int i = int(floor(lod));
-    float t = lod - float(i);
     vec3 a = ndf_env_bilinear(i, d);
-    if (t <= 0.0 || float(i + 1) >= ndf_env_level_count) return a;
+    if (t <= 0.0 || i + 1 > last) return a;
     return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
 }
 

@@ -869,18 +869,24 @@ typedef struct ndf_environment_info {
    */
   uint32_t atlas_width;
   /**
-   * Atlas height (the levels' heights summed).
+   * Atlas height (the shelves of levels stacked; under 4 × the panorama's height).
    */
   uint32_t atlas_height;
   /**
-   * Prefiltered levels; the level table has 3 × this many `uint32_t` (width, height, first
-   * row).
+   * Prefiltered levels; the level table has 4 × this many `uint32_t` (width, height, first
+   * row, first column).
    */
   uint32_t level_count;
   /**
-   * `κ_0 = W·H/π`: `LOD = ½ log2(κ_0/κ)` (uniform `ndf_env_kappa0`).
+   * `κ_0 = W·H/π`, level 0's nominal concentration: a lobe at least this sharp reads level
+   * 0 alone (uniform `ndf_env_kappa0`; the level blend: docs/environment.md).
    */
   double kappa0;
+  /**
+   * `κ_1`, level 1's concentration; level k ≥ 1 has `κ_1 / 2^(k−1)` (uniform
+   * `ndf_env_kappa1`).
+   */
+  double kappa1;
   /**
    * Columns (81 texels of `channels` floats) and rows (256) of `ndf_environment_reflected`.
    */
@@ -2060,8 +2066,9 @@ ndf_status ndf_environment_sh(const struct ndf_environment *env, float *out, siz
 /**
  * The prefiltered levels packed for upload as one `RGB32F` texture (`atlas_width ×
  * atlas_height × 3` floats, R, G, B per texel, row-major from the top; sampler
- * `ndf_env_atlas`, read with `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
- * uniform `ndf_env_level` as floats). Both buffers are required.
+ * `ndf_env_atlas`, read with `texelFetch`) and the level table (`4 × level_count` values:
+ * width, height, first row, first column of each level's rectangle in the atlas; uniform
+ * `vec4 ndf_env_level[24]` as floats). Both buffers are required.
  *
  * # Safety
  * `env` is NULL or live; `atlas` is NULL or writable for `atlas_capacity` floats, `levels` for

@@ -4,25 +4,33 @@
 //! twin is [`crate::envlight::shade`].
 //!
 //! **Layout: an equirectangular `RGB32F` atlas, not a cube map and not a GL MIP chain.** The
-//! prefiltered levels ([`crate::environment::prefilter`]) are equirectangular, made by
-//! solid-angle-weighted downsampling, and stop halving at 16 × 8 texels while the lobe keeps
-//! widening, so they are not a GL MIP chain (whose levels must halve) and resampling them to a
-//! cube map would change every value. The atlas stacks the levels as they are, level 0 at the
-//! top, each starting at column 0 of its own rows ([`Upload::levels`]: width, height, first
-//! row). The shader reads it with `texelFetch` and does the bilinear lookup (wrapping in φ,
-//! clamped at the poles) and the blend between the two levels around
-//! `LOD = ½ log2(κ_0/κ)` itself, in the same order as [`crate::environment::prefilter::
-//! Prefiltered::lookup`]: that is what makes GL = CPU exact to f32 rounding. Hardware filtering
-//! would not be: GPUs (llvmpipe included) filter with fixed-point weights (8 bits on many), a
-//! relative error of 1/256 of the difference between neighbouring texels, which next to a sun
-//! of radiance 10⁶ is far above the route's own error.
+//! prefiltered levels ([`crate::environment::prefilter`]) are equirectangular, each on a grid
+//! that resolves its own lobe (spacing ≤ ½σ), two levels per grid size with κ halving per
+//! level, so they are not a GL MIP chain (whose levels must halve) and resampling them to a
+//! cube map would change every value. The atlas packs the levels as they are on shelves:
+//! level 0 (the environment) at the top, then each level at the right of the previous one
+//! when the shelf has room, else at the start of a new shelf ([`Upload::levels`]: width,
+//! height, first row, first column). Below [`crate::environment::prefilter::GRID_CAP`] that is
+//! level 0, level 1 and level 2 on shelves of their own, then the pairs (3, 4), (5, 6), … side
+//! by side: the atlas is `W × < 4H`, under 4 times the environment's texels. The shader reads
+//! it with `texelFetch` and does the bilinear lookup (wrapping in φ within the level's own
+//! rectangle, clamped at the poles: no gutters are needed) and the blend between the two
+//! levels [`crate::environment::prefilter::Prefiltered::blend`] picks (linear in κ,
+//! `κ_k = κ_1/2^{k−1}` for k ≥ 1, the nominal `κ_0` for level 0) itself, in the same order as
+//! [`crate::environment::prefilter::Prefiltered::lookup`]: that is what makes GL = CPU exact to
+//! f32 rounding. Hardware filtering would not be: GPUs (llvmpipe included) filter with
+//! fixed-point weights (8 bits on many), a relative error of 1/256 of the difference between
+//! neighbouring texels, which next to a sun of radiance 10⁶ is far above the route's own
+//! error. The atlas's height is checked against the GL runtime's `GL_MAX_TEXTURE_SIZE` at
+//! upload (a 16384-wide panorama: 16384 × 10240, as level 1's grid is capped at 4096).
 //!
 //! **RGB, `RGB32F` rather than `RGBA16F`**: every radiance-dependent array (atlas, `L′`,
 //! `L_lm`) holds the three channels interleaved. Half floats would halve the bytes (8 instead
 //! of 12 per texel with the padding channel) but stop at 65504 — below the radiance of a real
 //! sun in an HDR panorama (10⁵–10⁹) — and keep 11 significant bits, which would turn GL = CPU
 //! agreement next to a sun from 10⁻⁷ into 10⁻³ of the value. A 1024 × 512 panorama's atlas is
-//! 1024 × 528 × 12 B ≈ 6.5 MB, the `L′` table 81 × 256 × 12 B ≈ 0.25 MB. The lobe-energy tables
+//! 1024 × 1920 × 12 B ≈ 24 MB (it was 1024 × 528 when every level's lobe was narrower than its
+//! texels), the `L′` table 81 × 256 × 12 B ≈ 0.25 MB. The lobe-energy tables
 //! do not depend on the radiance: one `R32F` table per BRDF family serves all three channels.
 //!
 //! The `L′` table ([`crate::environment::projection::ReflectedTable`]) is an `RGB32F` texture of
@@ -32,7 +40,8 @@
 //! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
 //!
 //! Uniforms ([`uniforms`]): `vec3 ndf_env_sh[81]` (`L_lm`, environment frame, RGB), `ndf_env_kappa0`,
-//! `ndf_env_level_count`, `ndf_env_level[3·16]` (width, height, first row per level, as floats),
+//! `ndf_env_kappa1`, `ndf_env_level_count`, `vec4 ndf_env_level[24]` (width, height, first
+//! row, first column per level),
 //! and for the SH route `ndf_env_rho[9]` (the BRDF's `ρ̂_l`, l ≤ 8). Samplers: `ndf_env_atlas`,
 //! `ndf_env_energy` (prefiltered route), `ndf_env_reflected` (SH route). Mesh mode adds
 //! `mat3 ndf_env_rotation` (world → environment frame), set by the application.
@@ -43,9 +52,9 @@ use crate::envlight::{ENERGY_BLOCKS, ENERGY_COS, ENERGY_PARAM, ENV_LMAX, EnvLigh
 use crate::error::{Error, Result};
 use crate::harmonics::count;
 
-/// The most prefiltered levels a shader reads (`ndf_env_level[3·MAX_LEVELS]`): enough for a
-/// 16384-wide panorama (14 levels).
-pub const MAX_LEVELS: usize = 16;
+/// The most prefiltered levels a shader reads (`vec4 ndf_env_level[MAX_LEVELS]`): enough for
+/// any panorama (level 1's grid is at most 4096 wide: 20 levels).
+pub const MAX_LEVELS: usize = 24;
 
 /// Columns of the `L′` texture: `count(ENV_LMAX)` = 81 coefficients.
 pub const REFLECTED_COLUMNS: usize = (ENV_LMAX + 1) * (ENV_LMAX + 1);
@@ -62,15 +71,18 @@ pub const CHANNELS: usize = 3;
 pub struct Upload {
     /// Atlas width in texels (level 0's width).
     pub atlas_width: u32,
-    /// Atlas height in texels (the levels' heights summed).
+    /// Atlas height in texels (the shelves' heights summed).
     pub atlas_height: u32,
-    /// The atlas, RGB per texel, row-major from the top row; texels outside a level's width
-    /// are 0.
+    /// The atlas, RGB per texel, row-major from the top row; texels outside every level are
+    /// 0.
     pub atlas: Vec<f32>,
-    /// Per level: width, height, first atlas row.
-    pub levels: Vec<[u32; 3]>,
-    /// `κ_0 = W·H/π` of level 0 (`LOD = ½ log2(κ_0/κ)`).
+    /// Per level: width, height, first atlas row, first atlas column.
+    pub levels: Vec<[u32; 4]>,
+    /// `κ_0 = W·H/π`, level 0's nominal concentration (a lobe at least this sharp reads level
+    /// 0 alone).
     pub kappa0: f64,
+    /// `κ_1`, level 1's concentration; level k ≥ 1 has `κ_1/2^{k−1}`.
+    pub kappa1: f64,
     /// `L_lm`, l ≤ 8, environment frame, (l, m) order, RGB per coefficient (81 × 3).
     pub sh: Vec<f32>,
     /// The `L′` table: [`REFLECTED_ROWS`] rows of [`REFLECTED_COLUMNS`] RGB values.
@@ -89,26 +101,25 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
         )));
     }
     let width = levels[0].radiance.width();
-    let height: u32 = levels.iter().map(|l| l.radiance.height()).sum();
+    let table = shelves(
+        &levels
+            .iter()
+            .map(|l| (l.radiance.width(), l.radiance.height()))
+            .collect::<Vec<_>>(),
+    );
+    let height = table.iter().map(|l| l[1] + l[2]).max().unwrap_or(0);
     let mut atlas = vec![0.0f32; CHANNELS * width as usize * height as usize];
-    let mut table = Vec::with_capacity(levels.len());
-    let mut row = 0u32;
-    for (k, level) in levels.iter().enumerate() {
-        let (w, h) = (
-            level.radiance.width() as usize,
-            level.radiance.height() as usize,
-        );
+    for (k, &[w, h, row, col]) in table.iter().enumerate() {
+        let (w, h) = (w as usize, h as usize);
         for (c, ch) in light.channels().iter().enumerate() {
             let values = ch.prefiltered().levels()[k].radiance.values();
             for y in 0..h {
-                let dst = (row as usize + y) * width as usize;
+                let dst = (row as usize + y) * width as usize + col as usize;
                 for (x, v) in values[y * w..][..w].iter().enumerate() {
                     atlas[CHANNELS * (dst + x) + c] = *v;
                 }
             }
         }
-        table.push([w as u32, h as u32, row]);
-        row += h as u32;
     }
     let interleave = |per: Vec<Vec<f32>>| -> Vec<f32> {
         (0..per[0].len())
@@ -143,9 +154,30 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
         atlas,
         levels: table,
         kappa0: first.kappa0(),
+        kappa1: first.kappa1(),
         sh,
         reflected,
     })
+}
+
+/// Shelf packing of rectangles `(width, height)` in order into an atlas as wide as the first:
+/// each at the right of the previous one when its shelf has room, else at the start of a new
+/// shelf below. Per rectangle: width, height, first row, first column.
+fn shelves(sizes: &[(u32, u32)]) -> Vec<[u32; 4]> {
+    let width = sizes.first().map_or(0, |s| s.0);
+    let (mut row, mut col, mut shelf) = (0u32, 0u32, 0u32);
+    let mut out = Vec::with_capacity(sizes.len());
+    for &(w, h) in sizes {
+        if col > 0 && col + w > width {
+            row += shelf;
+            col = 0;
+            shelf = 0;
+        }
+        out.push([w, h, row, col]);
+        col += w;
+        shelf = shelf.max(h);
+    }
+    out
 }
 
 /// The lobe table of `brdf` as f32 for upload ([`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows ×
@@ -159,25 +191,25 @@ pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
 /// The size (columns, rows) of [`energy`]'s texture.
 pub const ENERGY_SIZE: (usize, usize) = (ENERGY_COS, ENERGY_BLOCKS * ENERGY_PARAM);
 
-/// One environment uniform: its name, components per element (1: `float`, 3: `vec3`) and
-/// values (arrays as several elements).
+/// One environment uniform: its name, components per element (1: `float`, 3: `vec3`, 4:
+/// `vec4`) and values (arrays as several elements).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EnvUniform {
     /// The GLSL name.
     pub name: &'static str,
-    /// Components per element: 1 (`float`, `float[]`) or 3 (`vec3[]`).
+    /// Components per element: 1 (`float`, `float[]`), 3 (`vec3[]`) or 4 (`vec4[]`).
     pub components: usize,
     /// The values, `components` per element.
     pub values: Vec<f32>,
 }
 
 /// The environment uniforms of a shader lit by `route` with `brdf` (module docs): `ndf_env_sh`
-/// as `vec3[81]` (RGB), the rest as floats.
+/// as `vec3[81]` (RGB), `ndf_env_level` as `vec4[MAX_LEVELS]`, the rest as floats.
 pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
-    let mut level = vec![0.0f32; 3 * MAX_LEVELS];
+    let mut level = vec![0.0f32; 4 * MAX_LEVELS];
     for (i, l) in upload.levels.iter().enumerate() {
-        for k in 0..3 {
-            level[3 * i + k] = l[k] as f32;
+        for k in 0..4 {
+            level[4 * i + k] = l[k] as f32;
         }
     }
     let u = |name, components, values| EnvUniform {
@@ -188,8 +220,9 @@ pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
     let mut out = vec![
         u("ndf_env_sh", CHANNELS, upload.sh.clone()),
         u("ndf_env_kappa0", 1, vec![upload.kappa0 as f32]),
+        u("ndf_env_kappa1", 1, vec![upload.kappa1 as f32]),
         u("ndf_env_level_count", 1, vec![upload.levels.len() as f32]),
-        u("ndf_env_level", 1, level),
+        u("ndf_env_level", 4, level),
     ];
     if route == Route::Sh && brdf.has_specular() {
         let rho = brdf.sh_coefficients(ENV_LMAX);
@@ -215,11 +248,13 @@ mod tests {
                 up.atlas.len(),
                 CHANNELS * (up.atlas_width * up.atlas_height) as usize
             );
-            for (l, &[w, h, row]) in levels.iter().zip(&up.levels) {
+            for (l, &[w, h, row, col]) in levels.iter().zip(&up.levels) {
                 assert_eq!((w, h), (l.radiance.width(), l.radiance.height()));
+                assert!(col + w <= up.atlas_width && row + h <= up.atlas_height);
                 for y in 0..h {
                     for x in 0..w {
-                        let a = up.atlas[CHANNELS * ((row + y) * up.atlas_width + x) as usize + c];
+                        let at = (row + y) * up.atlas_width + col + x;
+                        let a = up.atlas[CHANNELS * at as usize + c];
                         assert_eq!(a, l.radiance.values()[(y * w + x) as usize]);
                     }
                 }
@@ -232,6 +267,22 @@ mod tests {
                 assert_eq!(up.reflected[CHANNELS * i + c], *v);
             }
         }
+        // No two levels overlap, and the atlas is under 4 times the environment's texels.
+        for (i, a) in up.levels.iter().enumerate() {
+            for b in &up.levels[..i] {
+                let apart = a[3] >= b[3] + b[0]
+                    || b[3] >= a[3] + a[0]
+                    || a[2] >= b[2] + b[1]
+                    || b[2] >= a[2] + a[1];
+                assert!(apart, "{a:?} overlaps {b:?}");
+            }
+        }
+        let (w0, h0) = (up.levels[0][0], up.levels[0][1]);
+        assert!(
+            up.atlas_width == w0 && up.atlas_height < 4 * h0,
+            "{}",
+            up.atlas_height
+        );
         // The channels differ (the sun's colour reaches every table).
         assert!(up.sh[0] > 1.2 * up.sh[2], "{} {}", up.sh[0], up.sh[2]);
         assert_eq!(up.sh.len(), 81 * 3);

@@ -1942,11 +1942,19 @@ mod tests {
                 gt.specular[0], gt.specular_se[0], f.specular
             );
             assert_eq!(table.len(), ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
-            // Measured (256-wide sky): core −36 %, shoulder +28 %, tail −7 % against the single
-            // vMF's −79 %, −68 %, −15 %. What is left is mostly the prefiltered levels' grid
-            // (each level's vMF is narrower than 1.5 of its texels) and their factor-4 κ steps.
-            assert!(err.abs() < 0.45, "{off}: two vMFs {err}");
-            assert!(err.abs() < err1.abs(), "{off}: two vMFs {err}, one {err1}");
+            // Measured (256-wide sky), with levels whose grids resolve their lobes: core
+            // −2.4 %, shoulder −30 %, 20° −12 %, 40° +17 % against the single vMF's −77 %,
+            // −63 %, +33 %, −3 % (with the earlier levels, narrower than their texels: core
+            // −36 %, shoulder +28 %, 20° −7 %, 40° +20 %). What is left is the lobe's shape
+            // (two isotropic vMFs); at 40° the single vMF's broader tail is closer.
+            assert!(err.abs() < 0.35, "{off}: two vMFs {err}");
+            if off == 0.0 {
+                // The sun in the lobe's core: the α = 0.1 regression.
+                assert!(err.abs() < 0.08, "core: two vMFs {err}");
+            }
+            if off <= 20.0 {
+                assert!(err.abs() < err1.abs(), "{off}: two vMFs {err}, one {err1}");
+            }
         }
     }
 

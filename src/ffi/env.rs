@@ -75,13 +75,17 @@ pub struct ndf_environment_info {
     pub sh_count: u32,
     /// Atlas width of `ndf_environment_prefiltered` (level 0's width).
     pub atlas_width: u32,
-    /// Atlas height (the levels' heights summed).
+    /// Atlas height (the shelves of levels stacked; under 4 × the panorama's height).
     pub atlas_height: u32,
-    /// Prefiltered levels; the level table has 3 × this many `uint32_t` (width, height, first
-    /// row).
+    /// Prefiltered levels; the level table has 4 × this many `uint32_t` (width, height, first
+    /// row, first column).
     pub level_count: u32,
-    /// `κ_0 = W·H/π`: `LOD = ½ log2(κ_0/κ)` (uniform `ndf_env_kappa0`).
+    /// `κ_0 = W·H/π`, level 0's nominal concentration: a lobe at least this sharp reads level
+    /// 0 alone (uniform `ndf_env_kappa0`; the level blend: docs/environment.md).
     pub kappa0: f64,
+    /// `κ_1`, level 1's concentration; level k ≥ 1 has `κ_1 / 2^(k−1)` (uniform
+    /// `ndf_env_kappa1`).
+    pub kappa1: f64,
     /// Columns (81 texels of `channels` floats) and rows (256) of `ndf_environment_reflected`.
     pub reflected_columns: u32,
     /// Rows of `ndf_environment_reflected`.
@@ -303,6 +307,7 @@ pub unsafe extern "C" fn ndf_environment_info_get(
             atlas_height: u.atlas_height,
             level_count: u.levels.len() as u32,
             kappa0: u.kappa0,
+            kappa1: u.kappa1,
             reflected_columns: REFLECTED_COLUMNS as u32,
             reflected_rows: REFLECTED_ROWS as u32,
             energy_columns: ENERGY_SIZE.0 as u32,
@@ -335,8 +340,9 @@ pub unsafe extern "C" fn ndf_environment_sh(
 
 /// The prefiltered levels packed for upload as one `RGB32F` texture (`atlas_width ×
 /// atlas_height × 3` floats, R, G, B per texel, row-major from the top; sampler
-/// `ndf_env_atlas`, read with `texelFetch`) and the level table (`3 × level_count` values: width, height, first row;
-/// uniform `ndf_env_level` as floats). Both buffers are required.
+/// `ndf_env_atlas`, read with `texelFetch`) and the level table (`4 × level_count` values:
+/// width, height, first row, first column of each level's rectangle in the atlas; uniform
+/// `vec4 ndf_env_level[24]` as floats). Both buffers are required.
 ///
 /// # Safety
 /// `env` is NULL or live; `atlas` is NULL or writable for `atlas_capacity` floats, `levels` for

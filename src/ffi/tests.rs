@@ -1924,6 +1924,7 @@ fn environments_load_and_pack_for_upload() {
             (up.atlas_width, up.atlas_height, up.levels.len())
         );
         assert_eq!(info.kappa0, up.kappa0);
+        assert_eq!(info.kappa1, up.kappa1);
         let mut sh = vec![0.0f32; 243];
         check!(ndf_environment_sh(env, sh.as_mut_ptr(), 242) => BufferTooSmall, "243 are needed");
         check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
@@ -1935,7 +1936,7 @@ fn environments_load_and_pack_for_upload() {
         }
         assert!(sh[0] > 1.2 * sh[2], "the sun's colour: {} {}", sh[0], sh[2]);
         let mut atlas = vec![0.0f32; 3 * (info.atlas_width * info.atlas_height) as usize];
-        let mut levels = vec![0u32; 3 * info.level_count as usize];
+        let mut levels = vec![0u32; 4 * info.level_count as usize];
         check!(ndf_environment_prefiltered(env, atlas.as_mut_ptr(), atlas.len(), levels.as_mut_ptr(), levels.len()) => Ok, "");
         assert_eq!(atlas, up.atlas);
         assert_eq!(

@@ -227,16 +227,32 @@ static void environments(const ndf_bake *vmf, const ndf_bake *sh_bake) {
     }
     n = (size_t)info.atlas_width * info.atlas_height * info.channels;
     atlas = (float *)malloc(n * sizeof(float));
-    levels = (uint32_t *)malloc(3 * info.level_count * sizeof(uint32_t));
-    expect(ndf_environment_prefiltered(env, atlas, n, levels, 3 * info.level_count), NDF_STATUS_OK,
+    levels = (uint32_t *)malloc(4 * info.level_count * sizeof(uint32_t));
+    expect(ndf_environment_prefiltered(env, atlas, n, levels, 4 * info.level_count), NDF_STATUS_OK,
            "env prefiltered");
-    expect(ndf_environment_prefiltered(env, NULL, n, levels, 3 * info.level_count),
+    expect(ndf_environment_prefiltered(env, NULL, n, levels, 4 * info.level_count),
            NDF_STATUS_NULL_ARGUMENT, "env prefiltered NULL");
+    expect(ndf_environment_prefiltered(env, atlas, n, levels, 4 * info.level_count - 1),
+           NDF_STATUS_BUFFER_TOO_SMALL, "env prefiltered short table");
+    /* Level k >= 1 has kappa1 / 2^(k-1); level 1 is on the panorama's own grid. */
+    if (info.level_count < 2 || !(info.kappa1 > 0.0 && info.kappa1 < info.kappa0) ||
+        levels[4] != EW || levels[5] != EH) {
+        fprintf(stderr, "FAIL env levels %u kappa %g %g\n", (unsigned)info.level_count,
+                info.kappa0, info.kappa1);
+        failures++;
+    }
     for (i = 0; i < info.level_count; i++) {
+        /* Each level is a width x height rectangle at (first column, first row) of the atlas. */
+        const uint32_t *l = levels + 4 * i;
         uint32_t x, y;
-        for (y = 0; y < levels[3 * i + 1]; y++) {
-            for (x = 0; x < levels[3 * i]; x++) {
-                size_t at = ((size_t)(levels[3 * i + 2] + y) * info.atlas_width + x) * 3;
+        if (l[3] + l[0] > info.atlas_width || l[2] + l[1] > info.atlas_height) {
+            fprintf(stderr, "FAIL env level %lu outside the atlas\n", (unsigned long)i);
+            failures++;
+            continue;
+        }
+        for (y = 0; y < l[1]; y++) {
+            for (x = 0; x < l[0]; x++) {
+                size_t at = ((size_t)(l[2] + y) * info.atlas_width + l[3] + x) * 3;
                 int bad = 0;
                 for (c = 0; c < 3; c++) {
                     bad |= fabs(atlas[at + c] - env_colour[c]) > 1e-4 * env_colour[c];
@@ -245,7 +261,7 @@ static void environments(const ndf_bake *vmf, const ndf_bake *sh_bake) {
                     fprintf(stderr, "FAIL env level %lu texel %g %g %g\n", (unsigned long)i,
                             atlas[at], atlas[at + 1], atlas[at + 2]);
                     failures++;
-                    y = levels[3 * i + 1];
+                    y = l[1];
                     break;
                 }
             }

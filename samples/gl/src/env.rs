@@ -4,7 +4,8 @@
 //! tables (they do not depend on the radiance: one for all channels), all sampled
 //! with `texelFetch` (filtering `NEAREST`, no MIP levels) — and sets their uniforms
 //! ([`ndfmap::envgpu`]). Why an equirectangular atlas and not a cube map or a GL MIP chain:
-//! the CPU's levels are equirectangular and stop halving at 16 × 8 texels, and the shader's own
+//! the CPU's levels are equirectangular, each on a grid that resolves its lobe (two levels per
+//! grid size, packed on shelves; the atlas is checked against `GL_MAX_TEXTURE_SIZE`), and the shader's own
 //! bilinear and level blend in f32 make GL = CPU exact to rounding (module docs of
 //! [`ndfmap::envgpu`]). [`env_rotation`] is the world → environment frame of the mesh shaders.
 
@@ -26,7 +27,7 @@ pub struct EnvTextures {
 }
 
 impl EnvTextures {
-    /// Uploads `light`, RGB (about 7 MB for a 1024 × 512 panorama).
+    /// Uploads `light`, RGB (about 24 MB for a 1024 × 512 panorama, almost all of it the atlas).
     pub fn upload(gl: &Gl, light: &EnvLight) -> Result<EnvTextures> {
         let upload = envgpu::pack(light)?;
         let mut made = Vec::new();
@@ -117,6 +118,7 @@ impl EnvTextures {
         for u in envgpu::uniforms(&self.upload, brdf, route) {
             match (u.components, u.values.len()) {
                 (3, _) => program.set_vec3_array(u.name, &u.values),
+                (4, _) => program.set_vec4_array(u.name, &u.values),
                 (_, 1) => program.set_f32(u.name, u.values[0]),
                 _ => program.set_f32_array(u.name, &u.values),
             }

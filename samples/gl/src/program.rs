@@ -178,6 +178,14 @@ impl Program {
         self.with_uniform(name, |g, l| unsafe { g.uniform_3_f32_slice(Some(l), v) });
     }
 
+    /// Sets `vec4 name[N]` from `v` (4 floats per element, N ≤ `v.len() / 4` elements read by
+    /// GL); ignored when absent.
+    pub fn set_vec4_array(&self, name: &str, v: &[f32]) {
+        // SAFETY: as in `set_f32`; the location is the array's first element and the slice
+        // holds whole vec4s (glow passes `len / 4` elements).
+        self.with_uniform(name, |g, l| unsafe { g.uniform_4_f32_slice(Some(l), v) });
+    }
+
     /// Sets `int name` (or a sampler's texture unit); ignored when absent.
     pub fn set_i32(&self, name: &str, v: i32) {
         // SAFETY: as in `set_f32`.
