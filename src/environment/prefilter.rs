@@ -248,7 +248,7 @@ pub fn convolve(env: &Radiance, kappa: f64) -> Radiance {
 /// azimuth offset only, so they are computed once per pair of rows.
 pub fn convolve_to(src: &Radiance, width: u32, kappa: f64) -> Radiance {
     let (ws, hs) = (src.width() as usize, src.height() as usize);
-    let wd = if width > 0 && src.width() % width == 0 {
+    let wd = if width > 0 && src.width().is_multiple_of(width) {
         width as usize
     } else {
         ws
