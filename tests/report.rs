@@ -189,7 +189,13 @@ fn env_albedo_is_refused_without_env_or_with_the_wrong_count() {
     let out = dir.path().join("rep");
     let run = |extra: &[&str]| {
         let o = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
-            .args(["report", "--sample-size", "16", "--no-stability", "--no-planner"])
+            .args([
+                "report",
+                "--sample-size",
+                "16",
+                "--no-stability",
+                "--no-planner",
+            ])
             .args(extra)
             .arg("-o")
             .arg(&out)
