@@ -132,6 +132,26 @@ pub struct Bake {
 }
 
 impl Bake {
+    /// The same bake without its colour textures (eq 22's `α·y`, textures `lobes..`): the
+    /// lobe textures only, what a renderer without colour textures samples. Other bakes are
+    /// returned whole.
+    pub fn lobes_only(&self) -> Bake {
+        let keep = if self.method == Method::Vmf {
+            self.lobes.min(self.textures.len())
+        } else {
+            self.textures.len()
+        };
+        Bake {
+            method: self.method,
+            sizes: self.sizes.clone(),
+            textures: self.textures[..keep].to_vec(),
+            addressing: self.addressing,
+            lobes: self.lobes,
+            parameters: self.parameters.clone(),
+            format: self.format,
+        }
+    }
+
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
     /// for mixtures, and for vMF `f` for the fast mode and `x` for the exact one (`vmf6`,
     /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), the band limit for SH (`sh4`), `-aniso` for an

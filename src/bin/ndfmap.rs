@@ -1565,15 +1565,7 @@ fn run(cli: Cli) -> Result<u8> {
                 let stripped: Vec<Bake> = bakes
                     .iter()
                     .filter(|b| b.method == Method::Vmf && b.textures.len() >= 2 * b.lobes)
-                    .map(|b| Bake {
-                        method: b.method,
-                        sizes: b.sizes.clone(),
-                        textures: b.textures[..b.lobes].to_vec(),
-                        addressing: b.addressing,
-                        lobes: b.lobes,
-                        parameters: b.parameters.clone(),
-                        format: b.format,
-                    })
+                    .map(Bake::lobes_only)
                     .collect();
                 bakes.extend(stripped);
             }

@@ -193,13 +193,6 @@ struct Members {
     vv: f64,
 }
 
-/// An orthonormal tangent basis of the unit vector `n` (Frisvad's, made robust at −Z).
-fn tangent_basis(n: DVec3) -> (DVec3, DVec3) {
-    let helper = if n.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
-    let t1 = (helper - n * n.dot(helper)).normalize();
-    (t1, n.cross(t1))
-}
-
 /// The two split-and-merge starts from `lobes` (module docs, 2): `[drop the lightest lobe,
 /// merge the closest pair]`, each splitting the most scattered lobe; `None` where a move does
 /// not exist (fewer than two live lobes, no lobe with spread, or no pair to merge).
@@ -218,7 +211,10 @@ fn split_merge_starts(
         .iter()
         .map(|&s| lobes[s].alpha.ln() + vmf::log_peak_density(lobes[s].kappa))
         .collect();
-    let bases: Vec<(DVec3, DVec3)> = live.iter().map(|&s| tangent_basis(lobes[s].mu)).collect();
+    let bases: Vec<(DVec3, DVec3)> = live
+        .iter()
+        .map(|&s| crate::brdf::tangent_frame(lobes[s].mu))
+        .collect();
     let mut members = vec![Members::default(); live.len()];
     for (n, &w) in normals.iter().zip(weights) {
         let mut best = 0;
@@ -341,7 +337,7 @@ mod tests {
     /// `count` normals scattered about `centre` (tangent offsets of standard deviation
     /// `spread` radians).
     fn cluster(rng: &mut Rng, centre: DVec3, spread: f64, count: usize) -> Vec<Vec3> {
-        let (t1, t2) = tangent_basis(centre.normalize());
+        let (t1, t2) = crate::brdf::tangent_frame(centre.normalize());
         (0..count)
             .map(|_| {
                 let n = centre.normalize()

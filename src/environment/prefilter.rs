@@ -63,6 +63,7 @@
 //! output texel is one sum in a fixed order: the levels are the same whatever the thread count.
 
 use super::Radiance;
+use crate::vmf;
 use glam::DVec3;
 use rayon::prelude::*;
 use rustfft::FftPlanner;
@@ -225,36 +226,14 @@ impl Prefiltered {
     }
 }
 
-/// `A_1(κ) = coth κ − 1/κ`: the mean cosine of a vMF lobe, the factor by which its
-/// convolution scales band l = 1 (1 for κ = ∞).
-fn mean_cosine(kappa: f64) -> f64 {
-    if kappa.is_infinite() {
-        1.0
-    } else if kappa < 1e-4 {
-        kappa / 3.0
-    } else if kappa > 30.0 {
-        1.0 - 1.0 / kappa
-    } else {
-        1.0 / kappa.tanh() - 1.0 / kappa
-    }
-}
-
 /// The κ of the vMF that takes a level of concentration `from` to one of `to` < `from`:
-/// `A_1(κ_Δ) = A_1(to)/A_1(from)`, so band 1 is exact (the small-angle rule
-/// `1/κ_Δ = 1/to − 1/from` drifts by several per cent over the chain of wide levels).
-/// Bisection in `log2 κ`, deterministic.
+/// `A(κ_Δ) = A(to)/A(from)` (`A = coth κ − 1/κ`, [`vmf::a_kappa`]: the mean cosine of a vMF,
+/// the factor by which its convolution scales band l = 1), so band 1 is exact (the small-angle
+/// rule `1/κ_Δ = 1/to − 1/from` drifts by several per cent over the chain of wide levels).
+/// Solved by [`vmf::kappa_from_r_exact`], held to `[2⁻³⁰, 2⁶⁰]`.
 pub fn increment(from: f64, to: f64) -> f64 {
-    let target = mean_cosine(to) / mean_cosine(from);
-    let (mut lo, mut hi) = (-30.0f64, 60.0f64);
-    for _ in 0..120 {
-        let mid = 0.5 * (lo + hi);
-        if mean_cosine(mid.exp2()) < target {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    (0.5 * (lo + hi)).exp2()
+    let r = vmf::a_kappa(to) / vmf::a_kappa(from);
+    vmf::kappa_from_r_exact(r).clamp(2f64.powi(-30), 2f64.powi(60))
 }
 
 /// `env` convolved with a normalized vMF lobe of concentration `kappa` on its own grid

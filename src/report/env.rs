@@ -156,15 +156,7 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
         }
         if color {
             // What eq 22's colour buys: the same lobes without their colour textures.
-            let lobes_only = Bake {
-                method: bake.method,
-                sizes: bake.sizes.clone(),
-                textures: bake.textures[..bake.lobes].to_vec(),
-                addressing: bake.addressing,
-                lobes: bake.lobes,
-                parameters: bake.parameters.clone(),
-                format: bake.format,
-            };
+            let lobes_only = bake.lobes_only();
             for route in [Route::Prefiltered, Route::Sh] {
                 out.push(EnvConfig {
                     label: format!("vmf{j} {}", route.name()),
