@@ -11,8 +11,8 @@
 //                variance 1/kappa = (1 - |r|)(1 + |r|) / (|r| (3 - |r|^2)) (Banerjee's
 //                kappa inverted, without the cancellation of 1 - |r|^2; at most 1e6, the
 //                uniform lobe's, for r = 0; vmf::inverse_kappa)
-//   lines 12-13  Blinn-Phong: the paper's eq 20, s' = kappa*s / (kappa + s) as
-//                s / (1 + s/kappa), B = (s' + 1)/(2 pi) (w_h . mu)^s', or with
+//   lines 12-13  Blinn-Phong: the paper's eq 20, s' = kappa*s / (kappa + s), B = (s' + 1)/(2 pi)
+//                (w_h . mu)^s' (ndf_vmf_eq20_texel: s' in one division, no branch), or with
 //                NDF_VMF_SPECULAR_CONVOLVED the closed-form vMF (*) Blinn-Phong lobe
 //                (ndf_vmf_blinn_phong; vmf::blinn_phong_convolved; shade::VmfSpecular);
 //                GGX: ndf_iso_lobe, alpha'^2 = alpha^2 + c/kappa, or with
@@ -42,6 +42,65 @@ bool ndf_vmf_decode(vec4 theta, out float alpha, out vec3 mu, out float var, out
     return true;
 }
 
+#if defined(NDF_BRDF_BLINN_PHONG) && !defined(NDF_VMF_SPECULAR_CONVOLVED)
+// Algorithm 2 lines 7-14 for the default rule, eq 20, without a branch (issue 14 item 6; CPU:
+// shade::vmf_lobe with shade::eq20_exponent). Every lobe is evaluated and a skipped one (alpha <=
+// NDF_ALPHA_MIN, or NaN) is weighted by 0 through a select, with inputs that keep its terms
+// finite: llvmpipe runs both sides of every branch under a mask, so the per-lobe `continue` only
+// added mask work (docs/frame-times.md). With q = min(|theta.yzw|, NDF_R_MAX alpha) = alpha |r|
+// clamped, 1/kappa = N/D with N = alpha (alpha - q)(alpha + q) and D = q (3 alpha^2 - q^2)
+// (vmf::inverse_kappa with numerator and denominator times alpha^3: no division by alpha, and
+// alpha - q has no cancellation), and s' = s/(1 + s N/D) = s D/(D + s N) = kappa s/(kappa + s):
+// one division where three were (|r|, 1/kappa, s'). D is raised to 1e-6 N, the uniform lobe's
+// bound 1/kappa <= 1e6. One inversesqrt gives mu and |theta.yzw|; the diffuse term
+// alpha min(|r|, 1) (w_i . mu) is min(|theta.yzw|, alpha) (w_i . mu).
+void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
+    diffuse = vec3(0.0);
+    specular = vec3(0.0);
+    for (int j = 0; j < NDF_LOBES; ++j) {
+        vec4 theta = t[j];
+        bool live = theta.x > NDF_ALPHA_MIN;
+        float a = live ? theta.x : 1.0;
+        float m2 = dot(theta.yzw, theta.yzw);
+        bool dir = live && m2 > 0.0 && m2 < 1e30;
+        float inv = inversesqrt(dir ? m2 : 1.0);
+        vec3 mu = dir ? theta.yzw * inv : vec3(0.0, 0.0, 1.0);
+        float len = dir ? m2 * inv : 0.0;
+        float q = min(len, NDF_R_MAX * a);
+        float n = a * (a - q) * (a + q);
+        float d = max(q * (3.0 * a * a - q * q), 1e-6 * n);
+        float sp = ndf_s * d / (d + ndf_s * n);
+        float cos_i = max(dot(mu, l), 0.0);
+        float cos_h = dot(mu, h);
+        // ndf_pow(cos_h, sp) with selects: 0^0 = 1; cos_h <= 0 with sp > 0 gives 0.
+        float p = cos_h > 0.0 ? exp2(sp * log2(cos_h)) : 0.0;
+        p = sp > 0.0 ? p : 1.0;
+        float lobe = (sp + 1.0) * (0.5 / NDF_PI) * p * cos_i;
+#ifdef NDF_COLOR
+        vec3 weight = live ? t[NDF_LOBES + j].rgb : vec3(0.0);
+#ifdef NDF_VMF_DIFFUSE_ALG2
+        float dj = cos_i;
+#else
+        float dj = min(len, a) / a * cos_i;
+#endif
+#ifndef NDF_NO_DIFFUSE
+        diffuse += weight * dj;
+#endif
+        specular += weight * lobe;
+#else
+        float w = live ? theta.x : 0.0;
+#ifndef NDF_NO_DIFFUSE
+#ifdef NDF_VMF_DIFFUSE_ALG2
+        diffuse += vec3(w * cos_i);
+#else
+        diffuse += vec3(live ? min(len, a) * cos_i : 0.0);
+#endif
+#endif
+        specular += vec3(w * lobe);
+#endif
+    }
+}
+#else
 void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
     diffuse = vec3(0.0);
     specular = vec3(0.0);
@@ -74,3 +133,4 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         specular += weight * lobe;
     }
 }
+#endif

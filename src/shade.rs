@@ -75,11 +75,26 @@ pub fn vmf_decode(theta: [f32; 4], r_max: f64, alpha_min: f64) -> Option<VmfTexe
 /// gives the flattest lobe it has (the shaders use the same constant).
 const UNIFORM_VARIANCE: f64 = 1e6;
 
+/// Eq 20's widened exponent `s' = κs/(κ + s)` of a vMF lobe with clamped mean resultant length
+/// `r` (≤ the format's [`crate::vmf::r_max`]), in the form the shaders evaluate (issue 14 item 6,
+/// `glsl/ndf_vmf.glsl`): with `1/κ = N/D`, `N = (1 − r)(1 + r)`, `D = r(3 − r²)`
+/// ([`crate::vmf::inverse_kappa`], no cancellation in `1 − r²`), `s' = s/(1 + sN/D) = sD/(D + sN)`,
+/// one division and no `1/κ` or `s/κ` to cancel; `D` is raised to `10⁻⁶N`, the uniform lobe's
+/// bound `1/κ ≤ 10⁶` ([`crate::vmf::inverse_kappa`]'s clamp), so `r ≤ 0` or NaN (κ = 0) gives
+/// `s/(1 + 10⁶s)`. Equal to `s/(1 + s·inverse_kappa(r))` up to rounding. (The shaders scale `N`
+/// and `D` by `α³` so that they need no `|r| = |αr|/α`; the ratio is the same.)
+pub fn eq20_exponent(s: f64, r: f64) -> f64 {
+    let r = if r > 0.0 { r } else { 0.0 };
+    let n = (1.0 - r) * (1.0 + r);
+    let d = (r * (3.0 - r * r)).max(UNIFORM_VARIANCE.recip() * n);
+    s * d / (d + s * n)
+}
+
 /// One vMF lobe of Algorithm 2 (lines 7–14) from its texel `θ = (α, α·r)`, for light `l`, half
 /// vector `h`, Blinn-Phong exponent `s`, with `|r|` clamped to `r_max` (the storage format's,
 /// [`crate::vmf::r_max`]) before κ is computed ([`vmf_decode`], every α > 0 kept):
 /// the specular lobe by the default rule, eq 20 ([`VmfSpecular::Eq20`]):
-/// `s' = κs/(κ+s)` computed as `s/(1 + s/κ)`, `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`
+/// `s' = κs/(κ+s)` computed as the shaders do ([`eq20_exponent`]), `B_s = (s'+1)/(2π)(ω_h·μ)^{s'}`
 /// ([`vmf_lobe_with`] takes the closed-form convolution, [`VmfSpecular::Convolved`], too);
 /// diffuse `α(ω_i·μ)`, specular `α B_s (ω_i·μ)`.
 /// **Guard**: a lobe with `α ≤ 0` (empty, or quantized to 0) contributes nothing — line 8's
@@ -101,9 +116,13 @@ pub fn vmf_lobe_with(
         return Shading::default();
     };
     let cos_i = t.mu.dot(l).max(0.0);
+    let lobe = match rule {
+        VmfSpecular::Eq20 => blinn_phong(t.mu.dot(h), eq20_exponent(s, t.r_len.min(r_max))),
+        _ => rule.lobe(t.mu.dot(h), s, t.var),
+    };
     Shading {
         diffuse: t.alpha * cos_i,
-        specular: t.alpha * rule.lobe(t.mu.dot(h), s, t.var) * cos_i,
+        specular: t.alpha * lobe * cos_i,
     }
 }
 
@@ -115,7 +134,8 @@ pub fn vmf_lobe_with(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum VmfSpecular {
-    /// Eq 20 as published: `s' = κs/(κ+s)` (as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
+    /// Eq 20 as published: `s' = κs/(κ+s)` (for a vMF texel as [`eq20_exponent`]; given
+    /// only `1/κ`, as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
     /// Overshoots the exact convolution (eq 14) at the peak by `≈ s/(κ+s)·…`: 6 % at κ = 20,
     /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The default:
     /// the cheapest rule in the shaders, and on real maps closer than
@@ -542,13 +562,13 @@ fn mixture_component(
 ) -> Option<Component> {
     let (alpha, mu, var, s_eff, r_len) = match bake.method {
         Method::Vmf => {
-            let t = vmf_decode(
-                texel,
-                crate::vmf::r_max(bake.format),
-                crate::vmf::alpha_min(bake.format),
-            )?;
+            let r_max = crate::vmf::r_max(bake.format);
+            let t = vmf_decode(texel, r_max, crate::vmf::alpha_min(bake.format))?;
             let s = brdf.equivalent_exponent();
-            (t.alpha, t.mu, t.var, s / (1.0 + s * t.var), t.r_len)
+            // Eq 20's s' in the shaders' form (eq20_exponent), what the Blinn-Phong arm uses
+            // under the default rule.
+            let s_eff = eq20_exponent(s, t.r_len.min(r_max));
+            (t.alpha, t.mu, t.var, s_eff, t.r_len)
         }
         Method::Tan2005 => {
             let g = crate::tan2005::Gaussian::from_texel(texel);
@@ -569,7 +589,9 @@ fn mixture_component(
     };
     let cos_i = mu.dot(l).max(0.0);
     let lobe = match brdf {
-        Brdf::BlinnPhong { s } if bake.method == Method::Vmf => {
+        Brdf::BlinnPhong { s }
+            if bake.method == Method::Vmf && options.vmf_specular != VmfSpecular::Eq20 =>
+        {
             options.vmf_specular.lobe(mu.dot(h), *s, var)
         }
         Brdf::BlinnPhong { .. } => blinn_phong(mu.dot(h), s_eff),
@@ -645,6 +667,30 @@ pub fn shade_rgb_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn eq20_exponent_is_kappa_s_over_kappa_plus_s() {
+        // The one-division form against s/(1 + s/κ) with 1/κ from vmf::inverse_kappa, and
+        // against κs/(κ + s) with Banerjee's κ where it is well conditioned; the clamps at r = 0
+        // (uniform lobe, 1/κ = 1e6), r ≤ 0 and NaN.
+        for s in [0.5f64, 32.0, 256.0, 2048.0, 1e5] {
+            for r in [1e-9, 1e-4, 0.01, 0.3, 0.5, 0.9, 0.99, 0.999_9, 0.999_999_76] {
+                let want = s / (1.0 + s * crate::vmf::inverse_kappa(r));
+                let got = eq20_exponent(s, r);
+                assert!((got - want).abs() <= 1e-13 * want, "s={s} r={r}: {got} vs {want}");
+                if r > 0.01 && r < 0.999 {
+                    let k = crate::vmf::kappa_banerjee(r);
+                    let direct = k * s / (k + s);
+                    assert!((got - direct).abs() <= 1e-12 * direct, "s={s} r={r}");
+                }
+            }
+            for r in [0.0, -0.5, f64::NAN] {
+                let want = s / (1.0 + s * 1e6);
+                let got = eq20_exponent(s, r);
+                assert!((got - want).abs() <= 1e-13 * want, "s={s} r={r}: {got}");
+            }
+        }
+    }
 
     #[test]
     fn the_fast_exact_convolution_is_the_full_quadrature() {
