@@ -5,7 +5,8 @@
 // shade::vmf_lobe, shade::shade_rgb):
 //   lines 7-8    alpha = theta.x; a lobe with alpha <= NDF_ALPHA_MIN (the storage format's
 //                resolution, vmf::alpha_min: empty, quantized away or below what the format
-//                resolves) contributes nothing and costs no more work
+//                resolves) contributes nothing (the eq 20 path weights it by 0 and computes it
+//                anyway, without a branch; the other paths skip it)
 //   line 10      mu = theta.yzw * inversesqrt(|theta.yzw|^2)   (= r/|r|; r = 0: mu = +Z)
 //   line 9       |r| = |theta.yzw| / alpha, clamped to NDF_R_MAX (the format's), and the lobe's
 //                variance 1/kappa = (1 - |r|)(1 + |r|) / (|r| (3 - |r|^2)) (Banerjee's

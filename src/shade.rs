@@ -677,7 +677,10 @@ mod tests {
             for r in [1e-9, 1e-4, 0.01, 0.3, 0.5, 0.9, 0.99, 0.999_9, 0.999_999_76] {
                 let want = s / (1.0 + s * crate::vmf::inverse_kappa(r));
                 let got = eq20_exponent(s, r);
-                assert!((got - want).abs() <= 1e-13 * want, "s={s} r={r}: {got} vs {want}");
+                assert!(
+                    (got - want).abs() <= 1e-13 * want,
+                    "s={s} r={r}: {got} vs {want}"
+                );
                 if r > 0.01 && r < 0.999 {
                     let k = crate::vmf::kappa_banerjee(r);
                     let direct = k * s / (k + s);
