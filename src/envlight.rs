@@ -520,8 +520,11 @@ pub const ENERGY_COS: usize = 33;
 pub const ENERGY_PARAM: usize = 49;
 /// Blocks of a lobe table, [`ENERGY_PARAM`] rows each: the energy, the blend, `log2 κ_c` (the
 /// core vMF), the tail's energy share `t` and `log2 κ_t` ([`lobe_moments`]; Blinn-Phong has
-/// `t = 0`, one vMF; GGX two) and the core's blend (its lookup direction, the lobe's mode).
-pub const ENERGY_BLOCKS: usize = 6;
+/// `t = 0`, one vMF; GGX two), the core's blend (its lookup direction, the lobe's mode), and
+/// the energy and blend with the cosine taken at the half vector instead of the lobe's centre
+/// (blocks 6 and 7, [`lobe_moments`]; mixed in by the NDF's share of the lobe,
+/// [`ndf_share`]).
+pub const ENERGY_BLOCKS: usize = 8;
 
 /// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
 /// for a view at `cos θ_o = c_o`: Blinn-Phong over
@@ -738,7 +741,17 @@ fn two_vmf_fit(r: f64, xq: &[f64; MIX_QUANTILES.len()], peak: f64) -> (f64, f64,
 /// 4. `log2 κ_t`, the tail's κ (equal to block 2 when `t = 0`);
 /// 5. the core's blend: the lobe's mode (its density's maximum in the plane of incidence) as
 ///    block 1 gives the mean; the core is looked up there, the tail about the mean (block 1
-///    when `t = 0`). The fit's peak density is the lobe's at its mode.
+///    when `t = 0`). The fit's peak density is the lobe's at its mode;
+/// 6. the energy with the cosine at the half vector, `E_h = ∫ f(ω_h·z) 4(ω_o·ω_h)² dω_h` over
+///    `ω_o·ω_h > 0`: the limit of an NDF lobe much wider than the BRDF's, where the normal
+///    that reflects ω_o into ω_i is ω_h itself, so the cosine `ω_i·n = ω_o·ω_h` varies across
+///    the lobe (blocks 0 and 1 take it at the lobe's centre, `ω_i·z`, exact for a sharp NDF
+///    lobe). The route mixes blocks 0 and 6 by the NDF's share `w` of the lobe's variance
+///    ([`ndf_share`]): the normal given ω_h is then, to second order, `(1 − w) μ + w ω_h`
+///    (the posterior of the vMF normal under the BRDF lobe about ω_h), and
+///    `E = (1 − w) E_0 + w E_h` (the posterior's spread and its mean's normalization cancel
+///    at second order);
+/// 7. the mean direction's blend (as block 1) under the weights of block 6.
 fn lobe_moments(
     f: &dyn Fn(f64) -> f64,
     width: f64,
@@ -756,8 +769,9 @@ fn lobe_moments(
         })
         .collect();
     let quadrature = crate::harmonics::polar_quadrature(width);
-    // One pass over the samples: `visit(l, weight)` for every incident direction.
-    let each = |visit: &mut dyn FnMut(DVec3, f64)| {
+    // One pass over the samples: `visit(l, weight, weight with the cosine at ω_h)` for every
+    // incident direction.
+    let each = |visit: &mut dyn FnMut(DVec3, f64, f64)| {
         for &(theta, w) in &quadrature {
             let (st, ct) = theta.sin_cos();
             let fv = f(ct);
@@ -773,20 +787,20 @@ fn lobe_moments(
                 }
                 let l = 2.0 * oh * h - o;
                 let x = l.z.max(0.0) * 4.0 * oh;
-                if x > 0.0 {
-                    visit(l, k * x);
-                }
+                visit(l, k * x, k * 4.0 * oh * oh);
             }
         }
     };
-    let mut sum = 0.0;
-    let mut m = DVec3::ZERO;
-    each(&mut |l, x| {
+    let (mut sum, mut sum_h) = (0.0, 0.0);
+    let (mut m, mut m_h) = (DVec3::ZERO, DVec3::ZERO);
+    each(&mut |l, x, xh| {
         sum += x;
         m += x * l;
+        sum_h += xh;
+        m_h += xh * l;
     });
     if sum.is_nan() || sum <= 0.0 {
-        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0];
+        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0, 0.0, 1.0];
     }
     let mean = m / sum;
     let theta_o = co.clamp(-1.0, 1.0).acos();
@@ -799,11 +813,16 @@ fn lobe_moments(
         if a + b > 0.0 { a / (a + b) } else { 0.0 }
     };
     let blend = blend_at(theta_m);
+    let blend_h = if sum_h > 0.0 {
+        blend_at((-m_h.x).atan2(m_h.z).clamp(0.0, theta_o))
+    } else {
+        blend
+    };
     let r = mean.length().min(1.0);
     let kappa = crate::vmf::kappa_from_r_exact(r);
     let lk = |k: f64| k.max(1e-6).log2().min(60.0);
     if !two_vmf || !kappa.is_finite() {
-        return [sum, blend, lk(kappa), 0.0, lk(kappa), blend];
+        return [sum, blend, lk(kappa), 0.0, lk(kappa), blend, sum_h, blend_h];
     }
     // The lobe's mode in the plane of incidence, `l(θ) = (−sin θ, 0, cos θ)`, θ ∈ [0, θ_o]
     // (golden-section search of the density `f(ĥ·z) cos θ`): the core is looked up there.
@@ -829,7 +848,10 @@ fn lobe_moments(
     let mhat = mean / mean.length();
     let span = (2.0 / MIX_X_MIN).ln();
     let mut hist = vec![0.0f64; MIX_BINS];
-    each(&mut |l, x| {
+    each(&mut |l, x, _| {
+        if x <= 0.0 {
+            return;
+        }
         let g = (1.0 - mhat.dot(l)).max(MIX_X_MIN);
         let i = ((g / MIX_X_MIN).ln() / span * MIX_BINS as f64) as usize;
         hist[i.min(MIX_BINS - 1)] += x;
@@ -863,6 +885,8 @@ fn lobe_moments(
         t,
         lk(kt),
         if t > 0.0 { blend_core } else { blend },
+        sum_h,
+        blend_h,
     ]
 }
 
@@ -918,16 +942,6 @@ struct Lobe {
     mu: DVec3,
     r: f64,
     kappa: f64,
-}
-
-impl Lobe {
-    fn var(&self) -> f64 {
-        if self.kappa.is_infinite() {
-            0.0
-        } else {
-            1.0 / self.kappa.max(1e-6)
-        }
-    }
 }
 
 fn v3(t: [f32; 4]) -> DVec3 {
@@ -1053,13 +1067,127 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
 
 /// The effective half-vector lobe of `brdf` widened by per-axis variance `var` at `co`: the
 /// [`lobe_moments`] of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_c, tail share,
-/// log2 κ_t, core blend).
+/// log2 κ_t, core blend, energy and blend with the cosine at the half vector).
 fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
         Brdf::BlinnPhong { s } => light.energy.blinn_phong(s / (1.0 + s * var), co),
         Brdf::Ggx(g) => light.energy.ggx(g.widened(var), co),
         _ => [0.0; ENERGY_BLOCKS],
     }
+}
+
+/// The NDF lobe's share `w ∈ [0, 1]` of the widened lobe's variance: Blinn-Phong
+/// `1/s' = 1/s + var` gives `w = s·var/(1 + s·var)`, GGX `α'² = α² + c·var` gives
+/// `w = c·var/(α² + c·var)` (0 for a sharp NDF lobe, 1 for a BRDF lobe much sharper than
+/// the NDF's). The normal that reflects the view into ω_i is, given ω_h, about
+/// `(1 − w) μ + w ω_h` (the product of the vMF about μ and the BRDF lobe about ω_h), so the
+/// route's energy and mean direction mix the centre-cosine and half-vector-cosine blocks of
+/// [`lobe_moments`] by w (GLSL: `ndf_env_share`).
+fn ndf_share(brdf: &Brdf, var: f64) -> f64 {
+    let var = var.clamp(0.0, 1e6);
+    let w = match brdf {
+        Brdf::BlinnPhong { s } => s * var / (1.0 + s * var),
+        Brdf::Ggx(g) => {
+            let v = g.widening * var;
+            let d = g.alpha * g.alpha + v;
+            if d > 0.0 { v / d } else { 0.0 }
+        }
+        _ => 0.0,
+    };
+    if w.is_nan() { 0.0 } else { w.clamp(0.0, 1.0) }
+}
+
+/// The prefiltered route's specular term of one NDF lobe of unit weight, direction `mu` and
+/// concentration `kappa` (∞: a single normal), for view `view` (tangent frame) on a surface
+/// whose tangent frame is `frame`, per colour channel: the widened BRDF's lobe energy (mixed
+/// by [`ndf_share`] between the cosine at the lobe's centre and at the half vector) times one
+/// prefiltered lookup (GGX: a core and a tail) in the lobe's mean direction, times `g` at the
+/// reflected direction (module docs; what [`shade_in_with`] sums per lobe, the shaders'
+/// `ndf_env_lobe`). 0 when the view is behind `mu` and for a BRDF with no specular term.
+pub fn prefiltered_lobe(
+    light: &EnvLight,
+    frame: DMat3,
+    mu: DVec3,
+    kappa: f64,
+    view: DVec3,
+    brdf: &Brdf,
+) -> [f64; 3] {
+    let share = ndf_share(brdf, lobe_var(kappa));
+    prefiltered_lobe_with_share(light, frame, mu, kappa, view, brdf, share)
+}
+
+/// The per-axis variance `1/κ` of an NDF lobe (0 for κ = ∞, at most 10⁶).
+fn lobe_var(kappa: f64) -> f64 {
+    if kappa.is_infinite() {
+        0.0
+    } else {
+        1.0 / kappa.max(1e-6)
+    }
+}
+
+/// [`prefiltered_lobe`] with the cosine mixed by `share` instead of [`ndf_share`]: 0 takes the
+/// cosine at the lobe's centre (the route before the half-vector blocks), 1 at the half vector.
+/// For analysis (`examples/env_error_split.rs` measures the route both ways in one run).
+pub fn prefiltered_lobe_with_share(
+    light: &EnvLight,
+    frame: DMat3,
+    mu: DVec3,
+    kappa: f64,
+    view: DVec3,
+    brdf: &Brdf,
+    share: f64,
+) -> [f64; 3] {
+    let var = lobe_var(kappa);
+    let co = view.dot(mu);
+    if !brdf.has_specular() || co.is_nan() || co <= 0.0 {
+        return [0.0; 3];
+    }
+    let r = 2.0 * co * mu - view;
+    let g = brdf.g(r, mu);
+    let [e0, blend0, log_kappa, tail, log_tail, blend_core, e_h, blend_h] =
+        widened(light, brdf, var, co);
+    let w = share.clamp(0.0, 1.0);
+    let e = (1.0 - w) * e0 + w * e_h;
+    let blend = (1.0 - w) * blend0 + w * blend_h;
+    let d = frame * tilted(mu, r, blend);
+    let kappa = log_kappa.exp2();
+    if tail > 0.0 {
+        // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
+        let dc = frame * tilted(mu, r, blend_core);
+        let kt = log_tail.exp2();
+        std::array::from_fn(|c| {
+            let p = &light.channels[c].prefiltered;
+            ((1.0 - tail) * p.lookup(dc, kappa) + tail * p.lookup(d, kt)) * e * g
+        })
+    } else {
+        std::array::from_fn(|c| light.channels[c].prefiltered.lookup(d, kappa) * e * g)
+    }
+}
+
+/// One NDF lobe a texel stands for under the environment routes: its weight, mean direction
+/// and concentration (∞: a single normal).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexelLobe {
+    /// Weight (α of a mixture lobe; 1 for the single-lobe methods).
+    pub alpha: f64,
+    /// Mean direction (unit, tangent frame).
+    pub mu: DVec3,
+    /// Concentration κ (Toksvig: from the mean length; LEAN: the inverse of the mean slope
+    /// variance; vMF: the decoded lobe's).
+    pub kappa: f64,
+}
+
+/// The lobes the environment routes shade for `bake`'s texel (plain, Toksvig, LEAN: one; vMF:
+/// the decoded lobes; other methods none): what [`prefiltered_lobe`] is summed over.
+pub fn texel_lobes(bake: &Bake, texels: &[[f32; 4]]) -> Vec<TexelLobe> {
+    lobes_of(bake, texels)
+        .iter()
+        .map(|l| TexelLobe {
+            alpha: l.alpha,
+            mu: l.mu,
+            kappa: l.kappa,
+        })
+        .collect()
 }
 
 /// Environment-lit shading of `bake`'s texel for view `view` (module docs) where the tangent
@@ -1229,21 +1357,12 @@ pub fn shade_in_with(
         let g = brdf.g(r, lobe.mu);
         let spec: [f64; 3] = match route {
             Route::Prefiltered => {
-                let [e, blend, log_kappa, tail, log_tail, blend_core] =
-                    widened(light, brdf, lobe.var(), co);
-                let d = frame * tilted(lobe.mu, r, blend);
-                let kappa = log_kappa.exp2();
-                if tail > 0.0 {
-                    // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
-                    let dc = frame * tilted(lobe.mu, r, blend_core);
-                    let kt = log_tail.exp2();
-                    std::array::from_fn(|c| {
-                        let p = &light.channels[c].prefiltered;
-                        ((1.0 - tail) * p.lookup(dc, kappa) + tail * p.lookup(d, kt)) * e
-                    })
-                } else {
-                    std::array::from_fn(|c| light.channels[c].prefiltered.lookup(d, kappa) * e)
+                // `prefiltered_lobe` includes g; the SH route's g is applied below.
+                let p = prefiltered_lobe(light, frame, lobe.mu, lobe.kappa, view, brdf);
+                for ((o, s), wc) in out.specular.iter_mut().zip(p).zip(w) {
+                    *o += wc * s;
                 }
+                continue;
             }
             Route::Sh => {
                 let att: Vec<f64> = (0..rho.len())
@@ -1924,7 +2043,7 @@ mod tests {
             let gt = ground_truth(&light, &n, view, std::slice::from_ref(&brdf), 40000, 11);
             let f = shade(&light, &bake, &t, view, &brdf, Route::Prefiltered).luminance();
             // The single first-moment vMF (the route before the split), for comparison.
-            let [e, blend, _, _, _, _] = light.energy.ggx(0.1, view.z);
+            let [e, blend, _, _, _, _, _, _] = light.energy.ggx(0.1, view.z);
             let one = lobe_moments(&|c| ggx(c, 0.1), 0.1, view.z, false)[2].exp2();
             let r = 2.0 * view.z * DVec3::Z - view;
             let d = tilted(DVec3::Z, r, blend);
