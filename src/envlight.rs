@@ -522,9 +522,9 @@ pub const ENERGY_PARAM: usize = 49;
 /// core vMF), the tail's energy share `t` and `log2 κ_t` ([`lobe_moments`]; Blinn-Phong has
 /// `t = 0`, one vMF; GGX two), the core's blend (its lookup direction, the lobe's mode), and
 /// the energy and blend with the cosine taken at the half vector instead of the lobe's centre
-/// (blocks 6 and 7, [`lobe_moments`]; mixed in by the NDF's share of the lobe,
-/// [`ndf_share`]).
-pub const ENERGY_BLOCKS: usize = 8;
+/// (blocks 6 and 7), and the shift of `log2 κ` under those weights (block 8) ([`lobe_moments`];
+/// mixed in by the NDF's share of the lobe, [`ndf_share`]).
+pub const ENERGY_BLOCKS: usize = 9;
 
 /// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
 /// for a view at `cos θ_o = c_o`: Blinn-Phong over
@@ -554,18 +554,38 @@ fn energy_tables() -> &'static EnergyTables {
 /// One family's table: `lobe(c, p)` over [`ENERGY_PARAM`] parameters `param(i)` (quadrature
 /// width `width(p)`) × [`ENERGY_COS`] view cosines, for each of the [`ENERGY_BLOCKS`]
 /// quantities of [`lobe_moments`] (block after block).
+///
+/// With `gaussian` (GGX: `p ↦ s`, the Blinn-Phong exponent of the same variance), block 6 is
+/// not the lobe's own half-vector energy but `E_0 · E_h^BP / E_0^BP` at that exponent: the
+/// cosine inside the lobe comes from the spread of the *normals*, a vMF, whose shape is
+/// Blinn-Phong's, not GGX's long tail (a GGX α' lobe with the cosine at its half vector
+/// over-counts its tail towards the view: measured +21 … +36 % at κ = 8 under a constant
+/// environment, against +3 … +6 % this way; `one_lobe_matches_its_exact_integral_…`).
 fn energy_table_of(
     lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
     param: fn(usize) -> f64,
     width: fn(f64) -> f64,
     two_vmf: bool,
+    gaussian: Option<fn(f64) -> f64>,
 ) -> Vec<f64> {
     let cells: Vec<[f64; ENERGY_BLOCKS]> = (0..ENERGY_PARAM * ENERGY_COS)
         .into_par_iter()
         .map(|k| {
             let p = param(k / ENERGY_COS);
             let co = k as f64 % ENERGY_COS as f64 / (ENERGY_COS - 1) as f64;
-            lobe_moments(&|c| lobe(c, p), width(p), co, two_vmf)
+            let mut m = lobe_moments(&|c| lobe(c, p), width(p), co, two_vmf);
+            if let Some(to_s) = gaussian {
+                let s = to_s(p);
+                let bp = lobe_moments(
+                    &|c| crate::brdf::blinn_phong(c, s),
+                    (1.0 / s.sqrt()).min(0.5 * PI),
+                    co,
+                    false,
+                );
+                m[6] = if bp[0] > 0.0 { m[0] * bp[6] / bp[0] } else { m[0] };
+                m[8] = bp[8];
+            }
+            m
         })
         .collect();
     let n = cells.len();
@@ -594,6 +614,7 @@ impl EnergyTables {
                 bp_param,
                 |s| (1.0 / s.sqrt()).min(0.5 * PI),
                 false,
+                None,
             )
         })
     }
@@ -601,7 +622,16 @@ impl EnergyTables {
     /// The GGX table (computed on first use).
     fn ggx_table(&self) -> &[f64] {
         self.ggx.get_or_init(|| {
-            energy_table_of(&|c, a| ggx(c, a), ggx_param, |a| a.min(0.5 * PI), true)
+            energy_table_of(
+                &|c, a| ggx(c, a),
+                ggx_param,
+                |a| a.min(0.5 * PI),
+                true,
+                // The widening rule equates an NDF variance v with `c·v` of α'²
+                // (`brdf::GGX_WIDENING_C`), so α' stands for a per-axis variance α'²/c:
+                // Blinn-Phong's `s = c/α'²`.
+                Some(|a| crate::brdf::GGX_WIDENING_C / (a * a).max(1e-12)),
+            )
         })
     }
 
@@ -751,7 +781,11 @@ fn two_vmf_fit(r: f64, xq: &[f64; MIX_QUANTILES.len()], peak: f64) -> (f64, f64,
 ///    (the posterior of the vMF normal under the BRDF lobe about ω_h), and
 ///    `E = (1 − w) E_0 + w E_h` (the posterior's spread and its mean's normalization cancel
 ///    at second order);
-/// 7. the mean direction's blend (as block 1) under the weights of block 6.
+///    (GGX's table replaces this block by a Gaussian-shaped lobe's ratio, [`energy_table_of`]);
+/// 7. the mean direction's blend (as block 1) under the weights of block 6;
+/// 8. the shift `Δ = log2 κ_h − log2 κ` of the first-moment vMF's concentration under the
+///    weights of block 6 (GGX's table: the Gaussian-shaped lobe's shift, as block 6); the
+///    route adds `w·Δ` to `log2 κ_c` and `log2 κ_t`.
 fn lobe_moments(
     f: &dyn Fn(f64) -> f64,
     width: f64,
@@ -800,7 +834,7 @@ fn lobe_moments(
         m_h += xh * l;
     });
     if sum.is_nan() || sum <= 0.0 {
-        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0, 0.0, 1.0];
+        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0, 0.0, 1.0, 0.0];
     }
     let mean = m / sum;
     let theta_o = co.clamp(-1.0, 1.0).acos();
@@ -821,8 +855,23 @@ fn lobe_moments(
     let r = mean.length().min(1.0);
     let kappa = crate::vmf::kappa_from_r_exact(r);
     let lk = |k: f64| k.max(1e-6).log2().min(60.0);
+    let shift = if sum_h > 0.0 {
+        lk(crate::vmf::kappa_from_r_exact((m_h / sum_h).length().min(1.0))) - lk(kappa)
+    } else {
+        0.0
+    };
     if !two_vmf || !kappa.is_finite() {
-        return [sum, blend, lk(kappa), 0.0, lk(kappa), blend, sum_h, blend_h];
+        return [
+            sum,
+            blend,
+            lk(kappa),
+            0.0,
+            lk(kappa),
+            blend,
+            sum_h,
+            blend_h,
+            shift,
+        ];
     }
     // The lobe's mode in the plane of incidence, `l(θ) = (−sin θ, 0, cos θ)`, θ ∈ [0, θ_o]
     // (golden-section search of the density `f(ĥ·z) cos θ`): the core is looked up there.
@@ -887,6 +936,7 @@ fn lobe_moments(
         if t > 0.0 { blend_core } else { blend },
         sum_h,
         blend_h,
+        shift,
     ]
 }
 
@@ -1144,17 +1194,17 @@ pub fn prefiltered_lobe_with_share(
     }
     let r = 2.0 * co * mu - view;
     let g = brdf.g(r, mu);
-    let [e0, blend0, log_kappa, tail, log_tail, blend_core, e_h, blend_h] =
+    let [e0, blend0, log_kappa, tail, log_tail, blend_core, e_h, blend_h, shift] =
         widened(light, brdf, var, co);
     let w = share.clamp(0.0, 1.0);
     let e = (1.0 - w) * e0 + w * e_h;
     let blend = (1.0 - w) * blend0 + w * blend_h;
     let d = frame * tilted(mu, r, blend);
-    let kappa = log_kappa.exp2();
+    let kappa = (log_kappa + w * shift).exp2();
     if tail > 0.0 {
         // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
         let dc = frame * tilted(mu, r, blend_core);
-        let kt = log_tail.exp2();
+        let kt = (log_tail + w * shift).exp2();
         std::array::from_fn(|c| {
             let p = &light.channels[c].prefiltered;
             ((1.0 - tail) * p.lookup(dc, kappa) + tail * p.lookup(d, kt)) * e * g
@@ -2043,7 +2093,7 @@ mod tests {
             let gt = ground_truth(&light, &n, view, std::slice::from_ref(&brdf), 40000, 11);
             let f = shade(&light, &bake, &t, view, &brdf, Route::Prefiltered).luminance();
             // The single first-moment vMF (the route before the split), for comparison.
-            let [e, blend, _, _, _, _, _, _] = light.energy.ggx(0.1, view.z);
+            let [e, blend, _, _, _, _, _, _, _] = light.energy.ggx(0.1, view.z);
             let one = lobe_moments(&|c| ggx(c, 0.1), 0.1, view.z, false)[2].exp2();
             let r = 2.0 * view.z * DVec3::Z - view;
             let d = tilted(DVec3::Z, r, blend);
@@ -2629,5 +2679,156 @@ mod tests {
         assert_ne!(g.errors[0].specular, c.specular);
         let refused = evaluate(&grey_map, &[&uncoloured], &brdfs, &light, &routes, &options);
         assert!(matches!(refused, Err(Error::InvalidOption(m)) if m.contains("albedo")));
+    }
+
+    /// `∫ f(ω_h·n) max(ω_i·n, 0) 4(ω_o·ω_h) dω_h` for a normal at `cos θ = c` from the view,
+    /// by a midpoint rule over ω_h about n (θ_h = (π/2)u², 300 × 64): independent of the
+    /// lobe table's quadrature.
+    fn energy_direct(brdf: &Brdf, c: f64) -> f64 {
+        let o = DVec3::new((1.0 - c * c).max(0.0).sqrt(), 0.0, c);
+        let (nu, nphi) = (300, 64);
+        let mut sum = 0.0;
+        for i in 0..nu {
+            let u = (i as f64 + 0.5) / nu as f64;
+            let th = 0.5 * PI * u * u;
+            let dth = PI * u / nu as f64;
+            let (st, ct) = th.sin_cos();
+            let f = brdf.lobe(ct);
+            if f == 0.0 {
+                continue;
+            }
+            for j in 0..nphi {
+                let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
+                let h = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
+                let oh = o.dot(h);
+                if oh <= 0.0 {
+                    continue;
+                }
+                let l = 2.0 * oh * h - o;
+                sum += f * l.z.max(0.0) * 4.0 * oh * st * dth * 2.0 * PI / nphi as f64;
+            }
+        }
+        sum
+    }
+
+    /// `∫ vMF(n; μ = z, κ) g(n) dn` by a midpoint rule in the polar angle γ = γ_max u²
+    /// (γ_max = min(π, 8/√κ); 256 × 128), the weights renormalized to sum to 1.
+    fn vmf_average(kappa: f64, g: &dyn Fn(DVec3) -> f64) -> f64 {
+        let gmax = (8.0 / kappa.sqrt()).min(PI);
+        let (nu, nphi) = (256, 128);
+        let (mut sum, mut wsum) = (0.0, 0.0);
+        for i in 0..nu {
+            let u = (i as f64 + 0.5) / nu as f64;
+            let ga = gmax * u * u;
+            let (sg, cg) = ga.sin_cos();
+            let w = (kappa * (cg - 1.0)).exp() * sg * 2.0 * gmax * u;
+            for j in 0..nphi {
+                let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
+                let n = DVec3::new(sg * phi.cos(), sg * phi.sin(), cg);
+                sum += w * g(n);
+                wsum += w;
+            }
+        }
+        sum / wsum
+    }
+
+    #[test]
+    fn one_lobe_matches_its_exact_integral_under_a_constant_sky_and_a_sun() {
+        // One vMF NDF lobe about z (κ = 8, 32, 128) seen at θ_o = 0, 35, 60°, Blinn-Phong
+        // s = 32, 256 and GGX α = 0.1, 0.3: the prefiltered route (`prefiltered_lobe`) against
+        // ∫ vMF(n) ∫ L ρ(n) cos dω_i dn by quadrature, (1) under a constant environment (the
+        // lookup is exactly 1: this is the lobe's energy with the cosine inside the lobe) and
+        // (2) under a one-texel sun (radiance 10⁴, 256-wide) in the reflected direction r of μ.
+        // The route before the half-vector blocks (`share` 0) is measured beside it.
+        let brdfs = [
+            Brdf::BlinnPhong { s: 32.0 },
+            Brdf::BlinnPhong { s: 256.0 },
+            Brdf::ggx(0.1),
+            Brdf::ggx(0.3),
+        ];
+        let constant = EnvLight::grey(Radiance::constant(64, 1.0));
+        let (w, h) = (256u32, 128u32);
+        let grid = Radiance::geometry(w, h);
+        let degrees = [0.0f64, 35.0, 60.0];
+        // Per view: the view, the sun's texel centre, its solid angle, the light.
+        let suns: Vec<(DVec3, DVec3, f64, EnvLight)> = degrees
+            .iter()
+            .map(|deg| {
+                let t = deg.to_radians();
+                let view = DVec3::new(t.sin(), 0.0, t.cos());
+                let r = 2.0 * view.z * DVec3::Z - view;
+                let (sx, sy) = grid.texel_of(r);
+                let mut v = vec![0.0f32; (w * h) as usize];
+                v[(sy * w + sx) as usize] = 1e4;
+                let light = EnvLight::grey(Radiance::new(w, h, v).unwrap());
+                (view, grid.direction(sx, sy), grid.solid_angle(sy), light)
+            })
+            .collect();
+        // Worst |error|: constant new, constant old; mean |error| under the sun, new and old.
+        let (mut worst, mut old_at_8, mut sun) = ([0.0f64; 2], 0.0f64, [0.0f64; 2]);
+        let mut sun_worst = 0.0f64;
+        let mut cases = 0.0;
+        for brdf in &brdfs {
+            // E(c) tabulated over c ∈ [−1, 1] (129 points), linear between.
+            let table: Vec<f64> = (0..129)
+                .map(|i| energy_direct(brdf, -1.0 + 2.0 * i as f64 / 128.0))
+                .collect();
+            let energy = |c: f64| {
+                let x = (c.clamp(-1.0, 1.0) + 1.0) * 64.0;
+                let i = (x.floor() as usize).min(127);
+                let f = x - i as f64;
+                (1.0 - f) * table[i] + f * table[i + 1]
+            };
+            for kappa in [8.0, 32.0, 128.0] {
+                for (deg, (view, d, omega, sun_light)) in degrees.iter().zip(&suns) {
+                    let (view, d) = (*view, *d);
+                    let route = |light: &EnvLight, share: Option<f64>| {
+                        let i = DMat3::IDENTITY;
+                        match share {
+                            None => prefiltered_lobe(light, i, DVec3::Z, kappa, view, brdf)[0],
+                            Some(w) => {
+                                prefiltered_lobe_with_share(light, i, DVec3::Z, kappa, view, brdf, w)
+                                    [0]
+                            }
+                        }
+                    };
+                    // (1) Constant environment.
+                    let exact = vmf_average(kappa, &|n| energy(view.dot(n)));
+                    let en = route(&constant, None) / exact - 1.0;
+                    let eo = route(&constant, Some(0.0)) / exact - 1.0;
+                    // (2) The one-texel sun at r.
+                    let hs = (d + view).normalize();
+                    let exact_sun = 1e4
+                        * omega
+                        * vmf_average(kappa, &|n| brdf.lobe(hs.dot(n)) * d.dot(n).max(0.0));
+                    let sn = route(sun_light, None) / exact_sun - 1.0;
+                    let so = route(sun_light, Some(0.0)) / exact_sun - 1.0;
+                    eprintln!(
+                        "{brdf:?} κ {kappa} θ_o {deg}: constant {exact:.4} new {en:+.3} old {eo:+.3}; sun {exact_sun:.4} new {sn:+.3} old {so:+.3}"
+                    );
+                    worst = [worst[0].max(en.abs()), worst[1].max(eo.abs())];
+                    if kappa == 8.0 && *deg == 0.0 {
+                        old_at_8 = old_at_8.max(-eo);
+                    }
+                    sun[0] += sn.abs();
+                    sun[1] += so.abs();
+                    sun_worst = sun_worst.max(sn.abs());
+                    cases += 1.0;
+                }
+            }
+        }
+        let sun = [sun[0] / cases, sun[1] / cases];
+        eprintln!("constant worst new {worst:?}; sun mean |error| new / old {sun:?}");
+        // Measured: constant environment within 7.8 % (Blinn-Phong κ = 8 at the normal;
+        // ≤ 1.4 % from κ = 32 on; GGX ≤ 7.6 %), the route before within 30 % (−20 … −30 % at
+        // κ = 8 seen head on: the cosine taken at the lobe's centre).
+        assert!(worst[0] < 0.09, "new route, constant environment: {}", worst[0]);
+        assert!(old_at_8 > 0.15 && worst[1] > 0.25, "the old route is biased: {worst:?}");
+        // Under the sun the lookup's shape dominates (the reflected lobe's squeeze at 60°:
+        // −15 … −29 %, a wide lobe's peak at the normal: +30 … +39 % at κ = 8), which this
+        // change does not address: measured mean |error| 17.3 % against 17.7 % before, worst
+        // 48 % (GGX 0.3, κ = 8, 60°; 43 % before). Asserted: bounded and no worse on average.
+        assert!(sun_worst < 0.55, "sun: {sun_worst}");
+        assert!(sun[0] <= sun[1] + 0.005, "sun: {sun:?}");
     }
 }
