@@ -287,9 +287,8 @@ fn main() {
                     rel(s[8], b2),
                 ]);
             }
-            let rms = |i: usize| {
-                (per.iter().map(|p| p[i] * p[i]).sum::<f64>() / per.len() as f64).sqrt()
-            };
+            let rms =
+                |i: usize| (per.iter().map(|p| p[i] * p[i]).sum::<f64>() / per.len() as f64).sqrt();
             let (nc, nbb) = (rms(5), rms(6));
             let both = (nc * nc + nbb * nbb).sqrt();
             let f = |v: f64, n: f64| format!("{:.2} ({:.2})", 100.0 * dn(v, n), 100.0 * v);
@@ -306,7 +305,9 @@ fn main() {
             );
         }
     }
-    println!("\nPer level (denoised %, (a)−(c) / (a old)−(c) / (b)−(c) / (a)−(b) / (a old)−(b)):\n");
+    println!(
+        "\nPer level (denoised %, (a)−(c) / (a old)−(c) / (b)−(c) / (a)−(b) / (a old)−(b)):\n"
+    );
     print!("| method | BRDF |");
     for k in 1..nl {
         print!(" L{k} |");
@@ -341,11 +342,7 @@ fn main() {
         "\nPer lobe, (a)−(b) against the lobe's exact answer, by κ and view (θ_o = 0, 35, 70°): signed bias Σα(a−b)/Σαb %, new / old (share 0); in brackets the denoised relative RMS new / old\n"
     );
     let edges: Vec<String> = std::iter::once("κ<4".to_string())
-        .chain(
-            KAPPA_EDGES
-                .windows(2)
-                .map(|w| format!("{}–{}", w[0], w[1])),
-        )
+        .chain(KAPPA_EDGES.windows(2).map(|w| format!("{}–{}", w[0], w[1])))
         .chain(std::iter::once(format!("≥{}", KAPPA_EDGES[4])))
         .collect();
     print!("| method | BRDF | θ_o |");
