@@ -238,13 +238,13 @@ fn main() {
     let mut bins = vec![Bin::default(); 2 * nb * 3 * nk];
     for (k, s, b) in &results {
         for (acc, v) in lvl[*k].iter_mut().zip(s) {
-            for i in 0..NS {
-                acc[i] += v[i];
+            for (a, x) in acc.iter_mut().zip(v) {
+                *a += x;
             }
         }
         for (acc, v) in bins.iter_mut().zip(b) {
-            for i in 0..8 {
-                acc.v[i] += v.v[i];
+            for (a, x) in acc.v.iter_mut().zip(&v.v) {
+                *a += x;
             }
         }
     }
@@ -273,7 +273,7 @@ fn main() {
     for (mi, (mname, _)) in bakes.iter().enumerate() {
         for (bi, brdf) in brdfs.iter().enumerate() {
             // Per-level relative errors, then RMS over levels.
-            let mut per = vec![[0.0f64; 7]; 0];
+            let mut per: Vec<[f64; 7]> = Vec::new();
             for l in lvl.iter().skip(1) {
                 let s = &l[mi * nb + bi];
                 let (g2, b2) = (s[5], s[6]);
