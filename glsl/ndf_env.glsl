@@ -55,8 +55,10 @@ float ndf_env_azimuth(vec3 d) {
 
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
 uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
-uniform sampler2D ndf_env_energy;   // lobe table: 6 blocks (energy, blend, log2 kappa_c,
-                                    // tail share t, log2 kappa_t, core blend) of
+uniform sampler2D ndf_env_energy;   // lobe table: 9 blocks (energy, blend, log2 kappa_c,
+                                    // tail share t, log2 kappa_t, core blend, energy, blend
+                                    // and log2 kappa shift with the cosine at the half
+                                    // vector) of
                                     // ENERGY_PARAM rows x ENERGY_COS columns
 uniform float ndf_env_kappa0;      // level 0's nominal kappa, W*H/pi
 uniform float ndf_env_kappa1;      // level 1's kappa; level k >= 1 has kappa1 / 2^(k-1)
@@ -297,6 +299,22 @@ void ndf_env_sh_texel(vec4 t[NDF_TEXTURES], vec3 v,
 }
 #endif
 
+#if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
+// The NDF lobe's share w of the widened lobe's variance (CPU: envlight::ndf_share):
+// Blinn-Phong s var / (1 + s var), GGX c var / (alpha^2 + c var); var already clamped.
+float ndf_env_share(float var) {
+#if defined(NDF_BRDF_GGX)
+    float v = ndf_ggx_c * max(var, 0.0);
+    float d = ndf_alpha * ndf_alpha + v;
+    float w = d > 0.0 ? v / d : 0.0;
+#else
+    float sv = ndf_s * max(var, 0.0);
+    float w = sv / (1.0 + sv);
+#endif
+    return clamp(w, 0.0, 1.0);
+}
+#endif
+
 // One lobe's contribution (CPU: envlight::shade's loop body); v in the tangent frame.
 void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
@@ -336,15 +354,21 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
     float kh = ndf_s / (1.0 + ndf_s * vv);
     float pi_row = (log2(max(kh, 1e-30)) + 4.0) / 24.0 * float(NDF_ENV_ENERGY_PARAM - 1);
 #endif
-    float e = ndf_env_energy_at(0, pi_row, co);
-    float blend = ndf_env_energy_at(1, pi_row, co);
-    float log_kappa = ndf_env_energy_at(2, pi_row, co);
+    // The NDF's share of the widened lobe's variance (CPU: envlight::ndf_share) mixes the
+    // cosine at the lobe's centre (blocks 0, 1, 2) with the cosine at the half vector (6, 7,
+    // and 8: the shift of log2 kappa).
+    float w = ndf_env_share(vv);
+    float e = (1.0 - w) * ndf_env_energy_at(0, pi_row, co) + w * ndf_env_energy_at(6, pi_row, co);
+    float blend = (1.0 - w) * ndf_env_energy_at(1, pi_row, co) +
+                  w * ndf_env_energy_at(7, pi_row, co);
+    float shift = w * ndf_env_energy_at(8, pi_row, co);
+    float log_kappa = ndf_env_energy_at(2, pi_row, co) + shift;
     float tail = ndf_env_energy_at(3, pi_row, co);
     // The lobe's mean direction: a blend of mu and r (CPU: envlight::tilted).
     vec3 d = ndf_env_frame * ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
     if (tail > 0.0) {
         // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
-        float log_tail = ndf_env_energy_at(4, pi_row, co);
+        float log_tail = ndf_env_energy_at(4, pi_row, co) + shift;
         float blend_core = ndf_env_energy_at(5, pi_row, co);
         vec3 dc = ndf_env_frame *
                   ndf_normalize_or_z(mu * blend_core + r_dir * (1.0 - blend_core));

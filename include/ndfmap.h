@@ -900,8 +900,9 @@ typedef struct ndf_environment_info {
    */
   uint32_t energy_columns;
   /**
-   * Rows of `ndf_environment_energy`: 6 blocks of 49 lobe parameters (energy, blend,
-   * `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend; 294).
+   * Rows of `ndf_environment_energy`: 9 blocks of 49 lobe parameters (energy, blend,
+   * `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend, energy, blend and `log2 κ` shift
+   * with the cosine at the half vector; 441).
    */
   uint32_t energy_rows;
   /**

@@ -37,7 +37,7 @@
 //! `count(8) = 81` columns (the coefficients) × `16² = 256` rows (row `iθ·16 + iφ`, the views of
 //! [`crate::environment::projection::view_of`]); the lobe-energy table of the BRDF
 //! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_COS`] columns ×
-//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
+//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend, energy, blend and `log2 κ` shift with the cosine at the half vector, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
 //!
 //! Uniforms ([`uniforms`]): `vec3 ndf_env_sh[81]` (`L_lm`, environment frame, RGB), `ndf_env_kappa0`,
 //! `ndf_env_kappa1`, `ndf_env_level_count`, `vec4 ndf_env_level[24]` (width, height, first
@@ -181,7 +181,9 @@ fn shelves(sizes: &[(u32, u32)]) -> Vec<[u32; 4]> {
 }
 
 /// The lobe table of `brdf` as f32 for upload ([`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows ×
-/// [`ENERGY_COS`] columns: energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend), `None` for a BRDF without a specular lobe.
+/// [`ENERGY_COS`] columns: energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend,
+/// energy, blend and `log2 κ` shift with the cosine at the half vector), `None` for a BRDF
+/// without a specular lobe.
 pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
     light
         .energy_table(brdf)

@@ -520,8 +520,11 @@ pub const ENERGY_COS: usize = 33;
 pub const ENERGY_PARAM: usize = 49;
 /// Blocks of a lobe table, [`ENERGY_PARAM`] rows each: the energy, the blend, `log2 κ_c` (the
 /// core vMF), the tail's energy share `t` and `log2 κ_t` ([`lobe_moments`]; Blinn-Phong has
-/// `t = 0`, one vMF; GGX two) and the core's blend (its lookup direction, the lobe's mode).
-pub const ENERGY_BLOCKS: usize = 6;
+/// `t = 0`, one vMF; GGX two), the core's blend (its lookup direction, the lobe's mode), and
+/// the energy and blend with the cosine taken at the half vector instead of the lobe's centre
+/// (blocks 6 and 7), and the shift of `log2 κ` under those weights (block 8) ([`lobe_moments`];
+/// mixed in by the NDF's share of the lobe, [`ndf_share`]).
+pub const ENERGY_BLOCKS: usize = 9;
 
 /// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
 /// for a view at `cos θ_o = c_o`: Blinn-Phong over
@@ -551,18 +554,42 @@ fn energy_tables() -> &'static EnergyTables {
 /// One family's table: `lobe(c, p)` over [`ENERGY_PARAM`] parameters `param(i)` (quadrature
 /// width `width(p)`) × [`ENERGY_COS`] view cosines, for each of the [`ENERGY_BLOCKS`]
 /// quantities of [`lobe_moments`] (block after block).
+///
+/// With `gaussian` (GGX: `p ↦ s`, the Blinn-Phong exponent of the same variance), block 6 is
+/// not the lobe's own half-vector energy but `E_0 · E_h^BP / E_0^BP` at that exponent: the
+/// cosine inside the lobe comes from the spread of the *normals*, a vMF, whose shape is
+/// Blinn-Phong's, not GGX's long tail (a GGX α' lobe with the cosine at its half vector
+/// over-counts its tail towards the view: measured +21 … +36 % at κ = 8 under a constant
+/// environment, against +3 … +6 % this way; `one_lobe_matches_its_exact_integral_…`).
 fn energy_table_of(
     lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
     param: fn(usize) -> f64,
     width: fn(f64) -> f64,
     two_vmf: bool,
+    gaussian: Option<fn(f64) -> f64>,
 ) -> Vec<f64> {
     let cells: Vec<[f64; ENERGY_BLOCKS]> = (0..ENERGY_PARAM * ENERGY_COS)
         .into_par_iter()
         .map(|k| {
             let p = param(k / ENERGY_COS);
             let co = k as f64 % ENERGY_COS as f64 / (ENERGY_COS - 1) as f64;
-            lobe_moments(&|c| lobe(c, p), width(p), co, two_vmf)
+            let mut m = lobe_moments(&|c| lobe(c, p), width(p), co, two_vmf);
+            if let Some(to_s) = gaussian {
+                let s = to_s(p);
+                let bp = lobe_moments(
+                    &|c| crate::brdf::blinn_phong(c, s),
+                    (1.0 / s.sqrt()).min(0.5 * PI),
+                    co,
+                    false,
+                );
+                m[6] = if bp[0] > 0.0 {
+                    m[0] * bp[6] / bp[0]
+                } else {
+                    m[0]
+                };
+                m[8] = bp[8];
+            }
+            m
         })
         .collect();
     let n = cells.len();
@@ -591,6 +618,7 @@ impl EnergyTables {
                 bp_param,
                 |s| (1.0 / s.sqrt()).min(0.5 * PI),
                 false,
+                None,
             )
         })
     }
@@ -598,7 +626,16 @@ impl EnergyTables {
     /// The GGX table (computed on first use).
     fn ggx_table(&self) -> &[f64] {
         self.ggx.get_or_init(|| {
-            energy_table_of(&|c, a| ggx(c, a), ggx_param, |a| a.min(0.5 * PI), true)
+            energy_table_of(
+                &|c, a| ggx(c, a),
+                ggx_param,
+                |a| a.min(0.5 * PI),
+                true,
+                // The widening rule equates an NDF variance v with `c·v` of α'²
+                // (`brdf::GGX_WIDENING_C`), so α' stands for a per-axis variance α'²/c:
+                // Blinn-Phong's `s = c/α'²`.
+                Some(|a| crate::brdf::GGX_WIDENING_C / (a * a).max(1e-12)),
+            )
         })
     }
 
@@ -738,7 +775,21 @@ fn two_vmf_fit(r: f64, xq: &[f64; MIX_QUANTILES.len()], peak: f64) -> (f64, f64,
 /// 4. `log2 κ_t`, the tail's κ (equal to block 2 when `t = 0`);
 /// 5. the core's blend: the lobe's mode (its density's maximum in the plane of incidence) as
 ///    block 1 gives the mean; the core is looked up there, the tail about the mean (block 1
-///    when `t = 0`). The fit's peak density is the lobe's at its mode.
+///    when `t = 0`). The fit's peak density is the lobe's at its mode;
+/// 6. the energy with the cosine at the half vector, `E_h = ∫ f(ω_h·z) 4(ω_o·ω_h)² dω_h` over
+///    `ω_o·ω_h > 0`: the limit of an NDF lobe much wider than the BRDF's, where the normal
+///    that reflects ω_o into ω_i is ω_h itself, so the cosine `ω_i·n = ω_o·ω_h` varies across
+///    the lobe (blocks 0 and 1 take it at the lobe's centre, `ω_i·z`, exact for a sharp NDF
+///    lobe). The route mixes blocks 0 and 6 by the NDF's share `w` of the lobe's variance
+///    ([`ndf_share`]): the normal given ω_h is then, to second order, `(1 − w) μ + w ω_h`
+///    (the posterior of the vMF normal under the BRDF lobe about ω_h), and
+///    `E = (1 − w) E_0 + w E_h` (the posterior's spread and its mean's normalization cancel
+///    at second order);
+///    (GGX's table replaces this block by a Gaussian-shaped lobe's ratio, [`energy_table_of`]);
+/// 7. the mean direction's blend (as block 1) under the weights of block 6;
+/// 8. the shift `Δ = log2 κ_h − log2 κ` of the first-moment vMF's concentration under the
+///    weights of block 6 (GGX's table: the Gaussian-shaped lobe's shift, as block 6); the
+///    route adds `w·Δ` to `log2 κ_c` and `log2 κ_t`.
 fn lobe_moments(
     f: &dyn Fn(f64) -> f64,
     width: f64,
@@ -756,8 +807,9 @@ fn lobe_moments(
         })
         .collect();
     let quadrature = crate::harmonics::polar_quadrature(width);
-    // One pass over the samples: `visit(l, weight)` for every incident direction.
-    let each = |visit: &mut dyn FnMut(DVec3, f64)| {
+    // One pass over the samples: `visit(l, weight, weight with the cosine at ω_h)` for every
+    // incident direction.
+    let each = |visit: &mut dyn FnMut(DVec3, f64, f64)| {
         for &(theta, w) in &quadrature {
             let (st, ct) = theta.sin_cos();
             let fv = f(ct);
@@ -773,20 +825,20 @@ fn lobe_moments(
                 }
                 let l = 2.0 * oh * h - o;
                 let x = l.z.max(0.0) * 4.0 * oh;
-                if x > 0.0 {
-                    visit(l, k * x);
-                }
+                visit(l, k * x, k * 4.0 * oh * oh);
             }
         }
     };
-    let mut sum = 0.0;
-    let mut m = DVec3::ZERO;
-    each(&mut |l, x| {
+    let (mut sum, mut sum_h) = (0.0, 0.0);
+    let (mut m, mut m_h) = (DVec3::ZERO, DVec3::ZERO);
+    each(&mut |l, x, xh| {
         sum += x;
         m += x * l;
+        sum_h += xh;
+        m_h += xh * l;
     });
     if sum.is_nan() || sum <= 0.0 {
-        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0];
+        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0, 0.0, 1.0, 0.0];
     }
     let mean = m / sum;
     let theta_o = co.clamp(-1.0, 1.0).acos();
@@ -799,11 +851,33 @@ fn lobe_moments(
         if a + b > 0.0 { a / (a + b) } else { 0.0 }
     };
     let blend = blend_at(theta_m);
+    let blend_h = if sum_h > 0.0 {
+        blend_at((-m_h.x).atan2(m_h.z).clamp(0.0, theta_o))
+    } else {
+        blend
+    };
     let r = mean.length().min(1.0);
     let kappa = crate::vmf::kappa_from_r_exact(r);
     let lk = |k: f64| k.max(1e-6).log2().min(60.0);
+    let shift = if sum_h > 0.0 {
+        lk(crate::vmf::kappa_from_r_exact(
+            (m_h / sum_h).length().min(1.0),
+        )) - lk(kappa)
+    } else {
+        0.0
+    };
     if !two_vmf || !kappa.is_finite() {
-        return [sum, blend, lk(kappa), 0.0, lk(kappa), blend];
+        return [
+            sum,
+            blend,
+            lk(kappa),
+            0.0,
+            lk(kappa),
+            blend,
+            sum_h,
+            blend_h,
+            shift,
+        ];
     }
     // The lobe's mode in the plane of incidence, `l(θ) = (−sin θ, 0, cos θ)`, θ ∈ [0, θ_o]
     // (golden-section search of the density `f(ĥ·z) cos θ`): the core is looked up there.
@@ -829,7 +903,10 @@ fn lobe_moments(
     let mhat = mean / mean.length();
     let span = (2.0 / MIX_X_MIN).ln();
     let mut hist = vec![0.0f64; MIX_BINS];
-    each(&mut |l, x| {
+    each(&mut |l, x, _| {
+        if x <= 0.0 {
+            return;
+        }
         let g = (1.0 - mhat.dot(l)).max(MIX_X_MIN);
         let i = ((g / MIX_X_MIN).ln() / span * MIX_BINS as f64) as usize;
         hist[i.min(MIX_BINS - 1)] += x;
@@ -863,6 +940,9 @@ fn lobe_moments(
         t,
         lk(kt),
         if t > 0.0 { blend_core } else { blend },
+        sum_h,
+        blend_h,
+        shift,
     ]
 }
 
@@ -918,16 +998,6 @@ struct Lobe {
     mu: DVec3,
     r: f64,
     kappa: f64,
-}
-
-impl Lobe {
-    fn var(&self) -> f64 {
-        if self.kappa.is_infinite() {
-            0.0
-        } else {
-            1.0 / self.kappa.max(1e-6)
-        }
-    }
 }
 
 fn v3(t: [f32; 4]) -> DVec3 {
@@ -1053,13 +1123,136 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
 
 /// The effective half-vector lobe of `brdf` widened by per-axis variance `var` at `co`: the
 /// [`lobe_moments`] of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_c, tail share,
-/// log2 κ_t, core blend).
+/// log2 κ_t, core blend, energy and blend with the cosine at the half vector).
 fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
         Brdf::BlinnPhong { s } => light.energy.blinn_phong(s / (1.0 + s * var), co),
         Brdf::Ggx(g) => light.energy.ggx(g.widened(var), co),
         _ => [0.0; ENERGY_BLOCKS],
     }
+}
+
+/// The NDF lobe's share `w ∈ [0, 1]` of the widened lobe's variance: Blinn-Phong
+/// `1/s' = 1/s + var` gives `w = s·var/(1 + s·var)`, GGX `α'² = α² + c·var` gives
+/// `w = c·var/(α² + c·var)` (0 for a sharp NDF lobe, 1 for a BRDF lobe much sharper than
+/// the NDF's). The normal that reflects the view into ω_i is, given ω_h, about
+/// `(1 − w) μ + w ω_h` (the product of the vMF about μ and the BRDF lobe about ω_h), so the
+/// route's energy and mean direction mix the centre-cosine and half-vector-cosine blocks of
+/// [`lobe_moments`] by w (GLSL: `ndf_env_share`).
+fn ndf_share(brdf: &Brdf, var: f64) -> f64 {
+    let var = var.clamp(0.0, 1e6);
+    let w = match brdf {
+        Brdf::BlinnPhong { s } => s * var / (1.0 + s * var),
+        Brdf::Ggx(g) => {
+            let v = g.widening * var;
+            let d = g.alpha * g.alpha + v;
+            if d > 0.0 { v / d } else { 0.0 }
+        }
+        _ => 0.0,
+    };
+    if w.is_nan() { 0.0 } else { w.clamp(0.0, 1.0) }
+}
+
+/// The prefiltered route's specular term of one NDF lobe of unit weight, direction `mu` and
+/// concentration `kappa` (∞: a single normal), for view `view` (tangent frame) on a surface
+/// whose tangent frame is `frame`, per colour channel: the widened BRDF's lobe energy (mixed
+/// by [`ndf_share`] between the cosine at the lobe's centre and at the half vector) times one
+/// prefiltered lookup (GGX: a core and a tail) in the lobe's mean direction, times `g` at the
+/// reflected direction (module docs; what [`shade_in_with`] sums per lobe, the shaders'
+/// `ndf_env_lobe`). 0 when the view is behind `mu` and for a BRDF with no specular term.
+pub fn prefiltered_lobe(
+    light: &EnvLight,
+    frame: DMat3,
+    mu: DVec3,
+    kappa: f64,
+    view: DVec3,
+    brdf: &Brdf,
+) -> [f64; 3] {
+    let share = ndf_share(brdf, lobe_var(kappa));
+    prefiltered_lobe_with_share(light, frame, mu, kappa, view, brdf, share)
+}
+
+/// The per-axis variance `1/κ` of an NDF lobe (0 for κ = ∞, at most 10⁶).
+fn lobe_var(kappa: f64) -> f64 {
+    if kappa.is_infinite() {
+        0.0
+    } else {
+        1.0 / kappa.max(1e-6)
+    }
+}
+
+/// [`prefiltered_lobe`] with the cosine mixed by `share` instead of [`ndf_share`]: 0 takes the
+/// cosine at the lobe's centre (the route before the half-vector blocks), 1 at the half vector.
+/// For analysis (`examples/env_error_split.rs` measures the route both ways in one run).
+pub fn prefiltered_lobe_with_share(
+    light: &EnvLight,
+    frame: DMat3,
+    mu: DVec3,
+    kappa: f64,
+    view: DVec3,
+    brdf: &Brdf,
+    share: f64,
+) -> [f64; 3] {
+    let var = lobe_var(kappa);
+    let co = view.dot(mu);
+    if !brdf.has_specular() || co.is_nan() || co <= 0.0 {
+        return [0.0; 3];
+    }
+    let r = 2.0 * co * mu - view;
+    let g = brdf.g(r, mu);
+    let [
+        e0,
+        blend0,
+        log_kappa,
+        tail,
+        log_tail,
+        blend_core,
+        e_h,
+        blend_h,
+        shift,
+    ] = widened(light, brdf, var, co);
+    let w = share.clamp(0.0, 1.0);
+    let e = (1.0 - w) * e0 + w * e_h;
+    let blend = (1.0 - w) * blend0 + w * blend_h;
+    let d = frame * tilted(mu, r, blend);
+    let kappa = (log_kappa + w * shift).exp2();
+    if tail > 0.0 {
+        // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
+        let dc = frame * tilted(mu, r, blend_core);
+        let kt = (log_tail + w * shift).exp2();
+        std::array::from_fn(|c| {
+            let p = &light.channels[c].prefiltered;
+            ((1.0 - tail) * p.lookup(dc, kappa) + tail * p.lookup(d, kt)) * e * g
+        })
+    } else {
+        std::array::from_fn(|c| light.channels[c].prefiltered.lookup(d, kappa) * e * g)
+    }
+}
+
+/// One NDF lobe a texel stands for under the environment routes: its weight, mean direction
+/// and concentration (∞: a single normal).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexelLobe {
+    /// Weight (α of a mixture lobe; 1 for the single-lobe methods).
+    pub alpha: f64,
+    /// Mean direction (unit, tangent frame).
+    pub mu: DVec3,
+    /// Concentration κ (Toksvig: from the mean length; LEAN: the inverse of the mean slope
+    /// variance; vMF: the decoded lobe's).
+    pub kappa: f64,
+}
+
+/// The lobes the environment routes shade for `bake`'s texel (plain, Toksvig, LEAN: one; vMF:
+/// the decoded lobes; other methods none): what [`prefiltered_lobe`] is summed over.
+pub fn texel_lobes(bake: &Bake, texels: &[[f32; 4]]) -> Vec<TexelLobe> {
+    lobes_of(bake, texels)
+        .iter()
+        .map(|l| TexelLobe {
+            alpha: l.alpha,
+            mu: l.mu,
+            kappa: l.kappa,
+        })
+        .collect()
 }
 
 /// Environment-lit shading of `bake`'s texel for view `view` (module docs) where the tangent
@@ -1229,21 +1422,12 @@ pub fn shade_in_with(
         let g = brdf.g(r, lobe.mu);
         let spec: [f64; 3] = match route {
             Route::Prefiltered => {
-                let [e, blend, log_kappa, tail, log_tail, blend_core] =
-                    widened(light, brdf, lobe.var(), co);
-                let d = frame * tilted(lobe.mu, r, blend);
-                let kappa = log_kappa.exp2();
-                if tail > 0.0 {
-                    // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
-                    let dc = frame * tilted(lobe.mu, r, blend_core);
-                    let kt = log_tail.exp2();
-                    std::array::from_fn(|c| {
-                        let p = &light.channels[c].prefiltered;
-                        ((1.0 - tail) * p.lookup(dc, kappa) + tail * p.lookup(d, kt)) * e
-                    })
-                } else {
-                    std::array::from_fn(|c| light.channels[c].prefiltered.lookup(d, kappa) * e)
+                // `prefiltered_lobe` includes g; the SH route's g is applied below.
+                let p = prefiltered_lobe(light, frame, lobe.mu, lobe.kappa, view, brdf);
+                for ((o, s), wc) in out.specular.iter_mut().zip(p).zip(w) {
+                    *o += wc * s;
                 }
+                continue;
             }
             Route::Sh => {
                 let att: Vec<f64> = (0..rho.len())
@@ -1924,7 +2108,7 @@ mod tests {
             let gt = ground_truth(&light, &n, view, std::slice::from_ref(&brdf), 40000, 11);
             let f = shade(&light, &bake, &t, view, &brdf, Route::Prefiltered).luminance();
             // The single first-moment vMF (the route before the split), for comparison.
-            let [e, blend, _, _, _, _] = light.energy.ggx(0.1, view.z);
+            let [e, blend, _, _, _, _, _, _, _] = light.energy.ggx(0.1, view.z);
             let one = lobe_moments(&|c| ggx(c, 0.1), 0.1, view.z, false)[2].exp2();
             let r = 2.0 * view.z * DVec3::Z - view;
             let d = tilted(DVec3::Z, r, blend);
@@ -2496,10 +2680,11 @@ mod tests {
         let (c, u) = (&e.errors[0], &e.errors[1]);
         assert_eq!(c.label, "vmf4 prefiltered");
         assert_eq!(u.label, "vmf4 prefiltered × albedo mip");
-        // Measured: diffuse 3.5 % against 8.5 %, specular 22.6 % against 27.2 % (most of the
-        // specular error is the prefiltered route's own, docs/environment.md).
+        // Measured: diffuse 3.6 % against 8.4 %, specular 19.6 % against 21.5 % (before the
+        // route's cosine inside the lobe, docs/environment.md: 22.6 % against 27.2 %; both
+        // fell, the albedo MIP's more, so the colour's margin on the specular term is now 9 %).
         assert!(
-            c.diffuse < 0.6 * u.diffuse && c.specular < 0.9 * u.specular,
+            c.diffuse < 0.6 * u.diffuse && c.specular < 0.95 * u.specular,
             "eq 22 colour {c:?} against albedo MIP {u:?}"
         );
         let grey = EvalOptions {
@@ -2510,5 +2695,168 @@ mod tests {
         assert_ne!(g.errors[0].specular, c.specular);
         let refused = evaluate(&grey_map, &[&uncoloured], &brdfs, &light, &routes, &options);
         assert!(matches!(refused, Err(Error::InvalidOption(m)) if m.contains("albedo")));
+    }
+
+    /// `∫ f(ω_h·n) max(ω_i·n, 0) 4(ω_o·ω_h) dω_h` for a normal at `cos θ = c` from the view,
+    /// by a midpoint rule over ω_h about n (θ_h = (π/2)u², 300 × 64): independent of the
+    /// lobe table's quadrature.
+    fn energy_direct(brdf: &Brdf, c: f64) -> f64 {
+        let o = DVec3::new((1.0 - c * c).max(0.0).sqrt(), 0.0, c);
+        let (nu, nphi) = (300, 64);
+        let mut sum = 0.0;
+        for i in 0..nu {
+            let u = (i as f64 + 0.5) / nu as f64;
+            let th = 0.5 * PI * u * u;
+            let dth = PI * u / nu as f64;
+            let (st, ct) = th.sin_cos();
+            let f = brdf.lobe(ct);
+            if f == 0.0 {
+                continue;
+            }
+            for j in 0..nphi {
+                let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
+                let h = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
+                let oh = o.dot(h);
+                if oh <= 0.0 {
+                    continue;
+                }
+                let l = 2.0 * oh * h - o;
+                sum += f * l.z.max(0.0) * 4.0 * oh * st * dth * 2.0 * PI / nphi as f64;
+            }
+        }
+        sum
+    }
+
+    /// `∫ vMF(n; μ = z, κ) g(n) dn` by a midpoint rule in the polar angle γ = γ_max u²
+    /// (γ_max = min(π, 8/√κ); 256 × 128), the weights renormalized to sum to 1.
+    fn vmf_average(kappa: f64, g: &dyn Fn(DVec3) -> f64) -> f64 {
+        let gmax = (8.0 / kappa.sqrt()).min(PI);
+        let (nu, nphi) = (256, 128);
+        let (mut sum, mut wsum) = (0.0, 0.0);
+        for i in 0..nu {
+            let u = (i as f64 + 0.5) / nu as f64;
+            let ga = gmax * u * u;
+            let (sg, cg) = ga.sin_cos();
+            let w = (kappa * (cg - 1.0)).exp() * sg * 2.0 * gmax * u;
+            for j in 0..nphi {
+                let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
+                let n = DVec3::new(sg * phi.cos(), sg * phi.sin(), cg);
+                sum += w * g(n);
+                wsum += w;
+            }
+        }
+        sum / wsum
+    }
+
+    #[test]
+    fn one_lobe_matches_its_exact_integral_under_a_constant_sky_and_a_sun() {
+        // One vMF NDF lobe about z (κ = 8, 32, 128) seen at θ_o = 0, 35, 60°, Blinn-Phong
+        // s = 32, 256 and GGX α = 0.1, 0.3: the prefiltered route (`prefiltered_lobe`) against
+        // ∫ vMF(n) ∫ L ρ(n) cos dω_i dn by quadrature, (1) under a constant environment (the
+        // lookup is exactly 1: this is the lobe's energy with the cosine inside the lobe) and
+        // (2) under a one-texel sun (radiance 10⁴, 256-wide) in the reflected direction r of μ.
+        // The route before the half-vector blocks (`share` 0) is measured beside it.
+        let brdfs = [
+            Brdf::BlinnPhong { s: 32.0 },
+            Brdf::BlinnPhong { s: 256.0 },
+            Brdf::ggx(0.1),
+            Brdf::ggx(0.3),
+        ];
+        let constant = EnvLight::grey(Radiance::constant(64, 1.0));
+        let (w, h) = (256u32, 128u32);
+        let grid = Radiance::geometry(w, h);
+        let degrees = [0.0f64, 35.0, 60.0];
+        // Per view: the view, the sun's texel centre, its solid angle, the light.
+        let suns: Vec<(DVec3, DVec3, f64, EnvLight)> = degrees
+            .iter()
+            .map(|deg| {
+                let t = deg.to_radians();
+                let view = DVec3::new(t.sin(), 0.0, t.cos());
+                let r = 2.0 * view.z * DVec3::Z - view;
+                let (sx, sy) = grid.texel_of(r);
+                let mut v = vec![0.0f32; (w * h) as usize];
+                v[(sy * w + sx) as usize] = 1e4;
+                let light = EnvLight::grey(Radiance::new(w, h, v).unwrap());
+                (view, grid.direction(sx, sy), grid.solid_angle(sy), light)
+            })
+            .collect();
+        // Worst |error|: constant new, constant old; mean |error| under the sun, new and old.
+        let (mut worst, mut old_at_8, mut sun) = ([0.0f64; 2], 0.0f64, [0.0f64; 2]);
+        let mut sun_worst = 0.0f64;
+        let mut cases = 0.0;
+        for brdf in &brdfs {
+            // E(c) tabulated over c ∈ [−1, 1] (129 points), linear between.
+            let table: Vec<f64> = (0..129)
+                .map(|i| energy_direct(brdf, -1.0 + 2.0 * i as f64 / 128.0))
+                .collect();
+            let energy = |c: f64| {
+                let x = (c.clamp(-1.0, 1.0) + 1.0) * 64.0;
+                let i = (x.floor() as usize).min(127);
+                let f = x - i as f64;
+                (1.0 - f) * table[i] + f * table[i + 1]
+            };
+            for kappa in [8.0, 32.0, 128.0] {
+                for (deg, (view, d, omega, sun_light)) in degrees.iter().zip(&suns) {
+                    let (view, d) = (*view, *d);
+                    let route = |light: &EnvLight, share: Option<f64>| {
+                        let i = DMat3::IDENTITY;
+                        match share {
+                            None => prefiltered_lobe(light, i, DVec3::Z, kappa, view, brdf)[0],
+                            Some(w) => prefiltered_lobe_with_share(
+                                light,
+                                i,
+                                DVec3::Z,
+                                kappa,
+                                view,
+                                brdf,
+                                w,
+                            )[0],
+                        }
+                    };
+                    // (1) Constant environment.
+                    let exact = vmf_average(kappa, &|n| energy(view.dot(n)));
+                    let en = route(&constant, None) / exact - 1.0;
+                    let eo = route(&constant, Some(0.0)) / exact - 1.0;
+                    // (2) The one-texel sun at r.
+                    let hs = (d + view).normalize();
+                    let exact_sun = 1e4
+                        * omega
+                        * vmf_average(kappa, &|n| brdf.lobe(hs.dot(n)) * d.dot(n).max(0.0));
+                    let sn = route(sun_light, None) / exact_sun - 1.0;
+                    let so = route(sun_light, Some(0.0)) / exact_sun - 1.0;
+                    eprintln!(
+                        "{brdf:?} κ {kappa} θ_o {deg}: constant {exact:.4} new {en:+.3} old {eo:+.3}; sun {exact_sun:.4} new {sn:+.3} old {so:+.3}"
+                    );
+                    worst = [worst[0].max(en.abs()), worst[1].max(eo.abs())];
+                    if kappa == 8.0 && *deg == 0.0 {
+                        old_at_8 = old_at_8.max(-eo);
+                    }
+                    sun[0] += sn.abs();
+                    sun[1] += so.abs();
+                    sun_worst = sun_worst.max(sn.abs());
+                    cases += 1.0;
+                }
+            }
+        }
+        let sun = [sun[0] / cases, sun[1] / cases];
+        eprintln!("constant worst new {worst:?}; sun mean |error| new / old {sun:?}");
+        // Measured: constant environment within 7.8 % (Blinn-Phong κ = 8 at the normal;
+        // ≤ 1.4 % from κ = 32 on; GGX ≤ 7.6 %), the route before within 30 % (−20 … −30 % at
+        // κ = 8 seen head on: the cosine taken at the lobe's centre).
+        assert!(
+            worst[0] < 0.09,
+            "new route, constant environment: {}",
+            worst[0]
+        );
+        assert!(
+            old_at_8 > 0.15 && worst[1] > 0.25,
+            "the old route is biased: {worst:?}"
+        );
+        // Under the sun the lookup's shape dominates (the reflected lobe's squeeze at 60°:
+        // −15 … −29 %, a wide lobe's peak at the normal: +30 … +39 % at κ = 8), which this
+        // change does not address: measured mean |error| 17.3 % against 17.7 % before, worst
+        // 48 % (GGX 0.3, κ = 8, 60°; 43 % before). Asserted: bounded and no worse on average.
+        assert!(sun_worst < 0.55, "sun: {sun_worst}");
+        assert!(sun[0] <= sun[1] + 0.005, "sun: {sun:?}");
     }
 }

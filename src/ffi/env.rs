@@ -92,8 +92,9 @@ pub struct ndf_environment_info {
     pub reflected_rows: u32,
     /// Columns of `ndf_environment_energy` (33 view cosines).
     pub energy_columns: u32,
-    /// Rows of `ndf_environment_energy`: 6 blocks of 49 lobe parameters (energy, blend,
-    /// `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend; 294).
+    /// Rows of `ndf_environment_energy`: 9 blocks of 49 lobe parameters (energy, blend,
+    /// `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend, energy, blend and `log2 κ` shift
+    /// with the cosine at the half vector; 441).
     pub energy_rows: u32,
     /// Floats per texel or coefficient of the radiance-dependent arrays (`ndf_environment_sh`,
     /// `_prefiltered`'s atlas, `_reflected`): 3, R, G, B interleaved (`RGB32F` textures,
