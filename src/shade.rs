@@ -115,12 +115,21 @@ pub fn vmf_lobe_with(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum VmfSpecular {
+    /// The default: the rule recommended for each BRDF. Under Blinn-Phong (and eq 18, tabulated
+    /// BRDFs) the same as [`VmfSpecular::Eq20`]; under GGX the exact convolution of GGX's D
+    /// written as a fitted mixture of vMF lobes ([`crate::brdf::ggx_mixture::GgxMixture`]:
+    /// `Σ_k w_k P(κ)P(η_k)/P(R_k) e^{R_k−κ−η_k}`), which follows eq 14 where no single GGX lobe
+    /// can (`docs/pbr.md`, "vMF J = 6 under GGX: the mixture rule (H17t)"). The shaders'
+    /// default (no define; `NDF_VMF_SPECULAR_EQ20` selects the single widened GGX lobe).
+    #[default]
+    Auto,
     /// Eq 20 as published: `s' = κs/(κ+s)` (as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
     /// Overshoots the exact convolution (eq 14) at the peak by `≈ s/(κ+s)·…`: 6 % at κ = 20,
     /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The default:
     /// the cheapest rule in the shaders, and on real maps closer than
     /// [`VmfSpecular::Convolved`] at s = 256 and 2048, farther at s = 32 (`docs/baker.md`).
-    #[default]
+    /// Under GGX, chosen explicitly, the one widened GGX lobe `α'² = α² + c/κ`
+    /// ([`crate::brdf::Ggx::widened`]; the GGX default before H17t, kept for comparison).
     Eq20,
     /// The closed-form vMF ⊛ Blinn-Phong lobe ([`crate::vmf::blinn_phong_convolved`]): within
     /// 0.5 % of eq 14 up to one lobe width from μ. Opt-in (`--vmf-specular convolved`); the
@@ -141,7 +150,7 @@ impl VmfSpecular {
     /// vMF lobe of variance `var = 1/κ` (`var = 0`: κ = ∞, the lobe itself).
     pub fn lobe(self, c: f64, s: f64, var: f64) -> f64 {
         match self {
-            VmfSpecular::Eq20 => blinn_phong(c, s / (1.0 + s * var)),
+            VmfSpecular::Auto | VmfSpecular::Eq20 => blinn_phong(c, s / (1.0 + s * var)),
             VmfSpecular::Convolved => {
                 let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
                 crate::vmf::blinn_phong_convolved(c, s, kappa)
@@ -156,6 +165,7 @@ impl VmfSpecular {
     /// The name used on the command line.
     pub fn name(self) -> &'static str {
         match self {
+            VmfSpecular::Auto => "auto",
             VmfSpecular::Eq20 => "eq20",
             VmfSpecular::Convolved => "convolved",
             VmfSpecular::Exact => "exact",
@@ -577,6 +587,9 @@ fn mixture_component(
             if bake.method == Method::Vmf && options.vmf_specular == VmfSpecular::Convolved =>
         {
             ggx(mu.dot(h), g.widened_vmf(var))
+        }
+        Brdf::Ggx(g) if bake.method == Method::Vmf && options.vmf_specular == VmfSpecular::Auto => {
+            crate::brdf::ggx_mixture::GgxMixture::of(g.alpha).lobe(mu, h, var, g.widening)
         }
         b => iso_lobe(b, mu, var, h),
     };
