@@ -11,7 +11,10 @@
 //! gives), `table` (GGX given as a tabulated BRDF, 1024 samples: the shaders' existing
 //! eq 14 table, [`ndfmap::brdf::tabulated::lookup`], what `--brdf FILE` gives) and `mixture`
 //! (GGX as a fitted mixture of vMF lobes, each convolved in closed form:
-//! [`ndfmap::brdf::ggx_mixture::GgxMixture::convolved`], the default since H17t).
+//! [`ndfmap::brdf::ggx_mixture::GgxMixture::convolved`], uncorrected), `mix+c2` (the default
+//! rule since H17t, [`ndfmap::brdf::ggx_mixture::GgxMixture::corrected`] with `α_w` from
+//! c = 2) and `mix+peak` (the same with the peak rule's `α_w`). `NDF_MIX_SCALES`, `NDF_MIX_REL`
+//! and `NDF_MIX_T0` try other mixture constants (the measurements that chose them).
 //!
 //! Texel kinds: by the lobe-weighted mean of `t = (1/κ)/α²` (how wide the NDF lobes are against
 //! the BRDF lobe), and whether the footprint holds one finest normal only (repeated 8-bit
@@ -161,9 +164,16 @@ fn main() {
                 }
                 8 | 9 => {
                     let g = ndfmap::brdf::Ggx::new(alpha);
-                    let aw = if r == 8 { g.widened(var) } else { g.widened_vmf(var) };
+                    let aw = if r == 8 {
+                        g.widened(var)
+                    } else {
+                        g.widened_vmf(var)
+                    };
                     let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
-                    let t0: f64 = std::env::var("NDF_MIX_T0").map_or(0.1, |v| v.parse().unwrap());
+                    let t0: f64 = std::env::var("NDF_MIX_T0")
+                        .map_or(ndfmap::brdf::ggx_mixture::GGX_MIXTURE_T0, |v| {
+                            v.parse().expect("t0")
+                        });
                     let t = var / (alpha * alpha);
                     fitted.corrected(aw, c, kappa, 1.0 / (1.0 + (t / t0) * (t / t0)))
                 }

@@ -111,7 +111,11 @@ fn nnls(ata: &[Vec<f64>], atb: &[f64]) -> Vec<f64> {
             for c in r + 1..m {
                 v -= a[r][c] * x[c];
             }
-            x[r] = if a[r][r].abs() < 1e-300 { 0.0 } else { v / a[r][r] };
+            x[r] = if a[r][r].abs() < 1e-300 {
+                0.0
+            } else {
+                v / a[r][r]
+            };
         }
         let worst = (0..m).min_by(|&i, &j| x[i].total_cmp(&x[j]));
         match worst {
@@ -357,7 +361,12 @@ mod tests {
                 worst = worst.max(e);
                 worst_c2 = worst_c2.max(e2);
                 // Its peak against eq 14's.
-                let peak = convolve_vmf(&|b: f64| crate::brdf::ggx(b.cos(), alpha), alpha, 1.0 / var, 0.0);
+                let peak = convolve_vmf(
+                    &|b: f64| crate::brdf::ggx(b.cos(), alpha),
+                    alpha,
+                    1.0 / var,
+                    0.0,
+                );
                 let p = m.lobe(glam::DVec3::Z, glam::DVec3::Z, var, 2.0) / peak - 1.0;
                 assert!(p.abs() < 0.06, "α {alpha} t {t}: peak {p}");
             }

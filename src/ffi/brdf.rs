@@ -156,7 +156,7 @@ pub unsafe extern "C" fn ndf_material_free(brdf: *mut ndf_material) {
 
 /// The number of vMF lobes in GGX's mixture (`ndf_material_ggx_mixture`; the vMF shader's
 /// uniform arrays `ndf_ggx_w[NDF_GGX_MIXTURE_LOBES]`, `ndf_ggx_eta[NDF_GGX_MIXTURE_LOBES]`).
-pub const NDF_GGX_MIXTURE_LOBES: usize = crate::brdf::ggx_mixture::GGX_MIXTURE_LOBES;
+pub const NDF_GGX_MIXTURE_LOBES: usize = 5;
 
 /// GGX's D as a mixture of `NDF_GGX_MIXTURE_LOBES` unit-mass vMF lobes, fitted to the BRDF's α
 /// (least squares, non-negative weights): the values of the vMF shader's uniform arrays

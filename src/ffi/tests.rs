@@ -2114,6 +2114,10 @@ fn the_ggx_mixture_is_the_library_fit_and_refuses_other_brdfs() {
         check!(ndf_material_new(&opts, &mut b) => Ok, "");
         let (mut w, mut e) = ([0.0; NDF_GGX_MIXTURE_LOBES], [0.0; NDF_GGX_MIXTURE_LOBES]);
         check!(ndf_material_ggx_mixture(b, w.as_mut_ptr(), e.as_mut_ptr()) => Ok, "");
+        assert_eq!(
+            NDF_GGX_MIXTURE_LOBES,
+            crate::brdf::ggx_mixture::GGX_MIXTURE_LOBES
+        );
         let m = crate::brdf::ggx_mixture::GgxMixture::fit(0.1);
         assert_eq!(w, m.weights);
         assert_eq!(e, m.etas);
