@@ -97,11 +97,11 @@ fn nnls(ata: &[Vec<f64>], atb: &[f64]) -> Vec<f64> {
             if p.abs() < 1e-300 {
                 continue;
             }
-            for r in col + 1..m {
-                let f = a[r][col] / p;
-                for c in col..=m {
-                    let v = a[col][c];
-                    a[r][c] -= f * v;
+            let pivot_row = a[col].clone();
+            for row in a.iter_mut().take(m).skip(col + 1) {
+                let f = row[col] / p;
+                for (x, v) in row.iter_mut().zip(&pivot_row).skip(col) {
+                    *x -= f * v;
                 }
             }
         }
@@ -236,7 +236,8 @@ impl GgxMixture {
     pub fn lobe(&self, mu: glam::DVec3, h: glam::DVec3, var: f64, widening: f64) -> f64 {
         let c = mu.dot(h);
         let a2 = self.alpha * self.alpha;
-        if !(var > 0.0) {
+        // var ≤ 0 or NaN: κ = ∞.
+        if var.is_nan() || var <= 0.0 {
             return super::ggx(c, self.alpha);
         }
         let omc = if c > 0.0 {
