@@ -38,6 +38,12 @@
 #define NDF_VERSION 256
 
 /**
+ * The number of vMF lobes in GGX's mixture (`ndf_material_ggx_mixture`; the vMF shader's
+ * uniform arrays `ndf_ggx_w[NDF_GGX_MIXTURE_LOBES]`, `ndf_ggx_eta[NDF_GGX_MIXTURE_LOBES]`).
+ */
+#define NDF_GGX_MIXTURE_LOBES 5
+
+/**
  * Light flag: point lights.
  */
 #define NDF_SCENE_LIGHT_POINT 1
