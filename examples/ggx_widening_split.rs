@@ -4,12 +4,17 @@
 //! for several widening rules of the same lobes, split by the kind of texel:
 //! `cargo run --release --example ggx_widening_split -- MAP [ALPHAS]`.
 //!
-//! Rules: `c = 1, 2, 3, 4` (`α'² = α² + c/κ`; c = 2 is the default), `conv` (the opt-in
+//! Rules: `c = 1, 2, 3, 4` (`α'² = α² + c/κ`; c = 2 was the default before H17t), `conv` (the opt-in
 //! peak-matched rule, [`ndfmap::brdf::Ggx::widened_vmf`] at c = 2), `exact` (each lobe shaded
 //! with eq 14 of the GGX lobe by quadrature, [`ndfmap::brdf::convolution::convolve_vmf`],
 //! tabulated finely in κ and θ and interpolated: the bound on what any rule for these lobes
-//! gives) and `table` (GGX given as a tabulated BRDF, 1024 samples: the shaders' existing
-//! eq 14 table, [`ndfmap::brdf::tabulated::lookup`], what `--brdf FILE` gives).
+//! gives), `table` (GGX given as a tabulated BRDF, 1024 samples: the shaders' existing
+//! eq 14 table, [`ndfmap::brdf::tabulated::lookup`], what `--brdf FILE` gives) and `mixture`
+//! (GGX as a fitted mixture of vMF lobes, each convolved in closed form:
+//! [`ndfmap::brdf::ggx_mixture::GgxMixture::convolved`], uncorrected), `mix+c2` (the default
+//! rule since H17t, [`ndfmap::brdf::ggx_mixture::GgxMixture::corrected`] with `α_w` from
+//! c = 2) and `mix+peak` (the same with the peak rule's `α_w`). `NDF_MIX_SCALES`, `NDF_MIX_REL`
+//! and `NDF_MIX_T0` try other mixture constants (the measurements that chose them).
 //!
 //! Texel kinds: by the lobe-weighted mean of `t = (1/κ)/α²` (how wide the NDF lobes are against
 //! the BRDF lobe), and whether the footprint holds one finest normal only (repeated 8-bit
@@ -95,7 +100,9 @@ type RowSums = (
     [usize; KINDS.len()],
 );
 
-const RULES: [&str; 7] = ["c=1", "c=2", "c=3", "c=4", "conv", "exact", "table"];
+const RULES: [&str; 10] = [
+    "c=1", "c=2", "c=3", "c=4", "conv", "exact", "table", "mixture", "mix+c2", "mix+peak",
+];
 const KINDS: [&str; 6] = ["t<0.01", "0.01-0.1", "0.1-1", "1-10", "t>10", "one normal"];
 
 fn main() {
@@ -127,11 +134,49 @@ fn main() {
     for &alpha in &alphas {
         let table = ExactTable::new(alpha);
         let tab = Tabulated::sample("ggx", 1024, &|t: f64| ggx(t.cos(), alpha), None).unwrap();
+        // NDF_MIX_SCALES="s1,s2,…" and NDF_MIX_REL=r try other mixtures (the measurements
+        // that chose the constants); by default the library's.
+        let mixture = match std::env::var("NDF_MIX_SCALES") {
+            Ok(v) => {
+                let scales: Vec<f64> = v.split(',').map(|x| x.parse().expect("scale")).collect();
+                let rel = std::env::var("NDF_MIX_REL").map_or(0.0, |r| r.parse().expect("rel"));
+                ndfmap::brdf::ggx_mixture::fit_scales(alpha, &scales, rel)
+            }
+            Err(_) => {
+                let m = ndfmap::brdf::ggx_mixture::GgxMixture::fit(alpha);
+                (m.weights.to_vec(), m.etas.to_vec())
+            }
+        };
+        let fitted = ndfmap::brdf::ggx_mixture::GgxMixture::fit(alpha);
         let rule = |r: usize, c: f64, var: f64| -> f64 {
             match r {
                 0..=3 => ggx(c, (alpha * alpha + (r + 1) as f64 * var).sqrt().min(1.0)),
                 4 => ggx(c, ndfmap::brdf::Ggx::new(alpha).widened_vmf(var)),
                 5 => table.lobe(c, var),
+                7 => {
+                    let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                    mixture
+                        .0
+                        .iter()
+                        .zip(&mixture.1)
+                        .map(|(w, e)| w * ndfmap::brdf::ggx_mixture::vmf_product(c, kappa, *e))
+                        .sum()
+                }
+                8 | 9 => {
+                    let g = ndfmap::brdf::Ggx::new(alpha);
+                    let aw = if r == 8 {
+                        g.widened(var)
+                    } else {
+                        g.widened_vmf(var)
+                    };
+                    let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
+                    let t0: f64 = std::env::var("NDF_MIX_T0")
+                        .map_or(ndfmap::brdf::ggx_mixture::GGX_MIXTURE_T0, |v| {
+                            v.parse().expect("t0")
+                        });
+                    let t = var / (alpha * alpha);
+                    fitted.corrected(aw, c, kappa, 1.0 / (1.0 + (t / t0) * (t / t0)))
+                }
                 _ => {
                     let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
                     lookup(tab.table(), c.clamp(-1.0, 1.0).acos(), kappa)

@@ -20,6 +20,12 @@ uniform float ndf_sigma;  // eq 18 roughness sigma > 0
 #elif defined(NDF_BRDF_GGX)
 uniform float ndf_alpha;  // GGX roughness alpha in (0, 1]
 uniform float ndf_ggx_c;  // widening alpha'^2 = alpha^2 + c var (brdf::GGX_WIDENING_C)
+// GGX's D as a mixture of NDF_GGX_MIXTURE unit-mass vMF lobes, fitted to ndf_alpha on the host
+// (brdf::ggx_mixture::GgxMixture::fit): weights and concentrations. The vMF shader's default
+// GGX rule (ndf_vmf_ggx_mixture).
+const int NDF_GGX_MIXTURE = 5;
+uniform float ndf_ggx_w[NDF_GGX_MIXTURE];
+uniform float ndf_ggx_eta[NDF_GGX_MIXTURE];
 #ifdef NDF_BRDF_G
 uniform float ndf_f0;     // Schlick's F0
 #endif
@@ -170,7 +176,7 @@ float ndf_tab_lobe(float theta, float kappa) {
 // The convolved vMF rule's helpers, only where a shader uses them (a LOD-switch shader, whose
 // parts define their options after this file, defines NDF_LOD_SWITCH_VMF_CONVOLVED before it
 // when any part does).
-#if defined(NDF_VMF_SPECULAR_CONVOLVED) || defined(NDF_LOD_SWITCH_VMF_CONVOLVED)
+#if defined(NDF_VMF_SPECULAR_CONVOLVED) || defined(NDF_LOD_SWITCH_VMF_CONVOLVED) || defined(NDF_BRDF_GGX)
 // x / (1 - e^(-2x)), 1/2 at x = 0: 2 pi times the vMF normalization C(x) (eq 15) without sinh
 // or e^x; the series 1/2 + x/2 below 1e-3, where f32's 1 - e^(-2x) cancels. CPU: vmf::half_norm.
 float ndf_vmf_half_norm(float x) {
@@ -247,6 +253,45 @@ float ndf_vmf_ggx_alpha(float var) {
         m = 1.0 + a * t / (1.0 - t);
     }
     return min(sqrt(a2 + ndf_ggx_c * m * var), 1.0);
+}
+#endif
+
+#if defined(NDF_BRDF_GGX)
+// The vMF shader's default GGX rule: eq 14 of GGX's D written as the mixture
+// sum_k w_k gamma(eta_k) (uniforms ndf_ggx_w, ndf_ggx_eta), each vMF (*) vMF term in closed form,
+// conv = sum_k w_k g(kappa) g(eta_k) / (2 pi g(R_k)) exp(-2 kappa eta_k (1 - c) / (R_k + kappa + eta_k)),
+// R_k = sqrt((kappa + eta_k)^2 - 2 kappa eta_k (1 - c)), g = ndf_vmf_half_norm, plus phi times
+// the mixture's own error at the widened roughness a_w = min(sqrt(alpha^2 + c var), 1):
+// phi (D_{a_w} - sum_k w_k gamma(eta_k alpha^2 / a_w^2)), phi = 1 / (1 + (t / NDF_GGX_T0)^2),
+// t = var / alpha^2; at least 0. c = mu . h; 1 - c = |mu x h|^2 / (1 + c) where c > 0 (no
+// cancellation for sharp lobes), clamped to [0, 2]. var = 1/kappa; var <= 0 is kappa =
+// infinity: GGX itself. CPU: GgxMixture::lobe.
+const float NDF_GGX_T0 = 0.03;
+float ndf_vmf_ggx_mixture(vec3 mu, vec3 h, float var) {
+    if (!(var > 0.0)) return ndf_ggx(mu, h, ndf_alpha);
+    float c = dot(mu, h);
+    vec3 x = cross(mu, h);
+    float omc = c > 0.0 ? dot(x, x) / (1.0 + c) : 1.0 - c;
+    omc = clamp(omc, 0.0, 2.0);
+    float a2 = ndf_alpha * ndf_alpha;
+    float aw2 = min(a2 + max(ndf_ggx_c, 0.0) * var, 1.0);
+    float t = var / a2 / NDF_GGX_T0;
+    float phi = 1.0 / (1.0 + t * t);
+    float scale = a2 / aw2;
+    float k = 1.0 / var;
+    float gk = ndf_vmf_half_norm(k);
+    float conv = 0.0;
+    float wide = 0.0;
+    for (int i = 0; i < NDF_GGX_MIXTURE; ++i) {
+        float eta = ndf_ggx_eta[i];
+        float s = k + eta;
+        float r = sqrt(max(s * s - 2.0 * k * eta * omc, 0.0));
+        float e = -2.0 * k * eta * omc / (r + s);
+        conv += ndf_ggx_w[i] * gk * ndf_vmf_half_norm(eta) / (2.0 * NDF_PI * ndf_vmf_half_norm(r)) * exp(e);
+        float ew = eta * scale;
+        wide += ndf_ggx_w[i] * ndf_vmf_half_norm(ew) / (2.0 * NDF_PI) * exp(-ew * omc);
+    }
+    return max(conv + phi * (ndf_ggx(mu, h, sqrt(aw2)) - wide), 0.0);
 }
 #endif
 

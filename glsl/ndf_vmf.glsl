@@ -16,7 +16,9 @@
 //                (w_h . mu)^s' (ndf_vmf_eq20_texel: s' in one division, no branch), or with
 //                NDF_VMF_SPECULAR_CONVOLVED the closed-form vMF (*) Blinn-Phong lobe
 //                (ndf_vmf_blinn_phong; vmf::blinn_phong_convolved; shade::VmfSpecular);
-//                GGX: ndf_iso_lobe, alpha'^2 = alpha^2 + c/kappa, or with
+//                GGX: by default eq 14 of GGX's D as a fitted mixture of vMF lobes, each
+//                convolved in closed form (ndf_vmf_ggx_mixture; GgxMixture::lobe); with
+//                NDF_VMF_SPECULAR_EQ20 ndf_iso_lobe, alpha'^2 = alpha^2 + c/kappa; with
 //                NDF_VMF_SPECULAR_CONVOLVED ndf_vmf_ggx_alpha, alpha'^2 = alpha^2 +
 //                c m(kappa alpha^2/2)/kappa with m from 1 (wide lobes) to 2 (narrow): at c = 2
 //                the peak of the exact convolution (Ggx::widened_vmf); other BRDFs:
@@ -121,6 +123,8 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         float lobe = ndf_vmf_blinn_phong(dot(mu, h), ndf_s, var) * cos_i;
 #elif defined(NDF_BRDF_GGX) && defined(NDF_VMF_SPECULAR_CONVOLVED)
         float lobe = ndf_ggx(mu, h, ndf_vmf_ggx_alpha(var)) * cos_i;
+#elif defined(NDF_BRDF_GGX) && !defined(NDF_VMF_SPECULAR_EQ20)
+        float lobe = ndf_vmf_ggx_mixture(mu, h, var) * cos_i;
 #else
         float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
 #endif

@@ -38,6 +38,12 @@
 #define NDF_VERSION 256
 
 /**
+ * The number of vMF lobes in GGX's mixture (`ndf_material_ggx_mixture`; the vMF shader's
+ * uniform arrays `ndf_ggx_w[NDF_GGX_MIXTURE_LOBES]`, `ndf_ggx_eta[NDF_GGX_MIXTURE_LOBES]`).
+ */
+#define NDF_GGX_MIXTURE_LOBES 5
+
+/**
  * Light flag: point lights.
  */
 #define NDF_SCENE_LIGHT_POINT 1
@@ -642,7 +648,7 @@ typedef struct ndf_shader_options {
   ndf_light light;
   /**
    * vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
-   * `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_EQ20`.
+   * `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_AUTO`.
    */
   ndf_vmf_specular vmf_specular;
 } ndf_shader_options;
@@ -1200,8 +1206,9 @@ typedef struct ndf_environment_info {
 #define NDF_VMF_DIFFUSE_ALGORITHM2 1
 
 /**
- * The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`. Default (0: a
- * zero-initialised struct gets it).
+ * The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`; under GGX the single
+ * widened lobe `α'² = α² + c/κ` (the GGX rule before `NDF_VMF_SPECULAR_AUTO`). 0: a
+ * zero-initialised struct gets it; `ndf_shader_options_default()` gives `NDF_VMF_SPECULAR_AUTO`.
  */
 #define NDF_VMF_SPECULAR_EQ20 0
 
@@ -1211,6 +1218,14 @@ typedef struct ndf_environment_info {
  * `α'² = α² + c·m(κα²/2)/κ` (the exact convolution's peak at c = 2) instead of `α² + c/κ`.
  */
 #define NDF_VMF_SPECULAR_CONVOLVED 1
+
+/**
+ * The recommended rule per BRDF, the default of `ndf_shader_options_default()`: eq 20 under
+ * Blinn-Phong (the same shader as `NDF_VMF_SPECULAR_EQ20`), under GGX the exact convolution of
+ * GGX's D as a fitted mixture of vMF lobes (uniform arrays `ndf_ggx_w`, `ndf_ggx_eta` from
+ * `ndf_material_ggx_mixture`).
+ */
+#define NDF_VMF_SPECULAR_AUTO 2
 
 /**
  * `E[max(ω_i·n, 0)]` for a Gaussian cosine with the moments bands 0–2 give (l* ≥ 2; lower
@@ -1239,7 +1254,8 @@ typedef struct ndf_environment_info {
 #define NDF_BRDF_LAMBERT 2
 
 /**
- * GGX / Trowbridge–Reitz, uniforms `ndf_alpha` and `ndf_ggx_c` (and `ndf_f0` with the g
+ * GGX / Trowbridge–Reitz, uniforms `ndf_alpha`, `ndf_ggx_c`, the arrays `ndf_ggx_w` and
+ * `ndf_ggx_eta` (`ndf_material_ggx_mixture`; vMF shaders) (and `ndf_f0` with the g
  * factor: Smith's masking and Schlick's Fresnel).
  */
 #define NDF_BRDF_GGX 3
@@ -1837,6 +1853,21 @@ ndf_status ndf_material_new(const struct ndf_material_options *options,
  * `brdf` is NULL or a BRDF from `ndf_material_new` not yet freed.
  */
 void ndf_material_free(struct ndf_material *brdf);
+
+/**
+ * GGX's D as a mixture of `NDF_GGX_MIXTURE_LOBES` unit-mass vMF lobes, fitted to the BRDF's α
+ * (least squares, non-negative weights): the values of the vMF shader's uniform arrays
+ * `ndf_ggx_w` (`weights_out`) and `ndf_ggx_eta` (`etas_out`, the concentrations), which its
+ * default GGX rule (`NDF_VMF_SPECULAR_AUTO`) convolves in closed form with each NDF lobe.
+ * - `NDF_STATUS_INVALID_ARGUMENT` for a BRDF other than GGX.
+ *
+ * # Safety
+ * `brdf` is NULL or a live BRDF; `weights_out` and `etas_out` are NULL or writable for
+ * `NDF_GGX_MIXTURE_LOBES` doubles each.
+ */
+ndf_status ndf_material_ggx_mixture(const struct ndf_material *brdf,
+                                    double *weights_out,
+                                    double *etas_out);
 
 /**
  * The BRDF's `ρ̂_0 … ρ̂_lmax` (eq 11, Gauss–Legendre quadrature): the values of the SH

@@ -28,6 +28,7 @@
 //! module `shade`.
 
 pub mod convolution;
+pub mod ggx_mixture;
 pub mod tabulated;
 
 pub use tabulated::Tabulated;

@@ -214,8 +214,9 @@ pub struct ShaderOptions {
 pub const MAX_SAMPLERS: usize = 32;
 
 /// The uniforms of `brdf` a shader specialized for it reads, with their values (f32; arrays
-/// as several values): `ndf_s`, `ndf_sigma`, `ndf_alpha` + `ndf_ggx_c` (+ `ndf_f0` with the g
-/// factor), and for an SH shader of band limit `sh_lmax` also `ndf_sh_rho` (`ρ̂_0 … ρ̂_l*`,
+/// as several values): `ndf_s`, `ndf_sigma`, `ndf_alpha` + `ndf_ggx_c` + the vMF-mixture fit of
+/// GGX's D, `ndf_ggx_w` and `ndf_ggx_eta` ([`crate::brdf::ggx_mixture::GgxMixture::of`]; read by
+/// the vMF shader's default GGX rule) (+ `ndf_f0` with the g factor), and for an SH shader of band limit `sh_lmax` also `ndf_sh_rho` (`ρ̂_0 … ρ̂_l*`,
 /// [`Brdf::sh_coefficients`]) and `ndf_sh_peak` ([`Brdf::peak`]). A tabulated BRDF's table is a texture
 /// ([`crate::brdf::Tabulated::table`], sampler `ndf_brdf_table`), not listed here.
 pub fn uniforms(brdf: &Brdf, sh_lmax: Option<usize>) -> Vec<(&'static str, Vec<f32>)> {
@@ -227,6 +228,9 @@ pub fn uniforms(brdf: &Brdf, sh_lmax: Option<usize>) -> Vec<(&'static str, Vec<f
         Brdf::Ggx(g) => {
             out.push(("ndf_alpha", vec![g.alpha as f32]));
             out.push(("ndf_ggx_c", vec![g.widening as f32]));
+            let m = crate::brdf::ggx_mixture::GgxMixture::of(g.alpha);
+            out.push(("ndf_ggx_w", m.weights.iter().map(|&w| w as f32).collect()));
+            out.push(("ndf_ggx_eta", m.etas.iter().map(|&e| e as f32).collect()));
             if g.g {
                 out.push(("ndf_f0", vec![g.f0 as f32]));
             }
@@ -380,7 +384,7 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
     if options.vmf_specular == crate::shade::VmfSpecular::Exact {
         return Err(Error::InvalidOption(
             "the exact vMF convolution (quadrature) is a CPU measurement: no shader has it \
-             (use eq20 or convolved)"
+             (use auto, eq20 or convolved)"
                 .into(),
         ));
     }
@@ -958,6 +962,14 @@ fn defines(
     }
     if spec.method == Method::Vmf && options.vmf_specular == crate::shade::VmfSpecular::Convolved {
         d("NDF_VMF_SPECULAR_CONVOLVED", "1", Part);
+    }
+    // Under GGX the default (Auto) is the vMF-mixture convolution; eq20 asks for the single
+    // widened lobe. Blinn-Phong's eq 20 is the default already: no define, the same source.
+    if spec.method == Method::Vmf
+        && options.vmf_specular == crate::shade::VmfSpecular::Eq20
+        && matches!(options.brdf, ShaderBrdf::Ggx { .. })
+    {
+        d("NDF_VMF_SPECULAR_EQ20", "1", Part);
     }
     if spec.method == Method::Sh && options.sh_diffuse == crate::sh::ShDiffuse::Series {
         d("NDF_SH_DIFFUSE_SERIES", "1", Part);

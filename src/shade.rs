@@ -117,7 +117,9 @@ pub fn vmf_lobe_with(
     };
     let cos_i = t.mu.dot(l).max(0.0);
     let lobe = match rule {
-        VmfSpecular::Eq20 => blinn_phong(t.mu.dot(h), eq20_exponent(s, t.r_len.min(r_max))),
+        VmfSpecular::Auto | VmfSpecular::Eq20 => {
+            blinn_phong(t.mu.dot(h), eq20_exponent(s, t.r_len.min(r_max)))
+        }
         _ => rule.lobe(t.mu.dot(h), s, t.var),
     };
     Shading {
@@ -134,13 +136,22 @@ pub fn vmf_lobe_with(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum VmfSpecular {
+    /// The default: the rule recommended for each BRDF. Under Blinn-Phong (and eq 18, tabulated
+    /// BRDFs) the same as [`VmfSpecular::Eq20`]; under GGX the exact convolution of GGX's D
+    /// written as a fitted mixture of vMF lobes ([`crate::brdf::ggx_mixture::GgxMixture`]:
+    /// `Σ_k w_k P(κ)P(η_k)/P(R_k) e^{R_k−κ−η_k}`), which follows eq 14 where no single GGX lobe
+    /// can (`docs/pbr.md`, "vMF J = 6 under GGX: the mixture rule (H17t)"). The shaders'
+    /// default (no define; `NDF_VMF_SPECULAR_EQ20` selects the single widened GGX lobe).
+    #[default]
+    Auto,
     /// Eq 20 as published: `s' = κs/(κ+s)` (for a vMF texel as [`eq20_exponent`]; given
     /// only `1/κ`, as `s/(1 + s/κ)`), `B = (s'+1)/(2π)(ω_h·μ)^{s'}`.
     /// Overshoots the exact convolution (eq 14) at the peak by `≈ s/(κ+s)·…`: 6 % at κ = 20,
     /// 12 % at κ = 10 (s = 32), and falls short in the tail (`docs/baker.md`). The default:
     /// the cheapest rule in the shaders, and on real maps closer than
     /// [`VmfSpecular::Convolved`] at s = 256 and 2048, farther at s = 32 (`docs/baker.md`).
-    #[default]
+    /// Under GGX, chosen explicitly, the one widened GGX lobe `α'² = α² + c/κ`
+    /// ([`crate::brdf::Ggx::widened`]; the GGX default before H17t, kept for comparison).
     Eq20,
     /// The closed-form vMF ⊛ Blinn-Phong lobe ([`crate::vmf::blinn_phong_convolved`]): within
     /// 0.5 % of eq 14 up to one lobe width from μ. Opt-in (`--vmf-specular convolved`); the
@@ -161,7 +172,7 @@ impl VmfSpecular {
     /// vMF lobe of variance `var = 1/κ` (`var = 0`: κ = ∞, the lobe itself).
     pub fn lobe(self, c: f64, s: f64, var: f64) -> f64 {
         match self {
-            VmfSpecular::Eq20 => blinn_phong(c, s / (1.0 + s * var)),
+            VmfSpecular::Auto | VmfSpecular::Eq20 => blinn_phong(c, s / (1.0 + s * var)),
             VmfSpecular::Convolved => {
                 let kappa = if var > 0.0 { 1.0 / var } else { f64::INFINITY };
                 crate::vmf::blinn_phong_convolved(c, s, kappa)
@@ -176,6 +187,7 @@ impl VmfSpecular {
     /// The name used on the command line.
     pub fn name(self) -> &'static str {
         match self {
+            VmfSpecular::Auto => "auto",
             VmfSpecular::Eq20 => "eq20",
             VmfSpecular::Convolved => "convolved",
             VmfSpecular::Exact => "exact",
@@ -566,7 +578,7 @@ fn mixture_component(
             let t = vmf_decode(texel, r_max, crate::vmf::alpha_min(bake.format))?;
             let s = brdf.equivalent_exponent();
             // Eq 20's s' in the shaders' form (eq20_exponent), what the Blinn-Phong arm uses
-            // under the default rule.
+            // under the default rule (auto) and eq20.
             let s_eff = eq20_exponent(s, t.r_len.min(r_max));
             (t.alpha, t.mu, t.var, s_eff, t.r_len)
         }
@@ -590,7 +602,8 @@ fn mixture_component(
     let cos_i = mu.dot(l).max(0.0);
     let lobe = match brdf {
         Brdf::BlinnPhong { s }
-            if bake.method == Method::Vmf && options.vmf_specular != VmfSpecular::Eq20 =>
+            if bake.method == Method::Vmf
+                && !matches!(options.vmf_specular, VmfSpecular::Auto | VmfSpecular::Eq20) =>
         {
             options.vmf_specular.lobe(mu.dot(h), *s, var)
         }
@@ -599,6 +612,9 @@ fn mixture_component(
             if bake.method == Method::Vmf && options.vmf_specular == VmfSpecular::Convolved =>
         {
             ggx(mu.dot(h), g.widened_vmf(var))
+        }
+        Brdf::Ggx(g) if bake.method == Method::Vmf && options.vmf_specular == VmfSpecular::Auto => {
+            crate::brdf::ggx_mixture::GgxMixture::of(g.alpha).lobe(mu, h, var, g.widening)
         }
         b => iso_lobe(b, mu, var, h),
     };

@@ -484,7 +484,7 @@ pub fn blinn_phong_filtered(cos_h_mu: f64, s: f64, kappa: f64) -> f64 {
 /// times 2π, without `sinh` or `e^x` ([`peak_density`]). The shader's twin uses `0.5 + 0.5x`
 /// below `x = 10⁻³` (where f32's `1 − e^{−2x}` cancels; the series' relative error there is
 /// below 4·10⁻⁷).
-fn half_norm(x: f64) -> f64 {
+pub(crate) fn half_norm(x: f64) -> f64 {
     if !is_positive(x) {
         return 0.5;
     }

@@ -487,6 +487,18 @@ fn lod_switch_variants() -> Vec<(String, (Vec<LodPart>, (u32, u32)), ShaderOptio
         ];
         out.push((
             format!("switch_{addressing:?}_vmf_convolved"),
+            (chain(vmfs.clone(), o), (1000, 600)),
+            o,
+        ));
+        // Under GGX the default vMF rule is the mixture convolution; eq20 keeps the single
+        // widened lobe (NDF_VMF_SPECULAR_EQ20).
+        let o = ShaderOptions {
+            brdf: ShaderBrdf::Ggx { g: true },
+            vmf_specular: ndfmap::shade::VmfSpecular::Eq20,
+            ..Default::default()
+        };
+        out.push((
+            format!("switch_{addressing:?}_vmf_ggx_eq20"),
             (chain(vmfs, o), (1000, 600)),
             o,
         ));

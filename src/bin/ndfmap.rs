@@ -168,10 +168,11 @@ enum Command {
         /// algorithm2 (α max(ω_i·μ, 0)).
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
-        /// vmf: the lobes' specular rule, eq20 (the paper's s' = κs/(κ+s), the default; GGX:
-        /// α'² = α² + c/κ) or convolved (the closed-form vMF ⊛ Blinn-Phong lobe; GGX: the
-        /// peak-matched widening α'² = α² + c·m(κα²/2)/κ).
-        #[arg(long, default_value = "eq20")]
+        /// vmf: the lobes' specular rule, auto (the default: eq20 under Blinn-Phong; GGX: the
+        /// exact convolution of GGX's D as a fitted mixture of vMF lobes), eq20 (the paper's
+        /// s' = κs/(κ+s); GGX: one widened lobe α'² = α² + c/κ) or convolved (the closed-form
+        /// vMF ⊛ Blinn-Phong lobe; GGX: the peak-matched widening α'² = α² + c·m(κα²/2)/κ).
+        #[arg(long, default_value = "auto")]
         vmf_specular: String,
         /// sh: the diffuse term, moments (a Gaussian cosine with the moments of bands 0-2, the
         /// default) or series (eq 12 with Lambert's truncated clamped cosine).
@@ -286,11 +287,12 @@ enum Command {
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
         /// vMF specular rule, comma-separated to compare in one run (labels then name the
-        /// rule): eq20 (the paper's s' = κs/(κ+s), the default; GGX: α'² = α² + c/κ),
-        /// convolved (the closed-form vMF ⊛ Blinn-Phong lobe; GGX: the peak-matched widening
-        /// α'² = α² + c·m(κα²/2)/κ) or exact (Blinn-Phong only: eq 14 by quadrature, CPU only,
-        /// slow, the bound on what any rule can give).
-        #[arg(long, value_delimiter = ',', default_value = "eq20")]
+        /// rule): auto (the default: eq20 under Blinn-Phong; GGX: the exact convolution of
+        /// GGX's D as a fitted mixture of vMF lobes), eq20 (the paper's s' = κs/(κ+s); GGX: one
+        /// widened lobe α'² = α² + c/κ), convolved (the closed-form vMF ⊛ Blinn-Phong lobe;
+        /// GGX: the peak-matched widening α'² = α² + c·m(κα²/2)/κ) or exact (Blinn-Phong only:
+        /// eq 14 by quadrature, CPU only, slow, the bound on what any rule can give).
+        #[arg(long, value_delimiter = ',', default_value = "auto")]
         vmf_specular: Vec<String>,
         /// SH diffuse term: moments (default) or series (eq 12 with Lambert's truncated clamped
         /// cosine).
@@ -1490,7 +1492,7 @@ fn run(cli: Cli) -> Result<u8> {
                     choice::<ndfmap::shade::VmfSpecular>(
                         "vmf-specular",
                         r.trim(),
-                        "eq20, convolved, exact",
+                        "auto, eq20, convolved, exact",
                     )
                 })
                 .collect::<Result<Vec<_>>>()?;
@@ -1754,7 +1756,7 @@ fn run(cli: Cli) -> Result<u8> {
                 color,
                 probe,
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
-                vmf_specular: choice("vmf-specular", &vmf_specular, "eq20, convolved")?,
+                vmf_specular: choice("vmf-specular", &vmf_specular, "auto, eq20, convolved")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
                 light: [
                     ndfmap::glsl::ShaderLight::Point,

@@ -158,9 +158,14 @@ impl WideningCase {
 
     /// [`WideningCase::error`] of the GGX lobe of roughness `a` (any widening rule's α').
     pub fn error_at(&self, a: f64) -> f64 {
+        self.error_of(&|t: f64| super::ggx(t.cos(), a))
+    }
+
+    /// The relative L2 error over the hemisphere of any lobe `f(θ)` against eq 14.
+    pub fn error_of(&self, f: &dyn Fn(f64) -> f64) -> f64 {
         let (mut num, mut den) = (0.0, 0.0);
         for (&(t, w), &g) in self.nodes.iter().zip(&self.exact) {
-            let d = super::ggx(t.cos(), a) - g;
+            let d = f(t) - g;
             num += w * d * d;
             den += w * g * g;
         }

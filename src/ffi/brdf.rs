@@ -154,6 +154,50 @@ pub unsafe extern "C" fn ndf_material_free(brdf: *mut ndf_material) {
     })
 }
 
+/// The number of vMF lobes in GGX's mixture (`ndf_material_ggx_mixture`; the vMF shader's
+/// uniform arrays `ndf_ggx_w[NDF_GGX_MIXTURE_LOBES]`, `ndf_ggx_eta[NDF_GGX_MIXTURE_LOBES]`).
+pub const NDF_GGX_MIXTURE_LOBES: usize = 5;
+
+/// GGX's D as a mixture of `NDF_GGX_MIXTURE_LOBES` unit-mass vMF lobes, fitted to the BRDF's α
+/// (least squares, non-negative weights): the values of the vMF shader's uniform arrays
+/// `ndf_ggx_w` (`weights_out`) and `ndf_ggx_eta` (`etas_out`, the concentrations), which its
+/// default GGX rule (`NDF_VMF_SPECULAR_AUTO`) convolves in closed form with each NDF lobe.
+/// - `NDF_STATUS_INVALID_ARGUMENT` for a BRDF other than GGX.
+///
+/// # Safety
+/// `brdf` is NULL or a live BRDF; `weights_out` and `etas_out` are NULL or writable for
+/// `NDF_GGX_MIXTURE_LOBES` doubles each.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_material_ggx_mixture(
+    brdf: *const ndf_material,
+    weights_out: *mut f64,
+    etas_out: *mut f64,
+) -> ndf_status {
+    guard("ndf_material_ggx_mixture", || {
+        // SAFETY: NULL or a live BRDF (the caller's contract).
+        let b = unsafe { arg(brdf, "brdf") }?;
+        if weights_out.is_null() {
+            return Err(super::null("weights_out"));
+        }
+        if etas_out.is_null() {
+            return Err(super::null("etas_out"));
+        }
+        let Brdf::Ggx(g) = &b.brdf else {
+            return Err(fail(
+                ndf_status::InvalidArgument,
+                format!("{} has no GGX mixture (GGX only)", b.brdf.model()),
+            ));
+        };
+        let m = crate::brdf::ggx_mixture::GgxMixture::of(g.alpha);
+        // SAFETY: both writable for NDF_GGX_MIXTURE_LOBES doubles (the caller's contract).
+        unsafe {
+            std::ptr::copy_nonoverlapping(m.weights.as_ptr(), weights_out, NDF_GGX_MIXTURE_LOBES);
+            std::ptr::copy_nonoverlapping(m.etas.as_ptr(), etas_out, NDF_GGX_MIXTURE_LOBES);
+        }
+        Ok(())
+    })
+}
+
 /// The BRDF's `ρ̂_0 … ρ̂_lmax` (eq 11, Gauss–Legendre quadrature): the values of the SH
 /// shader's uniform array `ndf_sh_rho` (Lambert: its closed forms π, 2π/3, π/4, …).
 /// - `lmax`: 0 to 16. `out`: room for `capacity` doubles, at least `lmax + 1`

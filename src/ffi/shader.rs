@@ -39,13 +39,19 @@ pub const NDF_VMF_DIFFUSE_ALGORITHM2: ndf_vmf_diffuse = 1;
 /// The vMF lobes' specular rule under Blinn-Phong and GGX: one of the `NDF_VMF_SPECULAR_*`
 /// values.
 pub type ndf_vmf_specular = u32;
-/// The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`. Default (0: a
-/// zero-initialised struct gets it).
+/// The paper's eq 20: `s' = κs/(κ+s)`, `B = (s'+1)/(2π)(ω_h·μ)^{s'}`; under GGX the single
+/// widened lobe `α'² = α² + c/κ` (the GGX rule before `NDF_VMF_SPECULAR_AUTO`). 0: a
+/// zero-initialised struct gets it; `ndf_shader_options_default()` gives `NDF_VMF_SPECULAR_AUTO`.
 pub const NDF_VMF_SPECULAR_EQ20: ndf_vmf_specular = 0;
 /// The closed-form vMF ⊛ Blinn-Phong lobe (within 0.5 % of the exact convolution, eq 14, up to
 /// one lobe width; costlier in the shader); under GGX the peak-matched widening
 /// `α'² = α² + c·m(κα²/2)/κ` (the exact convolution's peak at c = 2) instead of `α² + c/κ`.
 pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 1;
+/// The recommended rule per BRDF, the default of `ndf_shader_options_default()`: eq 20 under
+/// Blinn-Phong (the same shader as `NDF_VMF_SPECULAR_EQ20`), under GGX the exact convolution of
+/// GGX's D as a fitted mixture of vMF lobes (uniform arrays `ndf_ggx_w`, `ndf_ggx_eta` from
+/// `ndf_material_ggx_mixture`).
+pub const NDF_VMF_SPECULAR_AUTO: ndf_vmf_specular = 2;
 
 /// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
 pub type ndf_sh_diffuse = u32;
@@ -63,7 +69,8 @@ pub const NDF_BRDF_BLINN_PHONG: ndf_brdf = 0;
 pub const NDF_BRDF_TORRANCE_SPARROW: ndf_brdf = 1;
 /// No specular lobe: the Lambert term alone (the specular output is 0).
 pub const NDF_BRDF_LAMBERT: ndf_brdf = 2;
-/// GGX / Trowbridge–Reitz, uniforms `ndf_alpha` and `ndf_ggx_c` (and `ndf_f0` with the g
+/// GGX / Trowbridge–Reitz, uniforms `ndf_alpha`, `ndf_ggx_c`, the arrays `ndf_ggx_w` and
+/// `ndf_ggx_eta` (`ndf_material_ggx_mixture`; vMF shaders) (and `ndf_f0` with the g
 /// factor: Smith's masking and Schlick's Fresnel).
 pub const NDF_BRDF_GGX: ndf_brdf = 3;
 /// A tabulated `f(θ_h)·g(θ_d)`: sampler `ndf_brdf_table`, an R32F texture of
@@ -125,7 +132,7 @@ pub struct ndf_shader_options {
     /// `NDF_LIGHT_POINT`.
     pub light: ndf_light,
     /// vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
-    /// `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_EQ20`.
+    /// `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_AUTO`.
     pub vmf_specular: ndf_vmf_specular,
 }
 
@@ -146,7 +153,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         probe: 0,
         sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
         light: NDF_LIGHT_POINT,
-        vmf_specular: NDF_VMF_SPECULAR_EQ20,
+        vmf_specular: NDF_VMF_SPECULAR_AUTO,
     };
     guard_value(o, || o)
 }
@@ -188,7 +195,7 @@ unsafe fn shader(
         vmf_specular: choose(
             "vmf_specular",
             o.vmf_specular,
-            &[VmfSpecular::Eq20, VmfSpecular::Convolved],
+            &[VmfSpecular::Eq20, VmfSpecular::Convolved, VmfSpecular::Auto],
         )?,
         sh_diffuse: choose(
             "sh_diffuse",

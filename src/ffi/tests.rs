@@ -1509,13 +1509,14 @@ fn colour_shaders_are_given_for_every_environment_light() {
 }
 
 #[test]
-fn the_vmf_specular_rule_defaults_to_eq_20_and_convolved_is_opt_in() {
-    // 0 (a zero-initialised field, and ndf_shader_options_default) is eq 20: the shader without
-    // NDF_VMF_SPECULAR_CONVOLVED, the Rust default's source; 1 is the closed-form convolution.
+fn the_vmf_specular_rule_defaults_to_auto_and_convolved_is_opt_in() {
+    // ndf_shader_options_default gives auto (2: the Rust default's source, eq 20 under
+    // Blinn-Phong); 0 (a zero-initialised field) is eq 20, the same Blinn-Phong shader without
+    // NDF_VMF_SPECULAR_CONVOLVED; 1 is the closed-form convolution.
     let map = c_map();
     let vmf = c_bake(map, NDF_METHOD_VMF);
     let o = ndf_shader_options_default();
-    assert_eq!(o.vmf_specular, 0);
+    assert_eq!(o.vmf_specular, NDF_VMF_SPECULAR_AUTO);
     assert_eq!(NDF_VMF_SPECULAR_EQ20, 0);
     // SAFETY: every pointer is NULL or valid for what it claims; freed once.
     unsafe {
@@ -1526,6 +1527,7 @@ fn the_vmf_specular_rule_defaults_to_eq_20_and_convolved_is_opt_in() {
                 NDF_VMF_SPECULAR_CONVOLVED,
                 crate::shade::VmfSpecular::Convolved,
             ),
+            (NDF_VMF_SPECULAR_AUTO, crate::shade::VmfSpecular::Auto),
         ] {
             let opts = ndf_shader_options {
                 vmf_specular: value,
@@ -1550,10 +1552,10 @@ fn the_vmf_specular_rule_defaults_to_eq_20_and_convolved_is_opt_in() {
         }
         let mut n = 0;
         let bad = ndf_shader_options {
-            vmf_specular: 2,
+            vmf_specular: 3,
             ..o
         };
-        check!(ndf_bake_shader_source_size(vmf, 1, &bad, &mut n) => InvalidArgument, "unknown vmf_specular value 2");
+        check!(ndf_bake_shader_source_size(vmf, 1, &bad, &mut n) => InvalidArgument, "unknown vmf_specular value 3");
         ndf_bake_free(vmf);
         ndf_normal_map_free(map);
     }
@@ -2099,5 +2101,33 @@ fn environments_load_and_pack_for_upload() {
         ndf_bake_free(sh);
         ndf_bake_free(vmf);
         ndf_normal_map_free(map);
+    }
+}
+
+#[test]
+fn the_ggx_mixture_is_the_library_fit_and_refuses_other_brdfs() {
+    // SAFETY: every pointer is NULL or valid for what it claims; freed once.
+    unsafe {
+        let mut opts = ndf_material_options_default();
+        opts.alpha = 0.1;
+        let mut b = std::ptr::null_mut();
+        check!(ndf_material_new(&opts, &mut b) => Ok, "");
+        let (mut w, mut e) = ([0.0; NDF_GGX_MIXTURE_LOBES], [0.0; NDF_GGX_MIXTURE_LOBES]);
+        check!(ndf_material_ggx_mixture(b, w.as_mut_ptr(), e.as_mut_ptr()) => Ok, "");
+        assert_eq!(
+            NDF_GGX_MIXTURE_LOBES,
+            crate::brdf::ggx_mixture::GGX_MIXTURE_LOBES
+        );
+        let m = crate::brdf::ggx_mixture::GgxMixture::fit(0.1);
+        assert_eq!(w, m.weights);
+        assert_eq!(e, m.etas);
+        check!(ndf_material_ggx_mixture(b, std::ptr::null_mut(), e.as_mut_ptr()) => NullArgument, "weights_out");
+        ndf_material_free(b);
+        let mut blinn = std::ptr::null_mut();
+        let mut bp = ndf_material_options_default();
+        bp.model = NDF_BRDF_BLINN_PHONG;
+        check!(ndf_material_new(&bp, &mut blinn) => Ok, "");
+        check!(ndf_material_ggx_mixture(blinn, w.as_mut_ptr(), e.as_mut_ptr()) => InvalidArgument, "GGX only");
+        ndf_material_free(blinn);
     }
 }

@@ -16,7 +16,8 @@
 //! - the best isotropic lobe found the same way on the evaluation's pairs turned by 45° about
 //!   the normal, scored on the untouched pairs: what a lobe fitted without seeing the scored
 //!   pairs reaches, so the in-sample bound's advantage is visible;
-//! - vMF J = 6 (aligned, C = 1, balanced) under GGX with c = 2: a custom shader, for scale.
+//! - vMF J = 6 (aligned, C = 1, balanced) under GGX with the default vMF rule (the vMF-mixture
+//!   convolution of GGX, `brdf::ggx_mixture`; c = 2 before H17t): a custom shader, for scale.
 
 use crate::bake::{Bake, BakeOptions, Method, PbrOptions};
 use crate::brdf::Brdf;
@@ -294,7 +295,7 @@ pub fn compare(
         .map(|b| (b.0.clone(), b.2))
         .chain(vmf.map(|_| {
             (
-                "vMF J = 6 aligned, GGX c = 2 (custom shader)".to_string(),
+                "vMF J = 6 aligned, GGX vMF-mixture rule (custom shader)".to_string(),
                 None,
             )
         }))

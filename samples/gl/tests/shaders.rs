@@ -97,10 +97,10 @@ fn label(c: &Case) -> String {
         } else {
             ""
         },
-        if c.specular == VmfSpecular::Convolved {
-            " convolved"
-        } else {
-            ""
+        match c.specular {
+            VmfSpecular::Convolved => " convolved",
+            VmfSpecular::Eq20 => " eq20",
+            _ => "",
         }
     )
 }
@@ -411,6 +411,19 @@ fn cases() -> Vec<Case> {
                     specular: VmfSpecular::Convolved,
                     sh_diffuse: ShDiffuse::default(),
                 });
+                // The default GGX rule (the vMF-mixture convolution, ndf_vmf_ggx_mixture) and
+                // the single widened lobe it replaced (NDF_VMF_SPECULAR_EQ20).
+                for specular in [VmfSpecular::Auto, VmfSpecular::Eq20] {
+                    out.push(Case {
+                        bake: ndfmap::pack::quantize(b, format).unwrap(),
+                        brdf: Brdf::ggx(alpha),
+                        sampling: Sampling::Manual,
+                        color: false,
+                        diffuse: VmfDiffuse::default(),
+                        specular,
+                        sh_diffuse: ShDiffuse::default(),
+                    });
+                }
             }
         }
     }
