@@ -253,7 +253,8 @@ impl GgxMixture {
     }
 
     /// The corrected convolution at `c = ω_h·μ` under a vMF lobe of concentration κ:
-    /// `Σ_k w_k γ_κ ⊛ γ_{η_k}(c) + φ·[D_{α_w}(c) − Σ_k w_k γ_{η_k α²/α_w²}(c)]`, at least 0 —
+    /// `Σ_k w_k γ_κ ⊛ γ_{η_k}(c) + φ·[D_{α_w}(c) − Σ_k w_k γ_{η_k α²/α_w²}(c)]`, clamped to
+    /// [0, 1/(πα²)] (eq 14 never rises above D's peak) —
     /// the mixture's exact convolution plus φ times the mixture's own error at the widened
     /// roughness `α_w` (the fit is nearly scale-free, so the same weights at concentrations
     /// scaled by `α²/α_w²` are the mixture of `D_{α_w}`). With φ = 1 and `α_w = α` (κ = ∞) it is
@@ -271,7 +272,10 @@ impl GgxMixture {
             conv += self.weights[k] * product_omc(omc, kappa, self.etas[k]);
             wide += self.weights[k] * product_omc(omc, f64::INFINITY, self.etas[k] * scale);
         }
-        (conv + phi * (super::ggx(c, alpha_w) - wide)).max(0.0)
+        // eq 14 of D with any NDF is at most D's own peak 1/(πα²): the clamp keeps the
+        // mixture's fit error (up to a few per cent at the peak) from rising above it.
+        let peak = 1.0 / (PI * self.alpha * self.alpha);
+        (conv + phi * (super::ggx(c, alpha_w) - wide)).clamp(0.0, peak)
     }
 
     /// The mixture at `c = cos θ`: its approximation of `D_α`.
