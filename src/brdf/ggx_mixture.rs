@@ -133,15 +133,20 @@ fn nnls(ata: &[Vec<f64>], atb: &[f64]) -> Vec<f64> {
     }
 }
 
+/// The roughness a mixture is fitted for: `alpha` clamped to [10⁻³, 1], NaN as 1.
+fn fitted_alpha(alpha: f64) -> f64 {
+    if alpha.is_nan() {
+        1.0
+    } else {
+        alpha.clamp(1e-3, 1.0)
+    }
+}
+
 /// Weights and concentrations of the mixture for roughness `alpha` with the given scales and
 /// relative weighting `rel` (see [`GgxMixture::fit_with`]).
 pub fn fit_scales(alpha: f64, scales: &[f64], rel: f64) -> (Vec<f64>, Vec<f64>) {
     let k = scales.len();
-    let alpha = if alpha.is_nan() {
-        1.0
-    } else {
-        alpha.clamp(1e-3, 1.0)
-    };
+    let alpha = fitted_alpha(alpha);
     let a2 = alpha * alpha;
     let etas: Vec<f64> = scales.iter().map(|s| 2.0 * s / a2).collect();
     // Nodes: geometric panels from α/16 to π/2, then π/2 to π in 8 panels.
@@ -199,11 +204,7 @@ impl GgxMixture {
     pub fn fit_with(alpha: f64, scales: &[f64; GGX_MIXTURE_LOBES], rel: f64) -> GgxMixture {
         let (w, e) = fit_scales(alpha, scales, rel);
         GgxMixture {
-            alpha: if alpha.is_nan() {
-                1.0
-            } else {
-                alpha.clamp(1e-3, 1.0)
-            },
+            alpha: fitted_alpha(alpha),
             weights: std::array::from_fn(|k| w[k]),
             etas: std::array::from_fn(|k| e[k]),
         }
