@@ -263,7 +263,8 @@ float ndf_vmf_ggx_alpha(float var) {
 // R_k = sqrt((kappa + eta_k)^2 - 2 kappa eta_k (1 - c)), g = ndf_vmf_half_norm, plus phi times
 // the mixture's own error at the widened roughness a_w = min(sqrt(alpha^2 + c var), 1):
 // phi (D_{a_w} - sum_k w_k gamma(eta_k alpha^2 / a_w^2)), phi = 1 / (1 + (t / NDF_GGX_T0)^2),
-// t = var / alpha^2; clamped to [0, 1/(pi alpha^2)]. c = mu . h; 1 - c = |mu x h|^2 / (1 + c) where c > 0 (no
+// t = var / alpha^2; clamped to [0, 1/(pi alpha^2)]. Weights all 0 (arrays left unset): eq 20's
+// single widened lobe D_{a_w}, the NDF_VMF_SPECULAR_EQ20 rule. c = mu . h; 1 - c = |mu x h|^2 / (1 + c) where c > 0 (no
 // cancellation for sharp lobes), clamped to [0, 2]. var = 1/kappa; var <= 0 is kappa =
 // infinity: GGX itself. CPU: GgxMixture::lobe.
 const float NDF_GGX_T0 = 0.03;
@@ -282,7 +283,9 @@ float ndf_vmf_ggx_mixture(vec3 mu, vec3 h, float var) {
     float gk = ndf_vmf_half_norm(k);
     float conv = 0.0;
     float wide = 0.0;
+    float wsum = 0.0;
     for (int i = 0; i < NDF_GGX_MIXTURE; ++i) {
+        wsum += ndf_ggx_w[i];
         float eta = ndf_ggx_eta[i];
         float s = k + eta;
         float r = sqrt(max(s * s - 2.0 * k * eta * omc, 0.0));
@@ -291,6 +294,10 @@ float ndf_vmf_ggx_mixture(vec3 mu, vec3 h, float var) {
         float ew = eta * scale;
         wide += ndf_ggx_w[i] * ndf_vmf_half_norm(ew) / (2.0 * NDF_PI) * exp(-ew * omc);
     }
+    // Arrays never set (GL's default uniform value 0: a host that skipped
+    // ndf_material_ggx_mixture): the single widened lobe of NDF_VMF_SPECULAR_EQ20, not the
+    // correction term alone, which vanishes for wide NDF lobes (CPU: the same fallback).
+    if (!(wsum > 0.0)) return ndf_ggx(mu, h, sqrt(aw2));
     // At most D's peak 1/(pi alpha^2), as eq 14 is (CPU: the same clamp).
     return clamp(conv + phi * (ndf_ggx(mu, h, sqrt(aw2)) - wide), 0.0, 1.0 / (NDF_PI * a2));
 }

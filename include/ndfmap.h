@@ -1223,7 +1223,8 @@ typedef struct ndf_environment_info {
  * The recommended rule per BRDF, the default of `ndf_shader_options_default()`: eq 20 under
  * Blinn-Phong (the same shader as `NDF_VMF_SPECULAR_EQ20`), under GGX the exact convolution of
  * GGX's D as a fitted mixture of vMF lobes (uniform arrays `ndf_ggx_w`, `ndf_ggx_eta` from
- * `ndf_material_ggx_mixture`).
+ * `ndf_material_ggx_mixture`). A host that leaves those arrays unset (all weights 0) gets
+ * `NDF_VMF_SPECULAR_EQ20`'s widened lobe instead, not a broken one.
  */
 #define NDF_VMF_SPECULAR_AUTO 2
 
@@ -1859,6 +1860,8 @@ void ndf_material_free(struct ndf_material *brdf);
  * (least squares, non-negative weights): the values of the vMF shader's uniform arrays
  * `ndf_ggx_w` (`weights_out`) and `ndf_ggx_eta` (`etas_out`, the concentrations), which its
  * default GGX rule (`NDF_VMF_SPECULAR_AUTO`) convolves in closed form with each NDF lobe.
+ * Arrays left unset (GL's initial 0) make that shader fall back to the single widened lobe of
+ * `NDF_VMF_SPECULAR_EQ20`.
  * - `NDF_STATUS_INVALID_ARGUMENT` for a BRDF other than GGX.
  *
  * # Safety

@@ -233,6 +233,8 @@ impl GgxMixture {
     /// `α_w = min(sqrt(α² + c/κ), 1)` and `φ = 1/(1 + (t/t₀)²)`, `t = (1/κ)/α²`,
     /// `t₀ =` [`GGX_MIXTURE_T0`]. `1 − ω_h·μ` is `|μ × ω_h|²/(1 + ω_h·μ)` where `ω_h·μ > 0` (no
     /// cancellation for sharp lobes), clamped to [0, 2]; `var ≤ 0` (or NaN) is κ = ∞: GGX itself.
+    /// A mixture without weight (all `w_k = 0`: in GLSL, uniform arrays the host never set) gives
+    /// the single widened lobe `D_{α_w}`, eq 20's rule ([`crate::shade::VmfSpecular::Eq20`]).
     /// GLSL: `ndf_vmf_ggx_mixture`, the same operations.
     pub fn lobe(&self, mu: glam::DVec3, h: glam::DVec3, var: f64, widening: f64) -> f64 {
         let c = mu.dot(h);
@@ -248,6 +250,10 @@ impl GgxMixture {
         };
         let omc = omc.clamp(0.0, 2.0);
         let aw2 = (a2 + widening.max(0.0) * var).min(1.0);
+        // No weight (GLSL: arrays the host never set): eq 20's single widened lobe.
+        if !(self.weights.iter().sum::<f64>() > 0.0) {
+            return super::ggx(c, aw2.sqrt());
+        }
         let t = var / a2;
         let phi = 1.0 / (1.0 + (t / GGX_MIXTURE_T0) * (t / GGX_MIXTURE_T0));
         self.corrected_omc(aw2.sqrt(), c, omc, 1.0 / var, phi)

@@ -162,6 +162,8 @@ pub const NDF_GGX_MIXTURE_LOBES: usize = 5;
 /// (least squares, non-negative weights): the values of the vMF shader's uniform arrays
 /// `ndf_ggx_w` (`weights_out`) and `ndf_ggx_eta` (`etas_out`, the concentrations), which its
 /// default GGX rule (`NDF_VMF_SPECULAR_AUTO`) convolves in closed form with each NDF lobe.
+/// Arrays left unset (GL's initial 0) make that shader fall back to the single widened lobe of
+/// `NDF_VMF_SPECULAR_EQ20`.
 /// - `NDF_STATUS_INVALID_ARGUMENT` for a BRDF other than GGX.
 ///
 /// # Safety

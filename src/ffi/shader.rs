@@ -50,7 +50,8 @@ pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 1;
 /// The recommended rule per BRDF, the default of `ndf_shader_options_default()`: eq 20 under
 /// Blinn-Phong (the same shader as `NDF_VMF_SPECULAR_EQ20`), under GGX the exact convolution of
 /// GGX's D as a fitted mixture of vMF lobes (uniform arrays `ndf_ggx_w`, `ndf_ggx_eta` from
-/// `ndf_material_ggx_mixture`).
+/// `ndf_material_ggx_mixture`). A host that leaves those arrays unset (all weights 0) gets
+/// `NDF_VMF_SPECULAR_EQ20`'s widened lobe instead, not a broken one.
 pub const NDF_VMF_SPECULAR_AUTO: ndf_vmf_specular = 2;
 
 /// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.

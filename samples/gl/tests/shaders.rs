@@ -120,6 +120,17 @@ fn aniso_derivatives(level: usize, size: (u32, u32)) -> (DVec2, DVec2) {
 /// for a few light/view pairs and returns the largest error at texel centres and at
 /// fractional LODs (anisotropic: all in the second).
 fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
+    measure_with(gl, case, case.specular, &|_| {})
+}
+
+/// [`measure`] with the shader generated for the vMF rule `shader_specular` (the CPU twin keeps
+/// `case.specular`) and `tweak` applied to the program after its uniforms are set.
+fn measure_with(
+    gl: &Gl,
+    case: &Case,
+    shader_specular: VmfSpecular,
+    tweak: &dyn Fn(&Program),
+) -> (f64, f64) {
     let bake = &case.bake;
     let options = ShaderOptions {
         light: Default::default(),
@@ -128,7 +139,7 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
         color: case.color,
         probe: true,
         vmf_diffuse: case.diffuse,
-        vmf_specular: case.specular,
+        vmf_specular: shader_specular,
         sh_diffuse: case.sh_diffuse,
         ..Default::default()
     };
@@ -149,6 +160,7 @@ fn measure(gl: &Gl, case: &Case) -> (f64, f64) {
             textures.len() as u32,
         )
         .unwrap();
+    tweak(&program);
     let manual = ndfmap::glsl::manual_sampling(&ndfmap::glsl::ShaderSpec::of(bake), &options);
     let aniso = matches!(case.sampling, Sampling::Anisotropic(_));
     let peak = case.brdf.peak().max(1.0);
@@ -489,6 +501,52 @@ fn report_hardware_anisotropy(gl: &Gl) {
         gl.renderer(),
         if has { "offered" } else { "absent" }
     );
+}
+
+/// A host that never sets the GGX mixture's uniform arrays (weights left at GL's 0) gets the
+/// single widened lobe of `NDF_VMF_SPECULAR_EQ20` from the default (`Auto`) shader: the GL
+/// output against the CPU twin's eq 20 rule, and the same shader with the arrays set must differ
+/// from it (so the comparison can fail).
+fn unset_mixture_falls_back(route: Route) {
+    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
+        println!("skipped: NDFMAP_SKIP_GL=1");
+        return;
+    }
+    let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    let sample = ndfmap::procedural::generate(16, 11);
+    let options = BakeOptions {
+        lobes: 4,
+        ..Default::default()
+    };
+    let b = bake_with(&sample.map, Method::Vmf, &options).unwrap();
+    for alpha in [0.05, 0.3] {
+        let case = Case {
+            bake: b.clone(),
+            brdf: Brdf::ggx(alpha),
+            sampling: Sampling::Manual,
+            color: false,
+            diffuse: VmfDiffuse::default(),
+            specular: VmfSpecular::Eq20,
+            sh_diffuse: ShDiffuse::default(),
+        };
+        let zero = [0.0f32; ndfmap::brdf::ggx_mixture::GGX_MIXTURE_LOBES];
+        let unset = measure_with(&gl, &case, VmfSpecular::Auto, &|p| {
+            p.set_f32_array("ndf_ggx_w", &zero);
+            p.set_f32_array("ndf_ggx_eta", &zero);
+        });
+        let set = measure_with(&gl, &case, VmfSpecular::Auto, &|_| {});
+        println!(
+            "{route} GGX α = {alpha}: arrays unset {:.2e}, set {:.2e} from eq 20",
+            unset.0, set.0
+        );
+        assert!(unset.0 <= tolerance(&case.brdf), "α = {alpha}: {unset:?}");
+        assert!(set.0 > 10.0 * tolerance(&case.brdf), "α = {alpha}: {set:?}");
+    }
+}
+
+#[test]
+fn an_unset_ggx_mixture_falls_back_to_eq20_through_egl() {
+    unset_mixture_falls_back(Route::Egl);
 }
 
 #[test]
