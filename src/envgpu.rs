@@ -90,8 +90,17 @@ pub struct Upload {
 }
 
 /// Packs `light` for upload (module docs). Fails when it has more than [`MAX_LEVELS`]
-/// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would).
+/// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would), and for a light
+/// with extracted lights ([`EnvLight::with_lights`]): the shaders do not add their term yet, so
+/// they would shade the residual alone (a typed error rather than a silently darker render).
 pub fn pack(light: &EnvLight) -> Result<Upload> {
+    if !light.lights().is_empty() {
+        return Err(Error::InvalidOption(format!(
+            "the environment has {} extracted lights; the GLSL routes do not shade them yet \
+             (prepare it without extraction: --env-lights 0 / EnvLight::new)",
+            light.lights().len()
+        )));
+    }
     let first = light.channel(0).prefiltered();
     let levels = first.levels();
     if levels.len() > MAX_LEVELS {

@@ -40,6 +40,7 @@
 
 use crate::bake::{Bake, Method};
 use crate::brdf::{Brdf, ggx};
+use crate::environment::lights::{Light, LightOptions};
 use crate::environment::prefilter::Prefiltered;
 use crate::environment::projection::{self, ReflectedTable};
 use crate::environment::sampling::EnvSampler;
@@ -70,15 +71,22 @@ pub struct EnvChannel {
 
 impl EnvChannel {
     fn new(radiance: Radiance, with_reflected: bool) -> EnvChannel {
+        EnvChannel::with_residual(radiance.clone(), radiance, with_reflected)
+    }
+
+    /// A channel whose routes read `residual` (the environment less its extracted lights,
+    /// [`crate::environment::lights`]) while the ground truth reads the full `radiance`.
+    fn with_residual(radiance: Radiance, residual: Radiance, with_reflected: bool) -> EnvChannel {
         EnvChannel {
-            prefiltered: Prefiltered::new(&radiance),
-            sh: projection::project(&radiance, ENV_LMAX),
-            reflected: with_reflected.then(|| ReflectedTable::new(&radiance, ENV_LMAX)),
+            prefiltered: Prefiltered::new(&residual),
+            sh: projection::project(&residual, ENV_LMAX),
+            reflected: with_reflected.then(|| ReflectedTable::new(&residual, ENV_LMAX)),
             radiance,
         }
     }
 
-    /// The channel's radiance.
+    /// The channel's full radiance (what the ground truth integrates; with extracted lights
+    /// the prefiltered levels, SH and `L′` are of the residual, [`EnvLight::lights`]).
     pub fn radiance(&self) -> &Radiance {
         &self.radiance
     }
@@ -127,6 +135,7 @@ fn no_reflected() -> Error {
 /// in radiance, so its luminance is the luminance of the RGB ground truth).
 pub struct EnvLight {
     channels: [EnvChannel; 3],
+    lights: Vec<Light>,
     luminance: Radiance,
     sampler: Option<EnvSampler>,
     energy: &'static EnergyTables,
@@ -137,7 +146,16 @@ impl EnvLight {
     /// Prepares the RGB environment `env` (prefiltering, projection, tables per channel, the
     /// three channels in parallel: about 3 CPU-s for a 1024 × 512 panorama).
     pub fn new(env: &Environment) -> EnvLight {
-        EnvLight::prepare(env, true)
+        EnvLight::prepare(env, true, &LightOptions::none())
+    }
+
+    /// [`EnvLight::new`] with the environment's bright compact sources extracted as distant
+    /// lights ([`crate::environment::lights::extract`] under `lights`; `max_lights = 0` is
+    /// [`EnvLight::new`]): the prefiltered levels, SH and `L′` tables are of the residual, and
+    /// every route adds each light's term per lobe as the point-light path shades it
+    /// ([`light_term`]). The ground truth still integrates the full environment.
+    pub fn with_lights(env: &Environment, lights: &LightOptions) -> EnvLight {
+        EnvLight::prepare(env, true, lights)
     }
 
     /// Prepares `env` for the prefiltered route (eq 22 with the lobe tables), the diffuse SH
@@ -147,13 +165,29 @@ impl EnvLight {
     /// and `envgpu::pack`). What the planner measures with (the `L′` tables were a third of a
     /// matte plan's time); everything it does prepare is bit for bit [`EnvLight::new`]'s.
     pub fn prefiltered_only(env: &Environment) -> EnvLight {
-        EnvLight::prepare(env, false)
+        EnvLight::prepare(env, false, &LightOptions::none())
     }
 
-    fn prepare(env: &Environment, with_reflected: bool) -> EnvLight {
-        let prepare = |c: usize| EnvChannel::new(env.channel(c), with_reflected);
+    /// [`EnvLight::prefiltered_only`] with extracted lights ([`EnvLight::with_lights`]).
+    pub fn prefiltered_only_with_lights(env: &Environment, lights: &LightOptions) -> EnvLight {
+        EnvLight::prepare(env, false, lights)
+    }
+
+    fn prepare(env: &Environment, with_reflected: bool, lights: &LightOptions) -> EnvLight {
+        let extraction = crate::environment::lights::extract(env, lights);
+        let residual = &extraction.residual;
+        let prepare =
+            |c: usize| EnvChannel::with_residual(env.channel(c), residual.channel(c), with_reflected);
         let (r, (g, b)) = rayon::join(|| prepare(0), || rayon::join(|| prepare(1), || prepare(2)));
-        EnvLight::from_channels([r, g, b], env.luminance())
+        let mut light = EnvLight::from_channels([r, g, b], env.luminance());
+        light.lights = extraction.lights;
+        light
+    }
+
+    /// The lights extracted from the environment (empty for [`EnvLight::new`]), most powerful
+    /// first.
+    pub fn lights(&self) -> &[Light] {
+        &self.lights
     }
 
     /// Prepares a grey environment: `radiance` in all three channels (prepared once). Its
@@ -190,6 +224,7 @@ impl EnvLight {
         }));
         EnvLight {
             channels,
+            lights: Vec::new(),
             sampler: EnvSampler::new(&luminance),
             luminance,
             energy: energy_tables(),
@@ -1386,6 +1421,7 @@ pub fn shade_in_with(
                 *o = (sum * co).max(0.0) * g;
             }
         }
+        add_lights(light, frame, bake, texels, view, brdf, color, &mut out);
         return out;
     }
     let lobes = lobes_of(bake, texels);
@@ -1449,7 +1485,66 @@ pub fn shade_in_with(
             *o += wc * s * g;
         }
     }
+    add_lights(light, frame, bake, texels, view, brdf, color, &mut out);
     out
+}
+
+/// The shading of `bake`'s texel by one distant light of unit power in direction `l`
+/// (tangent frame) for view `view`, per colour channel: the point-light path itself
+/// ([`crate::shade::shade_rgb_with`] with the default options — Algorithm 2 with eq 20 or the
+/// GGX mixture rule per vMF lobe, each baseline's own widening, eq 12 for SH bakes, g
+/// included), which is the environment integrals' diffuse `∫ L max(ω_i·n, 0) dω_i` and specular
+/// `∫ L f g max(ω_i·n, 0) dω_i` for `L` a delta of unit power at `l`. `color` as in
+/// [`shade_in_with`] (used for vMF bakes only).
+pub fn light_term(
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    l: DVec3,
+    view: DVec3,
+    brdf: &Brdf,
+    color: bool,
+) -> RgbShading {
+    let Some(h) = (l + view).try_normalize() else {
+        return RgbShading::default();
+    };
+    let color = color && bake.method == Method::Vmf;
+    let s = crate::shade::shade_rgb_with(
+        bake,
+        texels,
+        l,
+        h,
+        brdf,
+        color,
+        &crate::shade::ShadeOptions::default(),
+    );
+    let fin = |v: f64| if v.is_finite() { v } else { 0.0 };
+    RgbShading {
+        diffuse: s.diffuse.to_array().map(fin),
+        specular: s.specular.to_array().map(fin),
+    }
+}
+
+/// Adds every extracted light's [`light_term`] times its RGB power to `out` (the light's
+/// direction turned into the tangent frame by `frame`ᵀ).
+#[allow(clippy::too_many_arguments)]
+fn add_lights(
+    light: &EnvLight,
+    frame: DMat3,
+    bake: &Bake,
+    texels: &[[f32; 4]],
+    view: DVec3,
+    brdf: &Brdf,
+    color: bool,
+    out: &mut RgbShading,
+) {
+    for lt in &light.lights {
+        let l = frame.transpose() * lt.direction;
+        let t = light_term(bake, texels, l, view, brdf, color);
+        for c in 0..3 {
+            out.diffuse[c] += lt.power[c] * t.diffuse[c];
+            out.specular[c] += lt.power[c] * t.specular[c];
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
