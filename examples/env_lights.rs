@@ -27,7 +27,10 @@ fn main() -> ndfmap::error::Result<()> {
     } else {
         vec![5.0, 10.0, 20.0, 50.0]
     };
-    let peak: f64 = std::env::var("PEAK").ok().and_then(|v| v.parse().ok()).unwrap_or(1e-3);
+    let peak: f64 = std::env::var("PEAK")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1e-3);
     for t in thresholds {
         let ex = extract(
             &env,

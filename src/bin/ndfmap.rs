@@ -387,7 +387,14 @@ impl EnvArgs {
                 eprintln!(
                     "{name}: light {k}: direction ({:.4}, {:.4}, {:.4}), power ({:.4e}, {:.4e}, \
                      {:.4e}), {} texels, {:.3e} sr, kappa {:.3e}",
-                    d.x, d.y, d.z, l.power[0], l.power[1], l.power[2], l.texels, l.solid_angle,
+                    d.x,
+                    d.y,
+                    d.z,
+                    l.power[0],
+                    l.power[1],
+                    l.power[2],
+                    l.texels,
+                    l.solid_angle,
                     l.kappa
                 );
             }

@@ -169,11 +169,7 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
     };
     let omega: Vec<f64> = (0..h as u32).map(|y| grid.solid_angle(y)).collect();
     let lums: Vec<f64> = env.texels.iter().map(lum).collect();
-    let total: f64 = lums
-        .iter()
-        .enumerate()
-        .map(|(i, l)| l * omega[i / w])
-        .sum();
+    let total: f64 = lums.iter().enumerate().map(|(i, l)| l * omega[i / w]).sum();
     let mean = total / (4.0 * PI);
     let none = Extraction {
         lights: Vec::new(),
@@ -182,7 +178,8 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
     let ok = |v: f64| v.is_finite() && v > 0.0;
     if options.max_lights == 0
         || !(ok(mean) && ok(options.threshold) && options.grow.is_finite())
-        || !(options.max_solid_angle > 0.0)
+        || options.max_solid_angle.is_nan()
+        || options.max_solid_angle <= 0.0
     {
         return none;
     }
@@ -240,8 +237,8 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
         ring.sort_unstable();
         ring.dedup();
         for &j in &ring {
-            for c in 0..3 {
-                ring_sum[c] += env.texels[j][c] as f64 * omega[j / w];
+            for (sum, v) in ring_sum.iter_mut().zip(env.texels[j]) {
+                *sum += v as f64 * omega[j / w];
             }
             ring_omega += omega[j / w];
         }
@@ -338,7 +335,11 @@ mod tests {
 
     #[test]
     fn the_sky_s_sun_is_found_where_it_is_with_its_power_and_power_is_conserved() {
-        for (width, sun_deg) in [(256u32, (55.0, 30.0)), (128, (2.0, -170.0)), (64, (80.0, 179.0))] {
+        for (width, sun_deg) in [
+            (256u32, (55.0, 30.0)),
+            (128, (2.0, -170.0)),
+            (64, (80.0, 179.0)),
+        ] {
             let sky = Sky {
                 width,
                 sun_deg,
@@ -352,7 +353,10 @@ mod tests {
             // Within a texel of the sun's direction.
             let texel = PI / env.height as f64;
             let angle = l.direction.angle_between(sky.sun_direction());
-            assert!(angle < texel, "{width} {sun_deg:?}: {angle} vs texel {texel}");
+            assert!(
+                angle < texel,
+                "{width} {sun_deg:?}: {angle} vs texel {texel}"
+            );
             // Its power within 1 % of the disc's exact L·2π(1 − cos r).
             let disc = 2.0 * PI * (1.0 - sky.sun_radius_deg.to_radians().cos());
             for c in 0..3 {
@@ -449,7 +453,10 @@ mod tests {
                 t[(y * w + x) as usize] = [2000.0; 3];
             }
         }
-        for (k, (x, y)) in [(10u32, 10u32), (70, 20), (100, 50)].into_iter().enumerate() {
+        for (k, (x, y)) in [(10u32, 10u32), (70, 20), (100, 50)]
+            .into_iter()
+            .enumerate()
+        {
             t[(y * w + x) as usize] = [1.0e4 * (k + 1) as f32; 3];
         }
         let env = Environment::from_rgb("t", w, h, t, &EnvOptions::default()).unwrap();
@@ -461,7 +468,12 @@ mod tests {
             },
         );
         assert_eq!(ex.lights.len(), 2);
-        assert!(ex.lights[0].direction.angle_between(grid.direction(100, 50)) < 1e-9);
+        assert!(
+            ex.lights[0]
+                .direction
+                .angle_between(grid.direction(100, 50))
+                < 1e-9
+        );
         assert!(ex.lights[1].direction.angle_between(grid.direction(70, 20)) < 1e-9);
         // The patch and the weakest lamp stay in the residual.
         assert_eq!(ex.residual.texels[(30 * w + 25) as usize], [2000.0; 3]);
