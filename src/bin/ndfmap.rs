@@ -351,6 +351,10 @@ struct EnvArgs {
     /// routes do not shade extracted lights yet).
     #[arg(long, default_value_t = 0)]
     env_lights: usize,
+    /// Largest solid angle (sr) of an extracted light, of its texels and of its spread's cap
+    /// `4π/κ` (`--env-lights`; docs/environment.md).
+    #[arg(long, default_value_t = 0.05)]
+    env_light_max_sr: f64,
 }
 
 impl EnvArgs {
@@ -379,7 +383,10 @@ impl EnvArgs {
         if !quiet && name != "sky" {
             eprintln!("{}", cmgen_check(Path::new(name), &env));
         }
-        let lights = ndfmap::environment::lights::LightOptions::up_to(self.env_lights);
+        let lights = ndfmap::environment::lights::LightOptions {
+            max_solid_angle: self.env_light_max_sr,
+            ..ndfmap::environment::lights::LightOptions::up_to(self.env_lights)
+        };
         let light = ndfmap::envlight::EnvLight::with_lights(&env, &lights);
         if !quiet {
             for (k, l) in light.lights().iter().enumerate() {
@@ -2760,6 +2767,7 @@ fn report(a: ReportArgs) -> Result<()> {
         env_samples: a.env_samples,
         env_texels: 0,
         env_lights: a.env_lights,
+        env_light_max_sr: 0.05,
     }
     .load(false)?;
     if env.is_none() && !a.env_albedo.is_empty() {
