@@ -247,6 +247,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_light_with_extracted_lights_is_refused_not_packed_darker() {
+        // The shaders do not add the extracted lights' term: packing the residual alone would
+        // render the sky without its sun.
+        let sky = crate::environment::coloured_test_sky();
+        let lights = crate::environment::lights::LightOptions::default();
+        let with = EnvLight::with_lights(&sky, &lights);
+        assert_eq!(with.lights().len(), 1);
+        assert!(matches!(pack(&with), Err(Error::InvalidOption(_))));
+        let none = crate::environment::lights::LightOptions::none();
+        assert!(pack(&EnvLight::with_lights(&sky, &none)).is_ok());
+    }
+
+    #[test]
     fn the_atlas_holds_every_level_of_every_channel_unchanged() {
         // A sun and sky of different colours: a swapped or collapsed channel fails.
         let sky = crate::environment::coloured_test_sky();

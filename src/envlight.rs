@@ -1540,12 +1540,77 @@ fn add_lights(
 ) {
     for lt in &light.lights {
         let l = frame.transpose() * lt.direction;
-        let t = light_term(bake, texels, l, view, brdf, color);
+        // The light's spread: the diffuse integrand sees it in full (κ_l), the half vector
+        // half of its angle (κ_h = 4κ_l); a point light (κ = ∞) is the texel itself.
+        let (d, sp) = if lt.kappa.is_finite() {
+            let d = light_term(
+                bake,
+                &spread_texels(bake, texels, lt.kappa),
+                l,
+                view,
+                brdf,
+                color,
+            );
+            let s = light_term(
+                bake,
+                &spread_texels(bake, texels, 4.0 * lt.kappa),
+                l,
+                view,
+                brdf,
+                color,
+            );
+            (d.diffuse, s.specular)
+        } else {
+            let t = light_term(bake, texels, l, view, brdf, color);
+            (t.diffuse, t.specular)
+        };
         for c in 0..3 {
-            out.diffuse[c] += lt.power[c] * t.diffuse[c];
-            out.specular[c] += lt.power[c] * t.specular[c];
+            out.diffuse[c] += lt.power[c] * d[c];
+            out.specular[c] += lt.power[c] * sp[c];
         }
     }
+}
+
+/// `bake`'s texel with its NDF convolved with a vMF of concentration `k` (a light's angular
+/// spread as the normals see it): vMF lobes' and Toksvig's mean vectors scaled by `A(k)` (the
+/// mean resultant length of a vMF convolved with a vMF is the product of theirs), LEAN's slope
+/// second moments raised by `1/k`, an SH bake's band l scaled by `e^{−l²/2k}` (eq 19); plain
+/// unchanged (a single normal, which its shading cannot widen). The colour textures are kept.
+fn spread_texels(bake: &Bake, texels: &[[f32; 4]], k: f64) -> Vec<[f32; 4]> {
+    let mut t = texels.to_vec();
+    let a = crate::vmf::a_kappa(k) as f32;
+    match bake.method {
+        Method::Vmf => {
+            for lobe in t.iter_mut().take(bake.lobes) {
+                for v in &mut lobe[1..] {
+                    *v *= a;
+                }
+            }
+        }
+        Method::Toksvig => {
+            for v in &mut t[0][..3] {
+                *v *= a;
+            }
+        }
+        Method::Lean => {
+            let var = (1.0 / k) as f32;
+            t[0][2] += var;
+            t[0][3] += var;
+        }
+        Method::Sh => {
+            let lmax = crate::sh::lmax_of(bake);
+            for l in 1..=lmax {
+                let f = crate::vmf::sh_scaled_coefficient(l as u32, k) as f32;
+                for i in l * l..(l + 1) * (l + 1) {
+                    if let Some(v) = t.get_mut(i / 4).map(|x| &mut x[i % 4]) {
+                        *v *= f;
+                    }
+                }
+            }
+        }
+        _ => {}
+    }
+    t
 }
 
 // ---------------------------------------------------------------------------------------------
