@@ -71,15 +71,22 @@ pub struct EnvChannel {
 
 impl EnvChannel {
     fn new(radiance: Radiance, with_reflected: bool) -> EnvChannel {
-        EnvChannel::with_residual(radiance.clone(), radiance, with_reflected)
+        EnvChannel::with_residual(radiance.clone(), radiance.clone(), radiance, with_reflected)
     }
 
-    /// A channel whose routes read `residual` (the environment less its extracted lights,
-    /// [`crate::environment::lights`]) while the ground truth reads the full `radiance`.
-    fn with_residual(radiance: Radiance, residual: Radiance, with_reflected: bool) -> EnvChannel {
+    /// A channel whose specular routes read `residual` (the environment less its compact
+    /// extracted lights, [`crate::environment::lights`]), whose diffuse SH reads
+    /// `diffuse_residual` (less the diffuse-only lights too), while the ground truth reads the
+    /// full `radiance`.
+    fn with_residual(
+        radiance: Radiance,
+        residual: Radiance,
+        diffuse_residual: Radiance,
+        with_reflected: bool,
+    ) -> EnvChannel {
         EnvChannel {
             prefiltered: Prefiltered::new(&residual),
-            sh: projection::project(&residual, ENV_LMAX),
+            sh: projection::project(&diffuse_residual, ENV_LMAX),
             reflected: with_reflected.then(|| ReflectedTable::new(&residual, ENV_LMAX)),
             radiance,
         }
@@ -175,9 +182,14 @@ impl EnvLight {
 
     fn prepare(env: &Environment, with_reflected: bool, lights: &LightOptions) -> EnvLight {
         let extraction = crate::environment::lights::extract(env, lights);
-        let residual = &extraction.residual;
+        let (residual, diffuse) = (&extraction.residual, &extraction.diffuse_residual);
         let prepare = |c: usize| {
-            EnvChannel::with_residual(env.channel(c), residual.channel(c), with_reflected)
+            EnvChannel::with_residual(
+                env.channel(c),
+                residual.channel(c),
+                diffuse.channel(c),
+                with_reflected,
+            )
         };
         let (r, (g, b)) = rayon::join(|| prepare(0), || rayon::join(|| prepare(1), || prepare(2)));
         let mut light = EnvLight::from_channels([r, g, b], env.luminance());
@@ -1540,6 +1552,21 @@ fn add_lights(
 ) {
     for lt in &light.lights {
         let l = frame.transpose() * lt.direction;
+        if lt.diffuse_only {
+            // Out of the diffuse SH only: the specular routes' residual still holds it.
+            let d = light_term(
+                bake,
+                &spread_texels(bake, texels, lt.kappa),
+                l,
+                view,
+                &Brdf::Lambert,
+                color,
+            );
+            for c in 0..3 {
+                out.diffuse[c] += lt.power[c] * d.diffuse[c];
+            }
+            continue;
+        }
         // The light's spread: the diffuse integrand sees it in full (κ_l), the half vector
         // half of its angle (κ_h = 4κ_l); a point light (κ = ∞) is the texel itself.
         let (d, sp) = if lt.kappa.is_finite() {

@@ -346,7 +346,8 @@ struct EnvArgs {
     env_texels: usize,
     /// Extract up to N compact bright sources (a sun, lamps) from the environment and shade
     /// them as distant lights, each lobe as the point-light path does, with the routes on the
-    /// residual (docs/environment.md, "Bright sources as lights"); 0: the paper's pure routes.
+    /// residual, and up to N wider ones (≤ 1 sr: windows) from the diffuse SH only
+    /// (docs/environment.md, "Bright sources as lights"); 0: the paper's pure routes.
     /// The ground truth is the full environment either way. CPU routes only (the GLSL
     /// routes do not shade extracted lights yet).
     #[arg(long, default_value_t = 0)]
@@ -393,7 +394,7 @@ impl EnvArgs {
                 let d = l.direction;
                 eprintln!(
                     "{name}: light {k}: direction ({:.4}, {:.4}, {:.4}), power ({:.4e}, {:.4e}, \
-                     {:.4e}), {} texels, {:.3e} sr, kappa {:.3e}",
+                     {:.4e}), {} texels, {:.3e} sr, kappa {:.3e}{}",
                     d.x,
                     d.y,
                     d.z,
@@ -402,7 +403,12 @@ impl EnvArgs {
                     l.power[2],
                     l.texels,
                     l.solid_angle,
-                    l.kappa
+                    l.kappa,
+                    if l.diffuse_only {
+                        " (diffuse only)"
+                    } else {
+                        ""
+                    }
                 );
             }
         }

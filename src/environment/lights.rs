@@ -23,10 +23,13 @@
 //!    texel gives negative power; the light's RGB power is `Σ (L − fill) Ω` over the region
 //!    and the residual holds `fill` there. Residual + lights = original exactly (the power is
 //!    summed in f64 from the very f32 values the residual stores);
-//! 4. a region is kept when it is compact (solid angle and the cap `4π/κ` of its spread
-//!    ≤ [`LightOptions::max_solid_angle`])
+//! 4. a region is kept as a light when it is compact (solid angle and the cap `4π/κ` of its
+//!    spread ≤ [`LightOptions::max_solid_angle`]), as a diffuse-only light when they are
+//!    within [`LightOptions::max_diffuse_solid_angle`] (taken out of the diffuse SH only: a
+//!    window shaded as one spread point is good for the clamped cosine, not for a highlight),
 //!    and carries a real share of the power (luminance power ≥ [`LightOptions::min_share`] of
-//!    the environment's); the [`LightOptions::max_lights`] most powerful are extracted.
+//!    the environment's); the [`LightOptions::max_lights`] (and
+//!    [`LightOptions::max_diffuse_lights`]) most powerful are extracted.
 //!
 //! Each light's direction is the power-weighted mean of its texels' directions; its spread is
 //! the vMF κ with the same mean resultant length, each texel counted as a uniform patch
@@ -60,6 +63,15 @@ pub struct LightOptions {
     /// `4π/κ` of the vMF with its mean resultant length). Default 0.05 (a cap of about 7° half-angle): a
     /// larger region is not compact — the prefiltered levels and SH resolve it.
     pub max_solid_angle: f64,
+    /// At most this many diffuse-only lights (module docs). Default 4.
+    pub max_diffuse_lights: usize,
+    /// Largest solid angle (texels and spread cap, sr) of a diffuse-only light: a region
+    /// wider than [`LightOptions::max_solid_angle`] but within this is taken out of the
+    /// diffuse SH only. Default 1 sr (a cap of about 33°): workshop_1k's windows (κ = 27–92),
+    /// whose band ≥ 3 energy is what keeps Lambert with SH l ≤ 2 off by 2.4 %; shaded as a
+    /// vMF-spread point their specular is far off (docs/environment.md), so they stay in the
+    /// specular routes' residual.
+    pub max_diffuse_solid_angle: f64,
     /// Smallest share of the environment's luminance power a light carries. Default 0.01
     /// (workshop_1k's fourth compact lamp carries 1.6 %).
     pub min_share: f64,
@@ -73,6 +85,8 @@ impl Default for LightOptions {
             grow: 0.25,
             peak_fraction: 1e-2,
             max_solid_angle: 0.05,
+            max_diffuse_lights: 4,
+            max_diffuse_solid_angle: 1.0,
             min_share: 0.01,
         }
     }
@@ -83,14 +97,16 @@ impl LightOptions {
     pub fn none() -> LightOptions {
         LightOptions {
             max_lights: 0,
+            max_diffuse_lights: 0,
             ..LightOptions::default()
         }
     }
 
-    /// The defaults with at most `n` lights (0: none).
+    /// The defaults with at most `n` compact and `n` diffuse-only lights (0: none).
     pub fn up_to(n: usize) -> LightOptions {
         LightOptions {
             max_lights: n,
+            max_diffuse_lights: n,
             ..LightOptions::default()
         }
     }
@@ -110,6 +126,10 @@ pub struct Light {
     pub kappa: f64,
     /// How many texels it was taken from.
     pub texels: usize,
+    /// A wide source (compact only within [`LightOptions::max_diffuse_solid_angle`]): taken
+    /// out of the environment's SH for the diffuse term only; the specular routes keep it in
+    /// their residual ([`Extraction::residual`]).
+    pub diffuse_only: bool,
 }
 
 impl Light {
@@ -122,10 +142,15 @@ impl Light {
 /// The lights of an environment and what is left of it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Extraction {
-    /// The lights, most powerful first.
+    /// The lights: the compact ones most powerful first, then the diffuse-only ones
+    /// ([`Light::diffuse_only`]) most powerful first.
     pub lights: Vec<Light>,
-    /// The environment with each light's texels replaced by its fill.
+    /// The environment with each compact light's texels replaced by its fill: what the
+    /// specular routes (prefiltered levels, `L′`) read.
     pub residual: Environment,
+    /// [`Extraction::residual`] with the diffuse-only lights' texels replaced by their fill
+    /// too: what the diffuse SH (eq 25) reads.
+    pub diffuse_residual: Environment,
 }
 
 fn lum(t: &[f32; 3]) -> f64 {
@@ -174,9 +199,15 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
     let none = Extraction {
         lights: Vec::new(),
         residual: env.clone(),
+        diffuse_residual: env.clone(),
     };
     let ok = |v: f64| v.is_finite() && v > 0.0;
-    if options.max_lights == 0
+    let bound = if options.max_diffuse_lights > 0 && options.max_diffuse_solid_angle.is_finite() {
+        options.max_solid_angle.max(options.max_diffuse_solid_angle)
+    } else {
+        options.max_solid_angle
+    };
+    if options.max_lights + options.max_diffuse_lights == 0
         || !(ok(mean) && ok(options.threshold) && options.grow.is_finite())
         || options.max_solid_angle.is_nan()
         || options.max_solid_angle <= 0.0
@@ -224,7 +255,7 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
     let mut candidates: Vec<(Light, [f32; 3], usize)> = Vec::new();
     for (id, members) in regions.iter().enumerate() {
         let solid: f64 = members.iter().map(|&i| omega[i / w]).sum();
-        if solid > options.max_solid_angle || members.len() > w * h / 4 {
+        if solid > bound || members.len() > w * h / 4 {
             continue;
         }
         let mut ring_sum = [0.0f64; 3];
@@ -279,9 +310,11 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
         let var = crate::vmf::inverse_kappa(r);
         // Compact in spread too: a long thin region (a window's edge) has a small solid angle
         // but a wide vMF; its cap `4π/κ` is held to the same bound.
-        if 4.0 * PI * var > options.max_solid_angle {
+        let cap = 4.0 * PI * var;
+        if cap > bound {
             continue;
         }
+        let diffuse_only = solid > options.max_solid_angle || cap > options.max_solid_angle;
         candidates.push((
             Light {
                 direction: mean_dir.try_normalize().unwrap_or(DVec3::Z),
@@ -289,6 +322,7 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
                 solid_angle: solid,
                 kappa: if var > 0.0 { 1.0 / var } else { f64::INFINITY },
                 texels: members.len(),
+                diffuse_only,
             },
             fill,
             id,
@@ -300,16 +334,25 @@ pub fn extract(env: &Environment, options: &LightOptions) -> Extraction {
             .total_cmp(&a.0.luminance())
             .then(a.2.cmp(&b.2))
     });
-    candidates.truncate(options.max_lights);
+    let (wide, compact): (Vec<_>, Vec<_>) = candidates.into_iter().partition(|c| c.0.diffuse_only);
+    let compact: Vec<_> = compact.into_iter().take(options.max_lights).collect();
+    let wide: Vec<_> = wide.into_iter().take(options.max_diffuse_lights).collect();
     let mut residual = env.clone();
-    for (_, fill, id) in &candidates {
+    for (_, fill, id) in &compact {
         for &i in &regions[*id] {
             residual.texels[i] = *fill;
         }
     }
+    let mut diffuse_residual = residual.clone();
+    for (_, fill, id) in &wide {
+        for &i in &regions[*id] {
+            diffuse_residual.texels[i] = *fill;
+        }
+    }
     Extraction {
-        lights: candidates.into_iter().map(|c| c.0).collect(),
+        lights: compact.into_iter().chain(wide).map(|c| c.0).collect(),
         residual,
+        diffuse_residual,
     }
 }
 
@@ -378,6 +421,8 @@ mod tests {
                     before[c]
                 );
             }
+            assert_eq!(ex.diffuse_residual, ex.residual);
+            assert!(!l.diffuse_only);
             // The residual has no sun left: its brightest texel is sky.
             let top = ex.residual.texels.iter().map(lum).fold(0.0, f64::max);
             assert!(top < 2.0, "{top}");
@@ -467,7 +512,11 @@ mod tests {
                 ..LightOptions::up_to(2)
             },
         );
-        assert_eq!(ex.lights.len(), 2);
+        // Two compact lamps, then the patch as a diffuse-only light.
+        assert_eq!(ex.lights.len(), 3, "{:?}", ex.lights);
+        assert!(ex.lights[2].diffuse_only && !ex.lights[1].diffuse_only);
+        assert!(ex.lights[2].direction.angle_between(grid.direction(25, 33)) < 0.05);
+        assert_eq!(ex.diffuse_residual.texels[(30 * w + 25) as usize], [1.0; 3]);
         assert!(
             ex.lights[0]
                 .direction
