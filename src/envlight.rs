@@ -1552,6 +1552,13 @@ fn add_lights(
 ) {
     for lt in &light.lights {
         let l = frame.transpose() * lt.direction;
+        // Plain's single normal cannot be widened; its diffuse `n·ω` averaged over the light's
+        // vMF is `A(κ_l) n·d` wherever the light is wholly above the normal's horizon.
+        let plain = if bake.method == Method::Plain {
+            crate::vmf::a_kappa(lt.kappa)
+        } else {
+            1.0
+        };
         if lt.diffuse_only {
             // Out of the diffuse SH only: the specular routes' residual still holds it.
             let d = light_term(
@@ -1563,7 +1570,7 @@ fn add_lights(
                 color,
             );
             for c in 0..3 {
-                out.diffuse[c] += lt.power[c] * d.diffuse[c];
+                out.diffuse[c] += lt.power[c] * plain * d.diffuse[c];
             }
             continue;
         }
@@ -1592,7 +1599,7 @@ fn add_lights(
             (t.diffuse, t.specular)
         };
         for c in 0..3 {
-            out.diffuse[c] += lt.power[c] * d[c];
+            out.diffuse[c] += lt.power[c] * plain * d[c];
             out.specular[c] += lt.power[c] * sp[c];
         }
     }
@@ -1602,7 +1609,8 @@ fn add_lights(
 /// spread as the normals see it): vMF lobes' and Toksvig's mean vectors scaled by `A(k)` (the
 /// mean resultant length of a vMF convolved with a vMF is the product of theirs), LEAN's slope
 /// second moments raised by `1/k`, an SH bake's band l scaled by `e^{−l²/2k}` (eq 19); plain
-/// unchanged (a single normal, which its shading cannot widen). The colour textures are kept.
+/// unchanged (a single normal, which its shading cannot widen; [`add_lights`] scales its diffuse
+/// by `A(k)` instead). The colour textures are kept.
 fn spread_texels(bake: &Bake, texels: &[[f32; 4]], k: f64) -> Vec<[f32; 4]> {
     let mut t = texels.to_vec();
     let a = crate::vmf::a_kappa(k) as f32;
@@ -3130,5 +3138,45 @@ mod tests {
         // the isotropic lookup of the squeezed reflected lobe).
         assert!(mean[0] < 0.5 * mean[1], "{mean:?}");
         assert!(mean[0] < 0.05 && worst < 0.17, "{mean:?} {worst}");
+    }
+
+    #[test]
+    fn a_wide_patch_is_a_diffuse_only_light_exact_for_the_diffuse_and_leaves_the_specular() {
+        // A constant sky of 1 with a bright 10 × 10 patch (about 0.2 sr, too wide for a light,
+        // within the diffuse-only bound) 28–56° from the zenith. A flat texel's diffuse is
+        // then Σ L cos Ω over the texels (no texel below its horizon): the extracted route
+        // (constant residual, exact in SH, plus the patch as a spread light) must match it;
+        // the specular routes keep the patch in their residual, so the specular is the pure
+        // route's bit for bit.
+        use crate::environment::lights::LightOptions;
+        let (w, h) = (128u32, 64u32);
+        let grid = Radiance::geometry(w, h);
+        let mut v = vec![[1.0f32; 3]; (w * h) as usize];
+        for y in 10..20 {
+            for x in 40..50 {
+                v[(y * w + x) as usize] = [2000.0; 3];
+            }
+        }
+        let exact: f64 = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                v[i as usize][0] as f64 * grid.solid_angle(y) * grid.direction(x, y).z.max(0.0)
+            })
+            .sum();
+        let env = Environment::from_rgb("t", w, h, v, &Default::default()).unwrap();
+        let with = EnvLight::prefiltered_only_with_lights(&env, &LightOptions::default());
+        let pure = EnvLight::prefiltered_only(&env);
+        assert_eq!(with.lights().len(), 1);
+        assert!(with.lights()[0].diffuse_only, "{:?}", with.lights());
+        let bake = flat_bake(Method::Plain);
+        let texels = [[0.0f32, 0.0, 1.0, 0.0]];
+        let brdf = Brdf::BlinnPhong { s: 32.0 };
+        let view = DVec3::new(0.5f64.sin(), 0.0, 0.5f64.cos());
+        let a = shade(&with, &bake, &texels, view, &brdf, Route::Prefiltered);
+        let b = shade(&pure, &bake, &texels, view, &brdf, Route::Prefiltered);
+        assert_eq!(a.specular, b.specular);
+        let (ea, eb) = (a.diffuse[0] / exact - 1.0, b.diffuse[0] / exact - 1.0);
+        eprintln!("diffuse: extracted {ea:+.5}, pure {eb:+.5} (exact {exact:.4})");
+        assert!(ea.abs() < 2e-3 && ea.abs() < 0.5 * eb.abs(), "{ea} {eb}");
     }
 }
