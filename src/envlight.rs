@@ -3177,6 +3177,7 @@ mod tests {
         assert_eq!(a.specular, b.specular);
         let (ea, eb) = (a.diffuse[0] / exact - 1.0, b.diffuse[0] / exact - 1.0);
         eprintln!("diffuse: extracted {ea:+.5}, pure {eb:+.5} (exact {exact:.4})");
+        // Measured: extracted −0.003 %, pure −2.7 % (the patch's bands ≥ 3).
         assert!(ea.abs() < 2e-3 && ea.abs() < 0.5 * eb.abs(), "{ea} {eb}");
     }
 }
