@@ -90,8 +90,17 @@ pub struct Upload {
 }
 
 /// Packs `light` for upload (module docs). Fails when it has more than [`MAX_LEVELS`]
-/// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would).
+/// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would), and for a light
+/// with extracted lights ([`EnvLight::with_lights`]): the shaders do not add their term yet, so
+/// they would shade the residual alone (a typed error rather than a silently darker render).
 pub fn pack(light: &EnvLight) -> Result<Upload> {
+    if !light.lights().is_empty() {
+        return Err(Error::InvalidOption(format!(
+            "the environment has {} extracted lights; the GLSL routes do not shade them yet \
+             (prepare it without extraction: --env-lights 0 / EnvLight::new)",
+            light.lights().len()
+        )));
+    }
     let first = light.channel(0).prefiltered();
     let levels = first.levels();
     if levels.len() > MAX_LEVELS {
@@ -236,6 +245,19 @@ pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_light_with_extracted_lights_is_refused_not_packed_darker() {
+        // The shaders do not add the extracted lights' term: packing the residual alone would
+        // render the sky without its sun.
+        let sky = crate::environment::coloured_test_sky();
+        let lights = crate::environment::lights::LightOptions::default();
+        let with = EnvLight::with_lights(&sky, &lights);
+        assert_eq!(with.lights().len(), 1);
+        assert!(matches!(pack(&with), Err(Error::InvalidOption(_))));
+        let none = crate::environment::lights::LightOptions::none();
+        assert!(pack(&EnvLight::with_lights(&sky, &none)).is_ok());
+    }
 
     #[test]
     fn the_atlas_holds_every_level_of_every_channel_unchanged() {

@@ -22,10 +22,12 @@
 //! lights everything with exactly 0; a single bright texel is valid.
 //!
 //! Submodules: [`sampling`] (the 2D CDF for importance sampling), [`prefilter`] (the
-//! lobe-prefiltered levels), [`projection`] (SH projection, rotation and the `L′` table).
+//! lobe-prefiltered levels), [`projection`] (SH projection, rotation and the `L′` table),
+//! [`lights`] (bright compact sources taken out as analytic lights).
 //!
 //! Main types: [`Environment`] (RGB), [`Radiance`] (one channel, what the lighting code reads).
 
+pub mod lights;
 pub mod prefilter;
 pub mod projection;
 pub mod sampling;

@@ -344,6 +344,18 @@ struct EnvArgs {
     /// Texels drawn per MIP level (all of a smaller level).
     #[arg(long, default_value_t = 48)]
     env_texels: usize,
+    /// Extract up to N compact bright sources (a sun, lamps) from the environment and shade
+    /// them as distant lights, each lobe as the point-light path does, with the routes on the
+    /// residual, and up to N wider ones (≤ 1 sr: windows) from the diffuse SH only
+    /// (docs/environment.md, "Bright sources as lights"); 0: the paper's pure routes.
+    /// The ground truth is the full environment either way. CPU routes only (the GLSL
+    /// routes do not shade extracted lights yet).
+    #[arg(long, default_value_t = 0)]
+    env_lights: usize,
+    /// Largest solid angle (sr) of an extracted light, of its texels and of its spread's cap
+    /// `4π/κ` (`--env-lights`; docs/environment.md).
+    #[arg(long, default_value_t = 0.05)]
+    env_light_max_sr: f64,
 }
 
 impl EnvArgs {
@@ -372,7 +384,35 @@ impl EnvArgs {
         if !quiet && name != "sky" {
             eprintln!("{}", cmgen_check(Path::new(name), &env));
         }
-        Ok(Some((name.clone(), ndfmap::envlight::EnvLight::new(&env))))
+        let lights = ndfmap::environment::lights::LightOptions {
+            max_solid_angle: self.env_light_max_sr,
+            ..ndfmap::environment::lights::LightOptions::up_to(self.env_lights)
+        };
+        let light = ndfmap::envlight::EnvLight::with_lights(&env, &lights);
+        if !quiet {
+            for (k, l) in light.lights().iter().enumerate() {
+                let d = l.direction;
+                eprintln!(
+                    "{name}: light {k}: direction ({:.4}, {:.4}, {:.4}), power ({:.4e}, {:.4e}, \
+                     {:.4e}), {} texels, {:.3e} sr, kappa {:.3e}{}",
+                    d.x,
+                    d.y,
+                    d.z,
+                    l.power[0],
+                    l.power[1],
+                    l.power[2],
+                    l.texels,
+                    l.solid_angle,
+                    l.kappa,
+                    if l.diffuse_only {
+                        " (diffuse only)"
+                    } else {
+                        ""
+                    }
+                );
+            }
+        }
+        Ok(Some((name.clone(), light)))
     }
 }
 
@@ -2514,6 +2554,10 @@ struct ReportArgs {
     /// Ground-truth MIS iterations per pixel under --env.
     #[arg(long, default_value_t = 64)]
     env_samples: usize,
+    /// Extract up to N bright compact sources from --env as distant lights (as `eval
+    /// --env-lights`; 0: the paper's pure routes).
+    #[arg(long, default_value_t = 0)]
+    env_lights: usize,
     /// Ground-truth sub-pixel normals per side (k × k per pixel) under --env.
     #[arg(long, default_value_t = 4)]
     env_subpixels: u32,
@@ -2728,6 +2772,8 @@ fn report(a: ReportArgs) -> Result<()> {
         env_intensity: a.env_intensity,
         env_samples: a.env_samples,
         env_texels: 0,
+        env_lights: a.env_lights,
+        env_light_max_sr: 0.05,
     }
     .load(false)?;
     if env.is_none() && !a.env_albedo.is_empty() {
