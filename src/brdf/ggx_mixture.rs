@@ -234,7 +234,7 @@ impl GgxMixture {
     /// `t₀ =` [`GGX_MIXTURE_T0`]. `1 − ω_h·μ` is `|μ × ω_h|²/(1 + ω_h·μ)` where `ω_h·μ > 0` (no
     /// cancellation for sharp lobes), clamped to [0, 2]; `var ≤ 0` (or NaN) is κ = ∞: GGX itself.
     /// A mixture without weight (all `w_k = 0`: in GLSL, uniform arrays the host never set) gives
-    /// the single widened lobe `D_{α_w}`, eq 20's rule ([`crate::shade::VmfSpecular::Eq20`]).
+    /// the single widened lobe `D_{α_w}`, eq 20's rule (the vMF rule `Eq20`).
     /// GLSL: `ndf_vmf_ggx_mixture`, the same operations.
     pub fn lobe(&self, mu: glam::DVec3, h: glam::DVec3, var: f64, widening: f64) -> f64 {
         let c = mu.dot(h);
