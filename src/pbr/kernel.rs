@@ -292,10 +292,10 @@ pub(super) fn fit(
         // ln α is held at a bound only while the descent direction −Jᵀr points out of the
         // range (an active set): a start at the floor (the base α) can still widen.
         if (p[2] <= lo && b[2] <= 0.0) || (p[2] >= 0.0 && b[2] >= 0.0) {
-            for u in 0..3 {
-                a[u][2] = 0.0;
-                a[2][u] = 0.0;
+            for row in a.iter_mut() {
+                row[2] = 0.0;
             }
+            a[2] = [0.0; 3];
             b[2] = 0.0;
         }
         (a, b)
