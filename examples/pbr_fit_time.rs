@@ -6,8 +6,16 @@
 //! seconds of the fit (all levels, all threads: the process's user + system time of a bake
 //! minus that of the same bake with no level fitted, from `/proc/self/stat`, Linux only) are
 //! printed too: on a loaded machine they are what the fit costs.
+//!
+//! With a fifth argument `error` it also prints the fast fit's texel-space error as
+//! `ndfmap pbr-report` scores it (relative RMS of `D·max(n·l, 0)` over the evaluation's 27
+//! pairs, levels 2–7 pooled as the RMS of the per-level errors, fitted from level 2 as the
+//! report fits), isotropic and anisotropic: the report's "fit iso" and "fit aniso" columns
+//! without its slow rows.
 
 use ndfmap::bake::PbrOptions;
+use ndfmap::brdf::Brdf;
+use ndfmap::eval::{Reference, default_directions};
 use ndfmap::pbr::{FitSet, Search, bake_with_set};
 use ndfmap::{IngestOptions, NormalMap};
 
@@ -64,6 +72,33 @@ fn main() {
     );
     println!("fit CPU seconds, all levels (min of {repeats}): {cpu:.2}");
     println!("bake digest {digest:016x}");
+    if args.get(5).map(String::as_str) == Some("error") {
+        let (first, last) = (2, 7);
+        let bakes: Vec<_> = [false, true]
+            .into_iter()
+            .map(|anisotropic| {
+                let o = PbrOptions {
+                    anisotropic,
+                    ..options
+                };
+                pool.install(|| bake_with_set(&map, &o, None, &set, Search::Fast, first))
+                    .unwrap()
+                    .0
+            })
+            .collect();
+        let reference = Reference::new(&map, &[Brdf::ggx(alpha)], &default_directions(), first);
+        let errors = reference.evaluate(&bakes.iter().collect::<Vec<_>>());
+        for (label, e) in ["fit iso", "fit aniso"].iter().zip(&errors) {
+            let last = last.min(e.levels.len() - 1);
+            let lv: Vec<f64> = e.levels[first..=last].iter().map(|l| l.specular).collect();
+            let pooled = (lv.iter().map(|v| v * v).sum::<f64>() / lv.len() as f64).sqrt();
+            let shown: Vec<String> = lv.iter().map(|v| format!("{v:.3}")).collect();
+            println!(
+                "{label}: pooled {pooled:.4}, levels {first}-{last} [{}]",
+                shown.join(", ")
+            );
+        }
+    }
 }
 
 /// User + system CPU seconds of this process so far (`/proc/self/stat`, 100 ticks a second);

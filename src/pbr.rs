@@ -15,7 +15,11 @@
 //! one of the evaluation's pairs), by a few Levenberg–Marquardt steps with an analytic
 //! Jacobian ([`fit_isotropic`]), started from the best of: the mean normal with the κ formula
 //! (`κ = (3r − r³)/(1 − r²)`, `α′² = α² + c/κ` for c = 2, 0.5, 1, 4), the mean normal with the
-//! base roughness, and the four finer texels' fitted lobes. [`FitSet::near_peak`] (half
+//! base roughness, the four finer texels' fitted lobes, and the footprint's modes
+//! ([`mode_starts`]: mean shift over its normals with kernels matched to α, for footprints
+//! like "one flat panel plus tilted edges" whose best lobe sits on the panel, not on the mean
+//! normal), the best mode start refined as well when it lies in another basin.
+//! [`FitSet::near_peak`] (half
 //! vectors within 28°, weighted by the g factor) and [`FitSet::view_range`] are for renderers
 //! that never see grazing angles. The
 //! targets `G_p` are exact (footprint averages of the per-normal shading, [`targets`]); the
@@ -728,9 +732,11 @@ pub const FAST_CONVERGED: f64 = 1e-3;
 /// How hard a PBR bake searches per texel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Search {
-    /// The bake's: the best of nine starts (module docs), then up to [`FAST_ITERATIONS`]
-    /// Levenberg–Marquardt steps, fewer once a step gains less than [`FAST_CONVERGED`]
-    /// (anisotropic: 4 more from the isotropic fit and the covariance start).
+    /// The bake's: the best of nine starts plus six mode starts (module docs, [`mode_starts`]),
+    /// then up to [`FAST_ITERATIONS`] Levenberg–Marquardt steps, fewer once a step gains less
+    /// than [`FAST_CONVERGED`]; the best mode start is refined as well when its normal is more
+    /// than half the base α from the refined lobe's, and the lower cost kept (anisotropic: 4
+    /// more from the isotropic fit and the covariance start).
     Fast,
     /// The report's best-possible lobe: the fast starts plus up to 16 of the footprint's own
     /// normals at 1, 2 and 4 times the base α, each of
@@ -862,13 +868,15 @@ fn statistics(map: &NormalMap, mat: &[[f64; 3]], levels: &[LevelFootprints]) -> 
 }
 
 /// The starts of a texel at a level ≥ 1: the κ formula with c = 2, the mean normal at base
-/// α, the four children, the κ formula with c = 0.5, 1, 4 (and, for [`Search::Thorough`],
-/// the footprint's own normals `own` at 1, 2, 4 × the base α).
+/// α, the four children, the κ formula with c = 0.5, 1, 4, the footprint's modes `modes`
+/// ([`mode_starts`]) (and, for [`Search::Thorough`], the footprint's own normals `own` at 1,
+/// 2, 4 × the base α).
 fn iso_starts(
     stats: &[f64],
     children: [Option<IsoLobe>; 4],
     search: Search,
     own: &[DVec3],
+    modes: &[IsoLobe],
 ) -> Vec<IsoLobe> {
     let m = DVec3::new(stats[0], stats[1], stats[2]);
     let r = m.length();
@@ -888,6 +896,7 @@ fn iso_starts(
             alpha: Widening::Constant(c).apply(alpha, r),
         });
     }
+    s.extend_from_slice(modes);
     if search != Search::Fast {
         for &n in own {
             for f in [1.0, 2.0, 4.0] {
@@ -950,6 +959,150 @@ pub fn aniso_starts(iso: IsoLobe, covariance: AnisoLobe) -> Vec<AnisoLobe> {
         });
     }
     s
+}
+
+/// The fast search's refinement ([`Search::Fast`]): of `starts`, the first `split` the mean
+/// normal's and the children's, the rest the mode starts, every cost is evaluated once; the
+/// best start is refined (`fit(j)` refines start j), and so is the best start of the other
+/// family when its normal is more than `apart` radians from the refined lobe's: a second
+/// basin (adding the mode starts must not lose the mean-normal basin when a mode start has
+/// the lower cost before refinement but the higher after). Returns the lower of the two
+/// (the first on a tie).
+fn two_basins(
+    kernel: &kernel::IsoKernel,
+    t: &kernel::Targets,
+    starts: &[IsoLobe],
+    split: usize,
+    apart: f64,
+    fit: impl Fn(usize) -> (IsoLobe, f64),
+) -> (IsoLobe, f64) {
+    let costs: Vec<f64> = starts
+        .iter()
+        .map(|l| kernel.cost(l.n, l.alpha, t))
+        .collect();
+    let pick = |r: std::ops::Range<usize>| {
+        r.fold(None, |b: Option<usize>, j| match b {
+            Some(b) if costs[b] <= costs[j] => Some(b),
+            _ => Some(j),
+        })
+    };
+    let Some(b) = pick(0..starts.len()) else {
+        return (starts[0], f64::INFINITY);
+    };
+    let best = fit(b);
+    let other = if b < split {
+        pick(split..starts.len())
+    } else {
+        pick(0..split)
+    };
+    match other {
+        Some(o) if starts[o].n.angle_between(best.0.n) > apart => {
+            let second = fit(o);
+            if second.1 < best.1 { second } else { best }
+        }
+        _ => best,
+    }
+}
+
+/// Taps per axis a texel's mode search reads ([`footprint_sample`]): up to 8 × 8 of its
+/// footprint's finest normals (levels 1–3 of a power-of-two map: all of them).
+pub const MODE_TAPS: usize = 8;
+
+/// Mean-shift steps per kernel of [`mode_starts`].
+pub const MODE_STEPS: usize = 3;
+
+/// The kernels of [`mode_starts`]: concentrations `c/α²` for these `c` (2: the vMF that
+/// matches a GGX lobe of the base α, `κ ≈ 2/α²`; 0.5: one twice as wide).
+pub const MODE_KERNELS: [f64; 2] = [2.0, 0.5];
+
+/// A texel's footprint sampled for the mode search: up to [`MODE_TAPS`] taps per axis of its
+/// exact footprint ([`LevelFootprints`]), evenly strided from the middle of each stride, each
+/// with its footprint weight. Writes into `out` and returns how many it wrote.
+fn footprint_sample(
+    map: &NormalMap,
+    lf: &LevelFootprints,
+    x: u32,
+    y: u32,
+    out: &mut [(DVec3, f64); MODE_TAPS * MODE_TAPS],
+) -> usize {
+    let pick = |taps: Vec<(u32, f64)>| -> Vec<(u32, f64)> {
+        let step = taps.len().div_ceil(MODE_TAPS).max(1);
+        taps.into_iter()
+            .skip((step - 1) / 2)
+            .step_by(step)
+            .collect()
+    };
+    let xs = pick(lf.x.taps(x as usize).collect());
+    let ys = pick(lf.y.taps(y as usize).collect());
+    let mut count = 0;
+    for &(fy, wy) in &ys {
+        for &(fx, wx) in &xs {
+            out[count] = (map.normal(fx, fy).as_dvec3(), wx * wy);
+            count += 1;
+        }
+    }
+    count
+}
+
+/// Mean shift on the sphere over weighted normals `samples` from `start`: `steps` times
+/// `m ← normalize(Σ w_j exp(κ (n_j·m − 1)) n_j)` (the exponent shifted by its largest term so
+/// that no weight set underflows to all zeros). Returns the mode and the kernel-weighted mean
+/// length `|Σ k_j n_j| / Σ k_j` there (the mode's local spread; 1 when the samples agree).
+pub fn mean_shift(
+    samples: &[(DVec3, f64)],
+    start: DVec3,
+    kappa: f64,
+    steps: usize,
+) -> (DVec3, f64) {
+    let mut m = start;
+    let mut r = 1.0;
+    for _ in 0..steps {
+        let top = samples
+            .iter()
+            .map(|(n, _)| n.dot(m))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let (mut sum, mut weight) = (DVec3::ZERO, 0.0);
+        for &(n, w) in samples {
+            let k = w * (kappa * (n.dot(m) - top)).exp();
+            sum += k * n;
+            weight += k;
+        }
+        let len = sum.length();
+        if !(len > 0.0 && weight > 0.0) {
+            break;
+        }
+        m = sum / len;
+        r = (len / weight).min(1.0);
+    }
+    (m, r)
+}
+
+/// The mode-seeking starts of a texel (issue 17: a footprint of one flat panel plus tilted
+/// edges is best served by a lobe on the panel's normal, the NDF's mode, not on the mean
+/// normal every κ start uses): per kernel `κ = c/α²` of [`MODE_KERNELS`] (α the footprint's
+/// base roughness), [`MODE_STEPS`] mean-shift steps ([`mean_shift`]) from the mean normal over
+/// the footprint's sampled normals ([`footprint_sample`]), and at the mode three α: the base
+/// α, and the κ formula `α² + 2/κ(r)` for the mode's local spread (`r` the kernel-weighted
+/// mean length) and for the footprint's spread about the mode (`r` the mean normal's
+/// projection on it). `stats` are the texel's statistics, `samples` its sampled normals. None
+/// for four samples or fewer (level 1 of a power-of-two map: the four children's lobes, which
+/// are starts already, are the footprint's normals).
+pub fn mode_starts(stats: &[f64], samples: &[(DVec3, f64)]) -> Vec<IsoLobe> {
+    let m = DVec3::new(stats[0], stats[1], stats[2]);
+    let mean = m.try_normalize().unwrap_or(DVec3::Z);
+    let alpha = stats[3].max(0.0).sqrt().clamp(MIN_ALPHA, 1.0);
+    let widen = |r: f64| Widening::Constant(crate::brdf::GGX_WIDENING_C).apply(alpha, r);
+    let mut out = Vec::with_capacity(3 * MODE_KERNELS.len());
+    if samples.len() <= 4 {
+        return out;
+    }
+    for c in MODE_KERNELS {
+        let (mode, local) = mean_shift(samples, mean, c / (alpha * alpha), MODE_STEPS);
+        for a in [alpha, widen(local), widen(m.dot(mode).max(0.0))] {
+            out.push(IsoLobe { n: mode, alpha: a });
+        }
+    }
+    out
 }
 
 /// Up to 16 of the finest normals texel `(x, y)` of `lf` covers, evenly strided.
@@ -1057,18 +1210,33 @@ fn bake_fit(
                     } else {
                         Vec::new()
                     };
+                    let s = &st[i * STATS..(i + 1) * STATS];
+                    let modes = if iterations > 0 {
+                        let mut sample = [(DVec3::ZERO, 0.0); MODE_TAPS * MODE_TAPS];
+                        let count = footprint_sample(map, lf, x, y, &mut sample);
+                        mode_starts(s, &sample[..count])
+                    } else {
+                        Vec::new()
+                    };
                     let starts = iso_starts(
-                        &st[i * STATS..(i + 1) * STATS],
+                        s,
                         [child(0, 0), child(1, 0), child(0, 1), child(1, 1)],
                         search,
                         &own,
+                        &modes,
                     );
                     let t = kernel.targets(&target[k][i * p..(i + 1) * p]);
-                    let floor = st[i * STATS + 3].max(0.0).sqrt();
+                    let floor = s[3].max(0.0).sqrt();
                     if iterations == 0 {
                         starts[0]
                     } else if keep == 1 {
-                        kernel::fit(&kernel, &t, &starts, iterations, floor, converged).0
+                        let alpha = s[3].max(0.0).sqrt().clamp(MIN_ALPHA, 1.0);
+                        let split = starts.len() - modes.len();
+                        let apart = 0.5 * alpha;
+                        let fit = |j: usize| {
+                            kernel::fit(&kernel, &t, &starts[j..=j], iterations, floor, converged)
+                        };
+                        two_basins(&kernel, &t, &starts, split, apart, fit).0
                     } else {
                         // The best `keep` starts, each refined; the best result.
                         let mut ranked: Vec<(f64, IsoLobe)> = starts
@@ -1116,9 +1284,10 @@ fn bake_fit(
                         if k < fit_from || (i % 4096 == 0 && cancel.check().is_err()) {
                             return from_iso;
                         }
-                        let cov = covariance_start(&st[i * STATS..(i + 1) * STATS], lobe.n);
+                        let s = &st[i * STATS..(i + 1) * STATS];
+                        let cov = covariance_start(s, lobe.n);
                         let t = &target[k][i * p..(i + 1) * p];
-                        let floor = st[i * STATS + 3].max(0.0).sqrt();
+                        let floor = s[3].max(0.0).sqrt();
                         fit_anisotropic(set, t, &aniso_starts(lobe, cov), aniso_iterations, floor).0
                     })
                     .collect()
@@ -1153,7 +1322,9 @@ fn bake_fit(
             },
             "anisotropic": options.anisotropic,
             "fit": match search {
-                Search::Fast => "levenberg-marquardt, up to 8 steps from the best of 9 starts",
+                Search::Fast => {
+                    "levenberg-marquardt, up to 8 steps from the best of 15 starts (9 + 6 mode starts) and from the best mode start"
+                }
                 Search::Thorough { .. } => {
                     "levenberg-marquardt, 25 steps from the best 3 of many starts"
                 }
@@ -1584,6 +1755,167 @@ mod tests {
         assert!(fit.n.angle_between(truth.n) < 1e-3, "{fit:?}");
         assert!((fit.alpha_t - 0.3).abs() < 1e-3 && (fit.alpha_b - 0.12).abs() < 1e-3);
         assert!((fit.phi - 0.6).abs() < 1e-2, "{fit:?}");
+    }
+
+    /// A footprint of one flat panel (3/4 of its normals, jittered by ±0.6°) plus two tilted
+    /// edges (1/8 each, 30° off the panel towards +x and +y), issue 17's facade case: the
+    /// mean normal is pulled ≈ 6° off the panel. The mode-seeking starts ([`mode_starts`])
+    /// find the panel's normal, and the fit from them reaches the optimum a brute-force search
+    /// over a grid of (normal, α) finds (polished by the same fit), where the fit from the
+    /// mean-normal starts alone (κ formula and base α) stays clearly worse.
+    #[test]
+    fn mode_starts_find_the_panel_that_the_mean_normal_starts_miss() {
+        let set = FitSet::standard();
+        let panel = DVec3::new(0.1, -0.05, 1.0).normalize();
+        let (t1, t2) = tangent_frame(panel);
+        let tilt = |d: DVec3, deg: f64| {
+            let a = deg.to_radians();
+            (panel * a.cos() + d * a.sin()).normalize()
+        };
+        let mut normals = Vec::new();
+        for i in 0..64 {
+            let n = match i % 8 {
+                0 => tilt(t1, 30.0),
+                4 => tilt(t2, 30.0),
+                _ => {
+                    // Deterministic jitter within ±0.6°.
+                    let j = |k: u64| ((k * 2_654_435_761 % 1000) as f64 / 1000.0 - 0.5) * 0.021;
+                    (panel + j(i) * t1 + j(i + 77) * t2).normalize()
+                }
+            };
+            normals.push((n, 1.0 / 64.0));
+        }
+        for alpha in [0.05, 0.1] {
+            let target: Vec<f64> = set
+                .pairs
+                .iter()
+                .map(|&(l, v)| {
+                    let h = half_vector(l, v);
+                    normals
+                        .iter()
+                        .map(|&(n, w)| w * iso_value(n, alpha, l, h))
+                        .sum()
+                })
+                .collect();
+            let mean: DVec3 = normals.iter().map(|&(n, w)| w * n).sum();
+            let mut stats = [0.0; STATS];
+            stats[..3].copy_from_slice(&mean.to_array());
+            stats[3] = alpha * alpha;
+            let r = mean.length();
+            let mn = mean.normalize();
+            assert!(mn.angle_between(panel).to_degrees() > 5.0);
+            // The mean-normal starts of the fast fit: κ formula c = 2, 0.5, 1, 4 and base α.
+            let mean_starts: Vec<IsoLobe> = [2.0, 0.5, 1.0, 4.0]
+                .iter()
+                .map(|&c| IsoLobe {
+                    n: mn,
+                    alpha: Widening::Constant(c).apply(alpha, r),
+                })
+                .chain([IsoLobe { n: mn, alpha }])
+                .collect();
+            let modes = mode_starts(&stats, &normals);
+            assert_eq!(modes.len(), 3 * MODE_KERNELS.len());
+            assert!(
+                modes[0].n.angle_between(panel).to_degrees() < 0.5,
+                "mode {:.2}° off the panel",
+                modes[0].n.angle_between(panel).to_degrees()
+            );
+            // The fast search's rule (two_basins) on the mean-normal starts alone and with the
+            // mode starts.
+            let k = kernel::IsoKernel::new(&set);
+            let t = k.targets(&target);
+            let fast = |starts: &[IsoLobe], split: usize| {
+                let fit = |j: usize| {
+                    kernel::fit(
+                        &k,
+                        &t,
+                        &starts[j..=j],
+                        FAST_ITERATIONS,
+                        alpha,
+                        FAST_CONVERGED,
+                    )
+                };
+                two_basins(&k, &t, starts, split, 0.5 * alpha, fit)
+            };
+            let (_, from_mean) = fast(&mean_starts, mean_starts.len());
+            let all: Vec<IsoLobe> = mean_starts.iter().chain(&modes).copied().collect();
+            let (with_modes, from_modes) = fast(&all, mean_starts.len());
+            // Brute force: normals n = normalize(panel + u t1 + v t2), |u|, |v| ≤ 0.6 in steps
+            // of 0.02, α from the base to 1 in 24 geometric steps; the best polished by the fit.
+            let plain = |n: DVec3, a: f64| cost(&set, &target, |l, h| iso_value(n, a, l, h));
+            let mut best = (f64::INFINITY, IsoLobe { n: panel, alpha });
+            for iu in -30..=30 {
+                for iv in -30..=30 {
+                    let n = (panel + 0.02 * iu as f64 * t1 + 0.02 * iv as f64 * t2).normalize();
+                    for ia in 0..24 {
+                        let a = alpha * (1.0 / alpha).powf(ia as f64 / 23.0);
+                        let c = plain(n, a);
+                        if c < best.0 {
+                            best = (c, IsoLobe { n, alpha: a });
+                        }
+                    }
+                }
+            }
+            let (brute_lobe, brute) = fit_isotropic(&set, &target, &[best.1], 25, alpha);
+            eprintln!(
+                "α {alpha}: mean starts {from_mean:e}, with modes {from_modes:e} {with_modes:?} ({:.2}° off the panel), brute force {brute:e} {brute_lobe:?} ({:.2}°)",
+                with_modes.n.angle_between(panel).to_degrees(),
+                brute_lobe.n.angle_between(panel).to_degrees()
+            );
+            assert!(brute <= best.0);
+            assert!(
+                from_modes <= brute * 1.02 || alpha > 0.05,
+                "α {alpha}: with the mode starts {from_modes:e}, brute force {brute:e}"
+            );
+            // At α = 0.05 the mean-normal starts stay in a basin 4.6× worse; at α = 0.1 they
+            // reach the optimum too (a wider lobe on the panel), and the mode starts must not
+            // lose it.
+            if alpha == 0.05 {
+                assert!(
+                    from_mean >= 2.0 * from_modes,
+                    "α {alpha}: mean-normal starts {from_mean:e}, with the mode starts {from_modes:e}"
+                );
+            }
+            assert!(with_modes.n.angle_between(panel).to_degrees() < 2.0);
+            assert!((plain(with_modes.n, with_modes.alpha) - from_modes).abs() <= 1e-9 * brute);
+        }
+    }
+
+    /// Mean shift with a narrow kernel climbs from the mean to the densest cluster and reports
+    /// its local spread; the footprint sample of a power-of-two map reads every normal up to
+    /// 8 × 8 and strides above.
+    #[test]
+    fn mean_shift_climbs_to_the_densest_cluster_and_the_sample_strides() {
+        let a = DVec3::new(0.0, 0.0, 1.0);
+        let b = DVec3::new(0.5, 0.0, 1.0).normalize();
+        let samples = [(a, 0.3), (a, 0.3), (b, 0.4)];
+        let mean: DVec3 = samples.iter().map(|&(n, w)| w * n).sum();
+        // Kernel 200: the weights of a and b differ by exp(200 (cos 26.6° − 1)) ≈ 1e-9.
+        let (m, r) = mean_shift(&samples, mean.normalize(), 200.0, 3);
+        assert!(m.angle_between(a) < 1e-6, "{m}");
+        assert!((r - 1.0).abs() < 1e-6);
+        // A wide kernel stays near the mean, and the spread there is the mean length.
+        let (m, r) = mean_shift(&samples, mean.normalize(), 1e-9, 1);
+        assert!(m.angle_between(mean.normalize()) < 1e-6);
+        assert!((r - mean.length()).abs() < 1e-6);
+        let map = bumpy(32, 32);
+        let levels = pyramid(32, 32);
+        let mut out = [(DVec3::ZERO, 0.0); MODE_TAPS * MODE_TAPS];
+        for (k, count) in [(1, 4), (2, 16), (3, 64), (4, 64), (5, 64)] {
+            assert_eq!(footprint_sample(&map, &levels[k], 0, 0, &mut out), count);
+        }
+        // Level 4 (16 × 16 footprints): every second finest texel; texel (1, 1) of the level
+        // covers finest 16..32, sampled at 16, 18, …, 30. Level 5 (32 × 32): every fourth from
+        // the second, 1, 5, …, 29.
+        footprint_sample(&map, &levels[4], 1, 1, &mut out);
+        assert_eq!(out[0].0, map.normal(16, 16).as_dvec3());
+        assert_eq!(out[63].0, map.normal(30, 30).as_dvec3());
+        footprint_sample(&map, &levels[5], 0, 0, &mut out);
+        assert_eq!(out[9].0, map.normal(5, 5).as_dvec3());
+        assert_eq!(out[63].0, map.normal(29, 29).as_dvec3());
+        // Fewer than five samples: no mode starts (the children are the footprint's normals).
+        let stats = [0.0, 0.0, 1.0, 0.01, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        assert!(mode_starts(&stats, &samples).is_empty());
     }
 
     #[test]

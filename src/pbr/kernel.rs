@@ -288,8 +288,17 @@ pub(super) fn fit(
         let len = (n0 + p[0] * t1 + p[1] * t2).length();
         let du = (t1 - n * n.dot(t1)) / len;
         let dv = (t2 - n * n.dot(t2)) / len;
-        let free = p[2] > lo && p[2] < 0.0;
-        k.normal_equations(n, du, dv, lobe.alpha, free, g)
+        let (mut a, mut b) = k.normal_equations(n, du, dv, lobe.alpha, true, g);
+        // ln α is held at a bound only while the descent direction −Jᵀr points out of the
+        // range (an active set): a start at the floor (the base α) can still widen.
+        if (p[2] <= lo && b[2] <= 0.0) || (p[2] >= 0.0 && b[2] >= 0.0) {
+            for row in a.iter_mut() {
+                row[2] = 0.0;
+            }
+            a[2] = [0.0; 3];
+            b[2] = 0.0;
+        }
+        (a, b)
     };
     let cost_at = |p: &[f64; 3]| {
         let t = lobe_of(p);
