@@ -251,7 +251,8 @@ impl GgxMixture {
         let omc = omc.clamp(0.0, 2.0);
         let aw2 = (a2 + widening.max(0.0) * var).min(1.0);
         // No weight (GLSL: arrays the host never set): eq 20's single widened lobe.
-        if !(self.weights.iter().sum::<f64>() > 0.0) {
+        let wsum: f64 = self.weights.iter().sum();
+        if wsum.is_nan() || wsum <= 0.0 {
             return super::ggx(c, aw2.sqrt());
         }
         let t = var / a2;
