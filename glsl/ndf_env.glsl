@@ -46,6 +46,16 @@ const int NDF_ENV_ENERGY_PARAM = 49;
 
 uniform vec3 ndf_env_sh[NDF_ENV_COUNT];   // L_lm, environment frame, RGB
 mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry point sets it)
+#ifdef NDF_ENV_LIGHTS
+// The extracted lights (envgpu::Upload::lights, at most NDF_ENV_LIGHTS): direction (environment
+// frame, unit), RGB power, concentration (0 encodes kappa = infinity, a point), whether the light
+// reaches the diffuse term only (0/1), and how many are set (ndf_env_lights below).
+uniform vec3 ndf_env_light_dir[NDF_ENV_LIGHTS];
+uniform vec3 ndf_env_light_power[NDF_ENV_LIGHTS];
+uniform float ndf_env_light_kappa[NDF_ENV_LIGHTS];
+uniform float ndf_env_light_diffuse_only[NDF_ENV_LIGHTS];
+uniform float ndf_env_light_count;
+#endif
 
 // The azimuth atan(d.y, d.x), taken as 0 at the poles (d.x = d.y = 0, where GLSL's atan is
 // undefined: a flat texel seen head on looks up exactly there) (CPU: environment::azimuth).
@@ -448,3 +458,72 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
     diffuse = d;
     specular = s;
 }
+
+#ifdef NDF_ENV_LIGHTS
+// The texel with its NDF convolved with a vMF of concentration k (a light's spread; CPU:
+// envlight::spread_texels): vMF lobes' and Toksvig's mean vectors times A(k), LEAN's second
+// moments plus 1/k, an SH bake's band l times e^{-l^2/2k}; plain unchanged.
+void ndf_env_spread(inout vec4 t[NDF_TEXTURES], float k) {
+#if defined(NDF_METHOD_VMF)
+    float a = ndf_env_a_kappa(k);
+    for (int j = 0; j < NDF_LOBES; ++j) t[j].yzw *= a;
+#elif defined(NDF_METHOD_TOKSVIG)
+    t[0].xyz *= ndf_env_a_kappa(k);
+#elif defined(NDF_METHOD_LEAN)
+    t[0].zw += vec2(1.0 / k);
+#elif defined(NDF_METHOD_SH)
+    for (int l = 1; l <= NDF_SH_LMAX; ++l) {
+        float f = exp(-float(l * l) / (2.0 * k));
+        for (int i = l * l; i < (l + 1) * (l + 1); ++i) {
+            if (i / 4 < NDF_TEXTURES) t[i / 4][i % 4] *= f;
+        }
+    }
+#endif
+}
+
+// v with non-finite components counted 0 (CPU: envlight::light_term).
+vec3 ndf_env_finite(vec3 v) {
+    return vec3(isnan(v.x) || isinf(v.x) ? 0.0 : v.x, isnan(v.y) || isinf(v.y) ? 0.0 : v.y,
+                isnan(v.z) || isinf(v.z) ? 0.0 : v.z);
+}
+
+// Adds the extracted lights' term for the view v (tangent frame) (CPU: envlight::add_lights and
+// light_term): per light l = ndf_env_frame^T dir, h = normalize(l + v) (skipped when l + v = 0),
+// the method's point-light shading (ndf_shade_texel) of the texel spread by the light's kappa
+// for the diffuse term and by 4 kappa for the specular one (the half vector sees half the
+// light's angle; kappa = infinity: the texel itself), the specular times g(l, h), plain's
+// diffuse times A(kappa); a diffuse-only light adds its diffuse term only; every term times the
+// light's RGB power, non-finite terms counted 0.
+void ndf_env_lights(vec4 t[NDF_TEXTURES], vec3 v, inout vec3 diffuse, inout vec3 specular) {
+    mat3 to_tangent = transpose(ndf_env_frame);
+    for (int i = 0; i < NDF_ENV_LIGHTS; ++i) {
+        if (float(i) >= ndf_env_light_count) break;
+        vec3 l = to_tangent * ndf_env_light_dir[i];
+        vec3 lv = l + v;
+        if (!(dot(lv, lv) > 0.0)) continue;
+        vec3 h = normalize(lv);
+        float k = ndf_env_light_kappa[i];
+        bool point = !(k > 0.0);
+        vec4 tl[NDF_TEXTURES] = t;
+        if (!point) ndf_env_spread(tl, k);
+        vec3 d;
+        vec3 s;
+        ndf_shade_texel(tl, l, h, d, s);
+#ifdef NDF_METHOD_PLAIN
+        float scale = point ? 1.0 : ndf_env_a_kappa(k);
+#else
+        float scale = 1.0;
+#endif
+        diffuse += ndf_env_light_power[i] * scale * ndf_env_finite(d);
+#ifndef NDF_BRDF_LAMBERT
+        if (ndf_env_light_diffuse_only[i] != 0.0) continue;
+        if (!point) {
+            tl = t;
+            ndf_env_spread(tl, 4.0 * k);
+            ndf_shade_texel(tl, l, h, d, s);
+        }
+        specular += ndf_env_light_power[i] * ndf_env_finite(s * ndf_g(l, h));
+#endif
+    }
+}
+#endif

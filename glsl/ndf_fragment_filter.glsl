@@ -2,15 +2,22 @@
 // The shading of one texel: the method's (ndf_shade_texel) under the point light l with half
 // vector h, or with NDF_LIGHT_ENV the environment's (ndf_env.glsl; l then carries the view, h is
 // unused, and the g factor is applied per lobe), or with NDF_LIGHT_BOTH both, scaled and summed
-// (the point light's g factor applied here: it does not depend on the texel).
+// (the point light's g factor applied here: it does not depend on the texel). With
+// NDF_ENV_LIGHTS the environment's extracted lights (ndf_env_lights) are added to its part.
 void ndf_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
 #ifdef NDF_LIGHT_ENV
     ndf_env_texel(t, l, diffuse, specular);
+#ifdef NDF_ENV_LIGHTS
+    ndf_env_lights(t, l, diffuse, specular);
+#endif
 #elif defined(NDF_LIGHT_BOTH)
     vec3 de;
     vec3 se;
     ndf_shade_texel(t, l, h, diffuse, specular);
     ndf_env_texel(t, ndf_view, de, se);
+#ifdef NDF_ENV_LIGHTS
+    ndf_env_lights(t, ndf_view, de, se);
+#endif
     diffuse = ndf_point_scale * diffuse + ndf_env_scale * de;
     specular = ndf_point_scale * specular * ndf_g(l, h) + ndf_env_scale * se;
 #else

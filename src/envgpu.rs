@@ -45,6 +45,13 @@
 //! and for the SH route `ndf_env_rho[9]` (the BRDF's `ρ̂_l`, l ≤ 8). Samplers: `ndf_env_atlas`,
 //! `ndf_env_energy` (prefiltered route), `ndf_env_reflected` (SH route). Mesh mode adds
 //! `mat3 ndf_env_rotation` (world → environment frame), set by the application.
+//!
+//! **Extracted lights** ([`EnvLight::with_lights`]): the shaders add their term when generated
+//! with [`crate::glsl::ShaderOptions::env_lights`] (`NDF_ENV_LIGHTS`); [`Upload::lights`]
+//! carries them (at most [`crate::glsl::MAX_ENV_LIGHTS`]) and [`uniforms`] emits
+//! `vec3 ndf_env_light_dir[]` (environment frame, unit), `vec3 ndf_env_light_power[]` (RGB),
+//! `float ndf_env_light_kappa[]` (0 encodes κ = ∞, a point light),
+//! `float ndf_env_light_diffuse_only[]` (0 or 1) and `float ndf_env_light_count`.
 
 use crate::brdf::Brdf;
 use crate::environment::projection::REFLECTED_GRID;
@@ -87,17 +94,24 @@ pub struct Upload {
     pub sh: Vec<f32>,
     /// The `L′` table: [`REFLECTED_ROWS`] rows of [`REFLECTED_COLUMNS`] RGB values.
     pub reflected: Vec<f32>,
+    /// The extracted lights ([`EnvLight::lights`], most powerful first; empty for
+    /// [`EnvLight::new`]): the tables above are of the residual, and a shader generated with
+    /// [`crate::glsl::ShaderOptions::env_lights`] adds these (module docs).
+    pub lights: Vec<crate::environment::lights::Light>,
 }
 
 /// Packs `light` for upload (module docs). Fails when it has more than [`MAX_LEVELS`]
-/// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would), and for a light
-/// with extracted lights ([`EnvLight::with_lights`]): the shaders do not add their term yet, so
-/// they would shade the residual alone (a typed error rather than a silently darker render).
+/// levels (a panorama wider than [`crate::environment::MAX_WIDTH`] would), and when it has more
+/// extracted lights ([`EnvLight::with_lights`]) than a shader adds
+/// ([`crate::glsl::MAX_ENV_LIGHTS`]; a typed error rather than lights silently dropped). A
+/// light with extracted lights must be shaded by a shader generated with
+/// [`crate::glsl::ShaderOptions::env_lights`]: the tables hold the residual alone.
 pub fn pack(light: &EnvLight) -> Result<Upload> {
-    if !light.lights().is_empty() {
+    let max = crate::glsl::MAX_ENV_LIGHTS;
+    if light.lights().len() > max {
         return Err(Error::InvalidOption(format!(
-            "the environment has {} extracted lights; the GLSL routes do not shade them yet \
-             (prepare it without extraction: --env-lights 0 / EnvLight::new)",
+            "the environment has {} extracted lights, the shaders add at most {max} \
+             (extract fewer: --env-lights / LightOptions)",
             light.lights().len()
         )));
     }
@@ -166,6 +180,7 @@ pub fn pack(light: &EnvLight) -> Result<Upload> {
         kappa1: first.kappa1(),
         sh,
         reflected,
+        lights: light.lights().to_vec(),
     })
 }
 
@@ -239,7 +254,48 @@ pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
         let rho = brdf.sh_coefficients(ENV_LMAX);
         out.push(u("ndf_env_rho", 1, rho.iter().map(|&v| v as f32).collect()));
     }
+    if !upload.lights.is_empty() {
+        let ls = &upload.lights;
+        out.push(u(
+            "ndf_env_light_dir",
+            3,
+            ls.iter()
+                .flat_map(|l| l.direction.to_array().map(|v| v as f32))
+                .collect(),
+        ));
+        out.push(u(
+            "ndf_env_light_power",
+            3,
+            ls.iter().flat_map(|l| l.power.map(|v| v as f32)).collect(),
+        ));
+        out.push(u(
+            "ndf_env_light_kappa",
+            1,
+            ls.iter().map(|l| kappa_uniform(l.kappa)).collect(),
+        ));
+        out.push(u(
+            "ndf_env_light_diffuse_only",
+            1,
+            ls.iter()
+                .map(|l| if l.diffuse_only { 1.0 } else { 0.0 })
+                .collect(),
+        ));
+    }
+    // Always set (0 without lights), so a shader with the loop never reads stale lights.
+    out.push(u(
+        "ndf_env_light_count",
+        1,
+        vec![upload.lights.len() as f32],
+    ));
     out
+}
+
+/// A light's concentration as `ndf_env_light_kappa` holds it: 0 for κ = ∞ (a point light, the
+/// CPU's `!kappa.is_finite()`), else κ in f32 (a κ beyond f32's range becomes +∞, which the
+/// shader's `A(κ)`, `1/κ` and `e^{−l²/2κ}` take as the point's 1, 0 and 1 as the CPU's f64
+/// values round).
+fn kappa_uniform(kappa: f64) -> f32 {
+    if kappa.is_finite() { kappa as f32 } else { 0.0 }
 }
 
 #[cfg(test)]
@@ -247,16 +303,51 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_light_with_extracted_lights_is_refused_not_packed_darker() {
-        // The shaders do not add the extracted lights' term: packing the residual alone would
-        // render the sky without its sun.
+    fn extracted_lights_are_packed_into_their_uniforms() {
+        // The sky's sun, extracted: its direction, RGB power, κ and flag reach the uniforms
+        // element for element, the count is 1; without extraction the count is 0 and no light
+        // array is emitted.
         let sky = crate::environment::coloured_test_sky();
         let lights = crate::environment::lights::LightOptions::default();
         let with = EnvLight::with_lights(&sky, &lights);
         assert_eq!(with.lights().len(), 1);
-        assert!(matches!(pack(&with), Err(Error::InvalidOption(_))));
+        let up = pack(&with).unwrap();
+        assert_eq!(up.lights, with.lights());
+        let sun = with.lights()[0];
+        let u = uniforms(&up, &Brdf::ggx(0.3), Route::Prefiltered);
+        let get = |n: &str| {
+            u.iter()
+                .find(|u| u.name == n)
+                .unwrap_or_else(|| panic!("{n}"))
+        };
+        let f = |v: f64| v as f32;
+        assert_eq!(get("ndf_env_light_count").values, vec![1.0]);
+        assert_eq!(get("ndf_env_light_dir").components, 3);
+        assert_eq!(
+            get("ndf_env_light_dir").values,
+            sun.direction.to_array().map(f).to_vec()
+        );
+        assert_eq!(get("ndf_env_light_power").components, 3);
+        assert_eq!(get("ndf_env_light_power").values, sun.power.map(f).to_vec());
+        // The orange sun: red carries more power than blue.
+        assert!(sun.power[0] > 2.0 * sun.power[2], "{:?}", sun.power);
+        assert!(sun.kappa.is_finite() && sun.kappa > 1.0, "{}", sun.kappa);
+        assert_eq!(get("ndf_env_light_kappa").values, vec![f(sun.kappa)]);
+        assert_eq!(
+            get("ndf_env_light_diffuse_only").values,
+            vec![if sun.diffuse_only { 1.0 } else { 0.0 }]
+        );
+        assert_eq!(kappa_uniform(f64::INFINITY), 0.0);
+        assert_eq!(kappa_uniform(2.5), 2.5);
         let none = crate::environment::lights::LightOptions::none();
-        assert!(pack(&EnvLight::with_lights(&sky, &none)).is_ok());
+        let up0 = pack(&EnvLight::with_lights(&sky, &none)).unwrap();
+        assert!(up0.lights.is_empty());
+        let u0 = uniforms(&up0, &Brdf::ggx(0.3), Route::Prefiltered);
+        assert!(u0.iter().all(|u| !u.name.starts_with("ndf_env_light_")
+            || (u.name == "ndf_env_light_count" && u.values == [0.0])));
+        assert!(u0.iter().any(|u| u.name == "ndf_env_light_count"));
+        // The residual's tables differ from the whole sky's (the sun is out of them).
+        assert!(up.sh[0] < 0.9 * up0.sh[0], "{} {}", up.sh[0], up0.sh[0]);
     }
 
     #[test]

@@ -207,7 +207,19 @@ pub struct ShaderOptions {
     /// so the method's Lambert code is dead and compiled out. The probe writes diffuse 0.
     /// Refused with the Lambert BRDF (nothing would be shaded).
     pub no_diffuse: bool,
+    /// Add the environment's extracted lights (`NDF_ENV_LIGHTS` = [`MAX_ENV_LIGHTS`]: the
+    /// uniforms `ndf_env_light_*` of module `envgpu`'s `uniforms` and the loop
+    /// `ndf_env_lights` of `glsl/ndf_env.glsl`; CPU twin `envlight::add_lights`), for a light
+    /// prepared by [`crate::envlight::EnvLight::with_lights`]. Environment lighting only
+    /// (refused with the point light and in the LOD-switching shader); default off, so no
+    /// other shader declares the loop.
+    pub env_lights: bool,
 }
+
+/// The most extracted environment lights a shader with [`ShaderOptions::env_lights`] adds (the
+/// size of its `ndf_env_light_*` arrays; `envgpu::pack` refuses more): the default extraction's
+/// 4 compact and 4 diffuse-only lights.
+pub const MAX_ENV_LIGHTS: usize = 8;
 
 /// The most textures one shader samples (a sampler each): what llvmpipe and the desktop GPUs
 /// offer (`GL_MAX_TEXTURE_IMAGE_UNITS` = 32; GL 3.3 guarantees 16). SH with l* ≤ 10 fits.
@@ -386,6 +398,11 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
             "the exact vMF convolution (quadrature) is a CPU measurement: no shader has it \
              (use auto, eq20 or convolved)"
                 .into(),
+        ));
+    }
+    if options.env_lights && !options.light.is_env() {
+        return Err(Error::InvalidOption(
+            "extracted environment lights need an environment-lit shader".into(),
         ));
     }
     if options.no_diffuse && options.brdf == ShaderBrdf::Lambert {
@@ -590,6 +607,13 @@ pub fn lod_switch(
     }
     if map_size.0 == 0 || map_size.1 == 0 {
         return bad(format!("map size {}x{}", map_size.0, map_size.1));
+    }
+    if options.env_lights || parts.iter().any(|p| p.options.env_lights) {
+        return bad(
+            "the LOD-switching shader does not add extracted environment lights: use one \
+             shader per part"
+                .into(),
+        );
     }
     if options.light == ShaderLight::EnvSh {
         return bad(
@@ -992,6 +1016,9 @@ fn defines(
             d("NDF_LIGHT_ENV_PREFILTERED", "1", Common);
         }
     }
+    if options.env_lights && options.light.is_env() {
+        d("NDF_ENV_LIGHTS", &MAX_ENV_LIGHTS.to_string(), Common);
+    }
     if options.no_diffuse {
         d("NDF_NO_DIFFUSE", "1", Common);
     }
@@ -1371,6 +1398,62 @@ mod tests {
                 .unwrap()
                 .contains(define)
         );
+    }
+
+    #[test]
+    fn extracted_lights_are_one_define_on_environment_shaders_only() {
+        // env_lights adds exactly `#define NDF_ENV_LIGHTS 8` to an environment-lit shader (the
+        // loop and its uniforms are in ndf_env.glsl under it); off, the source is unchanged.
+        let b = vmf2();
+        for light in [
+            ShaderLight::EnvPrefiltered,
+            ShaderLight::EnvSh,
+            ShaderLight::PointAndEnvPrefiltered,
+        ] {
+            let o = ShaderOptions {
+                light,
+                ..Default::default()
+            };
+            let off = source(&b, Stage::Fragment, &o).unwrap();
+            assert!(!off.contains("#define NDF_ENV_LIGHTS"));
+            let on = source(
+                &b,
+                Stage::Fragment,
+                &ShaderOptions {
+                    env_lights: true,
+                    ..o
+                },
+            )
+            .unwrap();
+            let define = format!("#define NDF_ENV_LIGHTS {MAX_ENV_LIGHTS}\n");
+            assert_eq!(on.matches(&define).count(), 1, "{light:?}");
+            assert_eq!(on.replacen(&define, "", 1), off, "{light:?}");
+            assert!(on.contains("void ndf_env_lights(") && on.contains("ndf_env_light_count"));
+        }
+        // Refused with the point light alone and in the LOD-switching shader.
+        let point = ShaderOptions {
+            env_lights: true,
+            ..Default::default()
+        };
+        assert!(matches!(
+            source(&b, Stage::Fragment, &point),
+            Err(Error::InvalidOption(_))
+        ));
+        let env = ShaderOptions {
+            light: ShaderLight::EnvPrefiltered,
+            env_lights: true,
+            ..Default::default()
+        };
+        let part = LodPart {
+            spec: ShaderSpec::of(&b),
+            options: env,
+            first: 0,
+            last: b.level_count() - 1,
+        };
+        assert!(matches!(
+            lod_switch_source(&[part], (16, 16), Stage::Fragment, &env),
+            Err(Error::InvalidOption(_))
+        ));
     }
 
     #[test]

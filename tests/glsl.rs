@@ -274,6 +274,29 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
             }
         }
     }
+    // The extracted lights' loop (NDF_ENV_LIGHTS): one variant per method, lobe count, lighting,
+    // BRDF, probe flag and colour of the environment-lit ones above.
+    let mut seen = Vec::new();
+    let mut lit = Vec::new();
+    for (name, spec, opts) in &out {
+        let key = (
+            spec.method,
+            spec.lobes,
+            opts.light,
+            opts.brdf,
+            opts.probe,
+            opts.color,
+        );
+        if opts.light.is_env() && !seen.contains(&key) {
+            seen.push(key);
+            let opts = ShaderOptions {
+                env_lights: true,
+                ..*opts
+            };
+            lit.push((format!("{name}-lights"), spec.clone(), opts));
+        }
+    }
+    out.extend(lit);
     out
 }
 

@@ -24,6 +24,7 @@ use glam::{DMat3, DVec2, DVec3};
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::{Brdf, Ggx};
 use ndfmap::environment::Sky;
+use ndfmap::environment::lights::LightOptions;
 use ndfmap::envlight::{EnvLight, Route, shade_in, shade_in_with};
 use ndfmap::format::Format;
 use ndfmap::glsl::{
@@ -228,11 +229,52 @@ fn measure_with(
     views: &[DVec3],
     color: bool,
 ) -> (f64, f64) {
+    measure_lit(
+        gl,
+        env,
+        light,
+        bake,
+        brdf,
+        route,
+        frame,
+        views,
+        color,
+        Lights::None,
+    )
+}
+
+/// Whether the probe adds the extracted lights ([`measure_lit`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Lights {
+    /// No `NDF_ENV_LIGHTS` (the light must have none).
+    None,
+    /// `NDF_ENV_LIGHTS` with the uploaded lights.
+    Added,
+    /// `NDF_ENV_LIGHTS` with `ndf_env_light_count` forced to 0 after binding: the shader then
+    /// drops the lights the twin adds (the check that the test can fail).
+    Dropped,
+}
+
+/// [`measure_with`] with the extracted lights' loop (`ShaderOptions::env_lights`) per `lights`.
+#[allow(clippy::too_many_arguments)]
+fn measure_lit(
+    gl: &Gl,
+    env: &EnvTextures,
+    light: &EnvLight,
+    bake: &Bake,
+    brdf: &Brdf,
+    route: Route,
+    frame: Option<DMat3>,
+    views: &[DVec3],
+    color: bool,
+    lights: Lights,
+) -> (f64, f64) {
     let options = ShaderOptions {
         brdf: ShaderBrdf::of(brdf),
         probe: true,
         light: ShaderLight::env(route),
         color,
+        env_lights: lights != Lights::None,
         ..Default::default()
     };
     let vertex = source(bake, Stage::Vertex, &options).unwrap();
@@ -252,6 +294,9 @@ fn measure_with(
         )
         .unwrap();
     env.bind(&program, unit + 1, brdf, route);
+    if lights == Lights::Dropped {
+        program.set_f32("ndf_env_light_count", 0.0);
+    }
     // None: ndf_probe_frame left unset (the identity).
     if let Some(f) = frame {
         program.set_mat3("ndf_probe_frame", &f.as_mat3());
@@ -654,4 +699,153 @@ fn colour_bakes_match_the_cpu_twin_through_egl() {
 #[test]
 fn colour_bakes_match_the_cpu_twin_through_osmesa() {
     colour(ndfmap_gl::Route::OsMesa);
+}
+
+/// The generated coloured sky (as [`lit_context`]) with its sun extracted as a light
+/// (`EnvLight::with_lights`, the default extraction), uploaded, or `None` when
+/// `NDFMAP_SKIP_GL=1`.
+fn lights_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
+    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
+        println!("skipped: NDFMAP_SKIP_GL=1");
+        return None;
+    }
+    let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
+    let sky = Sky {
+        width: 64,
+        sun: [3.0e4, 1.5e4, 0.5e4],
+        ..Sky::default()
+    }
+    .render()
+    .unwrap();
+    let light = EnvLight::with_lights(&sky, &LightOptions::default());
+    assert_eq!(light.lights().len(), 1, "the sun extracted");
+    let env = EnvTextures::upload(&gl, &light).unwrap();
+    assert_eq!(env.data().lights.len(), 1);
+    Some((gl, light, env))
+}
+
+/// Issue 16's extracted lights on the GPU: the probes with `NDF_ENV_LIGHTS` under the sky whose
+/// sun is extracted (the tables hold the residual, the sun is added per texel by
+/// `ndf_env_lights`), against the CPU twin `shade_in_with` (whose `add_lights` adds the same
+/// term): plain, Toksvig, LEAN, vMF J = 2 (aligned, hardware sampling; and with its colour
+/// textures), both routes, and SH l* = 2 by the SH route; Lambert, Blinn-Phong s = 32 and GGX
+/// α = 0.3 with g; in the environment's frame (four views) and in [`tilted`] (two views), all
+/// three channels. Then the same shader with `ndf_env_light_count = 0` must be far off the twin
+/// (the sun's term is most of the image), so the comparison can fail.
+fn extracted_lights(route: ndfmap_gl::Route) {
+    let Some((gl, light, env)) = lights_context(route) else {
+        return;
+    };
+    let all = bakes();
+    let coloured = coloured_bakes();
+    let map = ndfmap::procedural::generate(16, 5).map;
+    let sh2 = bake_with(
+        &map,
+        Method::Sh,
+        &BakeOptions {
+            lmax: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    // (bake, colour): plain, Toksvig, LEAN, vMF J = 2 aligned, the same with colour, SH l* = 2.
+    let cases: Vec<(&Bake, bool)> = vec![
+        (&all[0], false),
+        (&all[1], false),
+        (&all[2], false),
+        (&all[5], false),
+        (&coloured[2], true),
+        (&sh2, false),
+    ];
+    let mut failures = Vec::new();
+    let mut table: BTreeMap<String, (f64, f64)> = BTreeMap::new();
+    for &(b, color) in &cases {
+        for brdf in [
+            Brdf::Lambert,
+            Brdf::BlinnPhong { s: 32.0 },
+            brdfs()[3].clone(),
+        ] {
+            for r in [Route::Prefiltered, Route::Sh] {
+                if b.method == Method::Sh && r != Route::Sh {
+                    continue;
+                }
+                let vs = views();
+                for (frame, vs) in [(None, &vs[..]), (Some(tilted()), &vs[1..3])] {
+                    let (e, a) = measure_lit(
+                        &gl,
+                        &env,
+                        &light,
+                        b,
+                        &brdf,
+                        r,
+                        frame,
+                        vs,
+                        color,
+                        Lights::Added,
+                    );
+                    let key = format!(
+                        "{} {}{} {} {}",
+                        r.name(),
+                        b.label(),
+                        if color { "+colour" } else { "" },
+                        brdf.model(),
+                        if frame.is_some() {
+                            "tilted"
+                        } else {
+                            "env frame"
+                        }
+                    );
+                    let tol = if b.method == Method::Sh {
+                        SH_TOLERANCE
+                    } else {
+                        tolerance(r)
+                    };
+                    if e > tol {
+                        failures.push(format!("{key}: {e:.2e}"));
+                    }
+                    table.insert(key, (e, a));
+                }
+            }
+        }
+    }
+    println!(
+        "{route}: largest GL-vs-CPU error with the sun extracted as a light (NDF_ENV_LIGHTS; \
+         measure of the module docs / absolute error over the largest value)"
+    );
+    for (k, (e, a)) in &table {
+        println!("  {k:<52} {e:.2e} / {a:.2e}");
+    }
+    // The same shader without its lights is far off the twin that adds them.
+    for r in [Route::Prefiltered, Route::Sh] {
+        let (e, _) = measure_lit(
+            &gl,
+            &env,
+            &light,
+            &all[5],
+            &Brdf::BlinnPhong { s: 32.0 },
+            r,
+            None,
+            &views()[..2],
+            false,
+            Lights::Dropped,
+        );
+        println!("  {} count = 0 (must fail): {e:.2e}", r.name());
+        if e < 10.0 * tolerance(r) {
+            failures.push(format!(
+                "{}: without its lights the shader is only {e:.2e} off",
+                r.name()
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn extracted_lights_match_the_cpu_twin_through_egl() {
+    extracted_lights(ndfmap_gl::Route::Egl);
+}
+
+#[test]
+fn extracted_lights_match_the_cpu_twin_through_osmesa() {
+    extracted_lights(ndfmap_gl::Route::OsMesa);
 }
