@@ -651,6 +651,13 @@ typedef struct ndf_shader_options {
    * `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_AUTO`.
    */
   ndf_vmf_specular vmf_specular;
+  /**
+   * Nonzero: add the environment's extracted lights (`#define NDF_ENV_LIGHTS 8`, uniforms
+   * `ndf_env_light_*` from `ndf_environment_lights`; environment lights only, else
+   * `NDF_STATUS_INVALID_ARGUMENT`). Default 0. Needs an environment read with
+   * `ndf_env_options.max_lights` > 0: without it the tables hold the whole environment.
+   */
+  uint32_t env_lights;
 } ndf_shader_options;
 
 /**
@@ -848,6 +855,14 @@ typedef struct ndf_env_options {
    * `NDF_BAD_TEXELS_*`. Default `NDF_BAD_TEXELS_REPAIR`.
    */
   ndf_bad_texels bad_texels;
+  /**
+   * Extract up to this many compact bright sources as lights, and as many wide ones as
+   * diffuse-only lights (`LightOptions::up_to`; docs/environment.md "Bright sources as
+   * lights"): the tables then hold the residual, `ndf_environment_lights` hands the lights
+   * out and a shader with `ndf_shader_options.env_lights` adds them. At most 8 lights in all
+   * (else `NDF_STATUS_INVALID_ARGUMENT`). Default 0: no extraction (the paper's routes).
+   */
+  uint32_t max_lights;
 } ndf_env_options;
 
 /**
@@ -2087,6 +2102,23 @@ void ndf_environment_free(struct ndf_environment *env);
  */
 ndf_status ndf_environment_info_get(const struct ndf_environment *env,
                                     struct ndf_environment_info *info_out);
+
+/**
+ * The extracted lights (`ndf_env_options.max_lights`; none without): their count into
+ * `count_out`, and 8 floats per light into `out` (`capacity` floats; NULL allowed when there
+ * are none): direction x, y, z (environment frame, unit), RGB power, κ (0 encodes κ = ∞, a
+ * point) and the diffuse-only flag (0 or 1) — the values of the uniforms `vec3
+ * ndf_env_light_dir[8]`, `vec3 ndf_env_light_power[8]`, `float ndf_env_light_kappa[8]`,
+ * `float ndf_env_light_diffuse_only[8]`, and `float ndf_env_light_count` = the count.
+ *
+ * # Safety
+ * `env` is NULL or live; `out` is NULL or writable for `capacity` floats; `count_out` is NULL
+ * or writable.
+ */
+ndf_status ndf_environment_lights(const struct ndf_environment *env,
+                                  float *out,
+                                  size_t capacity,
+                                  size_t *count_out);
 
 /**
  * The SH coefficients `L_lm`, l ≤ 8, (l, m) order, environment frame (+Z up, real

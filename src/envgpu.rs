@@ -290,6 +290,34 @@ pub fn uniforms(upload: &Upload, brdf: &Brdf, route: Route) -> Vec<EnvUniform> {
     out
 }
 
+/// Floats per light of [`lights_packed`].
+pub const LIGHT_FLOATS: usize = 8;
+
+/// `upload`'s lights as the uniforms hold them, [`LIGHT_FLOATS`] per light: direction x, y, z
+/// (environment frame, unit), RGB power, κ (0 for κ = ∞) and the diffuse-only flag (0 or 1)
+/// (the C API's `ndf_environment_lights`).
+pub fn lights_packed(upload: &Upload) -> Vec<f32> {
+    upload
+        .lights
+        .iter()
+        .flat_map(|l| {
+            let d = l.direction.to_array().map(|v| v as f32);
+            let p = l.power.map(|v| v as f32);
+            let flag = if l.diffuse_only { 1.0 } else { 0.0 };
+            [
+                d[0],
+                d[1],
+                d[2],
+                p[0],
+                p[1],
+                p[2],
+                kappa_uniform(l.kappa),
+                flag,
+            ]
+        })
+        .collect()
+}
+
 /// A light's concentration as `ndf_env_light_kappa` holds it: 0 for κ = ∞ (a point light, the
 /// CPU's `!kappa.is_finite()`), else κ in f32 (a κ beyond f32's range becomes +∞, which the
 /// shader's `A(κ)`, `1/κ` and `e^{−l²/2κ}` take as the point's 1, 0 and 1 as the CPU's f64

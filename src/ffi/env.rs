@@ -37,6 +37,12 @@ pub struct ndf_env_options {
     pub intensity: f64,
     /// `NDF_BAD_TEXELS_*`. Default `NDF_BAD_TEXELS_REPAIR`.
     pub bad_texels: ndf_bad_texels,
+    /// Extract up to this many compact bright sources as lights, and as many wide ones as
+    /// diffuse-only lights (`LightOptions::up_to`; docs/environment.md "Bright sources as
+    /// lights"): the tables then hold the residual, `ndf_environment_lights` hands the lights
+    /// out and a shader with `ndf_shader_options.env_lights` adds them. At most 8 lights in all
+    /// (else `NDF_STATUS_INVALID_ARGUMENT`). Default 0: no extraction (the paper's routes).
+    pub max_lights: u32,
 }
 
 /// The default environment options: no rotation, intensity 1, bad texels repaired.
@@ -47,6 +53,7 @@ pub extern "C" fn ndf_env_options_default() -> ndf_env_options {
         yaw_deg: 0.0,
         intensity: 1.0,
         bad_texels: NDF_BAD_TEXELS_REPAIR,
+        max_lights: 0,
     };
     guard_value(o, || o)
 }
@@ -102,8 +109,11 @@ pub struct ndf_environment_info {
     pub channels: u32,
 }
 
-fn prepare(env: Environment) -> Outcome<ndf_environment> {
-    let light = EnvLight::new(&env);
+fn prepare(env: Environment, max_lights: u32) -> Outcome<ndf_environment> {
+    let light = EnvLight::with_lights(
+        &env,
+        &crate::environment::lights::LightOptions::up_to(max_lights as usize),
+    );
     let upload = crate::envgpu::pack(&light)?;
     Ok(ndf_environment {
         width: env.width(),
@@ -118,10 +128,10 @@ fn prepare(env: Environment) -> Outcome<ndf_environment> {
 ///
 /// # Safety
 /// `p` is NULL or initialized by `ndf_env_options_default()`.
-unsafe fn env_options(p: *const ndf_env_options) -> Outcome<EnvOptions> {
+unsafe fn env_options(p: *const ndf_env_options) -> Outcome<(EnvOptions, u32)> {
     // SAFETY: forwarded from the entry point's contract.
     let o = unsafe { read_options(p, "options", "ndf_env_options_default") }?;
-    Ok(EnvOptions {
+    let env = EnvOptions {
         yaw_deg: o.yaw_deg,
         intensity: o.intensity,
         bad_texels: choose(
@@ -129,7 +139,8 @@ unsafe fn env_options(p: *const ndf_env_options) -> Outcome<EnvOptions> {
             o.bad_texels,
             &[BadTexels::Repair, BadTexels::Reject],
         )?,
-    })
+    };
+    Ok((env, o.max_lights))
 }
 
 /// Stores a new environment in `out`.
@@ -161,10 +172,10 @@ pub unsafe extern "C" fn ndf_environment_load_file(
     guard("ndf_environment_load_file", || {
         // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
         let file = super::path(unsafe { c_str(path, "path") }?, "path")?;
-        let opts = unsafe { env_options(options) }?;
+        let (opts, max_lights) = unsafe { env_options(options) }?;
         let out = Out::new(env_out, "env_out")?;
         let env = crate::environment::load(&file, &opts)?;
-        unsafe { hand_out(prepare(env)?, out) }
+        unsafe { hand_out(prepare(env, max_lights)?, out) }
     })
 }
 
@@ -187,10 +198,10 @@ pub unsafe extern "C" fn ndf_environment_load_memory(
         // SAFETY (all blocks): the pointers are NULL or valid, as this function requires.
         let data = unsafe { bytes(data, length, "data") }?;
         let name = text(unsafe { c_str(name, "name") }?);
-        let opts = unsafe { env_options(options) }?;
+        let (opts, max_lights) = unsafe { env_options(options) }?;
         let out = Out::new(env_out, "env_out")?;
         let env = crate::environment::from_memory(&name, data, &opts)?;
-        unsafe { hand_out(prepare(env)?, out) }
+        unsafe { hand_out(prepare(env, max_lights)?, out) }
     })
 }
 
@@ -214,7 +225,7 @@ pub unsafe extern "C" fn ndf_environment_from_rgb(
         if rgb.is_null() {
             return Err(null("rgb"));
         }
-        let opts = unsafe { env_options(options) }?;
+        let (opts, max_lights) = unsafe { env_options(options) }?;
         let out = Out::new(env_out, "env_out")?;
         // The size is checked (2:1, not empty, not too wide) before `rgb` is read: the
         // caller's buffer holds width × height × 3 floats only for the size it meant.
@@ -234,7 +245,7 @@ pub unsafe extern "C" fn ndf_environment_from_rgb(
         let texels: Vec<[f32; 3]> = floats.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         let env = Environment::from_rgb("rgb buffer", width, height, texels, &opts)?;
         // SAFETY: `env_out` is writable (the caller's contract).
-        unsafe { hand_out(prepare(env)?, out) }
+        unsafe { hand_out(prepare(env, max_lights)?, out) }
     })
 }
 
@@ -316,6 +327,36 @@ pub unsafe extern "C" fn ndf_environment_info_get(
             channels: CHANNELS as u32,
         };
         unsafe { out.write(info) };
+        Ok(())
+    })
+}
+
+/// The extracted lights (`ndf_env_options.max_lights`; none without): their count into
+/// `count_out`, and 8 floats per light into `out` (`capacity` floats; NULL allowed when there
+/// are none): direction x, y, z (environment frame, unit), RGB power, κ (0 encodes κ = ∞, a
+/// point) and the diffuse-only flag (0 or 1) — the values of the uniforms `vec3
+/// ndf_env_light_dir[8]`, `vec3 ndf_env_light_power[8]`, `float ndf_env_light_kappa[8]`,
+/// `float ndf_env_light_diffuse_only[8]`, and `float ndf_env_light_count` = the count.
+///
+/// # Safety
+/// `env` is NULL or live; `out` is NULL or writable for `capacity` floats; `count_out` is NULL
+/// or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ndf_environment_lights(
+    env: *const ndf_environment,
+    out: *mut f32,
+    capacity: usize,
+    count_out: *mut usize,
+) -> ndf_status {
+    guard("ndf_environment_lights", || {
+        // SAFETY (all blocks): as this function requires.
+        let e = unsafe { environment(env) }?;
+        let count = Out::new(count_out, "count_out")?;
+        let packed = crate::envgpu::lights_packed(&e.upload);
+        if !packed.is_empty() {
+            unsafe { copy_out(&packed, out, capacity, "out") }?;
+        }
+        unsafe { count.write(e.upload.lights.len()) };
         Ok(())
     })
 }

@@ -135,6 +135,11 @@ pub struct ndf_shader_options {
     /// vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
     /// `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_AUTO`.
     pub vmf_specular: ndf_vmf_specular,
+    /// Nonzero: add the environment's extracted lights (`#define NDF_ENV_LIGHTS 8`, uniforms
+    /// `ndf_env_light_*` from `ndf_environment_lights`; environment lights only, else
+    /// `NDF_STATUS_INVALID_ARGUMENT`). Default 0. Needs an environment read with
+    /// `ndf_env_options.max_lights` > 0: without it the tables hold the whole environment.
+    pub env_lights: u32,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
@@ -155,6 +160,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
         light: NDF_LIGHT_POINT,
         vmf_specular: NDF_VMF_SPECULAR_AUTO,
+        env_lights: 0,
     };
     guard_value(o, || o)
 }
@@ -213,6 +219,7 @@ unsafe fn shader(
                 ShaderLight::PointAndEnvPrefiltered,
             ],
         )?,
+        env_lights: o.env_lights != 0,
         ..Default::default()
     };
     let format = choose("format", o.format, &FORMATS)?;

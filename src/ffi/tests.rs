@@ -2104,6 +2104,100 @@ fn environments_load_and_pack_for_upload() {
     }
 }
 
+/// Issue 16's extracted lights through the C API: `ndf_env_options.max_lights` prepares the
+/// environment as `EnvLight::with_lights` (the residual's tables, bit for bit), the lights
+/// come out of `ndf_environment_lights` as the uniforms hold them, and
+/// `ndf_shader_options.env_lights` is the Rust shader with `env_lights` (refused with the point
+/// light).
+#[test]
+fn extracted_lights_through_the_c_api() {
+    use super::env::*;
+    use crate::envlight::EnvLight;
+    let sky = crate::environment::Sky {
+        width: 32,
+        sun: [3.0e4, 1.5e4, 0.5e4],
+        ..Default::default()
+    }
+    .render()
+    .unwrap();
+    let rgb: Vec<f32> = sky.texels().iter().flatten().copied().collect();
+    let o = ndf_env_options {
+        max_lights: 4,
+        ..ndf_env_options_default()
+    };
+    // SAFETY (whole test): every pointer passed is valid or deliberately NULL.
+    unsafe {
+        let mut env = null_mut();
+        check!(ndf_environment_from_rgb(32, 16, rgb.as_ptr(), &o, &mut env) => Ok, "");
+        let light =
+            EnvLight::with_lights(&sky, &crate::environment::lights::LightOptions::up_to(4));
+        let up = crate::envgpu::pack(&light).unwrap();
+        assert_eq!(up.lights.len(), 1, "the sun");
+        let mut sh = vec![0.0f32; 243];
+        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
+        assert_eq!(sh, up.sh);
+        let mut count = 9;
+        let mut out = vec![0.0f32; 8];
+        check!(ndf_environment_lights(env, out.as_mut_ptr(), 7, &mut count) => BufferTooSmall, "");
+        check!(ndf_environment_lights(env, out.as_mut_ptr(), 8, &mut count) => Ok, "");
+        assert_eq!(count, 1);
+        let sun = up.lights[0];
+        let f = |v: f64| v as f32;
+        let want = [
+            f(sun.direction.x),
+            f(sun.direction.y),
+            f(sun.direction.z),
+            f(sun.power[0]),
+            f(sun.power[1]),
+            f(sun.power[2]),
+            f(sun.kappa),
+            0.0,
+        ];
+        assert_eq!(out, want);
+        check!(ndf_environment_lights(env, out.as_mut_ptr(), 8, null_mut()) => NullArgument, "count_out");
+        ndf_environment_free(env);
+        // Without extraction (the default): no lights, the whole sky's tables, NULL allowed.
+        check!(ndf_environment_from_rgb(32, 16, rgb.as_ptr(), &ndf_env_options_default(), &mut env) => Ok, "");
+        check!(ndf_environment_lights(env, null_mut(), 0, &mut count) => Ok, "");
+        assert_eq!(count, 0);
+        check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
+        assert_eq!(sh, crate::envgpu::pack(&EnvLight::new(&sky)).unwrap().sh);
+        ndf_environment_free(env);
+
+        // The shader option: the Rust source with env_lights; refused with the point light.
+        let map = c_map();
+        let vmf = c_bake(map, NDF_METHOD_VMF);
+        let so = ndf_shader_options {
+            light: NDF_LIGHT_ENV_PREFILTERED,
+            env_lights: 1,
+            ..ndf_shader_options_default()
+        };
+        let want = crate::glsl::source_for(
+            &crate::glsl::ShaderSpec::of(&(*vmf).bake),
+            crate::glsl::Stage::Fragment,
+            &crate::glsl::ShaderOptions {
+                light: crate::glsl::ShaderLight::EnvPrefiltered,
+                env_lights: true,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert!(want.contains("#define NDF_ENV_LIGHTS 8"));
+        let mut size = 0;
+        check!(ndf_bake_shader_source_size(vmf, 1, &so, &mut size) => Ok, "");
+        let mut buf = vec![0 as c_char; size];
+        check!(ndf_bake_shader_source(vmf, 1, &so, buf.as_mut_ptr(), size, &mut size) => Ok, "");
+        assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
+        let point = ndf_shader_options {
+            env_lights: 1,
+            ..ndf_shader_options_default()
+        };
+        check!(ndf_bake_shader_source_size(vmf, 1, &point, &mut size) => InvalidArgument, "environment");
+        ndf_bake_free(vmf);
+        ndf_normal_map_free(map);
+    }
+}
+
 #[test]
 fn the_ggx_mixture_is_the_library_fit_and_refuses_other_brdfs() {
     // SAFETY: every pointer is NULL or valid for what it claims; freed once.
