@@ -320,6 +320,14 @@ fn measure_lit(
 /// uploaded, or `None`
 /// (said on stdout) when `NDFMAP_SKIP_GL=1`.
 fn lit_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
+    sky_context(route, EnvLight::new)
+}
+
+/// [`lit_context`] with the sky's light prepared by `prepare`.
+fn sky_context(
+    route: ndfmap_gl::Route,
+    prepare: impl Fn(&ndfmap::environment::Environment) -> EnvLight,
+) -> Option<(Gl, EnvLight, EnvTextures)> {
     if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
         println!("skipped: NDFMAP_SKIP_GL=1");
         return None;
@@ -332,7 +340,7 @@ fn lit_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
     }
     .render()
     .unwrap();
-    let light = EnvLight::new(&sky);
+    let light = prepare(&sky);
     let env = EnvTextures::upload(&gl, &light).unwrap();
     Some((gl, light, env))
 }
@@ -705,21 +713,10 @@ fn colour_bakes_match_the_cpu_twin_through_osmesa() {
 /// (`EnvLight::with_lights`, the default extraction), uploaded, or `None` when
 /// `NDFMAP_SKIP_GL=1`.
 fn lights_context(route: ndfmap_gl::Route) -> Option<(Gl, EnvLight, EnvTextures)> {
-    if std::env::var("NDFMAP_SKIP_GL").is_ok_and(|v| v == "1") {
-        println!("skipped: NDFMAP_SKIP_GL=1");
-        return None;
-    }
-    let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
-    let sky = Sky {
-        width: 64,
-        sun: [3.0e4, 1.5e4, 0.5e4],
-        ..Sky::default()
-    }
-    .render()
-    .unwrap();
-    let light = EnvLight::with_lights(&sky, &LightOptions::default());
+    let (gl, light, env) = sky_context(route, |sky| {
+        EnvLight::with_lights(sky, &LightOptions::default())
+    })?;
     assert_eq!(light.lights().len(), 1, "the sun extracted");
-    let env = EnvTextures::upload(&gl, &light).unwrap();
     assert_eq!(env.data().lights.len(), 1);
     Some((gl, light, env))
 }
