@@ -229,8 +229,6 @@ impl Environment {
     }
 }
 
-/// Refuses an environment size that is empty, not 2:1 or wider than [`MAX_WIDTH`] (`what`
-/// names the input in the error).
 /// The tests' coloured sky: [`Sky`] at 64 × 32 with an orange sun (3·10⁴, 1.5·10⁴, 0.5·10⁴)
 /// over its blue sky, so that a swapped or collapsed colour channel shows.
 #[cfg(test)]
@@ -255,6 +253,8 @@ pub(crate) fn azimuth(d: DVec3) -> f64 {
     }
 }
 
+/// Refuses an environment size that is empty, not 2:1 or wider than [`MAX_WIDTH`] (`what`
+/// names the input in the error).
 pub(crate) fn check_size(what: &str, width: u32, height: u32) -> Result<()> {
     let bad = |reason: &str| {
         Err(Error::Dimensions {
