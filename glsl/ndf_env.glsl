@@ -75,8 +75,14 @@ uniform float ndf_env_kappa1;      // level 1's kappa; level k >= 1 has kappa1 /
 uniform float ndf_env_level_count;
 uniform vec4 ndf_env_level[NDF_ENV_MAX_LEVELS];  // width, height, first row, first column
 
+// x wrapped into [0, w) (GLSL 3.30 leaves % of a negative int undefined).
+int ndf_env_wrap(int x, int w) {
+    return x - w * int(floor(float(x) / float(w)));
+}
+
 // Bilinear lookup of level k at direction d (CPU: Radiance::bilinear): wrap in phi within the
-// level's rectangle of the atlas, clamp rows.
+// level's rectangle of the atlas; the row beyond a pole is the first (last) row half a turn
+// away.
 vec3 ndf_env_bilinear(int k, vec3 d) {
     vec4 l = ndf_env_level[k];
     int w = int(l.x);
@@ -93,16 +99,24 @@ vec3 ndf_env_bilinear(int k, vec3 d) {
     float tx = fu - x0;
     float ty = fv - y0;
     int xi = int(x0);
-    int yi = int(y0);
-    int xa = xi - w * int(floor(float(xi) / float(w)));
-    int xb = (xa + 1) - w * ((xa + 1) / w) + col;
-    xa += col;
-    int ya = clamp(yi, 0, h - 1) + row;
-    int yb = clamp(yi + 1, 0, h - 1) + row;
-    vec3 a = texelFetch(ndf_env_atlas, ivec2(xa, ya), 0).rgb;
-    vec3 b = texelFetch(ndf_env_atlas, ivec2(xb, ya), 0).rgb;
-    vec3 c = texelFetch(ndf_env_atlas, ivec2(xa, yb), 0).rgb;
-    vec3 e = texelFetch(ndf_env_atlas, ivec2(xb, yb), 0).rgb;
+    int ya = int(y0);
+    int yb = ya + 1;
+    int sa = 0;
+    int sb = 0;
+    if (ya < 0) {
+        ya = -1 - ya;
+        sa = w / 2;
+    }
+    if (yb >= h) {
+        yb = 2 * h - 1 - yb;
+        sb = w / 2;
+    }
+    ya = clamp(ya, 0, h - 1) + row;
+    yb = clamp(yb, 0, h - 1) + row;
+    vec3 a = texelFetch(ndf_env_atlas, ivec2(ndf_env_wrap(xi + sa, w) + col, ya), 0).rgb;
+    vec3 b = texelFetch(ndf_env_atlas, ivec2(ndf_env_wrap(xi + 1 + sa, w) + col, ya), 0).rgb;
+    vec3 c = texelFetch(ndf_env_atlas, ivec2(ndf_env_wrap(xi + sb, w) + col, yb), 0).rgb;
+    vec3 e = texelFetch(ndf_env_atlas, ivec2(ndf_env_wrap(xi + 1 + sb, w) + col, yb), 0).rgb;
     return (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * e);
 }
 
