@@ -73,6 +73,82 @@ pub struct EnvImageRow {
     pub config: String,
     /// Relative RMS error of the luminance against the ground truth over the covered pixels.
     pub error: f64,
+    /// The configuration's own Monte Carlo noise in the same metric (the ideal-NDF floor's,
+    /// [`FLOOR_LABEL`]; 0 for the rendered configurations), taken out with the ground truth's.
+    #[serde(default)]
+    pub noise: f64,
+}
+
+/// The label of the ideal-NDF floor row: at each pixel, the trilinear taps and weights of the
+/// bakes, each tap texel standing for the exact average over the finest normals it covers —
+/// the Monte Carlo ground truth of that weighted normal set ([`ideal_floor`]). What any
+/// per-texel NDF sampled like the bakes shares: the MIP footprint (a square texel grid, two
+/// levels, bilinear weights) against the pixel's own footprint.
+pub const FLOOR_LABEL: &str = "ideal NDF (trilinear floor)";
+
+/// Finest normals per axis a tap texel of the floor keeps at most (stratified: every
+/// `⌈n/FLOOR_STRIDE⌉`-th of its rows and columns, weights renormalized).
+const FLOOR_STRIDE: usize = 16;
+
+/// The ideal-NDF floor at one pixel ([`FLOOR_LABEL`]): the normals of the trilinear taps of
+/// `bake` at `uv`, `lod_v` (each tap texel's finest normals, at most [`FLOOR_STRIDE`]² of
+/// them, stratified), weighted by tap weight times footprint weight and turned by `frame`
+/// (tangent → world), and their ground truth for `view` (world) — with each normal's albedo
+/// when the map has a feature. Returns the material's radiance and its standard error.
+#[allow(clippy::too_many_arguments)]
+fn ideal_floor(
+    light: &EnvLight,
+    map: &NormalMap,
+    levels: &[crate::pyramid::LevelFootprints],
+    bake: &Bake,
+    uv: glam::DVec2,
+    lod_v: f64,
+    frame: DMat3,
+    view: DVec3,
+    material: &crate::render::Material,
+    samples: usize,
+    seed: u64,
+) -> (f64, f64) {
+    let feature = map.feature();
+    let mut normals = Vec::new();
+    let mut albedo = Vec::new();
+    let strided = |taps: Vec<(u32, f64)>| -> Vec<(u32, f64)> {
+        let step = taps.len().div_ceil(FLOOR_STRIDE).max(1);
+        taps.into_iter()
+            .enumerate()
+            .filter(|(j, _)| j % step == step / 2)
+            .map(|(_, t)| t)
+            .collect()
+    };
+    for (level, lw) in level_weights(lod_v, bake.level_count().min(levels.len())) {
+        let lf = &levels[level];
+        let width = lf.size.0 as usize;
+        for (index, bw) in bilinear(bake, level, uv) {
+            let xs = strided(lf.x.taps(index % width).collect());
+            let ys = strided(lf.y.taps(index / width).collect());
+            let total: f64 =
+                xs.iter().map(|t| t.1).sum::<f64>() * ys.iter().map(|t| t.1).sum::<f64>();
+            if total <= 0.0 {
+                continue;
+            }
+            for &(fy, wy) in &ys {
+                for &(fx, wx) in &xs {
+                    let m = map.normal(fx, fy).as_dvec3();
+                    normals.push(((frame * m).normalize(), lw * bw * wx * wy / total));
+                    if let Some(f) = feature {
+                        let a = f[(fy * map.width() + fx) as usize];
+                        albedo.push(DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64));
+                    }
+                }
+            }
+        }
+    }
+    let albedo = feature.is_some().then_some(albedo.as_slice());
+    let brdfs = [material.brdf.clone()];
+    let e = envlight::ground_truth_with(light, &normals, albedo, view, &brdfs, samples, seed);
+    let se =
+        ((material.kd * e.diffuse_se).powi(2) + (material.ks * e.specular_se[0]).powi(2)).sqrt();
+    (material.radiance(1.0, e.diffuse, e.specular[0]), se)
 }
 
 /// One view's ground truth.
@@ -256,14 +332,17 @@ pub fn measure(
     let size = (map.width(), map.height());
     let feature = map.feature();
     let mip = feature.map(|f| albedo_mip(map, f));
+    let levels = pyramid(map.width(), map.height());
     for scene in scenes {
         let material = &scene.material;
         envlight::check_brdf(&material.brdf)?;
         let brdfs = [material.brdf.clone()];
         let (w, h) = (scene.camera.width, scene.camera.height);
         let k = options.subpixels.max(1);
-        // Per pixel: ground truth, its standard error, and each configuration's value.
-        let pixels: Vec<Option<(f64, f64, Vec<f64>)>> = (0..w * h)
+        // Per pixel: ground truth, its standard error, each configuration's value, and the
+        // ideal-NDF floor with its standard error.
+        type Pixel = (f64, f64, Vec<f64>, (f64, f64));
+        let pixels: Vec<Option<Pixel>> = (0..w * h)
             .into_par_iter()
             .map(|i| {
                 let (x, y) = (i % w, i / w);
@@ -336,10 +415,23 @@ pub fn measure(
                         material.radiance(1.0, s.diffuse, s.specular)
                     })
                     .collect();
-                Some((gt, se, values))
+                let floor = ideal_floor(
+                    light,
+                    map,
+                    &levels,
+                    &configs[0].bake,
+                    g.hit.uv,
+                    lod_v,
+                    frame,
+                    view,
+                    material,
+                    options.samples,
+                    seed ^ 0xF100_F100_F100_F100,
+                );
+                Some((gt, se, values, floor))
             })
             .collect();
-        let covered: Vec<&(f64, f64, Vec<f64>)> = pixels.iter().flatten().collect();
+        let covered: Vec<&Pixel> = pixels.iter().flatten().collect();
         let den: f64 = covered.iter().map(|p| p.0 * p.0).sum();
         let se2: f64 = covered.iter().map(|p| p.1 * p.1).sum();
         section.ground_truth.push(EnvGroundTruth {
@@ -355,8 +447,18 @@ pub fn measure(
                 view: scene.name.clone(),
                 config: config.label.clone(),
                 error: crate::eval::relative_rms(num, den),
+                noise: 0.0,
             });
         }
+        let num: f64 = covered.iter().map(|p| (p.3.0 - p.0).powi(2)).sum();
+        let floor_se2: f64 = covered.iter().map(|p| p.3.1 * p.3.1).sum();
+        section.rows.push(EnvImageRow {
+            map: name.to_string(),
+            view: scene.name.clone(),
+            config: FLOOR_LABEL.to_string(),
+            error: crate::eval::relative_rms(num, den),
+            noise: crate::eval::relative_rms(floor_se2, den),
+        });
     }
     Ok(())
 }
@@ -369,8 +471,16 @@ pub fn markdown(s: &EnvSection) -> String {
          luminance. Ground truth per pixel: {}×{} sub-pixel normals, {} MIS iterations \
          (environment + BRDF samples); relative RMS % over the covered pixels, in brackets \
          with the ground truth's measured noise taken out. The sphere is shaded in each \
-         pixel's tangent frame.\n",
-        s.environment, s.brdf, s.options.subpixels, s.options.subpixels, s.options.samples
+         pixel's tangent frame. *{}*: each trilinear tap texel of the bakes standing for the \
+         exact average over the finest normals it covers (their Monte Carlo ground truth; \
+         its own noise is taken out too) — the floor any per-texel NDF sampled this way \
+         shares.\n",
+        s.environment,
+        s.brdf,
+        s.options.subpixels,
+        s.options.subpixels,
+        s.options.samples,
+        FLOOR_LABEL
     );
     let mut maps: Vec<&str> = s.ground_truth.iter().map(|g| g.map.as_str()).collect();
     maps.dedup();
@@ -404,7 +514,7 @@ pub fn markdown(s: &EnvSection) -> String {
                         out += &format!(
                             " {:.2} ({:.2}) |",
                             100.0 * r.error,
-                            100.0 * envlight::denoised(r.error, g.noise)
+                            100.0 * envlight::denoised(r.error, g.noise.hypot(r.noise))
                         )
                     }
                     None => out += " – |",
@@ -486,12 +596,28 @@ mod tests {
                     g.noise
                 );
             }
+            // The floor's normals are the pixel's (a flat map): within both noises.
+            let f = a
+                .rows
+                .iter()
+                .find(|r| r.view == g.view && r.config == FLOOR_LABEL)
+                .unwrap();
+            assert!(f.noise > 0.0 && f.noise < 0.03, "{f:?}");
+            assert!(
+                f.error < 3.0 * g.noise.hypot(f.noise) + 0.01,
+                "floor {}: {} against noise {} and {}",
+                g.view,
+                f.error,
+                g.noise,
+                f.noise
+            );
         }
         let mut b = section(options);
         measure("flat", &map, &scenes, &light, &mut b).unwrap();
         assert_eq!(a, b);
         let md = markdown(&a);
         assert!(md.contains("| vmf2 sh |") && md.contains("| *GT noise* |"));
+        assert!(md.contains(&format!("| {FLOOR_LABEL} |")));
     }
 
     /// A flat map on the sphere under a directional environment `1 + z + x/2` (bands 0 and
@@ -599,12 +725,15 @@ mod tests {
         let mut b = section(options());
         measure("m", &plain, &scenes, &light, &mut b).unwrap();
         for r in &b.rows {
-            let colour_label = if r.config.starts_with("vmf") {
-                r.config.clone()
+            // The floor reflects each normal's own (white) albedo: one row, its own label.
+            let labels = if r.config == FLOOR_LABEL {
+                vec![r.config.clone()]
+            } else if r.config.starts_with("vmf") {
+                vec![r.config.clone(), format!("{} × albedo mip", r.config)]
             } else {
-                format!("{} × albedo mip", r.config)
+                vec![format!("{} × albedo mip", r.config); 2]
             };
-            for label in [colour_label, format!("{} × albedo mip", r.config)] {
+            for label in labels {
                 let c = a
                     .rows
                     .iter()
