@@ -457,8 +457,8 @@ fn degenerate_sizes_bake_every_method_with_gl_chains() {
 
 /// Issue 16: a black environment lights nothing (exactly 0, every method and route); a
 /// single-texel sun of radiance 10⁶ gives finite, non-negative output within the energy
-/// bounds of `stability::EnvStability`; κ → ∞ lobes read level 0 of the prefiltered
-/// environment.
+/// bounds of `stability::EnvStability`, through the routes and taken out as a light by the
+/// default extraction; κ → ∞ lobes read level 0 of the prefiltered environment.
 #[test]
 fn environment_lighting_is_exact_zero_in_the_dark_and_bounded_under_a_point_sun() {
     let e = ndfmap::report::stability::environment();
@@ -473,6 +473,23 @@ fn environment_lighting_is_exact_zero_in_the_dark_and_bounded_under_a_point_sun(
         e.sun_specular_ratio
     );
     assert!(e.sun_diffuse_ratio > 1e-3, "the sun must light something");
+    // The default extraction takes the sun out as one light: the same checks.
+    assert_eq!(e.sun_lights, 1);
+    assert_eq!(e.sun_lit_bad, 0);
+    assert!(
+        e.sun_lit_diffuse_ratio <= 1.0 + 1e-9,
+        "{}",
+        e.sun_lit_diffuse_ratio
+    );
+    assert!(
+        e.sun_lit_specular_ratio <= 1.0 + 1e-9,
+        "{}",
+        e.sun_lit_specular_ratio
+    );
+    assert!(
+        e.sun_lit_diffuse_ratio > 1e-3,
+        "the extracted sun must light something"
+    );
     assert_eq!(e.infinite_kappa_lod, 0.0);
     assert_eq!(e.infinite_kappa_difference, 0.0);
     assert!(e.ok());

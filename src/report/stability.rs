@@ -733,7 +733,9 @@ pub fn markdown(s: &Summary) -> String {
 
 /// The environment-lighting cases of the suite (issue 16): a black environment (every route's
 /// output exactly 0), a single-texel sun of radiance 10⁶ (finite, non-negative, within the
-/// energy bounds below), and κ → ∞ lobes reading level 0 of the prefiltered environment.
+/// energy bounds below), both through the routes alone and taken out as a light (the default
+/// extraction, `environment::lights`), and κ → ∞ lobes reading level 0 of the prefiltered
+/// environment.
 #[derive(Debug, Clone, Serialize)]
 pub struct EnvStability {
     /// Shading evaluations made.
@@ -749,6 +751,18 @@ pub struct EnvStability {
     /// the addition theorem), `8 · max L` (prefiltered route: a convex combination of texels
     /// times the lobe energy, ≤ 4 ∫f dω_h ≤ 8)`)`.
     pub sun_specular_ratio: f64,
+    /// Lights extracted from the single-texel sun with the default light options (the
+    /// default of `eval`, `report`, the C API and the viewer): must be 1.
+    pub sun_lights: usize,
+    /// Non-finite or negative outputs under the sun taken out as a light.
+    pub sun_lit_bad: u64,
+    /// Largest diffuse output under the extracted sun over `1.0625 ∫L dω` (the light's
+    /// `P max(n·l, 0) ≤ P` plus the residual's SH).
+    pub sun_lit_diffuse_ratio: f64,
+    /// Largest specular output under the extracted sun over the residual's bound (as
+    /// `sun_specular_ratio`) plus `P · f(1)` per light (the point-light path: a lobe
+    /// convolved with the NDF never exceeds the BRDF's peak).
+    pub sun_lit_specular_ratio: f64,
     /// LOD of κ = ∞, 10³⁰ and NaN (must be 0).
     pub infinite_kappa_lod: f64,
     /// |lookup(κ = ∞) − level 0's bilinear value|, largest over directions (must be 0).
@@ -762,6 +776,10 @@ impl EnvStability {
             && self.sun_bad == 0
             && self.sun_diffuse_ratio <= 1.0 + 1e-9
             && self.sun_specular_ratio <= 1.0 + 1e-9
+            && self.sun_lights == 1
+            && self.sun_lit_bad == 0
+            && self.sun_lit_diffuse_ratio <= 1.0 + 1e-9
+            && self.sun_lit_specular_ratio <= 1.0 + 1e-9
             && self.infinite_kappa_lod == 0.0
             && self.infinite_kappa_difference == 0.0
     }
@@ -807,16 +825,33 @@ pub fn environment() -> EnvStability {
     let black = EnvLight::grey(Radiance::constant(32, 0.0));
     let mut v = vec![0.0f32; 64 * 32];
     v[9 * 64 + 40] = 1e6;
-    let sun_env = Radiance::new(64, 32, v).expect("valid");
+    let sun_env = Radiance::new(64, 32, v.clone()).expect("valid");
     let power = sun_env.power();
     let max_l = 1e6;
+    let sun_rgb = crate::environment::Environment::from_rgb(
+        "single-texel sun",
+        64,
+        32,
+        v.iter().map(|&x| [x; 3]).collect(),
+        &crate::environment::EnvOptions::default(),
+    )
+    .expect("valid");
     let sun = EnvLight::grey(sun_env);
+    let sun_lit = EnvLight::with_lights(
+        &sun_rgb,
+        &crate::environment::lights::LightOptions::default(),
+    );
+    let light_power: f64 = sun_lit.lights().iter().map(|l| l.power[1]).sum();
     let mut out = EnvStability {
         checked: 0,
         black_max: 0.0,
         sun_bad: 0,
         sun_diffuse_ratio: 0.0,
         sun_specular_ratio: 0.0,
+        sun_lights: sun_lit.lights().len(),
+        sun_lit_bad: 0,
+        sun_lit_diffuse_ratio: 0.0,
+        sun_lit_specular_ratio: 0.0,
         infinite_kappa_lod: 0.0,
         infinite_kappa_difference: 0.0,
     };
@@ -861,7 +896,23 @@ pub fn environment() -> EnvStability {
                                 out.sun_specular_ratio =
                                     out.sun_specular_ratio.max(f.specular / spec_bound[b]);
                             }
-                            out.checked += 2;
+                            let rgb = shade(&sun_lit, bake, &t, view, brdf, route);
+                            let lit_bound = spec_bound[b] + light_power * brdf.peak();
+                            for c in 0..3 {
+                                let f = rgb.channel(c);
+                                if !(f.diffuse.is_finite()
+                                    && f.specular.is_finite()
+                                    && f.diffuse >= 0.0
+                                    && f.specular >= 0.0)
+                                {
+                                    out.sun_lit_bad += 1;
+                                }
+                                out.sun_lit_diffuse_ratio =
+                                    out.sun_lit_diffuse_ratio.max(f.diffuse / (1.0625 * power));
+                                out.sun_lit_specular_ratio =
+                                    out.sun_lit_specular_ratio.max(f.specular / lit_bound);
+                            }
+                            out.checked += 3;
                         }
                     }
                 }
