@@ -785,6 +785,32 @@ impl EnvStability {
     }
 }
 
+/// The sun cases' check of one shading: raises `diffuse_ratio` and `specular_ratio` to the
+/// largest output over `diffuse_bound` and `specular_bound`; returns how many channels are
+/// non-finite or negative.
+fn bounded(
+    rgb: &crate::envlight::RgbShading,
+    diffuse_bound: f64,
+    specular_bound: f64,
+    diffuse_ratio: &mut f64,
+    specular_ratio: &mut f64,
+) -> u64 {
+    let mut bad = 0;
+    for c in 0..3 {
+        let f = rgb.channel(c);
+        if !(f.diffuse.is_finite()
+            && f.specular.is_finite()
+            && f.diffuse >= 0.0
+            && f.specular >= 0.0)
+        {
+            bad += 1;
+        }
+        *diffuse_ratio = diffuse_ratio.max(f.diffuse / diffuse_bound);
+        *specular_ratio = specular_ratio.max(f.specular / specular_bound);
+    }
+    bad
+}
+
 /// Runs the environment cases on a small bumpy map (16 × 16) with plain, Toksvig, LEAN,
 /// vMF J = 3 and SH l* = 4 bakes, Blinn-Phong s = 1, 10⁵, GGX α = 10⁻³, 1 and Lambert, both
 /// routes, 9 views, every level.
@@ -882,36 +908,23 @@ pub fn environment() -> EnvStability {
                                     out.black_max.max(f.diffuse.abs()).max(f.specular.abs());
                             }
                             let rgb = shade(&sun, bake, &t, view, brdf, route);
-                            for c in 0..3 {
-                                let f = rgb.channel(c);
-                                if !(f.diffuse.is_finite()
-                                    && f.specular.is_finite()
-                                    && f.diffuse >= 0.0
-                                    && f.specular >= 0.0)
-                                {
-                                    out.sun_bad += 1;
-                                }
-                                out.sun_diffuse_ratio =
-                                    out.sun_diffuse_ratio.max(f.diffuse / (1.0625 * power));
-                                out.sun_specular_ratio =
-                                    out.sun_specular_ratio.max(f.specular / spec_bound[b]);
-                            }
+                            let (d, sp) = (1.0625 * power, spec_bound[b]);
+                            out.sun_bad += bounded(
+                                &rgb,
+                                d,
+                                sp,
+                                &mut out.sun_diffuse_ratio,
+                                &mut out.sun_specular_ratio,
+                            );
                             let rgb = shade(&sun_lit, bake, &t, view, brdf, route);
-                            let lit_bound = spec_bound[b] + light_power * brdf.peak();
-                            for c in 0..3 {
-                                let f = rgb.channel(c);
-                                if !(f.diffuse.is_finite()
-                                    && f.specular.is_finite()
-                                    && f.diffuse >= 0.0
-                                    && f.specular >= 0.0)
-                                {
-                                    out.sun_lit_bad += 1;
-                                }
-                                out.sun_lit_diffuse_ratio =
-                                    out.sun_lit_diffuse_ratio.max(f.diffuse / (1.0625 * power));
-                                out.sun_lit_specular_ratio =
-                                    out.sun_lit_specular_ratio.max(f.specular / lit_bound);
-                            }
+                            let sp = spec_bound[b] + light_power * brdf.peak();
+                            out.sun_lit_bad += bounded(
+                                &rgb,
+                                d,
+                                sp,
+                                &mut out.sun_lit_diffuse_ratio,
+                                &mut out.sun_lit_specular_ratio,
+                            );
                             out.checked += 3;
                         }
                     }
