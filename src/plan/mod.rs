@@ -181,8 +181,9 @@ pub struct ShaderPlan {
     /// Anisotropic filtering (probes per pixel), if the scene asks for it.
     pub anisotropic: Option<u32>,
     /// Whether the scene has an environment: the plan's errors were measured under it with
-    /// the prefiltered route (one prefiltered-environment lookup per lobe), which its shaders
-    /// then use.
+    /// its compact bright sources extracted as lights ([`Scene::environment_light`]) and the
+    /// rest by the prefiltered route (one prefiltered-environment lookup per lobe), which its
+    /// shaders then use (`NDF_LIGHT_ENV_PREFILTERED` with `NDF_ENV_LIGHTS`).
     pub environment: bool,
 }
 
@@ -1293,14 +1294,17 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     decisions.push(if scene.has_environment() {
         format!(
             "environment: measured under {} (its luminance; ground truth by MIS, {ENV_SAMPLES} \
-             samples × {} views × {ENV_TEXELS} texels per level of each sample), shaded by the \
-             prefiltered route (one prefiltered-environment lookup per lobe); the SH route is \
-             not used (it is exact only for the diffuse term); {}",
+             samples × {} views × {ENV_TEXELS} texels per level of each sample), its compact \
+             bright sources (up to {}: a sun, lamps) extracted as distant lights shaded per \
+             lobe (the shaders add them: NDF_ENV_LIGHTS), the rest shaded by the prefiltered \
+             route (one prefiltered-environment lookup per lobe); the SH route is not used \
+             (it is exact only for the diffuse term); {}",
             scene
                 .environment
                 .as_deref()
                 .unwrap_or("the generated sky with a sun"),
             crate::envlight::default_views().len(),
+            scene::ENV_LIGHTS,
             if scene.has_direct() {
                 "one shader per part is lit by both (NDF_LIGHT_BOTH + NDF_LIGHT_ENV_PREFILTERED: \
                  the point light's and the environment's terms summed from the same filtered \
@@ -1535,6 +1539,10 @@ impl Plan {
                 (true, true) => crate::glsl::ShaderLight::PointAndEnvPrefiltered,
                 _ => crate::glsl::ShaderLight::Point,
             },
+            // The environment's extracted lights (`Scene::environment_light`, measured so):
+            // the shader adds them (`NDF_ENV_LIGHTS`; the engine uploads the lights of an
+            // environment prepared with the same extraction, `envgpu::Upload::lights`).
+            env_lights: self.shader.environment,
             ..ShaderOptions::default()
         }
     }
