@@ -211,8 +211,9 @@ pub struct ShaderOptions {
     /// uniforms `ndf_env_light_*` of module `envgpu`'s `uniforms` and the loop
     /// `ndf_env_lights` of `glsl/ndf_env.glsl`; CPU twin `envlight::add_lights`), for a light
     /// prepared by [`crate::envlight::EnvLight::with_lights`]. Environment lighting only
-    /// (refused with the point light and in the LOD-switching shader); default off, so no
-    /// other shader declares the loop.
+    /// (refused with the point light; the LOD-switching shader adds them per part when every
+    /// part has it); default off, so no other shader declares the loop (the CLI, the C API,
+    /// the viewer and the planner turn it on for environments with extracted lights).
     pub env_lights: bool,
 }
 
