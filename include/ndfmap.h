@@ -652,10 +652,13 @@ typedef struct ndf_shader_options {
    */
   ndf_vmf_specular vmf_specular;
   /**
-   * Nonzero: add the environment's extracted lights (`#define NDF_ENV_LIGHTS 8`, uniforms
-   * `ndf_env_light_*` from `ndf_environment_lights`; environment lights only, else
-   * `NDF_STATUS_INVALID_ARGUMENT`). Default 0. Needs an environment read with
-   * `ndf_env_options.max_lights` > 0: without it the tables hold the whole environment.
+   * Nonzero: an environment-lit shader (`NDF_LIGHT_ENV_*`, `NDF_LIGHT_POINT_AND_ENV_*`)
+   * adds the environment's extracted lights (`#define NDF_ENV_LIGHTS 8`, uniforms
+   * `ndf_env_light_*` from `ndf_environment_lights`; `ndf_env_light_count` 0 for an
+   * environment read with `ndf_env_options.max_lights` = 0 adds nothing). Ignored by the
+   * point light's shader (it has no environment). Default 1, matching
+   * `ndf_env_options.max_lights`' default 4: a shader without the lights drawing an
+   * environment with them would shade its residual alone (the sun missing).
    */
   uint32_t env_lights;
 } ndf_shader_options;
@@ -816,7 +819,10 @@ typedef struct ndf_scene {
   /**
    * With `NDF_SCENE_LIGHT_ENVIRONMENT`: path of an equirectangular Radiance `.hdr` or
    * OpenEXR environment (NUL-terminated, relative to the working directory); NULL for the
-   * generated sky with a sun (the scene file's `environment`).
+   * generated sky with a sun (the scene file's `environment`). Its compact bright sources
+   * (up to 4: a sun, lamps) are extracted as lights when planning; when any are, the plan's
+   * shaders add them (`NDF_ENV_LIGHTS`): draw them with the environment read with
+   * `ndf_env_options.max_lights` 4 (the default) and its `ndf_environment_lights`.
    */
   const char *environment_path;
   /**
@@ -859,8 +865,10 @@ typedef struct ndf_env_options {
    * Extract up to this many compact bright sources as lights, and as many wide ones as
    * diffuse-only lights (`LightOptions::up_to`; docs/environment.md "Bright sources as
    * lights"): the tables then hold the residual, `ndf_environment_lights` hands the lights
-   * out and a shader with `ndf_shader_options.env_lights` adds them. At most 8 lights in all
-   * (else `NDF_STATUS_INVALID_ARGUMENT`). Default 0: no extraction (the paper's routes).
+   * out and a shader with `ndf_shader_options.env_lights` (on by default) adds them. At
+   * most 8 lights in all (else `NDF_STATUS_INVALID_ARGUMENT`). Default 4 (a sun and lamps
+   * taken out: the better answer, docs/environment.md "Extracted lights by default"); 0: no
+   * extraction, the paper's pure routes (the tables hold the whole environment).
    */
   uint32_t max_lights;
 } ndf_env_options;
@@ -1796,7 +1804,8 @@ ndf_status ndf_bake_container_file(const struct ndf_bake *bake,
 /**
  * The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
  * textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
- * moments SH diffuse term, the mesh variant.
+ * moments SH diffuse term, the mesh variant, the point light (environment-lit shaders add the
+ * extracted lights).
  */
 struct ndf_shader_options ndf_shader_options_default(void);
 
@@ -2035,7 +2044,8 @@ ndf_status ndf_plan_bake_write(const struct ndf_plan *plan,
 void ndf_plan_free(struct ndf_plan *plan);
 
 /**
- * The default environment options: no rotation, intensity 1, bad texels repaired.
+ * The default environment options: no rotation, intensity 1, bad texels repaired, up to 4
+ * compact and 4 diffuse-only lights extracted.
  */
 struct ndf_env_options ndf_env_options_default(void);
 

@@ -211,8 +211,9 @@ pub struct ShaderOptions {
     /// uniforms `ndf_env_light_*` of module `envgpu`'s `uniforms` and the loop
     /// `ndf_env_lights` of `glsl/ndf_env.glsl`; CPU twin `envlight::add_lights`), for a light
     /// prepared by [`crate::envlight::EnvLight::with_lights`]. Environment lighting only
-    /// (refused with the point light and in the LOD-switching shader); default off, so no
-    /// other shader declares the loop.
+    /// (refused with the point light; the LOD-switching shader adds them per part when every
+    /// part has it); default off, so no other shader declares the loop (the CLI, the C API,
+    /// the viewer and the planner turn it on for environments with extracted lights).
     pub env_lights: bool,
 }
 
@@ -608,13 +609,6 @@ pub fn lod_switch(
     if map_size.0 == 0 || map_size.1 == 0 {
         return bad(format!("map size {}x{}", map_size.0, map_size.1));
     }
-    if options.env_lights || parts.iter().any(|p| p.options.env_lights) {
-        return bad(
-            "the LOD-switching shader does not add extracted environment lights: use one \
-             shader per part"
-                .into(),
-        );
-    }
     if options.light == ShaderLight::EnvSh {
         return bad(
             "the LOD-switching shader lights by the point light and/or the prefiltered \
@@ -633,12 +627,14 @@ pub fn lod_switch(
         }
         let o = &p.options;
         if o.light != options.light
+            || o.env_lights != options.env_lights
             || o.brdf != options.brdf
             || o.probe != options.probe
             || o.no_diffuse != options.no_diffuse
         {
             return bad(format!(
-                "part {k}: lighting, BRDF, probe flag and diffuse term must be the shader's"
+                "part {k}: lighting (extracted lights included), BRDF, probe flag and diffuse \
+                 term must be the shader's"
             ));
         }
         if p.spec.addressing != parts[0].spec.addressing {
@@ -1430,7 +1426,7 @@ mod tests {
             assert_eq!(on.replacen(&define, "", 1), off, "{light:?}");
             assert!(on.contains("void ndf_env_lights(") && on.contains("ndf_env_light_count"));
         }
-        // Refused with the point light alone and in the LOD-switching shader.
+        // Refused with the point light alone.
         let point = ShaderOptions {
             env_lights: true,
             ..Default::default()
@@ -1444,14 +1440,47 @@ mod tests {
             env_lights: true,
             ..Default::default()
         };
-        let part = LodPart {
+        // The LOD-switching shader (the planner's): the define once, before the common code,
+        // each part's light loop renamed like its other functions (`ndf_p{k}_…`, it reads the
+        // part's method), the uniforms once; every part must agree.
+        let part = |first, last, options| LodPart {
             spec: ShaderSpec::of(&b),
-            options: env,
-            first: 0,
-            last: b.level_count() - 1,
+            options,
+            first,
+            last,
         };
+        let n = b.level_count() - 1;
+        let two = [part(0, 0, env), part(1, n, env)];
+        let on = lod_switch_source(&two, (16, 16), Stage::Fragment, &env).unwrap();
+        let define = format!("#define NDF_ENV_LIGHTS {MAX_ENV_LIGHTS}\n");
+        assert_eq!(on.matches(&define).count(), 1);
+        assert!(on.find(&define).unwrap() < on.find("#define NDF_LOD_SWITCH 1").unwrap());
+        assert_eq!(on.matches("uniform float ndf_env_light_count;").count(), 1);
+        for k in 0..2 {
+            assert!(
+                on.contains(&format!("#define ndf_env_lights ndf_p{k}_env_lights")),
+                "part {k}"
+            );
+        }
+        let off_options = ShaderOptions {
+            env_lights: false,
+            ..env
+        };
+        let off = lod_switch_source(
+            &[part(0, 0, off_options), part(1, n, off_options)],
+            (16, 16),
+            Stage::Fragment,
+            &off_options,
+        )
+        .unwrap();
+        assert_eq!(on.replacen(&define, "", 1), off);
         assert!(matches!(
-            lod_switch_source(&[part], (16, 16), Stage::Fragment, &env),
+            lod_switch_source(
+                &[part(0, 0, env), part(1, n, off_options)],
+                (16, 16),
+                Stage::Fragment,
+                &env
+            ),
             Err(Error::InvalidOption(_))
         ));
     }

@@ -480,21 +480,25 @@ fn lod_switch_variants() -> Vec<(String, (Vec<LodPart>, (u32, u32)), ShaderOptio
         ] {
             for brdf in [ShaderBrdf::BlinnPhong, ShaderBrdf::Ggx { g: true }] {
                 for probe in [false, true] {
-                    let o = ShaderOptions {
-                        brdf,
-                        probe,
-                        light,
-                        ..Default::default()
-                    };
-                    out.push((
-                        format!(
-                            "switch_{addressing:?}_{light:?}_{brdf:?}_probe{}",
-                            probe as u8
-                        )
-                        .replace([' ', '{', '}', ':'], ""),
-                        (chain(env(addressing), o), (256, 256)),
-                        o,
-                    ));
+                    // With the extracted lights (the planner's default) and without.
+                    for env_lights in [false, true] {
+                        let o = ShaderOptions {
+                            brdf,
+                            probe,
+                            light,
+                            env_lights,
+                            ..Default::default()
+                        };
+                        out.push((
+                            format!(
+                                "switch_{addressing:?}_{light:?}_{brdf:?}_probe{}_lights{}",
+                                probe as u8, env_lights as u8
+                            )
+                            .replace([' ', '{', '}', ':'], ""),
+                            (chain(env(addressing), o), (256, 256)),
+                            o,
+                        ));
+                    }
                 }
             }
         }

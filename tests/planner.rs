@@ -308,7 +308,53 @@ error = 0.05
         let vmf = frag.contains("#define NDF_METHOD_VMF 1");
         assert_eq!(p["color"] == true, vmf, "part {i}: {p}\n{explain}");
         assert_eq!(frag.contains("#define NDF_COLOR 1"), vmf, "part {i}");
+        // The generated sky's sun is extracted as a light (the default, as it was measured):
+        // every shader adds it.
+        assert!(frag.contains("#define NDF_ENV_LIGHTS 8"), "part {i}");
         coloured += vmf as usize;
     }
     assert!(coloured > 0, "no vMF part:\n{explain}");
+    assert_eq!(plan["shader"]["env_lights"], 1, "the sun");
+    assert!(
+        explain.contains("1 bright source(s) extracted as distant lights"),
+        "{explain}"
+    );
+    if let Ok(switch) = std::fs::read_to_string(out.join("lod_switch.frag")) {
+        assert!(switch.contains("#define NDF_ENV_LIGHTS 8"));
+    }
+    // Under the overcast sky (no sun) nothing is extracted: no light loop, no field.
+    let overcast = dir.path().join("overcast.toml");
+    std::fs::write(
+        &overcast,
+        std::fs::read_to_string(&scene).unwrap().replace(
+            "lights = [\"environment\"]",
+            "lights = [\"environment\"]\nenvironment = \"overcast\"",
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("plan-overcast");
+    let run = ndfmap(&[
+        "plan",
+        overcast.to_str().unwrap(),
+        map.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("plan.json")).unwrap()).unwrap();
+    assert!(
+        plan["shader"].get("env_lights").is_none(),
+        "{}",
+        plan["shader"]
+    );
+    for i in 0..plan["parts"].as_array().unwrap().len() {
+        let frag = std::fs::read_to_string(out.join(format!("part{i}.frag"))).unwrap();
+        assert!(frag.contains("#define NDF_LIGHT_ENV_PREFILTERED 1"));
+        assert!(!frag.contains("#define NDF_ENV_LIGHTS"), "part {i}");
+    }
 }

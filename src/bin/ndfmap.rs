@@ -348,9 +348,9 @@ struct EnvArgs {
     /// them as distant lights, each lobe as the point-light path does, with the routes on the
     /// residual, and up to N wider ones (≤ 1 sr: windows) from the diffuse SH only
     /// (docs/environment.md, "Bright sources as lights"); 0: the paper's pure routes.
-    /// The ground truth is the full environment either way. CPU routes only (the GLSL
-    /// routes do not shade extracted lights yet).
-    #[arg(long, default_value_t = 0)]
+    /// The ground truth is the full environment either way. The GLSL routes add the same
+    /// lights (`NDF_ENV_LIGHTS`), so the CPU figures are what the shaders draw.
+    #[arg(long, default_value_t = 4)]
     env_lights: usize,
     /// Largest solid angle (sr) of an extracted light, of its texels and of its spread's cap
     /// `4π/κ` (`--env-lights`; docs/environment.md).
@@ -2554,9 +2554,10 @@ struct ReportArgs {
     /// Ground-truth MIS iterations per pixel under --env.
     #[arg(long, default_value_t = 64)]
     env_samples: usize,
-    /// Extract up to N bright compact sources from --env as distant lights (as `eval
-    /// --env-lights`; 0: the paper's pure routes).
-    #[arg(long, default_value_t = 0)]
+    /// Extract up to N bright compact sources from --env as distant lights, and up to N wide
+    /// ones from the diffuse SH (as `eval --env-lights`, the same default; 0: the paper's pure
+    /// routes).
+    #[arg(long, default_value_t = 4)]
     env_lights: usize,
     /// Ground-truth sub-pixel normals per side (k × k per pixel) under --env.
     #[arg(long, default_value_t = 4)]

@@ -92,7 +92,10 @@ pub struct ndf_scene {
     pub albedo_path: *const c_char,
     /// With `NDF_SCENE_LIGHT_ENVIRONMENT`: path of an equirectangular Radiance `.hdr` or
     /// OpenEXR environment (NUL-terminated, relative to the working directory); NULL for the
-    /// generated sky with a sun (the scene file's `environment`).
+    /// generated sky with a sun (the scene file's `environment`). Its compact bright sources
+    /// (up to 4: a sun, lamps) are extracted as lights when planning; when any are, the plan's
+    /// shaders add them (`NDF_ENV_LIGHTS`): draw them with the environment read with
+    /// `ndf_env_options.max_lights` 4 (the default) and its `ndf_environment_lights`.
     pub environment_path: *const c_char,
     /// Texture memory budget in bytes, 0 for none.
     pub budget_texture_bytes: u64,

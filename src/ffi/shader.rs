@@ -135,16 +135,20 @@ pub struct ndf_shader_options {
     /// vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
     /// `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_AUTO`.
     pub vmf_specular: ndf_vmf_specular,
-    /// Nonzero: add the environment's extracted lights (`#define NDF_ENV_LIGHTS 8`, uniforms
-    /// `ndf_env_light_*` from `ndf_environment_lights`; environment lights only, else
-    /// `NDF_STATUS_INVALID_ARGUMENT`). Default 0. Needs an environment read with
-    /// `ndf_env_options.max_lights` > 0: without it the tables hold the whole environment.
+    /// Nonzero: an environment-lit shader (`NDF_LIGHT_ENV_*`, `NDF_LIGHT_POINT_AND_ENV_*`)
+    /// adds the environment's extracted lights (`#define NDF_ENV_LIGHTS 8`, uniforms
+    /// `ndf_env_light_*` from `ndf_environment_lights`; `ndf_env_light_count` 0 for an
+    /// environment read with `ndf_env_options.max_lights` = 0 adds nothing). Ignored by the
+    /// point light's shader (it has no environment). Default 1, matching
+    /// `ndf_env_options.max_lights`' default 4: a shader without the lights drawing an
+    /// environment with them would shade its residual alone (the sun missing).
     pub env_lights: u32,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
 /// textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
-/// moments SH diffuse term, the mesh variant.
+/// moments SH diffuse term, the mesh variant, the point light (environment-lit shaders add the
+/// extracted lights).
 #[unsafe(no_mangle)]
 pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
     let o = ndf_shader_options {
@@ -160,7 +164,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         sh_diffuse: NDF_SH_DIFFUSE_MOMENTS,
         light: NDF_LIGHT_POINT,
         vmf_specular: NDF_VMF_SPECULAR_AUTO,
-        env_lights: 0,
+        env_lights: 1,
     };
     guard_value(o, || o)
 }
@@ -193,6 +197,16 @@ unsafe fn shader(
         ShaderBrdf::Tabulated,
     ];
     let diffuse = [VmfDiffuse::MeanVector, VmfDiffuse::Algorithm2];
+    let light = choose(
+        "light",
+        o.light,
+        &[
+            ShaderLight::Point,
+            ShaderLight::EnvPrefiltered,
+            ShaderLight::EnvSh,
+            ShaderLight::PointAndEnvPrefiltered,
+        ],
+    )?;
     let shader_options = ShaderOptions {
         brdf: choose("brdf", o.brdf, &brdf)?,
         sampling: choose("sampling", o.sampling, &sampling)?,
@@ -209,17 +223,9 @@ unsafe fn shader(
             o.sh_diffuse,
             &[ShDiffuse::Moments, ShDiffuse::Series],
         )?,
-        light: choose(
-            "light",
-            o.light,
-            &[
-                ShaderLight::Point,
-                ShaderLight::EnvPrefiltered,
-                ShaderLight::EnvSh,
-                ShaderLight::PointAndEnvPrefiltered,
-            ],
-        )?,
-        env_lights: o.env_lights != 0,
+        light,
+        // The point light's shader has no environment: the (default-on) flag is ignored.
+        env_lights: o.env_lights != 0 && light.is_env(),
         ..Default::default()
     };
     let format = choose("format", o.format, &FORMATS)?;

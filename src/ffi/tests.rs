@@ -1489,6 +1489,8 @@ fn colour_shaders_are_given_for_every_environment_light() {
                 &crate::glsl::ShaderOptions {
                     color: true,
                     light: rust,
+                    // `ndf_shader_options.env_lights` is on by default.
+                    env_lights: true,
                     ..Default::default()
                 },
             )
@@ -1911,7 +1913,10 @@ fn environments_load_and_pack_for_upload() {
         check!(ndf_environment_from_rgb(32, 16, rgb.as_ptr(), &o, &mut env) => Ok, "");
         let mut info = ndf_environment_info::default();
         check!(ndf_environment_info_get(env, &mut info) => Ok, "");
-        let light = EnvLight::new(&sky);
+        // The default extracts up to 4 lights (here the sun): the residual's tables.
+        let light =
+            EnvLight::with_lights(&sky, &crate::environment::lights::LightOptions::up_to(4));
+        assert_eq!(light.lights().len(), 1, "the sun");
         let up = crate::envgpu::pack(&light).unwrap();
         assert_eq!(
             (info.width, info.height, info.sh_count, info.channels),
@@ -1936,7 +1941,8 @@ fn environments_load_and_pack_for_upload() {
             let got: Vec<f32> = sh.iter().skip(c).step_by(3).copied().collect();
             assert_eq!(got, want, "channel {c}");
         }
-        assert!(sh[0] > 1.2 * sh[2], "the sun's colour: {} {}", sh[0], sh[2]);
+        // The sun is out of the residual: the sky's blue dominates (with it, sh[0] > 1.2 sh[2]).
+        assert!(sh[2] > sh[0], "the residual's colour: {} {}", sh[0], sh[2]);
         let mut atlas = vec![0.0f32; 3 * (info.atlas_width * info.atlas_height) as usize];
         let mut levels = vec![0u32; 4 * info.level_count as usize];
         check!(ndf_environment_prefiltered(env, atlas.as_mut_ptr(), atlas.len(), levels.as_mut_ptr(), levels.len()) => Ok, "");
@@ -1981,7 +1987,11 @@ fn environments_load_and_pack_for_upload() {
             },
         )
         .unwrap();
-        let want = crate::envgpu::pack(&EnvLight::new(&rust)).unwrap();
+        let want = crate::envgpu::pack(&EnvLight::with_lights(
+            &rust,
+            &crate::environment::lights::LightOptions::up_to(4),
+        ))
+        .unwrap();
         check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
         assert_eq!(sh, want.sh);
         ndf_environment_free(env);
@@ -2041,6 +2051,7 @@ fn environments_load_and_pack_for_upload() {
                 crate::glsl::Stage::Fragment,
                 &crate::glsl::ShaderOptions {
                     light: rust,
+                    env_lights: true,
                     ..Default::default()
                 },
             )
@@ -2081,6 +2092,7 @@ fn environments_load_and_pack_for_upload() {
             crate::glsl::Stage::Fragment,
             &crate::glsl::ShaderOptions {
                 light: crate::glsl::ShaderLight::EnvSh,
+                env_lights: true,
                 ..Default::default()
             },
         )
@@ -2104,11 +2116,11 @@ fn environments_load_and_pack_for_upload() {
     }
 }
 
-/// Issue 16's extracted lights through the C API: `ndf_env_options.max_lights` prepares the
-/// environment as `EnvLight::with_lights` (the residual's tables, bit for bit), the lights
-/// come out of `ndf_environment_lights` as the uniforms hold them, and
-/// `ndf_shader_options.env_lights` is the Rust shader with `env_lights` (refused with the point
-/// light).
+/// Issue 16's extracted lights through the C API: `ndf_env_options.max_lights` (default 4)
+/// prepares the environment as `EnvLight::with_lights` (the residual's tables, bit for bit),
+/// 0 as `EnvLight::new`; the lights come out of `ndf_environment_lights` as the uniforms hold
+/// them, and `ndf_shader_options.env_lights` (default on) is the Rust shader with
+/// `env_lights`, off the Rust shader without, ignored by the point light's shader.
 #[test]
 fn extracted_lights_through_the_c_api() {
     use super::env::*;
@@ -2121,10 +2133,8 @@ fn extracted_lights_through_the_c_api() {
     .render()
     .unwrap();
     let rgb: Vec<f32> = sky.texels().iter().flatten().copied().collect();
-    let o = ndf_env_options {
-        max_lights: 4,
-        ..ndf_env_options_default()
-    };
+    let o = ndf_env_options_default();
+    assert_eq!(o.max_lights, 4, "extraction is the default");
     // SAFETY (whole test): every pointer passed is valid or deliberately NULL.
     unsafe {
         let mut env = null_mut();
@@ -2156,20 +2166,25 @@ fn extracted_lights_through_the_c_api() {
         assert_eq!(out, want);
         check!(ndf_environment_lights(env, out.as_mut_ptr(), 8, null_mut()) => NullArgument, "count_out");
         ndf_environment_free(env);
-        // Without extraction (the default): no lights, the whole sky's tables, NULL allowed.
-        check!(ndf_environment_from_rgb(32, 16, rgb.as_ptr(), &ndf_env_options_default(), &mut env) => Ok, "");
+        // Without extraction (max_lights 0): no lights, the whole sky's tables, NULL allowed.
+        let none = ndf_env_options {
+            max_lights: 0,
+            ..ndf_env_options_default()
+        };
+        check!(ndf_environment_from_rgb(32, 16, rgb.as_ptr(), &none, &mut env) => Ok, "");
         check!(ndf_environment_lights(env, null_mut(), 0, &mut count) => Ok, "");
         assert_eq!(count, 0);
         check!(ndf_environment_sh(env, sh.as_mut_ptr(), 243) => Ok, "");
         assert_eq!(sh, crate::envgpu::pack(&EnvLight::new(&sky)).unwrap().sh);
         ndf_environment_free(env);
 
-        // The shader option: the Rust source with env_lights; refused with the point light.
+        // The shader option: the Rust source with env_lights (the default), without it when
+        // off; the point light's shader ignores it.
         let map = c_map();
         let vmf = c_bake(map, NDF_METHOD_VMF);
+        assert_eq!(ndf_shader_options_default().env_lights, 1);
         let so = ndf_shader_options {
             light: NDF_LIGHT_ENV_PREFILTERED,
-            env_lights: 1,
             ..ndf_shader_options_default()
         };
         let want = crate::glsl::source_for(
@@ -2188,11 +2203,33 @@ fn extracted_lights_through_the_c_api() {
         let mut buf = vec![0 as c_char; size];
         check!(ndf_bake_shader_source(vmf, 1, &so, buf.as_mut_ptr(), size, &mut size) => Ok, "");
         assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
-        let point = ndf_shader_options {
-            env_lights: 1,
-            ..ndf_shader_options_default()
+        let source = |so: &ndf_shader_options| {
+            let mut size = 0;
+            check!(ndf_bake_shader_source_size(vmf, 1, so, &mut size) => Ok, "");
+            let mut buf = vec![0 as c_char; size];
+            check!(ndf_bake_shader_source(vmf, 1, so, buf.as_mut_ptr(), size, &mut size) => Ok, "");
+            CStr::from_ptr(buf.as_ptr()).to_str().unwrap().to_string()
         };
-        check!(ndf_bake_shader_source_size(vmf, 1, &point, &mut size) => InvalidArgument, "environment");
+        let rust = |light, env_lights| {
+            crate::glsl::source_for(
+                &crate::glsl::ShaderSpec::of(&(*vmf).bake),
+                crate::glsl::Stage::Fragment,
+                &crate::glsl::ShaderOptions {
+                    light,
+                    env_lights,
+                    ..Default::default()
+                },
+            )
+            .unwrap()
+        };
+        let off = source(&ndf_shader_options {
+            env_lights: 0,
+            ..so
+        });
+        assert_eq!(off, rust(crate::glsl::ShaderLight::EnvPrefiltered, false));
+        assert!(!off.contains("#define NDF_ENV_LIGHTS"));
+        let point = source(&ndf_shader_options_default());
+        assert_eq!(point, rust(crate::glsl::ShaderLight::Point, false));
         ndf_bake_free(vmf);
         ndf_normal_map_free(map);
     }

@@ -181,9 +181,21 @@ pub struct ShaderPlan {
     /// Anisotropic filtering (probes per pixel), if the scene asks for it.
     pub anisotropic: Option<u32>,
     /// Whether the scene has an environment: the plan's errors were measured under it with
-    /// the prefiltered route (one prefiltered-environment lookup per lobe), which its shaders
-    /// then use.
+    /// its compact bright sources extracted as lights ([`Scene::environment_light`]) and the
+    /// rest by the prefiltered route (one prefiltered-environment lookup per lobe), which its
+    /// shaders then use (`NDF_LIGHT_ENV_PREFILTERED`).
     pub environment: bool,
+    /// How many lights (compact and diffuse-only) were extracted from the environment when
+    /// planning ([`Scene::environment_light`]); the shaders add them (`NDF_ENV_LIGHTS`,
+    /// [`ShaderOptions::env_lights`]) when there are any — an environment without a sun or
+    /// lamp (the overcast sky) keeps the shaders without the light loop. Absent (0) in plans
+    /// of environments without lights and of earlier versions (measured without extraction).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub env_lights: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// One level's prediction.
@@ -863,6 +875,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             })
             .collect()
     };
+    let env_lights = env.as_ref().map_or(0, |e| e.light.lights().len());
     let m = Measure {
         samples: &samples,
         brdfs: scene.brdfs(),
@@ -1272,6 +1285,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         specular: scene.specular(),
         anisotropic: scene.view.anisotropic.then_some(8),
         environment: scene.has_environment(),
+        env_lights,
     };
     decisions.push(match scene.material.model {
         scene::Model::Lambert => "specular path: left out (Lambert): the shaders compile \
@@ -1293,14 +1307,26 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     decisions.push(if scene.has_environment() {
         format!(
             "environment: measured under {} (its luminance; ground truth by MIS, {ENV_SAMPLES} \
-             samples × {} views × {ENV_TEXELS} texels per level of each sample), shaded by the \
-             prefiltered route (one prefiltered-environment lookup per lobe); the SH route is \
-             not used (it is exact only for the diffuse term); {}",
+             samples × {} views × {ENV_TEXELS} texels per level of each sample), {}, the rest \
+             shaded by the prefiltered route (one prefiltered-environment lookup per lobe); \
+             the SH route is not used (it is exact only for the diffuse term); {}",
             scene
                 .environment
                 .as_deref()
                 .unwrap_or("the generated sky with a sun"),
             crate::envlight::default_views().len(),
+            match env_lights {
+                0 => format!(
+                    "no compact bright source found to extract as a light (up to {} are: a \
+                     sun, lamps; the shaders have no light loop)",
+                    scene::ENV_LIGHTS
+                ),
+                n => format!(
+                    "{n} bright source(s) extracted as distant lights shaded per lobe (the \
+                     shaders add them: NDF_ENV_LIGHTS; upload the lights of the same \
+                     extraction)"
+                ),
+            },
             if scene.has_direct() {
                 "one shader per part is lit by both (NDF_LIGHT_BOTH + NDF_LIGHT_ENV_PREFILTERED: \
                  the point light's and the environment's terms summed from the same filtered \
@@ -1535,6 +1561,10 @@ impl Plan {
                 (true, true) => crate::glsl::ShaderLight::PointAndEnvPrefiltered,
                 _ => crate::glsl::ShaderLight::Point,
             },
+            // The environment's extracted lights (`Scene::environment_light`, measured so):
+            // the shader adds them (`NDF_ENV_LIGHTS`; the engine uploads the lights of an
+            // environment prepared with the same extraction, `envgpu::Upload::lights`).
+            env_lights: self.shader.environment && self.shader.env_lights > 0,
             ..ShaderOptions::default()
         }
     }

@@ -12,6 +12,10 @@ use serde::{Deserialize, Serialize};
 /// The most MIP levels a scene may name (a 2¹⁶-texel side has 17).
 pub const MAX_LEVELS: usize = 17;
 
+/// How many compact (and how many diffuse-only) lights the planner extracts from a scene's
+/// environment ([`Scene::environment_light`]): the CLI's and the C API's default, 4.
+pub const ENV_LIGHTS: usize = 4;
+
 /// A scene: what the renderer does with the normal map.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -497,9 +501,12 @@ impl Scene {
 
     /// The environment to light with, when the scene has one: `environment` read (a relative
     /// path against the working directory), or the generated sky (with or without its sun);
-    /// RGB. Prepared for the prefiltered route and the diffuse SH only
-    /// ([`crate::envlight::EnvLight::prefiltered_only`]) unless `sh_route` (an SH bake is
-    /// measured under a specular BRDF: eq 26 reads the `L′` tables).
+    /// RGB. Its compact bright sources (a sun, lamps) are extracted as lights, as everywhere
+    /// by default ([`crate::environment::lights::LightOptions::up_to`]`(`[`ENV_LIGHTS`]`)`:
+    /// the routes shade the residual, the lights are shaded per lobe; the plan's shaders add
+    /// them, `NDF_ENV_LIGHTS`). Prepared for the prefiltered route and the diffuse SH only
+    /// ([`crate::envlight::EnvLight::prefiltered_only_with_lights`]) unless `sh_route` (an SH
+    /// bake is measured under a specular BRDF: eq 26 reads the `L′` tables).
     pub fn environment_light(&self, sh_route: bool) -> Result<Option<crate::envlight::EnvLight>> {
         if !self.has_environment() {
             return Ok(None);
@@ -517,10 +524,11 @@ impl Scene {
             )
             .map_err(|e| Error::InvalidOption(format!("scene: field 'environment': {e}")))?,
         };
+        let lights = crate::environment::lights::LightOptions::up_to(ENV_LIGHTS);
         Ok(Some(if sh_route {
-            crate::envlight::EnvLight::new(&env)
+            crate::envlight::EnvLight::with_lights(&env, &lights)
         } else {
-            crate::envlight::EnvLight::prefiltered_only(&env)
+            crate::envlight::EnvLight::prefiltered_only_with_lights(&env, &lights)
         }))
     }
 }

@@ -66,6 +66,9 @@ struct Setup<'a> {
     /// K_d = 0: `NDF_NO_DIFFUSE` (the probe's diffuse must be exactly 0, the specular the
     /// twin's).
     no_diffuse: bool,
+    /// The environment's extracted lights added per part (`NDF_ENV_LIGHTS`, the planner's
+    /// shaders under a sun); the twin's `shade_in` adds them (`envlight::add_lights`).
+    env_lights: bool,
 }
 
 /// The point light's plus the prefiltered environment's shading of one part at its local
@@ -122,6 +125,7 @@ fn run_case(gl: &Gl, setup: &Setup) {
             ShaderLight::Point
         },
         no_diffuse: setup.no_diffuse,
+        env_lights: setup.env_lights,
         ..Default::default()
     };
     // The environment's route is within 5e-3 of its twin (tests/env.rs), the point light's 2e-4.
@@ -335,10 +339,10 @@ fn run_case(gl: &Gl, setup: &Setup) {
         "{}: LOD switch {:?}{}{} GL vs CPU worst {worst:.2e}",
         gl.route(),
         setup.sampling,
-        if setup.env.is_some() {
-            " + environment"
-        } else {
-            ""
+        match (setup.env.is_some(), setup.env_lights) {
+            (true, true) => " + environment with its extracted lights",
+            (true, false) => " + environment",
+            _ => "",
         },
         if setup.no_diffuse { ", K_d = 0" } else { "" },
     );
@@ -366,6 +370,7 @@ fn run(route: Route) {
             sampling: Sampling::Auto,
             env: None,
             no_diffuse: false,
+            env_lights: false,
         },
     );
     // Lit by the point light and the generated 64 x 32 sky (sun included), as tests/env.rs.
@@ -384,6 +389,22 @@ fn run(route: Route) {
             sampling: Sampling::Auto,
             env: Some((&light, &env)),
             no_diffuse: false,
+            env_lights: false,
+        },
+    );
+    // The same sky with its sun extracted (the default: one light) and the switch adding it in
+    // every part (`NDF_ENV_LIGHTS`, as the planner's shaders under a sun).
+    let lit = EnvLight::with_lights(&sky, &ndfmap::environment::lights::LightOptions::up_to(4));
+    assert_eq!(lit.lights().len(), 1, "the sun");
+    let lit_env = EnvTextures::upload(&gl, &lit).unwrap();
+    run_case(
+        &gl,
+        &Setup {
+            bakes: three_parts(),
+            sampling: Sampling::Auto,
+            env: Some((&lit, &lit_env)),
+            no_diffuse: false,
+            env_lights: true,
         },
     );
     // K_d = 0 (NDF_NO_DIFFUSE): the point light and the environment, specular only.
@@ -394,6 +415,7 @@ fn run(route: Route) {
             sampling: Sampling::Auto,
             env: Some((&light, &env)),
             no_diffuse: true,
+            env_lights: false,
         },
     );
     run_case(
@@ -406,6 +428,7 @@ fn run(route: Route) {
             sampling: Sampling::Anisotropic(4),
             env: None,
             no_diffuse: false,
+            env_lights: false,
         },
     );
 }

@@ -2,8 +2,9 @@
 //! point light, sphere under a directional light) drawn with the product shaders for plain,
 //! Toksvig, LEAN, vMF J = 4 unaligned (manual sampling) and aligned (hardware trilinear), and
 //! the PBR bakes (isotropic and anisotropic) with the plain glTF GGX shader, and (issue 16) the
-//! grazing plane and the sphere lit by the generated sky through both environment routes
-//! (`env-{prefiltered,sh}-*`, Toksvig and vMF J = 4 unaligned), through
+//! grazing plane and the sphere lit by the generated sky through both environment routes with
+//! its sun extracted as a light (the default; `env-{prefiltered,sh}-*`, Toksvig and vMF J = 4
+//! unaligned), through
 //! EGL and through OSMesa, against the reference images in `tests/reference/`.
 //!
 //! Images are compared after the same tone mapping the references are stored with
@@ -197,14 +198,20 @@ fn run(route: Route) {
         }
     }
     // Issue 16: the sphere and the grazing plane lit by the generated sky (sun included), by
-    // both environment routes, for Toksvig and vMF J = 4 unaligned (manual sampling).
+    // both environment routes, for Toksvig and vMF J = 4 unaligned (manual sampling), as users
+    // get them by default: the sun extracted as a light (`LightOptions::up_to(4)`, what the
+    // CLI, the C API and the viewer default to) and added by the shader (`NDF_ENV_LIGHTS`).
     let sky = ndfmap::environment::Sky {
         width: 128,
         ..Default::default()
     }
     .render()
     .unwrap();
-    let light = ndfmap::envlight::EnvLight::new(&sky);
+    let light = ndfmap::envlight::EnvLight::with_lights(
+        &sky,
+        &ndfmap::environment::lights::LightOptions::up_to(4),
+    );
+    assert_eq!(light.lights().len(), 1, "the sky's sun");
     let env = ndfmap_gl::EnvTextures::upload(&gl, &light).unwrap();
     let map = ndfmap::procedural::generate(128, 3).map;
     let env_bakes = [
@@ -224,6 +231,7 @@ fn run(route: Route) {
         for b in &env_bakes {
             let options = ShaderOptions {
                 light: ShaderLight::env(env_route),
+                env_lights: true,
                 ..ShaderOptions::default()
             };
             let r = BakeRenderer::new(&gl, b, &options).unwrap();

@@ -152,6 +152,12 @@ struct Cli {
     /// Radiance multiplier of the environment.
     #[arg(long, default_value_t = 1.0)]
     env_intensity: f64,
+    /// Extract up to N compact bright sources (a sun, lamps) from the environment, and up to N
+    /// wide ones (≤ 1 sr: windows) from its diffuse SH, and shade them as distant lights, per
+    /// lobe, with the routes on the residual (as `ndfmap eval --env-lights`, the same default);
+    /// 0: the paper's pure routes.
+    #[arg(long, default_value_t = 4)]
+    env_lights: usize,
 }
 
 /// The environment of environment mode: `--env FILE` loaded (with `--env-intensity`), or the
@@ -173,6 +179,7 @@ fn load_env(cli: &Cli) -> Result<EnvInput, String> {
         None | Some("sky") => Ok(EnvInput {
             name: "sky".into(),
             environment: sky()?,
+            max_lights: cli.env_lights,
         }),
         Some(path) => {
             let env = ndfmap::environment::load(std::path::Path::new(path), &options)
@@ -189,6 +196,7 @@ fn load_env(cli: &Cli) -> Result<EnvInput, String> {
             Ok(EnvInput {
                 name,
                 environment: env,
+                max_lights: cli.env_lights,
             })
         }
     }

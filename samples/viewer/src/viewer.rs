@@ -375,6 +375,9 @@ struct RendererKey {
     finest: bool,
     /// Point light or an environment route.
     light: ShaderLight,
+    /// The environment shader adds the extracted lights (`NDF_ENV_LIGHTS`): environment mode
+    /// with an environment that has some.
+    env_lights: bool,
 }
 
 /// The state a reference image was accumulated for: when any of it changes, it restarts.
@@ -444,6 +447,10 @@ pub struct EnvInput {
     pub name: String,
     /// The panorama.
     pub environment: Environment,
+    /// Extract up to this many compact bright sources (and as many diffuse-only ones) as
+    /// distant lights (`--env-lights`, default 4; 0: the paper's pure routes): the tables hold
+    /// the residual and the shaders add the lights (`NDF_ENV_LIGHTS`).
+    pub max_lights: usize,
 }
 
 /// The viewer: bakes, shaders, targets and the presentation pass on one context.
@@ -495,7 +502,10 @@ impl Viewer {
             return Ok(());
         }
         let env = &self.env_input.environment;
-        let light = EnvLight::new(env);
+        let light = EnvLight::with_lights(
+            env,
+            &ndfmap::environment::lights::LightOptions::up_to(self.env_input.max_lights),
+        );
         let textures = EnvTextures::upload(&self.gl, &light).map_err(|e| e.to_string())?;
         let background = EnvBackground::new(&self.gl, env).map_err(|e| e.to_string())?;
         self.env = Some(EnvGpu {
@@ -584,7 +594,16 @@ impl Viewer {
                 l if l.is_env() && bake.spec.method == Method::Sh => ShaderLight::EnvSh,
                 l => l,
             },
+            env_lights: self.settings.env_lit && self.env_light_count() > 0,
         }
+    }
+
+    /// How many lights were extracted from the environment (0 before it is first prepared,
+    /// [`Viewer::render`] prepares it before any environment shader is chosen).
+    pub fn env_light_count(&self) -> usize {
+        self.env
+            .as_ref()
+            .map_or(0, |e| e.textures.data().lights.len())
     }
 
     /// Compiles and uploads `key` if its bake is done; whether it is ready.
@@ -613,6 +632,7 @@ impl Viewer {
             },
             color: key.bake.color,
             light: key.light,
+            env_lights: key.env_lights,
             probe: false,
             ..ShaderOptions::default()
         };
@@ -825,10 +845,11 @@ impl Viewer {
         );
         if s.env_lit {
             line += &format!(
-                " | env {} {} yaw {:.0}°",
+                " | env {} {} yaw {:.0}° lights {}",
                 self.env_input.name,
                 s.env_route.name(),
-                s.env_yaw.to_degrees()
+                s.env_yaw.to_degrees(),
+                self.env_light_count()
             );
         }
         if self.shown != Some(wanted) || self.baking() {
