@@ -7,12 +7,15 @@
 //! bakes only. `--prefiltered-only`: the prefiltered route only, with the vMF J = 6 aligned
 //! bake with colour textures (eq 22, one more fetch per lobe) beside it. `--ggx A`: GGX α = A
 //! instead of Blinn-Phong (the prefiltered route's two-vMF lobe: a second lookup per lobe).
+//! `--env-lights N`: the sun taken out of the sky as a light and added by every shader
+//! (`NDF_ENV_LIGHTS`), as `ndfmap eval`/`report`, the C API and the viewer do by default; the
+//! default here is 0, the pure routes, so earlier tables stay comparable.
 //! Each configuration is drawn 3 times untimed (shader compilation), then `--frames` times
 //! (default 20), `glFinish` after each; the median frame is reported with its ratio to plain's
 //! prefiltered frame, all in the same run.
 //!
 //! `cargo run --release -p ndfmap-gl --example env_timings [egl|osmesa] [--frames N]
-//! [--sh-only | --prefiltered-only] [--ggx A]`.
+//! [--sh-only | --prefiltered-only] [--ggx A] [--env-lights N]`.
 
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::Brdf;
@@ -53,7 +56,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..Sky::default()
     }
     .render()?;
-    let light = EnvLight::new(&sky);
+    let env_lights: usize = value("--env-lights")
+        .map(|v| v.parse())
+        .transpose()?
+        .unwrap_or(0);
+    let light = EnvLight::with_lights(
+        &sky,
+        &ndfmap::environment::lights::LightOptions::up_to(env_lights),
+    );
+    println!("  {} extracted light(s)", light.lights().len());
     let env = EnvTextures::upload(&gl, &light)?;
     let sample = ndfmap::procedural::generate(512, 3);
     let map = sample.map.clone();
@@ -119,6 +130,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             light: ShaderLight::env(er),
             brdf: ShaderBrdf::of(&scene.lighting.brdf),
             color,
+            env_lights: !light.lights().is_empty(),
             ..Default::default()
         };
         let r = BakeRenderer::new(&gl, b, &options)?;
