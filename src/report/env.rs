@@ -5,7 +5,10 @@
 //! blended for unaligned lobes), against a per-pixel Monte Carlo ground truth
 //! ([`envlight::ground_truth`]: the footprint average over the unfiltered normals that `k × k`
 //! jittered sub-pixel rays hit, MIS of the environment and the BRDF), whose noise is measured
-//! from its samples and stated with the errors.
+//! from its samples and stated with the errors. Beside the configurations, the *ideal-NDF
+//! floor* ([`FLOOR_LABEL`]): the bakes' trilinear taps, each texel standing for the exact
+//! average over the finest normals it covers — what no per-texel NDF sampled this way can
+//! beat.
 //!
 //! Colour: a map with an albedo (its feature image, `report --env-albedo`) is scored as `eval
 //! --env --feature` scores it in texel space: the ground truth reflects each sub-pixel
