@@ -816,7 +816,8 @@ mod tests {
         let (l, h) = (DVec3::new(0.1, 0.0, 1.0).normalize(), DVec3::Z);
         let t = b.texel(2, 1, 1);
         let lobe = vmf_decode(t[0], crate::vmf::r_max(b.format), 0.0).unwrap();
-        let cos_i = lobe.mu.dot(l).max(0.0);
+        // The specular term's cosine at the product lobe's centre (the default VmfCosine).
+        let cos_i = specular_cosine(lobe.mu, lobe.var, h, l, cosine_eta(&brdf));
         let mut differ = false;
         for (rule, alpha) in [
             (VmfSpecular::Eq20, g.widened(lobe.var)),
