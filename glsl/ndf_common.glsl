@@ -38,6 +38,19 @@ uniform sampler2D ndf_brdf_table;
 uniform float ndf_s;      // Blinn-Phong exponent s > 0 (eq 20)
 #endif
 
+#if defined(NDF_BRDF_BLINN_PHONG) || defined(NDF_BRDF_GGX)
+// The BRDF lobe's concentration eta as a vMF lobe about w_h (shade::cosine_eta), for the vMF
+// specular term's cosine at the centre of the NDF lobe's and the BRDF lobe's product: Blinn-Phong
+// s + 1, GGX the Blinn-Phong lobe of its peak, max(2/alpha^2 - 2, 1) + 1.
+float ndf_cosine_eta() {
+#if defined(NDF_BRDF_GGX)
+    return max(2.0 / (ndf_alpha * ndf_alpha) - 2.0, 1.0) + 1.0;
+#else
+    return ndf_s + 1.0;
+#endif
+}
+#endif
+
 // max(x, 0)^y with the CPU's conventions: 0^0 = 1 (an exponent of 0 is a uniform lobe), and
 // x <= 0 with y > 0 gives 0. GLSL's pow is undefined at x = 0, y <= 0.
 float ndf_pow(float x, float y) {

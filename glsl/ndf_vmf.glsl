@@ -24,6 +24,10 @@
 //                the peak of the exact convolution (Ggx::widened_vmf); other BRDFs:
 //                ndf_iso_lobe with var = 1/kappa (eq 21 for Torrance-Sparrow, eq 14 tabulated)
 //   line 14      rho += alpha*y (K_s B + K_d)(w_i . mu); the K_d and K_s terms are returned apart.
+//                Under Blinn-Phong and GGX the K_s term takes its cosine at the centre of the NDF
+//                lobe's and the BRDF lobe's product, max(w_i . n_p, 0) with n_p = normalize(mu +
+//                eta var w_h), eta = ndf_cosine_eta() (shade::specular_cosine, VmfCosine::Product;
+//                kappa = inf gives mu), unless NDF_VMF_COSINE_ALG2 asks for w_i . mu as written.
 //                The K_d term uses max(w_i . alpha r, 0) = alpha |r| (w_i . mu) unless
 //                NDF_VMF_DIFFUSE_ALG2 asks for line 14 as written (shade::VmfDiffuse).
 
@@ -78,7 +82,14 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         // ndf_pow(cos_h, sp) with selects: 0^0 = 1; cos_h <= 0 with sp > 0 gives 0.
         float p = cos_h > 0.0 ? exp2(sp * log2(cos_h)) : 0.0;
         p = sp > 0.0 ? p : 1.0;
-        float lobe = (sp + 1.0) * (0.5 / NDF_PI) * p * cos_i;
+#ifdef NDF_VMF_COSINE_ALG2
+        float cos_s = cos_i;
+#else
+        // The product lobe's centre normalize(mu + eta (N/D) h), scaled by D: no division.
+        vec3 np = d * mu + (ndf_cosine_eta() * n) * h;
+        float cos_s = max(dot(np, l), 0.0) * inversesqrt(max(dot(np, np), 1e-30));
+#endif
+        float lobe = (sp + 1.0) * (0.5 / NDF_PI) * p * cos_s;
 #ifdef NDF_COLOR
         vec3 weight = live ? t[NDF_LOBES + j].rgb : vec3(0.0);
 #ifdef NDF_VMF_DIFFUSE_ALG2
@@ -119,14 +130,20 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
         vec3 weight = vec3(alpha);
 #endif
         float cos_i = max(dot(mu, l), 0.0);
-#if defined(NDF_BRDF_BLINN_PHONG) && defined(NDF_VMF_SPECULAR_CONVOLVED)
-        float lobe = ndf_vmf_blinn_phong(dot(mu, h), ndf_s, var) * cos_i;
-#elif defined(NDF_BRDF_GGX) && defined(NDF_VMF_SPECULAR_CONVOLVED)
-        float lobe = ndf_ggx(mu, h, ndf_vmf_ggx_alpha(var)) * cos_i;
-#elif defined(NDF_BRDF_GGX) && !defined(NDF_VMF_SPECULAR_EQ20)
-        float lobe = ndf_vmf_ggx_mixture(mu, h, var) * cos_i;
+#if (defined(NDF_BRDF_BLINN_PHONG) || defined(NDF_BRDF_GGX)) && !defined(NDF_VMF_COSINE_ALG2)
+        vec3 np = mu + (ndf_cosine_eta() * var) * h;
+        float cos_s = max(dot(np, l), 0.0) * inversesqrt(max(dot(np, np), 1e-30));
 #else
-        float lobe = ndf_iso_lobe(mu, var, h) * cos_i;
+        float cos_s = cos_i;
+#endif
+#if defined(NDF_BRDF_BLINN_PHONG) && defined(NDF_VMF_SPECULAR_CONVOLVED)
+        float lobe = ndf_vmf_blinn_phong(dot(mu, h), ndf_s, var) * cos_s;
+#elif defined(NDF_BRDF_GGX) && defined(NDF_VMF_SPECULAR_CONVOLVED)
+        float lobe = ndf_ggx(mu, h, ndf_vmf_ggx_alpha(var)) * cos_s;
+#elif defined(NDF_BRDF_GGX) && !defined(NDF_VMF_SPECULAR_EQ20)
+        float lobe = ndf_vmf_ggx_mixture(mu, h, var) * cos_s;
+#else
+        float lobe = ndf_iso_lobe(mu, var, h) * cos_s;
 #endif
 #ifndef NDF_NO_DIFFUSE
 #ifdef NDF_VMF_DIFFUSE_ALG2

@@ -591,6 +591,12 @@ typedef uint32_t ndf_light;
 typedef uint32_t ndf_vmf_specular;
 
 /**
+ * Where the vMF lobes' specular term takes its cosine of incidence under Blinn-Phong and GGX:
+ * one of the `NDF_VMF_COSINE_*` values.
+ */
+typedef uint32_t ndf_vmf_cosine;
+
+/**
  * Options of a specialized shader. Initialize with `ndf_shader_options_default()`.
  */
 typedef struct ndf_shader_options {
@@ -661,6 +667,11 @@ typedef struct ndf_shader_options {
    * environment with them would shade its residual alone (the sun missing).
    */
   uint32_t env_lights;
+  /**
+   * vMF bakes under Blinn-Phong or GGX: where the specular term takes its cosine of
+   * incidence, `NDF_VMF_COSINE_*`. Default `NDF_VMF_COSINE_PRODUCT`.
+   */
+  ndf_vmf_cosine vmf_cosine;
 } ndf_shader_options;
 
 /**
@@ -1252,6 +1263,17 @@ typedef struct ndf_environment_info {
 #define NDF_VMF_SPECULAR_AUTO 2
 
 /**
+ * At the centre of the NDF lobe's and the BRDF lobe's product, `normalize(μ + (η/κ)ω_h)`
+ * (lower specular error; `docs/baker.md`, "The specular cosine"). Default.
+ */
+#define NDF_VMF_COSINE_PRODUCT 0
+
+/**
+ * Algorithm 2 line 14 as written: `max(ω_i·μ, 0)`.
+ */
+#define NDF_VMF_COSINE_ALGORITHM2 1
+
+/**
  * `E[max(ω_i·n, 0)]` for a Gaussian cosine with the moments bands 0–2 give (l* ≥ 2; lower
  * Lambert error). Default.
  */
@@ -1803,7 +1825,8 @@ ndf_status ndf_bake_container_file(const struct ndf_bake *bake,
 
 /**
  * The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
- * textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
+ * textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule (its
+ * cosine at the product lobe's centre), the
  * moments SH diffuse term, the mesh variant, the point light (environment-lit shaders add the
  * extracted lights).
  */

@@ -195,6 +195,9 @@ pub struct ShaderOptions {
     pub probe: bool,
     /// The vMF lobes' diffuse term (`NDF_VMF_DIFFUSE_ALG2` for Algorithm 2 as written).
     pub vmf_diffuse: crate::shade::VmfDiffuse,
+    /// Where the vMF lobes' specular term takes its cosine of incidence under Blinn-Phong and
+    /// GGX (default: the product lobe's centre; `NDF_VMF_COSINE_ALG2` for Algorithm 2's `ω_i·μ`).
+    pub vmf_cosine: crate::shade::VmfCosine,
     /// The vMF lobes' specular rule under Blinn-Phong and GGX (the default is the paper's eq 20,
     /// GGX's `α'² = α² + c/κ`; `NDF_VMF_SPECULAR_CONVOLVED` for the closed-form convolution,
     /// GGX's peak-matched widening `Ggx::widened_vmf`). `VmfSpecular::Exact` has no shader and
@@ -484,7 +487,8 @@ pub struct LodPart {
     /// `first`); the shader reads its levels `0 ..= last − first`.
     pub spec: ShaderSpec,
     /// Its shader options ([`ShaderOptions::color`], [`ShaderOptions::sampling`] and
-    /// [`ShaderOptions::vmf_diffuse`] / [`ShaderOptions::sh_diffuse`] are the part's own; the
+    /// [`ShaderOptions::vmf_diffuse`], [`ShaderOptions::vmf_cosine`] /
+    /// [`ShaderOptions::sh_diffuse`] are the part's own; the
     /// lighting, BRDF, probe flag and [`ShaderOptions::no_diffuse`] must be those of every
     /// part).
     pub options: ShaderOptions,
@@ -982,6 +986,9 @@ fn defines(
     }
     if spec.method == Method::Vmf && options.vmf_specular == crate::shade::VmfSpecular::Convolved {
         d("NDF_VMF_SPECULAR_CONVOLVED", "1", Part);
+    }
+    if spec.method == Method::Vmf && options.vmf_cosine == crate::shade::VmfCosine::Algorithm2 {
+        d("NDF_VMF_COSINE_ALG2", "1", Part);
     }
     // Under GGX the default (Auto) is the vMF-mixture convolution; eq20 asks for the single
     // widened lobe. Blinn-Phong's eq 20 is the default already: no define, the same source.

@@ -16,7 +16,7 @@ use ndfmap::glsl::{
 use ndfmap::ingest::Addressing;
 use ndfmap::methods::texture_ranges;
 use ndfmap::sh::ShDiffuse;
-use ndfmap::shade::VmfDiffuse;
+use ndfmap::shade::{VmfCosine, VmfDiffuse};
 use std::process::Command;
 
 fn validator() -> Option<&'static str> {
@@ -117,6 +117,12 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                                         VmfDiffuse::Algorithm2
                                     } else {
                                         VmfDiffuse::MeanVector
+                                    },
+                                    // Algorithm 2's specular cosine (at μ) on others.
+                                    vmf_cosine: if lobes == 2 {
+                                        VmfCosine::Algorithm2
+                                    } else {
+                                        VmfCosine::Product
                                     },
                                     // eq 12's series as the SH diffuse term at l* = 2.
                                     sh_diffuse: if lobes == 2 && probe {

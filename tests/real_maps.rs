@@ -95,17 +95,19 @@ fn vmf_beats_toksvig_and_lean_on_rock_at_far_levels() {
                 .unwrap()
         };
         let (v, t, l) = (get("vmf6"), get("toksvig"), get("lean"));
-        // Coherent lobes (eq 29) cost little texel-space accuracy: on the mean of levels 2-6,
-        // within 1.6x of the unaligned fit at s = 32 and 1.2x at s = 256 (measured, balanced
-        // mode: 0.0314 against 0.0217, 1.45x, and 0.0569 against 0.0537, 1.06x; before the
-        // divergence seeding both fits were worse and close, 0.038 against 0.037 at s = 32:
-        // the unaligned fit improved more, and eq 29's pull towards the neighbours' lobes is
-        // what is left), and still over 3x better than Toksvig and LEAN (measured 4x and 6x).
+        // Coherent lobes (eq 29) cost some texel-space accuracy: on the mean of levels 2-6,
+        // within 1.85x of the unaligned fit at s = 32 and 1.2x at s = 256 (measured, balanced
+        // mode, with the specular cosine at the product lobe's centre: 0.0307 against 0.0178,
+        // 1.72x, at s = 32; with Algorithm 2's cosine at μ it was 0.0314 against 0.0217, 1.45x:
+        // the cosine helps the unaligned lobes more, and eq 29's pull towards the neighbours'
+        // lobes is what is left; before the divergence seeding both fits were worse and close,
+        // 0.038 against 0.037), and still over 3x better than Toksvig and LEAN (measured 4x
+        // and 6x before the cosine change).
         let mean = |e: &ndfmap::eval::MethodError| {
             (2..=6).map(|k| e.levels[k].specular).sum::<f64>() / 5.0
         };
         let (va, vu) = (mean(get("vmf6a")), mean(v));
-        let bound = if s < 100.0 { 1.6 } else { 1.2 };
+        let bound = if s < 100.0 { 1.85 } else { 1.2 };
         assert!(va <= bound * vu, "s={s}: aligned {va} vs unaligned {vu}");
         assert!(
             3.0 * va < mean(t) && 3.0 * va < mean(l),

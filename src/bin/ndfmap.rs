@@ -168,6 +168,11 @@ enum Command {
         /// algorithm2 (α max(ω_i·μ, 0)).
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// vmf, Blinn-Phong and GGX: where the specular term takes its cosine of incidence,
+        /// product (the default: at the centre of the NDF lobe's and the BRDF lobe's product) or
+        /// algorithm2 (at μ, as Algorithm 2 line 14 is written).
+        #[arg(long, default_value = "product")]
+        vmf_cosine: String,
         /// vmf: the lobes' specular rule, auto (the default: eq20 under Blinn-Phong; GGX: the
         /// exact convolution of GGX's D as a fitted mixture of vMF lobes), eq20 (the paper's
         /// s' = κs/(κ+s); GGX: one widened lobe α'² = α² + c/κ) or convolved (the closed-form
@@ -286,6 +291,10 @@ enum Command {
         /// vMF diffuse term: mean-vector (default) or algorithm2.
         #[arg(long, default_value = "mean-vector")]
         vmf_diffuse: String,
+        /// vMF specular term's cosine of incidence under Blinn-Phong and GGX: product (default:
+        /// at the centre of the NDF lobe's and the BRDF lobe's product) or algorithm2 (at μ).
+        #[arg(long, default_value = "product")]
+        vmf_cosine: String,
         /// vMF specular rule, comma-separated to compare in one run (labels then name the
         /// rule): auto (the default: eq20 under Blinn-Phong; GGX: the exact convolution of
         /// GGX's D as a fitted mixture of vMF lobes), eq20 (the paper's s' = κs/(κ+s); GGX: one
@@ -1503,6 +1512,7 @@ fn run(cli: Cli) -> Result<u8> {
             ggx_g,
             ggx_c,
             vmf_diffuse,
+            vmf_cosine,
             vmf_specular,
             sh_diffuse,
             first_level,
@@ -1523,6 +1533,7 @@ fn run(cli: Cli) -> Result<u8> {
             }
             let shading = ndfmap::shade::ShadeOptions {
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
+                vmf_cosine: choice("vmf-cosine", &vmf_cosine, "product, algorithm2")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
                 ..Default::default()
             };
@@ -1727,6 +1738,7 @@ fn run(cli: Cli) -> Result<u8> {
             sampling,
             max_anisotropy,
             vmf_diffuse,
+            vmf_cosine,
             vmf_specular,
             sh_diffuse,
             addressing,
@@ -1796,6 +1808,7 @@ fn run(cli: Cli) -> Result<u8> {
                 color,
                 probe,
                 vmf_diffuse: choice("vmf-diffuse", &vmf_diffuse, "mean-vector, algorithm2")?,
+                vmf_cosine: choice("vmf-cosine", &vmf_cosine, "product, algorithm2")?,
                 vmf_specular: choice("vmf-specular", &vmf_specular, "auto, eq20, convolved")?,
                 sh_diffuse: choice("sh-diffuse", &sh_diffuse, "moments, series")?,
                 light: [

@@ -5,7 +5,7 @@ use super::bake::{FORMATS, ndf_bake, ndf_format};
 use super::{Out, Outcome, arg, choose, fail, guard, guard_value, ndf_status, read_options};
 use crate::glsl::{Sampling, ShaderBrdf, ShaderLight, ShaderOptions, ShaderSpec, Stage};
 use crate::sh::ShDiffuse;
-use crate::shade::{VmfDiffuse, VmfSpecular};
+use crate::shade::{VmfCosine, VmfDiffuse, VmfSpecular};
 use std::ffi::c_char;
 
 /// A shader stage: one of the `NDF_SHADER_STAGE_*` values.
@@ -53,6 +53,15 @@ pub const NDF_VMF_SPECULAR_CONVOLVED: ndf_vmf_specular = 1;
 /// `ndf_material_ggx_mixture`). A host that leaves those arrays unset (all weights 0) gets
 /// `NDF_VMF_SPECULAR_EQ20`'s widened lobe instead, not a broken one.
 pub const NDF_VMF_SPECULAR_AUTO: ndf_vmf_specular = 2;
+
+/// Where the vMF lobes' specular term takes its cosine of incidence under Blinn-Phong and GGX:
+/// one of the `NDF_VMF_COSINE_*` values.
+pub type ndf_vmf_cosine = u32;
+/// At the centre of the NDF lobe's and the BRDF lobe's product, `normalize(μ + (η/κ)ω_h)`
+/// (lower specular error; `docs/baker.md`, "The specular cosine"). Default.
+pub const NDF_VMF_COSINE_PRODUCT: ndf_vmf_cosine = 0;
+/// Algorithm 2 line 14 as written: `max(ω_i·μ, 0)`.
+pub const NDF_VMF_COSINE_ALGORITHM2: ndf_vmf_cosine = 1;
 
 /// The SH texels' diffuse term: one of the `NDF_SH_DIFFUSE_*` values.
 pub type ndf_sh_diffuse = u32;
@@ -143,10 +152,14 @@ pub struct ndf_shader_options {
     /// `ndf_env_options.max_lights`' default 4: a shader without the lights drawing an
     /// environment with them would shade its residual alone (the sun missing).
     pub env_lights: u32,
+    /// vMF bakes under Blinn-Phong or GGX: where the specular term takes its cosine of
+    /// incidence, `NDF_VMF_COSINE_*`. Default `NDF_VMF_COSINE_PRODUCT`.
+    pub vmf_cosine: ndf_vmf_cosine,
 }
 
 /// The default shader options: Blinn-Phong, automatic sampling (16 probes if anisotropic), f32
-/// textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule, the
+/// textures, no colour, the mean-vector vMF diffuse term, eq 20 as the vMF specular rule (its
+/// cosine at the product lobe's centre), the
 /// moments SH diffuse term, the mesh variant, the point light (environment-lit shaders add the
 /// extracted lights).
 #[unsafe(no_mangle)]
@@ -165,6 +178,7 @@ pub extern "C" fn ndf_shader_options_default() -> ndf_shader_options {
         light: NDF_LIGHT_POINT,
         vmf_specular: NDF_VMF_SPECULAR_AUTO,
         env_lights: 1,
+        vmf_cosine: NDF_VMF_COSINE_PRODUCT,
     };
     guard_value(o, || o)
 }
@@ -213,6 +227,11 @@ unsafe fn shader(
         color: o.color != 0,
         probe: o.probe != 0,
         vmf_diffuse: choose("vmf_diffuse", o.vmf_diffuse, &diffuse)?,
+        vmf_cosine: choose(
+            "vmf_cosine",
+            o.vmf_cosine,
+            &[VmfCosine::Product, VmfCosine::Algorithm2],
+        )?,
         vmf_specular: choose(
             "vmf_specular",
             o.vmf_specular,

@@ -1564,6 +1564,59 @@ fn the_vmf_specular_rule_defaults_to_auto_and_convolved_is_opt_in() {
 }
 
 #[test]
+fn the_vmf_cosine_defaults_to_the_product_centre_and_algorithm2_is_a_define() {
+    // ndf_shader_options_default (and a zero field) give the product lobe's centre, the Rust
+    // default's source with no define; 1 is Algorithm 2's ω_i·μ (NDF_VMF_COSINE_ALG2, vMF only);
+    // 2 is refused.
+    let map = c_map();
+    let vmf = c_bake(map, NDF_METHOD_VMF);
+    let lean = c_bake(map, NDF_METHOD_LEAN);
+    let o = ndf_shader_options_default();
+    assert_eq!(o.vmf_cosine, NDF_VMF_COSINE_PRODUCT);
+    assert_eq!(NDF_VMF_COSINE_PRODUCT, 0);
+    // SAFETY: every pointer is NULL or valid for what it claims; freed once.
+    unsafe {
+        for bake in [vmf, lean] {
+            let spec = crate::glsl::ShaderSpec::of(&(*bake).bake);
+            for (value, cosine) in [
+                (NDF_VMF_COSINE_PRODUCT, crate::shade::VmfCosine::Product),
+                (
+                    NDF_VMF_COSINE_ALGORITHM2,
+                    crate::shade::VmfCosine::Algorithm2,
+                ),
+            ] {
+                let opts = ndf_shader_options {
+                    vmf_cosine: value,
+                    ..o
+                };
+                let rust_opts = crate::glsl::ShaderOptions {
+                    vmf_cosine: cosine,
+                    ..Default::default()
+                };
+                let want = crate::glsl::source_for(&spec, crate::glsl::Stage::Fragment, &rust_opts)
+                    .unwrap();
+                assert_eq!(
+                    want.contains("#define NDF_VMF_COSINE_ALG2"),
+                    bake == vmf && cosine == crate::shade::VmfCosine::Algorithm2
+                );
+                let mut size = 0;
+                check!(ndf_bake_shader_source_size(bake, 1, &opts, &mut size) => Ok, "");
+                let mut buf = vec![0 as c_char; size];
+                let mut written = 0;
+                check!(ndf_bake_shader_source(bake, 1, &opts, buf.as_mut_ptr(), size, &mut written) => Ok, "");
+                assert_eq!(CStr::from_ptr(buf.as_ptr()).to_str().unwrap(), want);
+            }
+        }
+        let mut n = 0;
+        let bad = ndf_shader_options { vmf_cosine: 2, ..o };
+        check!(ndf_bake_shader_source_size(vmf, 1, &bad, &mut n) => InvalidArgument, "unknown vmf_cosine value 2");
+        ndf_bake_free(vmf);
+        ndf_bake_free(lean);
+        ndf_normal_map_free(map);
+    }
+}
+
+#[test]
 fn shader_source_is_the_glsl_modules_for_the_upload_format() {
     let map = c_map();
     let vmf = c_bake(map, NDF_METHOD_VMF);

@@ -29,7 +29,7 @@ use ndfmap::glsl::{Sampling, ShaderBrdf, ShaderOptions, Stage, source};
 use ndfmap::methods::{bake, bake_with};
 use ndfmap::sample::{Filtering, anisotropic, shade_at};
 use ndfmap::sh::ShDiffuse;
-use ndfmap::shade::{ShadeOptions, VmfDiffuse, VmfSpecular, shade_rgb_with};
+use ndfmap::shade::{ShadeOptions, VmfCosine, VmfDiffuse, VmfSpecular, shade_rgb_with};
 use ndfmap_gl::{
     BakeTextures, BrdfBinding, Gl, Program, RenderTarget, Route, draw_fullscreen, glow,
     read_rgba_f32,
@@ -78,11 +78,12 @@ struct Case {
     diffuse: VmfDiffuse,
     specular: VmfSpecular,
     sh_diffuse: ShDiffuse,
+    cosine: VmfCosine,
 }
 
 fn label(c: &Case) -> String {
     format!(
-        "{} {} {:?}{}{}{}{}",
+        "{} {} {:?}{}{}{}{}{}",
         c.bake.label(),
         c.brdf.model(),
         c.sampling,
@@ -101,6 +102,11 @@ fn label(c: &Case) -> String {
             VmfSpecular::Convolved => " convolved",
             VmfSpecular::Eq20 => " eq20",
             _ => "",
+        },
+        if c.cosine == VmfCosine::Algorithm2 {
+            " cosine-alg2"
+        } else {
+            ""
         }
     )
 }
@@ -139,6 +145,7 @@ fn measure_with(
         color: case.color,
         probe: true,
         vmf_diffuse: case.diffuse,
+        vmf_cosine: case.cosine,
         vmf_specular: shader_specular,
         sh_diffuse: case.sh_diffuse,
         ..Default::default()
@@ -169,6 +176,7 @@ fn measure_with(
         color: case.color,
         shading: ShadeOptions {
             vmf_diffuse: case.diffuse,
+            vmf_cosine: case.cosine,
             vmf_specular: case.specular,
             sh_diffuse: case.sh_diffuse,
         },
@@ -292,6 +300,7 @@ fn cases() -> Vec<Case> {
                         diffuse: VmfDiffuse::default(),
                         specular: VmfSpecular::default(),
                         sh_diffuse: ShDiffuse::default(),
+                        cosine: VmfCosine::default(),
                     });
                 }
             }
@@ -344,6 +353,7 @@ fn cases() -> Vec<Case> {
                 diffuse: VmfDiffuse::default(),
                 specular: VmfSpecular::default(),
                 sh_diffuse: ShDiffuse::default(),
+                cosine: VmfCosine::default(),
             });
         }
     }
@@ -358,6 +368,7 @@ fn cases() -> Vec<Case> {
                 diffuse: VmfDiffuse::default(),
                 specular: VmfSpecular::default(),
                 sh_diffuse: ShDiffuse::default(),
+                cosine: VmfCosine::default(),
             });
         }
     }
@@ -377,6 +388,7 @@ fn cases() -> Vec<Case> {
                 diffuse: VmfDiffuse::default(),
                 specular: VmfSpecular::default(),
                 sh_diffuse,
+                cosine: VmfCosine::default(),
             });
         }
     }
@@ -391,7 +403,27 @@ fn cases() -> Vec<Case> {
                 diffuse: VmfDiffuse::Algorithm2,
                 specular: VmfSpecular::default(),
                 sh_diffuse: ShDiffuse::default(),
+                cosine: VmfCosine::default(),
             });
+        }
+    }
+    // Algorithm 2's specular cosine at μ (NDF_VMF_COSINE_ALG2, the alternative to the default
+    // cosine at the product lobe's centre): the branch-free eq 20 loop (Blinn-Phong) and the
+    // general loop (GGX's mixture rule), unaligned and aligned, f32 and f16.
+    for b in [&bakes[4], &aligned] {
+        for format in [Format::F32, Format::F16] {
+            for brdf in [Brdf::BlinnPhong { s: 64.0 }, Brdf::ggx(0.3)] {
+                out.push(Case {
+                    bake: ndfmap::pack::quantize(b, format).unwrap(),
+                    brdf,
+                    sampling: Sampling::Manual,
+                    color: false,
+                    diffuse: VmfDiffuse::default(),
+                    specular: VmfSpecular::default(),
+                    sh_diffuse: ShDiffuse::default(),
+                    cosine: VmfCosine::Algorithm2,
+                });
+            }
         }
     }
     // The closed-form vMF ⊛ Blinn-Phong lobe as the vMF lobes' specular rule (the opt-in
@@ -408,6 +440,7 @@ fn cases() -> Vec<Case> {
                     diffuse: VmfDiffuse::default(),
                     specular: VmfSpecular::Convolved,
                     sh_diffuse: ShDiffuse::default(),
+                    cosine: VmfCosine::default(),
                 });
             }
             // Under GGX the same option selects the peak-matched widening
@@ -422,6 +455,7 @@ fn cases() -> Vec<Case> {
                     diffuse: VmfDiffuse::default(),
                     specular: VmfSpecular::Convolved,
                     sh_diffuse: ShDiffuse::default(),
+                    cosine: VmfCosine::default(),
                 });
                 // The default GGX rule (the vMF-mixture convolution, ndf_vmf_ggx_mixture) and
                 // the single widened lobe it replaced (NDF_VMF_SPECULAR_EQ20).
@@ -434,6 +468,7 @@ fn cases() -> Vec<Case> {
                         diffuse: VmfDiffuse::default(),
                         specular,
                         sh_diffuse: ShDiffuse::default(),
+                        cosine: VmfCosine::default(),
                     });
                 }
             }
@@ -528,6 +563,7 @@ fn unset_mixture_falls_back(route: Route) {
             diffuse: VmfDiffuse::default(),
             specular: VmfSpecular::Eq20,
             sh_diffuse: ShDiffuse::default(),
+            cosine: VmfCosine::default(),
         };
         let zero = [0.0f32; ndfmap::brdf::ggx_mixture::GGX_MIXTURE_LOBES];
         let unset = measure_with(&gl, &case, VmfSpecular::Auto, &|p| {
