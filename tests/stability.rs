@@ -314,7 +314,7 @@ fn vmf_blinn_phong_f32(cos_h: f32, s: f32, var: f32) -> f32 {
 
 /// The shaders' vMF lobe in f32 (glsl/ndf_vmf.glsl + ndf_common.glsl): decode, κ with the
 /// format's clamp, the specular rule (eq 20 with `ndf_pow`'s conventions, or the closed-form
-/// convolution).
+/// convolution) and its cosine at the product lobe's centre.
 fn vmf_lobe_f32(
     theta: [f32; 4],
     l: Vec3,
@@ -349,12 +349,16 @@ fn vmf_lobe_f32(
         }
     };
     let cos_i = mu.dot(l).max(0.0);
+    // The specular term's cosine at the product lobe's centre (VmfCosine::Product, the
+    // default): normalize(μ + η·var·ω_h) with η = s + 1, as the general loop of ndf_vmf.glsl.
+    let np = mu + ((s + 1.0) * var) * h;
+    let cos_s = np.dot(l).max(0.0) / np.dot(np).max(1e-30).sqrt();
     let b = if rule == VmfSpecular::Eq20 {
         (s_eff + 1.0) / (2.0 * std::f32::consts::PI) * ndf_pow(mu.dot(h), s_eff)
     } else {
         vmf_blinn_phong_f32(mu.dot(h), s, var)
     };
-    (alpha * cos_i, alpha * b * cos_i)
+    (alpha * cos_i, alpha * b * cos_s)
 }
 
 #[test]
