@@ -365,16 +365,6 @@ pub enum VmfCosine {
     Algorithm2,
 }
 
-impl VmfCosine {
-    /// The name used on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            VmfCosine::Product => "product",
-            VmfCosine::Algorithm2 => "algorithm2",
-        }
-    }
-}
-
 /// The concentration η of `brdf`'s specular lobe written as a vMF lobe about `ω_h`, for
 /// [`VmfCosine::Product`]: Blinn-Phong `s + 1`, GGX `max(2/α² − 2, 1) + 1` (the Blinn-Phong
 /// lobe of GGX's peak, [`Brdf::equivalent_exponent`]); 0 (the cosine at μ) for the other
