@@ -117,6 +117,7 @@ pub fn vmf_lobe_with(
         return Shading::default();
     };
     let cos_i = t.mu.dot(l).max(0.0);
+    let brdf = Brdf::BlinnPhong { s };
     let lobe = match rule {
         VmfSpecular::Auto | VmfSpecular::Eq20 => {
             blinn_phong(t.mu.dot(h), eq20_exponent(s, t.r_len.min(r_max)))
@@ -125,7 +126,7 @@ pub fn vmf_lobe_with(
     };
     Shading {
         diffuse: t.alpha * cos_i,
-        specular: t.alpha * lobe * specular_cosine(t.mu, t.var, h, l, s + 1.0),
+        specular: t.alpha * lobe * specular_cosine(t.mu, t.var, h, l, cosine_eta(&brdf)),
     }
 }
 
@@ -650,8 +651,10 @@ fn mixture_component(
         _ => return None,
     };
     let cos_i = mu.dot(l).max(0.0);
+    // BRDFs without an η (eq 18, tabulated, Lambert) keep μ's cosine, as the shaders do.
+    let eta = cosine_eta(brdf);
     let cos_s = match (bake.method, options.vmf_cosine) {
-        (Method::Vmf, VmfCosine::Product) => specular_cosine(mu, var, h, l, cosine_eta(brdf)),
+        (Method::Vmf, VmfCosine::Product) if eta > 0.0 => specular_cosine(mu, var, h, l, eta),
         _ => cos_i,
     };
     let lobe = match brdf {
