@@ -31,7 +31,7 @@ pub struct FrameCell {
     pub view: String,
     /// Texture format of the uploads.
     pub format: Format,
-    /// Median draw time, milliseconds (each draw between two `glFinish` calls).
+    /// Median draw time, milliseconds (as [`FrameTimes::clock`] says).
     pub median_ms: f64,
     /// `median_ms` over the plain shader's in the same view and format.
     pub ratio_to_plain: f64,
@@ -74,6 +74,10 @@ pub struct FrameTimes {
     /// 1-minute load average at the start and the end of the benchmark (Linux).
     #[serde(default)]
     pub load_average: Option<(f64, f64)>,
+    /// How each draw was timed (`each draw timed by a GL_TIME_ELAPSED query`); absent in files
+    /// written before the GPU clock existed, which were all timed between two `glFinish` calls.
+    #[serde(default)]
+    pub clock: Option<String>,
 }
 
 impl FrameTimes {
@@ -123,8 +127,8 @@ impl FrameTimes {
     pub fn describe(&self) -> String {
         format!(
             "`ndfmap-viewer --bench` on `{}` ({}, {} route), {}×{}, shaders baked from the \
-             procedural sample at {}², median of {} frames after {} warm-up draws (each draw \
-             between two `glFinish` calls, shaders round robin), mean over the views {}",
+             procedural sample at {}², median of {} frames after {} warm-up draws ({}, shaders \
+             round robin), mean over the views {}",
             self.renderer,
             self.gl_version,
             self.route,
@@ -133,6 +137,9 @@ impl FrameTimes {
             self.sample_size,
             self.frames,
             self.warm_up,
+            self.clock
+                .as_deref()
+                .unwrap_or("each draw timed between two glFinish calls"),
             self.views
                 .iter()
                 .map(|v| format!("`{}`", v.name))
@@ -291,6 +298,7 @@ mod tests {
                 shader("vmf6a", [9.0, 21.0], &[Format::F32, Format::F16]),
             ],
             load_average: Some((0.5, 0.75)),
+            clock: None,
         }
     }
 

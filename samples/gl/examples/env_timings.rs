@@ -11,11 +11,13 @@
 //! (`NDF_ENV_LIGHTS`), as `ndfmap eval`/`report`, the C API and the viewer do by default; the
 //! default here is 0, the pure routes, so earlier tables stay comparable.
 //! Each configuration is drawn 3 times untimed (shader compilation), then `--frames` times
-//! (default 20), `glFinish` after each; the median frame is reported with its ratio to plain's
-//! prefiltered frame, all in the same run.
+//! (default 20), each between two `glFinish` calls or, with `--gpu-clock` (on a GPU, where the
+//! wall time of a draw is mostly the driver's fixed cost), by a `GL_TIME_ELAPSED` query
+//! (`Gl::gpu_time_ms`); the median frame is reported with its ratio to plain's prefiltered
+//! frame, all in the same run.
 //!
 //! `cargo run --release -p ndfmap-gl --example env_timings [egl|osmesa] [--frames N]
-//! [--sh-only | --prefiltered-only] [--ggx A] [--env-lights N]`.
+//! [--sh-only | --prefiltered-only] [--ggx A] [--env-lights N] [--gpu-clock]`.
 
 use ndfmap::bake::{Bake, BakeOptions, Method};
 use ndfmap::brdf::Brdf;
@@ -46,10 +48,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .unwrap_or(20);
     let ggx: Option<f64> = value("--ggx").map(|v| v.parse()).transpose()?;
     let prefiltered_only = args.iter().any(|a| a == "--prefiltered-only");
+    let gpu_clock = args.iter().any(|a| a == "--gpu-clock");
     let gl = Gl::new(route)?;
     println!(
-        "{route} ({}), {SIZE}² sphere, {frames} frames each",
-        gl.renderer()
+        "{route} ({}), {SIZE}² sphere, {frames} frames each, {}",
+        gl.renderer(),
+        if gpu_clock {
+            "GL_TIME_ELAPSED queries"
+        } else {
+            "wall time between glFinish calls"
+        }
     );
     let sky = Sky {
         width: 1024,
@@ -138,26 +146,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for i in 0..frames + 3 {
             target.clear([0.0, 0.0, 0.0, 1.0]);
             gl.finish();
-            let start = Instant::now();
-            r.draw_env(
-                &mesh,
-                &glam::Mat4::IDENTITY,
-                &scene.camera,
-                &scene.lighting,
-                &env,
-                &rotation,
-                &target,
-            )?;
-            gl.finish();
+            let draw = || {
+                r.draw_env(
+                    &mesh,
+                    &glam::Mat4::IDENTITY,
+                    &scene.camera,
+                    &scene.lighting,
+                    &env,
+                    &rotation,
+                    &target,
+                )
+            };
+            let ms = if gpu_clock {
+                let (drawn, ms) = gl.gpu_time_ms(draw)?;
+                drawn?;
+                ms
+            } else {
+                let start = Instant::now();
+                draw()?;
+                gl.finish();
+                start.elapsed().as_secs_f64() * 1e3
+            };
             if i >= 3 {
-                times.push(start.elapsed().as_secs_f64() * 1e3);
+                times.push(ms);
             }
         }
         times.sort_by(f64::total_cmp);
         let median = times[times.len() / 2];
         let b0 = *base.get_or_insert(median);
         println!(
-            "  {:<24} {median:>10.2} {:>8.2}",
+            "  {:<24} {median:>10.4} {:>8.2}",
             format!(
                 "{} {}{}",
                 er.name(),

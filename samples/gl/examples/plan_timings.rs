@@ -14,10 +14,10 @@
 //! Each part's frame is that of a view where every pixel falls in the part's level range: the
 //! plan's frame time is bounded by its costliest part's, which is what the table's "plan" row
 //! reports against the full configuration's. Draws go round robin over all renderers (3
-//! untimed, then `--frames`, default 15), each between two `glFinish` calls; medians, in one
-//! run.
+//! untimed, then `--frames`, default 15), each between two `glFinish` calls or, with
+//! `--gpu-clock` (on a GPU), by a `GL_TIME_ELAPSED` query; medians, in one run.
 //!
-//! `cargo run --release -p ndfmap-gl --example plan_timings [egl|osmesa] [--frames N]
+//! `cargo run --release -p ndfmap-gl --example plan_timings [egl|osmesa] [--frames N] [--gpu-clock]
 //! [--json FILE] PLAN.json MAP[,ALBEDO] [PLAN.json MAP[,ALBEDO] ...]`
 //!
 //! `--json FILE` also writes the medians as a frame-times file
@@ -161,6 +161,25 @@ impl Switch {
     }
 }
 
+/// Milliseconds `draw` takes: by a `GL_TIME_ELAPSED` query (`gpu`) or between two `glFinish`
+/// calls.
+fn timed(
+    gl: &Gl,
+    gpu: bool,
+    draw: impl FnOnce() -> Result<(), Box<dyn std::error::Error>>,
+) -> Result<f64, Box<dyn std::error::Error>> {
+    gl.finish();
+    if gpu {
+        let (drawn, ms) = gl.gpu_time_ms(draw)?;
+        drawn?;
+        return Ok(ms);
+    }
+    let start = Instant::now();
+    draw()?;
+    gl.finish();
+    Ok(start.elapsed().as_secs_f64() * 1e3)
+}
+
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -184,6 +203,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         frames = args.get(i + 1).ok_or("--frames N")?.parse()?;
         args.drain(i..i + 2);
     }
+    let gpu_clock = match args.iter().position(|a| a == "--gpu-clock") {
+        Some(i) => {
+            args.remove(i);
+            true
+        }
+        None => false,
+    };
     let mut json = None;
     if let Some(i) = args.iter().position(|a| a == "--json") {
         json = Some(args.get(i + 1).ok_or("--json FILE")?.clone());
@@ -194,8 +220,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let gl = Gl::new(route)?;
     println!(
-        "{route} ({}), {SIZE}² views, {frames} frames each (medians, ms)",
-        gl.renderer()
+        "{route} ({}), {SIZE}² views, {frames} frames each (medians, ms; {})",
+        gl.renderer(),
+        if gpu_clock {
+            "GL_TIME_ELAPSED queries"
+        } else {
+            "wall time between glFinish calls"
+        }
     );
     let target = RenderTarget::new(&gl, SIZE, SIZE)?;
     let views: Vec<Scene> = Scene::standard()
@@ -291,39 +322,38 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for frame in 0..WARM_UP + frames {
                 if let Some(sw) = &switch {
                     target.clear([0.0, 0.0, 0.0, 1.0]);
-                    gl.finish();
-                    let start = Instant::now();
-                    sw.draw(mesh, &scene.camera, &lighting, env.as_ref(), &target)?;
-                    gl.finish();
+                    let ms = timed(&gl, gpu_clock, || {
+                        sw.draw(mesh, &scene.camera, &lighting, env.as_ref(), &target)
+                    })?;
                     if frame >= WARM_UP {
-                        switch_times.push(start.elapsed().as_secs_f64() * 1e3);
+                        switch_times.push(ms);
                     }
                 }
                 for ((r, t), &by_env) in renderers.iter().zip(&mut times).zip(&lit_by_env) {
                     target.clear([0.0, 0.0, 0.0, 1.0]);
-                    gl.finish();
-                    let start = Instant::now();
-                    match env.as_ref().filter(|_| by_env) {
-                        Some(env) => r.draw_env(
-                            mesh,
-                            &glam::Mat4::IDENTITY,
-                            &scene.camera,
-                            &lighting,
-                            env,
-                            &rotation,
-                            &target,
-                        )?,
-                        None => r.draw(
-                            mesh,
-                            &glam::Mat4::IDENTITY,
-                            &scene.camera,
-                            &lighting,
-                            &target,
-                        )?,
-                    }
-                    gl.finish();
+                    let ms = timed(&gl, gpu_clock, || {
+                        match env.as_ref().filter(|_| by_env) {
+                            Some(env) => r.draw_env(
+                                mesh,
+                                &glam::Mat4::IDENTITY,
+                                &scene.camera,
+                                &lighting,
+                                env,
+                                &rotation,
+                                &target,
+                            ),
+                            None => r.draw(
+                                mesh,
+                                &glam::Mat4::IDENTITY,
+                                &scene.camera,
+                                &lighting,
+                                &target,
+                            ),
+                        }?;
+                        Ok(())
+                    })?;
                     if frame >= WARM_UP {
-                        t.push(start.elapsed().as_secs_f64() * 1e3);
+                        t.push(ms);
                     }
                 }
             }
@@ -340,14 +370,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 switch_ms,
             });
             println!(
-                "| {} | {} | {full_ms:.2} | {worst:.2} | {:.2} | {} | {} |",
+                "| {} | {} | {full_ms:.4} | {worst:.4} | {:.2} | {} | {} |",
                 pair[0],
                 scene.name,
                 worst / full_ms,
-                switch_ms.map_or("n/a".into(), |s| format!("{s:.2} ({:.2})", s / worst)),
+                switch_ms.map_or("n/a".into(), |s| format!("{s:.4} ({:.2})", s / worst)),
                 part_ms
                     .iter()
-                    .map(|m| format!("{m:.2}"))
+                    .map(|m| format!("{m:.4}"))
                     .collect::<Vec<_>>()
                     .join(", ")
             );

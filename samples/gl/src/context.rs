@@ -221,6 +221,34 @@ impl Gl {
         unsafe { self.glow().finish() };
     }
 
+    /// Runs `f` and returns its result with the GPU time, in milliseconds, of the commands it
+    /// issued: a `GL_TIME_ELAPSED` query (OpenGL 3.3 core), read back after they complete.
+    /// On a GPU this is the frame-time measure (the wall time between two `glFinish` calls is
+    /// then mostly the driver's fixed cost); llvmpipe answers it too. `f` must not call this
+    /// (elapsed-time queries do not nest).
+    pub fn gpu_time_ms<T>(&self, f: impl FnOnce() -> T) -> Result<(T, f64)> {
+        let g = self.glow();
+        // SAFETY: the context is current on this thread while `self` lives; the query is
+        // created, used and deleted here.
+        let query = unsafe { g.create_query() }.map_err(|detail| Error::Gl {
+            operation: "creating a timer query",
+            detail,
+        })?;
+        // SAFETY: as above; `query` is a live query name and no elapsed-time query is active.
+        unsafe { g.begin_query(glow::TIME_ELAPSED, query) };
+        let out = f();
+        // SAFETY: as above; ends the query begun above, then waits for its result (QUERY_RESULT
+        // blocks until the commands are done) and deletes it.
+        let ns = unsafe {
+            g.end_query(glow::TIME_ELAPSED);
+            let ns = g.get_query_parameter_u64(query, glow::QUERY_RESULT);
+            g.delete_query(query);
+            ns
+        };
+        self.check_error("timing with a GL_TIME_ELAPSED query")?;
+        Ok((out, ns as f64 * 1e-6))
+    }
+
     /// Returns [`Error::Gl`] naming `operation` if `glGetError` reports an error (and clears
     /// every pending error flag).
     pub fn check_error(&self, operation: &'static str) -> Result<()> {

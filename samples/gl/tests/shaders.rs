@@ -14,6 +14,14 @@
 //! The GLSL evaluates in f32 from the same texel values the CPU evaluates in f64, so the bound is
 //! f32 rounding amplified by the lobe's exponent: [`tolerance`].
 //!
+//! On a GPU (any renderer but Mesa's llvmpipe and softpipe) the hardware-filtered column —
+//! hardware trilinear and anisotropic sampling at fractional LODs — is printed but not asserted:
+//! GL leaves the filter's arithmetic and the anisotropic footprint to the implementation, and
+//! an NVIDIA H100 (driver 580) filters f16 and unorm16 textures in reduced precision (up to
+//! 7.7e-2 under Blinn-Phong s = 256, whose `cos^s` amplifies it) and takes another anisotropic
+//! footprint (3.4e-2), while its texel centres and manual sampling matched the CPU twin within
+//! the same tolerances as llvmpipe (≤ 3.6e-4). Those stay asserted everywhere.
+//!
 //! Left out: hardware trilinear sampling of unorm8 textures at fractional LODs. llvmpipe filters
 //! 8-bit textures in 8-bit fixed point (8-bit weights and results: the filtered value is within
 //! 1.6 codes of the exact one, `tests/common` measures it), so Algorithm 2's `θ.yzw/α` of
@@ -484,6 +492,7 @@ fn run(route: Route) {
     }
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
     report_hardware_anisotropy(&gl);
+    let software = gl.renderer().contains("llvmpipe") || gl.renderer().contains("softpipe");
     let mut table: BTreeMap<String, (f64, f64)> = BTreeMap::new();
     let mut failures = Vec::new();
     for case in cases() {
@@ -497,7 +506,21 @@ fn run(route: Route) {
         let entry = table.entry(key).or_default();
         entry.0 = entry.0.max(e);
         entry.1 = entry.1.max(et);
-        if e.max(et) > tolerance(&case.brdf) {
+        // A GPU's texture filter is its own (module docs): its trilinear column is shown, not
+        // held to the CPU's filter.
+        let filtered_by_hardware = !ndfmap::glsl::manual_sampling(
+            &ndfmap::glsl::ShaderSpec::of(&case.bake),
+            &ShaderOptions {
+                sampling: case.sampling,
+                ..ShaderOptions::default()
+            },
+        );
+        let checked = if software || !filtered_by_hardware {
+            e.max(et)
+        } else {
+            e
+        };
+        if checked > tolerance(&case.brdf) {
             failures.push(format!("{}: {e:.2e} / trilinear {et:.2e}", label(&case)));
         }
     }

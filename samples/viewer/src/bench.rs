@@ -4,8 +4,9 @@
 //! also as JSON (`ndfmap::report::frame::FrameTimes`, what `ndfmap report` reads).
 //!
 //! Every shader is drawn `frames` times per view after two warm-up draws (the first compiles the
-//! shader on llvmpipe); each draw is timed between two `glFinish` calls. The draws go round
-//! robin over all shaders, so that a change in the machine's load lands on every shader alike.
+//! shader on llvmpipe); each draw is timed between two `glFinish` calls ([`Clock::Wall`]) or by
+//! a `GL_TIME_ELAPSED` query ([`Clock::Gpu`], for a GPU). The draws go round robin over all
+//! shaders, so that a change in the machine's load lands on every shader alike.
 
 use crate::headless::context;
 use crate::methods::MethodSpec;
@@ -20,6 +21,27 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 const WARM_UP: usize = 2;
+
+/// How each draw is timed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Clock {
+    /// Wall time between two `glFinish` calls: the draw's whole cost on llvmpipe, where the
+    /// rasterizer runs on the CPU.
+    Wall,
+    /// A `GL_TIME_ELAPSED` query around the draw: the GPU's time, without the driver's fixed
+    /// cost per call that dominates the wall time of a small draw on a GPU.
+    Gpu,
+}
+
+impl Clock {
+    /// How the report describes the timing of one draw.
+    fn describe(self) -> &'static str {
+        match self {
+            Clock::Wall => "each draw timed between two glFinish calls",
+            Clock::Gpu => "each draw timed by a GL_TIME_ELAPSED query",
+        }
+    }
+}
 
 /// What `--bench` measures and where it writes.
 #[derive(Debug, Clone)]
@@ -38,6 +60,8 @@ pub struct BenchOptions {
     pub formats: Vec<Format>,
     /// Also write the times as JSON here.
     pub json: Option<PathBuf>,
+    /// How each draw is timed.
+    pub clock: Clock,
 }
 
 /// The shaders timed by default: the baselines, Tan 2005 J = 4 (unaligned and aligned), vMF
@@ -64,6 +88,15 @@ fn median(v: &mut [f64]) -> f64 {
         v[n / 2]
     } else {
         0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Milliseconds to three significant digits at most (a GPU's draws take microseconds).
+fn fmt_ms(ms: f64) -> String {
+    match ms {
+        m if m >= 10.0 => format!("{m:.1}"),
+        m if m >= 1.0 => format!("{m:.2}"),
+        m => format!("{m:.3}"),
     }
 }
 
@@ -173,12 +206,22 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
                     let Some(r) = r else { continue };
                     target.clear([0.0, 0.0, 0.0, 1.0]);
                     gl.finish();
-                    let start = Instant::now();
-                    r.draw(mesh, &Mat4::IDENTITY, camera, &scene.lighting, &target)
-                        .map_err(|e| e.to_string())?;
-                    gl.finish();
+                    let draw = || r.draw(mesh, &Mat4::IDENTITY, camera, &scene.lighting, &target);
+                    let ms = match options.clock {
+                        Clock::Wall => {
+                            let start = Instant::now();
+                            draw().map_err(|e| e.to_string())?;
+                            gl.finish();
+                            start.elapsed().as_secs_f64() * 1e3
+                        }
+                        Clock::Gpu => {
+                            let (drawn, ms) = gl.gpu_time_ms(draw).map_err(|e| e.to_string())?;
+                            drawn.map_err(|e| e.to_string())?;
+                            ms
+                        }
+                    };
                     if frame >= WARM_UP {
-                        times[i][v][f].push(start.elapsed().as_secs_f64() * 1e3);
+                        times[i][v][f].push(ms);
                     }
                 }
             }
@@ -210,9 +253,10 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
     );
     println!(
         "{width}x{height}, procedural sample {}², Blinn-Phong s = 256, median of \
-         {frames} frames after {WARM_UP} warm-up draws, each draw timed between two glFinish \
-         calls; shaders measured round robin in one run.",
-        options.sample_size
+         {frames} frames after {WARM_UP} warm-up draws, {}; shaders measured round robin in \
+         one run.",
+        options.sample_size,
+        options.clock.describe()
     );
     for ((scene, _), px) in views.iter().zip(&covered) {
         println!(
@@ -240,8 +284,8 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
         for (per_format, plain) in row.iter().zip(&medians[0]) {
             for (ms, plain) in per_format.iter().zip(plain) {
                 line += &match (ms, plain) {
-                    (Some(ms), Some(plain)) => format!(" {:.2} ({ms:.1} ms) |", ms / plain),
-                    (Some(ms), None) => format!(" – ({ms:.1} ms) |"),
+                    (Some(ms), Some(plain)) => format!(" {:.2} ({} ms) |", ms / plain, fmt_ms(*ms)),
+                    (Some(ms), None) => format!(" – ({} ms) |", fmt_ms(*ms)),
                     _ => " refused |".to_string(),
                 };
             }
@@ -276,6 +320,7 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
                 })
                 .collect(),
             load_average: load_start.zip(load_end),
+            clock: Some(options.clock.describe().to_string()),
         };
         std::fs::write(path, out.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
     }

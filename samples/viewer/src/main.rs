@@ -135,6 +135,11 @@ struct Cli {
         requires = "bench"
     )]
     bench_formats: Vec<Format>,
+    /// Bench: how each draw is timed: `wall`, between two glFinish calls (llvmpipe, where the
+    /// draw is CPU work), or `gpu`, by a GL_TIME_ELAPSED query (a GPU, where the wall time is
+    /// mostly the driver's fixed cost per draw).
+    #[arg(long, value_enum, default_value = "wall", requires = "bench")]
+    bench_clock: bench::Clock,
     /// Window: quit after this many frames. Bench: timed frames per shader and view.
     #[arg(long)]
     frames: Option<u32>,
@@ -290,6 +295,7 @@ fn run(cli: Cli) -> Result<(), String> {
             },
             formats: cli.bench_formats.clone(),
             json: cli.bench_json.clone(),
+            clock: cli.bench_clock,
         });
     }
     let map = load_map(&cli)?;
