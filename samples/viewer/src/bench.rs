@@ -15,6 +15,7 @@ use ndfmap::format::Format;
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
 use ndfmap::methods::bake_with;
 use ndfmap::report::frame::{BenchView, FrameCell, FrameTimes, ShaderTimes};
+use ndfmap::shade::{VmfCosine, VmfSpecular};
 use ndfmap_gl::glam::Mat4;
 use ndfmap_gl::{BakeRenderer, Camera, RenderTarget, Scene, read_rgba_f32};
 use std::path::PathBuf;
@@ -62,6 +63,28 @@ pub struct BenchOptions {
     pub json: Option<PathBuf>,
     /// How each draw is timed.
     pub clock: Clock,
+    /// The options of every shader drawn (the vMF rules; light, BRDF and sampling are the
+    /// bench's own).
+    pub shader: ShaderOptions,
+}
+
+/// `--vmf-specular`: the GPU's rules (`exact` is CPU only).
+pub fn parse_vmf_specular(s: &str) -> Result<VmfSpecular, String> {
+    match s {
+        "auto" => Ok(VmfSpecular::Auto),
+        "eq20" => Ok(VmfSpecular::Eq20),
+        "convolved" => Ok(VmfSpecular::Convolved),
+        _ => Err(format!("'{s}' (expected one of: auto, eq20, convolved)")),
+    }
+}
+
+/// `--vmf-cosine`.
+pub fn parse_vmf_cosine(s: &str) -> Result<VmfCosine, String> {
+    match s {
+        "product" => Ok(VmfCosine::Product),
+        "algorithm2" => Ok(VmfCosine::Algorithm2),
+        _ => Err(format!("'{s}' (expected one of: product, algorithm2)")),
+    }
 }
 
 /// The shaders timed by default: the baselines, Tan 2005 J = 4 (unaligned and aligned), vMF
@@ -149,14 +172,14 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
             ..BakeOptions::default()
         };
         let b = bake_with(&map, spec.method, &bake_options).map_err(|e| e.to_string())?;
-        let manual = manual_sampling(&ShaderSpec::of(&b), &ShaderOptions::default());
+        let manual = manual_sampling(&ShaderSpec::of(&b), &options.shader);
         let mut renderers = Vec::new();
         for &format in &formats {
             let Ok(q) = ndfmap::pack::quantize(&b, format) else {
                 renderers.push(None);
                 continue;
             };
-            let r = BakeRenderer::new(&gl, &q, &ShaderOptions::default())
+            let r = BakeRenderer::new(&gl, &q, &options.shader)
                 .map_err(|e| format!("{spec} {format}: {e}"))?;
             renderers.push(Some(r));
         }
@@ -258,6 +281,15 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
         options.sample_size,
         options.clock.describe()
     );
+    let defaults = ShaderOptions::default();
+    if (options.shader.vmf_specular, options.shader.vmf_cosine)
+        != (defaults.vmf_specular, defaults.vmf_cosine)
+    {
+        println!(
+            "vMF shaders: specular rule {:?}, specular cosine {:?} (not the defaults).",
+            options.shader.vmf_specular, options.shader.vmf_cosine
+        );
+    }
     for ((scene, _), px) in views.iter().zip(&covered) {
         println!(
             "- `{}` covers {px} of {} pixels ({:.0} %).",

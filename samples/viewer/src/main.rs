@@ -13,6 +13,8 @@ mod window;
 use clap::Parser;
 use methods::{Bakes, MethodSpec};
 use ndfmap::format::Format;
+use ndfmap::glsl::ShaderOptions;
+use ndfmap::shade::{VmfCosine, VmfSpecular};
 use ndfmap::{IngestOptions, NormalMap};
 use ndfmap_gl::glam::Vec3;
 use std::path::PathBuf;
@@ -140,6 +142,14 @@ struct Cli {
     /// mostly the driver's fixed cost per draw).
     #[arg(long, value_enum, default_value = "wall", requires = "bench")]
     bench_clock: bench::Clock,
+    /// Bench: the vMF lobes' specular rule in every shader (`ndfmap shader --vmf-specular`):
+    /// auto (the default), eq20 or convolved, to time a rule against the default on one machine.
+    #[arg(long, default_value = "auto", value_parser = bench::parse_vmf_specular, requires = "bench")]
+    vmf_specular: VmfSpecular,
+    /// Bench: the vMF specular cosine in every shader (`ndfmap shader --vmf-cosine`): product
+    /// (the default) or algorithm2.
+    #[arg(long, default_value = "product", value_parser = bench::parse_vmf_cosine, requires = "bench")]
+    vmf_cosine: VmfCosine,
     /// Window: quit after this many frames. Bench: timed frames per shader and view.
     #[arg(long)]
     frames: Option<u32>,
@@ -296,6 +306,11 @@ fn run(cli: Cli) -> Result<(), String> {
             formats: cli.bench_formats.clone(),
             json: cli.bench_json.clone(),
             clock: cli.bench_clock,
+            shader: ShaderOptions {
+                vmf_specular: cli.vmf_specular,
+                vmf_cosine: cli.vmf_cosine,
+                ..ShaderOptions::default()
+            },
         });
     }
     let map = load_map(&cli)?;
