@@ -10,8 +10,8 @@
 //!
 //! - [`Route::Egl`]: glutin's EGL device platform. Devices with `EGL_MESA_device_software` are
 //!   tried first, then any other (`NDFMAP_EGL_DEVICE=hardware` reverses that, for a GPU's frame
-//!   times on a machine that also has Mesa); the config is asked for with an empty surface-type mask and the
-//!   context is made current with no surface. libEGL is loaded at run time (Debian:
+//!   times on a machine that also has Mesa); the config is asked for with an empty surface-type
+//!   mask and the context is made current with no surface. libEGL is loaded at run time (Debian:
 //!   `libegl1 libgl1-mesa-dri`).
 //! - [`Route::OsMesa`]: `libOSMesa.so.8` loaded at run time with `libloading` (Debian:
 //!   `libosmesa6`; Mesa removed OSMesa in 25.1), a core 3.3 context current on a small buffer
