@@ -25,8 +25,7 @@ use ndfmap::environment::Sky;
 use ndfmap::envlight::{EnvLight, Route as EnvRoute};
 use ndfmap::glsl::{ShaderBrdf, ShaderLight, ShaderOptions};
 use ndfmap::methods::{bake, bake_with};
-use ndfmap_gl::{BakeRenderer, EnvTextures, Gl, RenderTarget, Route, Scene, env_rotation};
-use std::time::Instant;
+use ndfmap_gl::{BakeRenderer, Clock, EnvTextures, Gl, RenderTarget, Route, Scene, env_rotation};
 
 const SIZE: u32 = 512;
 
@@ -48,16 +47,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .unwrap_or(20);
     let ggx: Option<f64> = value("--ggx").map(|v| v.parse()).transpose()?;
     let prefiltered_only = args.iter().any(|a| a == "--prefiltered-only");
-    let gpu_clock = args.iter().any(|a| a == "--gpu-clock");
+    let clock = if args.iter().any(|a| a == "--gpu-clock") {
+        Clock::Gpu
+    } else {
+        Clock::Wall
+    };
     let gl = Gl::new(route)?;
     println!(
         "{route} ({}), {SIZE}² sphere, {frames} frames each, {}",
         gl.renderer(),
-        if gpu_clock {
-            "GL_TIME_ELAPSED queries"
-        } else {
-            "wall time between glFinish calls"
-        }
+        clock.describe()
     );
     let sky = Sky {
         width: 1024,
@@ -145,8 +144,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut times = Vec::new();
         for i in 0..frames + 3 {
             target.clear([0.0, 0.0, 0.0, 1.0]);
-            gl.finish();
-            let draw = || {
+            let (drawn, ms) = gl.time_ms(clock, || {
                 r.draw_env(
                     &mesh,
                     &glam::Mat4::IDENTITY,
@@ -156,17 +154,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     &rotation,
                     &target,
                 )
-            };
-            let ms = if gpu_clock {
-                let (drawn, ms) = gl.gpu_time_ms(draw)?;
-                drawn?;
-                ms
-            } else {
-                let start = Instant::now();
-                draw()?;
-                gl.finish();
-                start.elapsed().as_secs_f64() * 1e3
-            };
+            })?;
+            drawn?;
             if i >= 3 {
                 times.push(ms);
             }

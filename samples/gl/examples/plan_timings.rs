@@ -39,10 +39,9 @@ use ndfmap::{NormalMap, methods};
 use ndfmap_gl::glow::{self, HasContext};
 use ndfmap_gl::texture::BakeTextures;
 use ndfmap_gl::{
-    BakeRenderer, BrdfBinding, Camera, EnvTextures, Gl, Lighting, Mesh, Program, RenderTarget,
-    Route, Scene, draw_mesh, env_rotation,
+    BakeRenderer, BrdfBinding, Camera, Clock, EnvTextures, Gl, Lighting, Mesh, Program,
+    RenderTarget, Route, Scene, draw_mesh, env_rotation,
 };
-use std::time::Instant;
 
 const SIZE: u32 = 512;
 const WARM_UP: usize = 3;
@@ -161,23 +160,15 @@ impl Switch {
     }
 }
 
-/// Milliseconds `draw` takes: by a `GL_TIME_ELAPSED` query (`gpu`) or between two `glFinish`
-/// calls.
+/// Milliseconds `draw` takes by `clock` ([`Gl::time_ms`]).
 fn timed(
     gl: &Gl,
-    gpu: bool,
+    clock: Clock,
     draw: impl FnOnce() -> Result<(), Box<dyn std::error::Error>>,
 ) -> Result<f64, Box<dyn std::error::Error>> {
-    gl.finish();
-    if gpu {
-        let (drawn, ms) = gl.gpu_time_ms(draw)?;
-        drawn?;
-        return Ok(ms);
-    }
-    let start = Instant::now();
-    draw()?;
-    gl.finish();
-    Ok(start.elapsed().as_secs_f64() * 1e3)
+    let (drawn, ms) = gl.time_ms(clock, draw)?;
+    drawn?;
+    Ok(ms)
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -203,12 +194,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         frames = args.get(i + 1).ok_or("--frames N")?.parse()?;
         args.drain(i..i + 2);
     }
-    let gpu_clock = match args.iter().position(|a| a == "--gpu-clock") {
+    let clock = match args.iter().position(|a| a == "--gpu-clock") {
         Some(i) => {
             args.remove(i);
-            true
+            Clock::Gpu
         }
-        None => false,
+        None => Clock::Wall,
     };
     let mut json = None;
     if let Some(i) = args.iter().position(|a| a == "--json") {
@@ -222,11 +213,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "{route} ({}), {SIZE}² views, {frames} frames each (medians, ms; {})",
         gl.renderer(),
-        if gpu_clock {
-            "GL_TIME_ELAPSED queries"
-        } else {
-            "wall time between glFinish calls"
-        }
+        clock.describe()
     );
     let target = RenderTarget::new(&gl, SIZE, SIZE)?;
     let views: Vec<Scene> = Scene::standard()
@@ -322,7 +309,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for frame in 0..WARM_UP + frames {
                 if let Some(sw) = &switch {
                     target.clear([0.0, 0.0, 0.0, 1.0]);
-                    let ms = timed(&gl, gpu_clock, || {
+                    let ms = timed(&gl, clock, || {
                         sw.draw(mesh, &scene.camera, &lighting, env.as_ref(), &target)
                     })?;
                     if frame >= WARM_UP {
@@ -331,7 +318,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 for ((r, t), &by_env) in renderers.iter().zip(&mut times).zip(&lit_by_env) {
                     target.clear([0.0, 0.0, 0.0, 1.0]);
-                    let ms = timed(&gl, gpu_clock, || {
+                    let ms = timed(&gl, clock, || {
                         match env.as_ref().filter(|_| by_env) {
                             Some(env) => r.draw_env(
                                 mesh,

@@ -64,6 +64,27 @@ pub(crate) fn context_on_thread() -> bool {
     CONTEXT_ON_THREAD.get()
 }
 
+/// How [`Gl::time_ms`] times a draw.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Clock {
+    /// Wall time between two `glFinish` calls: the draw's whole cost on llvmpipe, where the
+    /// rasterizer runs on the CPU.
+    Wall,
+    /// A `GL_TIME_ELAPSED` query around the draw ([`Gl::gpu_time_ms`]): the GPU's time,
+    /// without the driver's fixed cost per call that dominates a small draw's wall time there.
+    Gpu,
+}
+
+impl Clock {
+    /// How a report describes the timing of one draw.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Clock::Wall => "each draw timed between two glFinish calls",
+            Clock::Gpu => "each draw timed by a GL_TIME_ELAPSED query",
+        }
+    }
+}
+
 /// A current OpenGL 3.3+ core context and its `glow` functions.
 ///
 /// Cloning gives another handle to the same context. The context stays current on the creating
@@ -219,6 +240,30 @@ impl Gl {
     pub fn finish(&self) {
         // SAFETY: the context is current on this thread while `self` lives.
         unsafe { self.glow().finish() };
+    }
+
+    /// Whether the context renders on Mesa's CPU rasterizers (llvmpipe, softpipe): the
+    /// renderer the regression references were drawn with, and whose texture filter the tests'
+    /// CPU twin models.
+    pub fn is_software(&self) -> bool {
+        let r = self.renderer();
+        r.contains("llvmpipe") || r.contains("softpipe")
+    }
+
+    /// Runs `f` (a draw) and returns its result with the milliseconds it took by `clock`, after
+    /// a `glFinish` so that earlier commands are not counted: the frame-time measure of the
+    /// benchmarks.
+    pub fn time_ms<T>(&self, clock: Clock, f: impl FnOnce() -> T) -> Result<(T, f64)> {
+        self.finish();
+        match clock {
+            Clock::Wall => {
+                let start = std::time::Instant::now();
+                let out = f();
+                self.finish();
+                Ok((out, start.elapsed().as_secs_f64() * 1e3))
+            }
+            Clock::Gpu => self.gpu_time_ms(f),
+        }
     }
 
     /// Runs `f` and returns its result with the GPU time, in milliseconds, of the commands it

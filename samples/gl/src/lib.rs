@@ -104,7 +104,7 @@ pub mod texture;
 pub mod window;
 
 pub use camera::Camera;
-pub use context::{Gl, Route};
+pub use context::{Clock, Gl, Route};
 pub use env::{EnvBackground, EnvTextures, env_rotation};
 pub use glam;
 pub use glow;

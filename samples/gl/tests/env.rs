@@ -250,21 +250,21 @@ fn measure_with(
     views: &[DVec3],
     color: bool,
 ) -> (f64, f64) {
-    measure_lit(
+    let frames = [(frame, views)];
+    measure_frames(
         gl,
         env,
         light,
         bake,
         brdf,
         route,
-        frame,
-        views,
+        &frames,
         color,
         Lights::None,
-    )
+    )[0]
 }
 
-/// Whether the probe adds the extracted lights ([`measure_lit`]).
+/// Whether the probe adds the extracted lights ([`measure_frames`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Lights {
     /// No `NDF_ENV_LIGHTS` (the light must have none).
@@ -276,26 +276,9 @@ enum Lights {
     Dropped,
 }
 
-/// [`measure_with`] with the extracted lights' loop (`ShaderOptions::env_lights`) per `lights`.
-#[allow(clippy::too_many_arguments)]
-fn measure_lit(
-    gl: &Gl,
-    env: &EnvTextures,
-    light: &EnvLight,
-    bake: &Bake,
-    brdf: &Brdf,
-    route: Route,
-    frame: Option<DMat3>,
-    views: &[DVec3],
-    color: bool,
-    lights: Lights,
-) -> (f64, f64) {
-    let frames = [(frame, views)];
-    measure_frames(gl, env, light, bake, brdf, route, &frames, color, lights)[0]
-}
-
-/// [`measure_lit`] for several tangent frames, each with its views, from one compiled program
-/// (the frame is a uniform; llvmpipe's compile of an SH-route shader is most of this test's
+/// [`measure_with`] for several tangent frames, each with its views, from one compiled program
+/// with the extracted lights' loop (`ShaderOptions::env_lights`) per `lights` (the frame is a
+/// uniform; llvmpipe's compile of an SH-route shader is most of this test's
 /// time, and CI runs with Mesa's shader cache off). The unset frame (`None`, the identity) must
 /// come first, before the uniform is set.
 #[allow(clippy::too_many_arguments)]
@@ -875,18 +858,20 @@ fn extracted_lights(route: ndfmap_gl::Route) {
     }
     // The same shader without its lights is far off the twin that adds them.
     for r in [Route::Prefiltered, Route::Sh] {
-        let (e, _) = measure_lit(
+        let vs = views();
+        let frames = [(None, &vs[..2])];
+        let brdf = Brdf::BlinnPhong { s: 32.0 };
+        let (e, _) = measure_frames(
             &gl,
             &env,
             &light,
             &all[5],
-            &Brdf::BlinnPhong { s: 32.0 },
+            &brdf,
             r,
-            None,
-            &views()[..2],
+            &frames,
             false,
             Lights::Dropped,
-        );
+        )[0];
         println!("  {} count = 0 (must fail): {e:.2e}", r.name());
         if e < 10.0 * tolerance(r) {
             failures.push(format!(

@@ -59,18 +59,12 @@ impl Limits {
 
     /// The bounds for the renderer behind `gl`.
     fn of(gl: &Gl) -> Limits {
-        if is_software(gl) {
+        if gl.is_software() {
             Limits::SOFTWARE
         } else {
             Limits::HARDWARE
         }
     }
-}
-
-/// Whether `gl` renders on Mesa's CPU rasterizers (llvmpipe, softpipe), like the references.
-fn is_software(gl: &Gl) -> bool {
-    let r = gl.renderer();
-    r.contains("llvmpipe") || r.contains("softpipe")
 }
 
 /// Side of the rendered images.
@@ -235,7 +229,7 @@ fn run(route: Route) {
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
     let bless = std::env::var("NDFMAP_BLESS").is_ok_and(|v| v == "1") && route == Route::Egl;
     assert!(
-        !bless || is_software(&gl),
+        !bless || gl.is_software(),
         "NDFMAP_BLESS=1 on {}: the references are llvmpipe's (module docs)",
         gl.renderer()
     );

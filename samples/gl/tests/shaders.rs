@@ -492,7 +492,7 @@ fn run(route: Route) {
     }
     let gl = Gl::new(route).unwrap_or_else(|e| panic!("{e}\n(NDFMAP_SKIP_GL=1 skips GL tests)"));
     report_hardware_anisotropy(&gl);
-    let software = gl.renderer().contains("llvmpipe") || gl.renderer().contains("softpipe");
+    let software = gl.is_software();
     let mut table: BTreeMap<String, (f64, f64)> = BTreeMap::new();
     let mut failures = Vec::new();
     for case in cases() {

@@ -17,30 +17,18 @@ use ndfmap::methods::bake_with;
 use ndfmap::report::frame::{BenchView, FrameCell, FrameTimes, ShaderTimes};
 use ndfmap::shade::{VmfCosine, VmfSpecular};
 use ndfmap_gl::glam::Mat4;
-use ndfmap_gl::{BakeRenderer, Camera, RenderTarget, Scene, read_rgba_f32};
+use ndfmap_gl::{BakeRenderer, Camera, Clock, RenderTarget, Scene, read_rgba_f32};
 use std::path::PathBuf;
 use std::time::Instant;
 
 const WARM_UP: usize = 2;
 
-/// How each draw is timed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Clock {
-    /// Wall time between two `glFinish` calls: the draw's whole cost on llvmpipe, where the
-    /// rasterizer runs on the CPU.
-    Wall,
-    /// A `GL_TIME_ELAPSED` query around the draw: the GPU's time, without the driver's fixed
-    /// cost per call that dominates the wall time of a small draw on a GPU.
-    Gpu,
-}
-
-impl Clock {
-    /// How the report describes the timing of one draw.
-    fn describe(self) -> &'static str {
-        match self {
-            Clock::Wall => "each draw timed between two glFinish calls",
-            Clock::Gpu => "each draw timed by a GL_TIME_ELAPSED query",
-        }
+/// `--bench-clock`: how each draw is timed (`wall` or `gpu`, [`Clock`]).
+pub fn parse_clock(s: &str) -> Result<Clock, String> {
+    match s {
+        "wall" => Ok(Clock::Wall),
+        "gpu" => Ok(Clock::Gpu),
+        _ => Err(format!("'{s}' (expected one of: wall, gpu)")),
     }
 }
 
@@ -228,21 +216,12 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
                 for (f, r) in renderers.iter().enumerate() {
                     let Some(r) = r else { continue };
                     target.clear([0.0, 0.0, 0.0, 1.0]);
-                    gl.finish();
-                    let draw = || r.draw(mesh, &Mat4::IDENTITY, camera, &scene.lighting, &target);
-                    let ms = match options.clock {
-                        Clock::Wall => {
-                            let start = Instant::now();
-                            draw().map_err(|e| e.to_string())?;
-                            gl.finish();
-                            start.elapsed().as_secs_f64() * 1e3
-                        }
-                        Clock::Gpu => {
-                            let (drawn, ms) = gl.gpu_time_ms(draw).map_err(|e| e.to_string())?;
-                            drawn.map_err(|e| e.to_string())?;
-                            ms
-                        }
-                    };
+                    let (drawn, ms) = gl
+                        .time_ms(options.clock, || {
+                            r.draw(mesh, &Mat4::IDENTITY, camera, &scene.lighting, &target)
+                        })
+                        .map_err(|e| e.to_string())?;
+                    drawn.map_err(|e| e.to_string())?;
                     if frame >= WARM_UP {
                         times[i][v][f].push(ms);
                     }

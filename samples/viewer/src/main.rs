@@ -140,8 +140,8 @@ struct Cli {
     /// Bench: how each draw is timed: `wall`, between two glFinish calls (llvmpipe, where the
     /// draw is CPU work), or `gpu`, by a GL_TIME_ELAPSED query (a GPU, where the wall time is
     /// mostly the driver's fixed cost per draw).
-    #[arg(long, value_enum, default_value = "wall", requires = "bench")]
-    bench_clock: bench::Clock,
+    #[arg(long, default_value = "wall", value_parser = bench::parse_clock, requires = "bench")]
+    bench_clock: ndfmap_gl::Clock,
     /// Bench: the vMF lobes' specular rule in every shader (`ndfmap shader --vmf-specular`):
     /// auto (the default), eq20 or convolved, to time a rule against the default on one machine.
     #[arg(long, default_value = "auto", value_parser = bench::parse_vmf_specular, requires = "bench")]
