@@ -446,7 +446,7 @@ typedef struct ndf_vmf_options {
    */
   uint32_t aligned;
   /**
-   * Alignment strength C when `aligned`, 0 to 1000. Default 1 (for eq 29; use about 0.1
+   * Alignment strength C when `aligned`, 0 to 1000. Default 0.03 (for eq 29; use about 0.1
    * with `NDF_ALIGN_FORM_MAIN_TEXT`).
    */
   double align_strength;

@@ -234,8 +234,9 @@ pub struct BakeOptions {
     /// strength C, 0 to [`MAX_ALIGN_STRENGTH`] (vMF: see [`BakeOptions::align_form`]; Tan 2005:
     /// its prior's c); `None` fits each texel on its own from the finest level up (unaligned).
     pub align: Option<f64>,
-    /// vMF: which M-step maximizes the coherence prior, eq 29 (the default, C ≈ 1) or eq 23
-    /// (C ≈ 0.1). Ignored without `align` and by Tan 2005.
+    /// vMF: which M-step maximizes the coherence prior, eq 29 (the default) or eq 23; each
+    /// form's usual C is [`crate::em::AlignmentForm::default_strength`]. Ignored without
+    /// `align` and by Tan 2005.
     pub align_form: crate::em::AlignmentForm,
     /// vMF: how hard each texel is fitted ([`FitMode`]): how many EM iterations over the
     /// covered normals follow the start from the finer level's lobes. Tan 2005 ignores it
@@ -375,6 +376,18 @@ impl FromStr for FitMode {
             .ok_or_else(|| {
                 Error::InvalidOption(format!("fit mode '{s}' (expected fast, balanced or exact)"))
             })
+    }
+}
+
+impl BakeOptions {
+    /// The alignment strength a caller gets when it asks `method` for aligned lobes without
+    /// giving one: vMF [`crate::em::AlignmentForm::default_strength`] of
+    /// [`BakeOptions::align_form`], Tan 2005 [`crate::tan2005::DEFAULT_ALIGN_STRENGTH`].
+    pub fn default_align_strength(&self, method: Method) -> f64 {
+        match method {
+            Method::Tan2005 => crate::tan2005::DEFAULT_ALIGN_STRENGTH,
+            _ => self.align_form.default_strength(),
+        }
     }
 }
 

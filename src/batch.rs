@@ -163,13 +163,14 @@ pub fn is_up_to_date(dir: &Path, hash: &str) -> bool {
             .all(|f| std::fs::metadata(dir.join(f)).is_ok_and(|m| m.is_file() && m.len() > 0))
 }
 
-/// The alignment of a batch entry: a strength C, or `"none"` (unaligned, overriding a default).
+/// The alignment of a batch entry: a strength C, `"default"` (the method's usual strength,
+/// [`BakeOptions::default_align_strength`]) or `"none"` (unaligned, overriding a default).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(untagged)]
 pub enum AlignSetting {
     /// Aligned with strength C.
     Strength(f64),
-    /// `"none"`: unaligned.
+    /// `"default"`: aligned with the method's usual strength; `"none"`: unaligned.
     Name(String),
 }
 
@@ -192,7 +193,7 @@ pub struct Settings {
     pub method: Option<String>,
     /// Lobes per texel (vmf, tan2005).
     pub lobes: Option<usize>,
-    /// Alignment strength C, or "none".
+    /// Alignment strength C, "default" or "none".
     pub align: Option<AlignSetting>,
     /// vmf: appendix or main-text.
     pub align_form: Option<String>,
@@ -339,26 +340,30 @@ impl Settings {
                 .unwrap_or(defaults.feature_encoding),
             memory_limit: memory,
         };
+        let d = BakeOptions::default();
+        let align_form = match &self.align_form {
+            Some(f) => f
+                .parse::<AlignmentForm>()
+                .map_err(|e| bad("align_form", e))?,
+            None => d.align_form,
+        };
         let align = match &self.align {
             None => None,
             Some(AlignSetting::Strength(c)) => Some(*c),
             Some(AlignSetting::Name(n)) if n.trim().eq_ignore_ascii_case("none") => None,
+            Some(AlignSetting::Name(n)) if n.trim().eq_ignore_ascii_case("default") => {
+                Some(BakeOptions { align_form, ..d }.default_align_strength(method))
+            }
             Some(AlignSetting::Name(n)) => {
                 return Err(Error::InvalidOption(format!(
-                    "batch key 'align': '{n}' (expected a strength C or \"none\")"
+                    "batch key 'align': '{n}' (expected a strength C, \"default\" or \"none\")"
                 )));
             }
         };
-        let d = BakeOptions::default();
         let options = BakeOptions {
             lobes: self.lobes.unwrap_or(d.lobes),
             align,
-            align_form: match &self.align_form {
-                Some(f) => f
-                    .parse::<AlignmentForm>()
-                    .map_err(|e| bad("align_form", e))?,
-                None => d.align_form,
-            },
+            align_form,
             mode: match &self.mode {
                 Some(m) => m.parse::<FitMode>().map_err(|e| bad("mode", e))?,
                 None => d.mode,
@@ -899,6 +904,13 @@ mod tests {
             output = "custom/b"
             align = "none"
             format = "f16"
+            [[input]]
+            path = "maps/c.png"
+            align = "default"
+            [[input]]
+            path = "maps/d.png"
+            method = "tan2005"
+            align = "default"
         "#;
         let jobs = parse_batch(
             "b.toml",
@@ -910,7 +922,7 @@ mod tests {
             None,
         )
         .unwrap();
-        assert_eq!(jobs.len(), 2);
+        assert_eq!(jobs.len(), 4);
         assert_eq!(jobs[0].method, Method::Vmf);
         assert_eq!(jobs[0].options.lobes, 2);
         assert_eq!(jobs[0].options.align, Some(1.0));
@@ -919,6 +931,9 @@ mod tests {
         assert_eq!(jobs[1].options.align, None);
         assert_eq!(jobs[1].format, Format::F16);
         assert_eq!(jobs[1].output, Path::new("/w/custom/b"));
+        // "default": the method's usual strength (vMF eq 29 0.03, Tan's c = 1).
+        assert_eq!(jobs[2].options.align, Some(0.03));
+        assert_eq!(jobs[3].options.align, Some(1.0));
         for (text, json, needle) in [
             ("[[input]]\npath = \"a.png\"\nlobez = 3\n", false, "lobez"),
             (

@@ -364,6 +364,10 @@ pub fn farthest_first_into(candidates: &[Gaussian], out: &mut [Gaussian]) {
     }
 }
 
+/// Tan's prior strength c (Sec 4.1: "which we set to 1 for all experiments"): what a caller
+/// gets when it asks for aligned Gaussians without giving c.
+pub const DEFAULT_ALIGN_STRENGTH: f64 = 1.0;
+
 /// Tan's alignment prior (Sec 4.1): the components of K neighbouring, already fitted texels
 /// and the constant c that "modulates smoothness among corresponding Gaussians" (Tan sets
 /// c = 1).

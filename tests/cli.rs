@@ -101,6 +101,30 @@ fn vmf_bake_with_alignment_colour_and_narrow_formats() {
 }
 
 #[test]
+fn align_without_a_value_takes_the_methods_usual_strength() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("n.png");
+    write_normal_png(&input, 8, 8);
+    let input = input.to_str().unwrap();
+    let strength = |args: &[&str], name: &str| {
+        let mut all = vec![input, "--lobes", "2"];
+        all.extend_from_slice(args);
+        let m = bake_manifest(&all, &dir.path().join(name));
+        assert_eq!(m["parameters"]["aligned"], true, "{args:?}");
+        m["parameters"]["align_strength"].as_f64().unwrap()
+    };
+    // vMF eq 29: 0.03, eq 23: 0.1, Tan 2005: c = 1; a value given is kept.
+    assert_eq!(strength(&["-m", "vmf", "--align"], "v"), 0.03);
+    let eq23 = ["-m", "vmf", "--align", "--align-form", "main-text"];
+    assert_eq!(strength(&eq23, "v23"), 0.1);
+    assert_eq!(strength(&["-m", "tan2005", "--align"], "t"), 1.0);
+    assert_eq!(strength(&["-m", "vmf", "--align", "0.5"], "v5"), 0.5);
+    let run = ndfmap(&["bake", input, "-m", "vmf", "--align", "strong", "-o", "x"]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("'strong'"));
+}
+
+#[test]
 fn eval_json_reports_every_method_and_level() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("n.png");

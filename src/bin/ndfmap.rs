@@ -49,8 +49,8 @@ enum Command {
         /// SH band limits l*, comma-separated.
         #[arg(long, default_value = "2,4,8", value_delimiter = ',')]
         lmax: Vec<usize>,
-        /// Alignments, comma-separated: `none` or a strength C.
-        #[arg(long, default_value = "none,1", value_delimiter = ',')]
+        /// Alignments, comma-separated: `none`, `default` (eq 29: C = 0.03) or a strength C.
+        #[arg(long, default_value = "none,default", value_delimiter = ',')]
         align: Vec<String>,
         /// vMF fitting modes, comma-separated: fast, balanced, exact.
         #[arg(long, default_value = "fast,balanced,exact", value_delimiter = ',')]
@@ -62,7 +62,7 @@ enum Command {
         #[arg(long)]
         quality: bool,
         /// Measure the bounded-memory (banded, streamed) bake instead (docs/scale.md): vMF,
-        /// the first `--lobes`, aligned C = 1, balanced (or the one `--modes` given), no colour, written as f16 KTX2 to a
+        /// the first `--lobes`, aligned with eq 29's default C, balanced (or the one `--modes` given), no colour, written as f16 KTX2 to a
         /// temporary folder (deleted) from the built-in 1024² sample tiled to each size
         /// (`--sizes`: up to 1024, or multiples of 1024 up to 16384), kept as 8-bit samples:
         /// seconds, CPU µs per texel and its ratio to the first size, peak RSS and the
@@ -250,7 +250,8 @@ enum Command {
         /// vMF lobe counts to compare, comma-separated.
         #[arg(long, default_value = "6", value_delimiter = ',')]
         lobes: Vec<usize>,
-        /// vMF alignments to compare, comma-separated: `none` (unaligned) or a strength C.
+        /// vMF alignments to compare, comma-separated: `none` (unaligned), `default` (the
+        /// form's usual C: eq 29 0.03, eq 23 0.1) or a strength C.
         #[arg(long, default_value = "none", value_delimiter = ',')]
         align: Vec<String>,
         /// vMF alignment M-step: `appendix` (eq 29) or `main-text` (eq 23).
@@ -956,19 +957,23 @@ fn print_info(map: &NormalMap) {
     }
 }
 
-/// Parses `--align` values: `none` or a strength C.
-fn parse_align(values: &[String]) -> Result<Vec<Option<f64>>> {
+/// Parses `--align` values: `none`, `default` (`form`'s usual strength,
+/// [`AlignmentForm::default_strength`]) or a strength C.
+fn parse_align(values: &[String], form: AlignmentForm) -> Result<Vec<Option<f64>>> {
     values
         .iter()
         .map(|v| match v.trim() {
             "none" => Ok(None),
+            "default" => Ok(Some(form.default_strength())),
             c => c
                 .parse::<f64>()
                 .ok()
                 .filter(|c| c.is_finite() && *c >= 0.0)
                 .map(Some)
                 .ok_or_else(|| {
-                    Error::InvalidOption(format!("--align '{c}' (expected none or C >= 0)"))
+                    Error::InvalidOption(format!(
+                        "--align '{c}' (expected none, default or C >= 0)"
+                    ))
                 }),
         })
         .collect()
@@ -994,10 +999,11 @@ impl MixtureGrid {
             .iter()
             .map(|m| m.parse())
             .collect::<Result<Vec<FitMode>>>()?;
+        let align_form: AlignmentForm = form.parse()?;
         Ok(MixtureGrid {
             lobes: lobes.to_vec(),
-            align: parse_align(align)?,
-            align_form: form.parse()?,
+            align: parse_align(align, align_form)?,
+            align_form,
             modes,
             memory_limit: None,
             lmax: vec![BakeOptions::default().lmax],
@@ -1116,10 +1122,10 @@ struct BakeCommand {
     #[arg(long, default_value_t = 6)]
     lobes: usize,
     /// vmf, tan2005: coherent lobes for hardware trilinear filtering, with alignment
-    /// strength C (vMF eq 29: 1 is a good start, eq 23: 0.1; Tan's prior: c = 1). Without
-    /// it lobes are fitted per texel (unaligned).
-    #[arg(long)]
-    align: Option<f64>,
+    /// strength C; `--align` alone takes the method's usual C (vMF eq 29: 0.03, eq 23: 0.1;
+    /// Tan's prior: c = 1). Without it lobes are fitted per texel (unaligned).
+    #[arg(long, num_args = 0..=1, value_name = "C")]
+    align: Option<Option<f64>>,
     /// vmf: the alignment's M-step, `appendix` (eq 29: the pull on a lobe shrinks as
     /// 1/(κα), so sharp lobes stay on their normals) or `main-text` (eq 23: the same pull
     /// for every lobe).
@@ -1201,7 +1207,10 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         feature: a.ingest.feature.as_ref().map(|f| f.display().to_string()),
         method: a.method.clone(),
         lobes: Some(a.lobes),
-        align: a.align.map(ndfmap::batch::AlignSetting::Strength),
+        align: a.align.map(|c| match c {
+            Some(c) => ndfmap::batch::AlignSetting::Strength(c),
+            None => ndfmap::batch::AlignSetting::Name("default".into()),
+        }),
         align_form: Some(a.align_form.clone()),
         mode: Some(a.mode.clone()),
         lmax,
@@ -2229,9 +2238,10 @@ fn bench_scale(
     use ndfmap::banded::{Bands, CompactSource, Map};
     use ndfmap::container::Container;
     use ndfmap::ingest::{CompactNormals, Samples};
+    let c = AlignmentForm::default().default_strength();
     let options = BakeOptions {
         lobes,
-        align: Some(1.0),
+        align: Some(c),
         mode,
         ..BakeOptions::default()
     };
@@ -2240,7 +2250,7 @@ fn bench_scale(
     let tmp = Scratch::new("scale")?;
     if !json {
         println!(
-            "{threads} threads; vMF J = {lobes} aligned C = 1 {}, f16 KTX2, built-in 1024² sample tiled",
+            "{threads} threads; vMF J = {lobes} aligned C = {c} {}, f16 KTX2, built-in 1024² sample tiled",
             mode.name()
         );
         println!(
@@ -2506,8 +2516,8 @@ struct ReportArgs {
     /// vMF lobe counts, comma-separated (the full sweep, 1 to 8, takes about 1.6× as long).
     #[arg(long, default_value = "1,2,4,6,8", value_delimiter = ',')]
     lobes: Vec<usize>,
-    /// vMF alignments, comma-separated: `none` or a strength C.
-    #[arg(long, default_value = "none,1", value_delimiter = ',')]
+    /// vMF alignments, comma-separated: `none`, `default` (eq 29: C = 0.03) or a strength C.
+    #[arg(long, default_value = "none,default", value_delimiter = ',')]
     align: Vec<String>,
     /// Tan 2005 lobe counts, comma-separated (empty: none).
     #[arg(long, default_value = "4", value_delimiter = ',')]
@@ -2814,7 +2824,7 @@ fn report(a: ReportArgs) -> Result<()> {
         convergence_spp: a.convergence_spp,
         exponent: a.s,
         lobes: a.lobes.clone(),
-        align: parse_align(&a.align)?,
+        align: parse_align(&a.align, AlignmentForm::Appendix)?,
         tan_lobes,
         formats: formats(&a.formats)?,
         image_formats: formats(&a.image_formats)?,
@@ -3000,7 +3010,7 @@ fn pbr_report(
                 Method::Vmf,
                 &BakeOptions {
                     lobes: 6,
-                    align: Some(1.0),
+                    align: Some(AlignmentForm::default().default_strength()),
                     ..BakeOptions::default()
                 },
             )?;

@@ -143,7 +143,7 @@ pub struct ndf_vmf_options {
     /// Nonzero: coherent lobes (Sec 7.3), so that hardware trilinear filtering of the lobe
     /// textures is valid; 0 (default): each texel fitted on its own.
     pub aligned: u32,
-    /// Alignment strength C when `aligned`, 0 to 1000. Default 1 (for eq 29; use about 0.1
+    /// Alignment strength C when `aligned`, 0 to 1000. Default 0.03 (for eq 29; use about 0.1
     /// with `NDF_ALIGN_FORM_MAIN_TEXT`).
     pub align_strength: f64,
     /// The alignment's M-step, `NDF_ALIGN_FORM_*`. Default `NDF_ALIGN_FORM_APPENDIX`.
@@ -329,7 +329,7 @@ pub extern "C" fn ndf_tan2005_options_default() -> ndf_tan2005_options {
         struct_size: size_of::<ndf_tan2005_options>(),
         lobes: d.lobes as u32,
         aligned: 0,
-        align_strength: 1.0,
+        align_strength: crate::tan2005::DEFAULT_ALIGN_STRENGTH,
         em_max_iterations: d.em.max_iterations,
         em_tolerance: d.em.tolerance,
         progress: None,

@@ -98,11 +98,12 @@ impl Config {
 
     /// The bake options of this configuration.
     pub fn bake_options(&self) -> BakeOptions {
+        let d = BakeOptions::default();
         BakeOptions {
             lobes: self.lobes.max(1),
-            align: self.aligned.then_some(1.0),
+            align: self.aligned.then(|| d.default_align_strength(self.method)),
             lmax: self.lmax,
-            ..BakeOptions::default()
+            ..d
         }
     }
 

@@ -132,7 +132,10 @@ impl Default for ReportOptions {
             kd: 0.3,
             ks: 0.7,
             lobes: vec![1, 2, 4, 6, 8],
-            align: vec![None, Some(1.0)],
+            align: vec![
+                None,
+                Some(crate::em::AlignmentForm::Appendix.default_strength()),
+            ],
             tan_lobes: vec![4],
             formats: vec![Format::F32, Format::F16, Format::Unorm8],
             image_formats: vec![Format::F32, Format::F16],

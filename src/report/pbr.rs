@@ -16,8 +16,9 @@
 //! - the best isotropic lobe found the same way on the evaluation's pairs turned by 45° about
 //!   the normal, scored on the untouched pairs: what a lobe fitted without seeing the scored
 //!   pairs reaches, so the in-sample bound's advantage is visible;
-//! - vMF J = 6 (aligned, C = 1, balanced) under GGX with the default vMF rule (the vMF-mixture
-//!   convolution of GGX, `brdf::ggx_mixture`; c = 2 before H17t): a custom shader, for scale.
+//! - vMF J = 6 (aligned with eq 29's default C, balanced) under GGX with the default vMF rule
+//!   (the vMF-mixture convolution of GGX, `brdf::ggx_mixture`; c = 2 before H17t): a custom
+//!   shader, for scale.
 
 use crate::bake::{Bake, BakeOptions, Method, PbrOptions};
 use crate::brdf::Brdf;

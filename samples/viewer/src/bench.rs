@@ -37,8 +37,9 @@ pub fn parse_clock(s: &str) -> Result<Clock, String> {
 pub struct BenchOptions {
     /// Timed frames per shader, view and format.
     pub frames: u32,
-    /// Alignment strength C of the aligned mixtures.
-    pub align: f64,
+    /// Alignment strength C of the aligned mixtures (`None`: each method's usual C,
+    /// [`BakeOptions::default_align_strength`]).
+    pub align: Option<f64>,
     /// Side of the procedural sample the shaders are baked from.
     pub sample_size: u32,
     /// Framebuffer width and height.
@@ -153,11 +154,16 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
     let mut rows = Vec::new();
     let bake_start = Instant::now();
     for spec in specs(options) {
+        let d = BakeOptions::default();
         let bake_options = BakeOptions {
             lobes: spec.lobes.max(1),
-            align: spec.aligned.then_some(options.align),
+            align: spec.aligned.then(|| {
+                options
+                    .align
+                    .unwrap_or(d.default_align_strength(spec.method))
+            }),
             lmax: spec.lobes,
-            ..BakeOptions::default()
+            ..d
         };
         let b = bake_with(&map, spec.method, &bake_options).map_err(|e| e.to_string())?;
         let manual = manual_sampling(&ShaderSpec::of(&b), &options.shader);

@@ -63,9 +63,10 @@ struct Cli {
     /// The method shown first (added to the list if absent).
     #[arg(long)]
     method: Option<MethodSpec>,
-    /// Alignment strength C of the aligned mixtures (vMF: eq 29, the library's default form).
-    #[arg(long, default_value_t = 1.0)]
-    align: f64,
+    /// Alignment strength C of the aligned mixtures (default: each method's usual C, vMF eq 29
+    /// 0.03, Tan 2005 1).
+    #[arg(long)]
+    align: Option<f64>,
     /// The view shown first.
     #[arg(long, value_enum, default_value = "far")]
     view: ViewName,

@@ -205,7 +205,7 @@ pub struct BakeKey {
 /// [`Bakes::poll`]) or on the caller's ([`Bakes::get_blocking`]).
 pub struct Bakes {
     map: Arc<NormalMap>,
-    align: f64,
+    align: Option<f64>,
     roughness: f64,
     done: HashMap<BakeKey, Arc<Bake>>,
     pending: HashSet<BakeKey>,
@@ -214,9 +214,10 @@ pub struct Bakes {
 }
 
 impl Bakes {
-    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 29), PBR bakes
-    /// the base perceptual roughness `roughness` (`√α`, glTF's).
-    pub fn new(map: NormalMap, align: f64, roughness: f64) -> Bakes {
+    /// Bakes of `map`; aligned mixtures use alignment strength `align` (C of eq 29, or Tan's c;
+    /// `None`: each method's usual one), PBR bakes the base perceptual roughness `roughness`
+    /// (`√α`, glTF's).
+    pub fn new(map: NormalMap, align: Option<f64>, roughness: f64) -> Bakes {
         let (sender, receiver) = channel();
         Bakes {
             map: Arc::new(map),
@@ -284,19 +285,27 @@ impl Bakes {
 }
 
 /// Bakes `key` of `map` at f32 (PBR bakes at base perceptual roughness `roughness`).
-fn bake_key(map: &NormalMap, key: BakeKey, align: f64, roughness: f64) -> Result<Bake, String> {
+fn bake_key(
+    map: &NormalMap,
+    key: BakeKey,
+    align: Option<f64>,
+    roughness: f64,
+) -> Result<Bake, String> {
     let spec = key.spec;
     let pbr = PbrOptions {
         roughness,
         anisotropic: spec.pbr == PbrKind::Anisotropic,
         ..PbrOptions::default()
     };
+    let d = BakeOptions::default();
     let options = BakeOptions {
         lobes: spec.lobes.max(1),
-        align: spec.aligned.then_some(align),
+        align: spec
+            .aligned
+            .then(|| align.unwrap_or(d.default_align_strength(spec.method))),
         lmax: spec.lobes,
         pbr,
-        ..BakeOptions::default()
+        ..d
     };
     if spec.method == Method::Pbr && spec.pbr == PbrKind::Mip {
         bake_formula(map, &pbr, None, Widening::Constant(0.0)).map_err(|e| e.to_string())
@@ -376,7 +385,7 @@ mod tests {
         ] {
             let spec: MethodSpec = spec.parse().unwrap();
             let key = BakeKey { spec, color: false };
-            let b = bake_key(&map, key, 0.1, 0.3).unwrap();
+            let b = bake_key(&map, key, Some(0.1), 0.3).unwrap();
             assert_eq!(b.label(), spec.to_string());
             let finest = finest_level_only(&b);
             assert_eq!(finest.level_count(), 1);
