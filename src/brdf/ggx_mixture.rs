@@ -28,6 +28,9 @@ pub const GGX_MIXTURE_LOBES: usize = 5;
 /// `α²/(2 s_k)`): geometric from wide (the GGX tail) to narrow (its peak).
 pub const GGX_MIXTURE_SCALES: [f64; GGX_MIXTURE_LOBES] = [0.015, 0.08, 0.3, 0.9, 2.4];
 
+/// How many recent fits [`GgxMixture::of`] keeps per thread.
+pub const REMEMBERED: usize = 8;
+
 /// The fit's relative weighting (see [`GgxMixture::fit_with`]): 0, plain least squares.
 pub const GGX_MIXTURE_REL: f64 = 0.0;
 
@@ -210,20 +213,25 @@ impl GgxMixture {
         }
     }
 
-    /// [`GgxMixture::fit`], remembered per thread for the last α asked (the CPU twin calls it
-    /// per lobe; the shaders get the fit once as uniforms, `glsl::uniforms`).
+    /// [`GgxMixture::fit`], remembered per thread for the last [`REMEMBERED`] α asked (the CPU
+    /// twin calls it per lobe, and a scene's error is scored at both ends of its α range,
+    /// alternately; the shaders get the fit once as uniforms, `glsl::uniforms`). A pure
+    /// function of α: what is remembered changes no result.
     pub fn of(alpha: f64) -> GgxMixture {
         thread_local! {
-            static LAST: std::cell::Cell<Option<(u64, GgxMixture)>> =
-                const { std::cell::Cell::new(None) };
+            static RECENT: std::cell::Cell<([Option<(u64, GgxMixture)>; REMEMBERED], usize)> =
+                const { std::cell::Cell::new(([None; REMEMBERED], 0)) };
         }
-        LAST.with(|last| match last.get() {
-            Some((bits, m)) if bits == alpha.to_bits() => m,
-            _ => {
-                let m = GgxMixture::fit(alpha);
-                last.set(Some((alpha.to_bits(), m)));
-                m
+        RECENT.with(|recent| {
+            let (mut fits, next) = recent.get();
+            let bits = alpha.to_bits();
+            if let Some((_, m)) = fits.iter().flatten().find(|(b, _)| *b == bits) {
+                return *m;
             }
+            let m = GgxMixture::fit(alpha);
+            fits[next] = Some((bits, m));
+            recent.set((fits, (next + 1) % REMEMBERED));
+            m
         })
     }
 
@@ -386,6 +394,21 @@ mod tests {
         }
         assert!(worst < 0.035, "{worst}");
         assert!(worst_c2 > 0.035, "{worst_c2}");
+    }
+
+    #[test]
+    fn remembered_fits_are_the_fits_of_the_alpha_asked() {
+        // More α values than are remembered, asked round robin twice (the second round asks
+        // each after REMEMBERED others), then one repeated: every answer is that α's own fit.
+        let alphas: Vec<f64> = (0..REMEMBERED + 3)
+            .map(|i| 0.02 + 0.05 * i as f64)
+            .collect();
+        for _ in 0..2 {
+            for &a in &alphas {
+                assert_eq!(GgxMixture::of(a), GgxMixture::fit(a));
+                assert_eq!(GgxMixture::of(0.3), GgxMixture::fit(0.3));
+            }
+        }
     }
 
     #[test]
