@@ -218,8 +218,10 @@ impl GgxMixture {
     /// alternately; the shaders get the fit once as uniforms, `glsl::uniforms`). A pure
     /// function of α: what is remembered changes no result.
     pub fn of(alpha: f64) -> GgxMixture {
+        // The fits by α's bits, and the slot the next new one replaces.
+        type Recent = ([Option<(u64, GgxMixture)>; REMEMBERED], usize);
         thread_local! {
-            static RECENT: std::cell::Cell<([Option<(u64, GgxMixture)>; REMEMBERED], usize)> =
+            static RECENT: std::cell::Cell<Recent> =
                 const { std::cell::Cell::new(([None; REMEMBERED], 0)) };
         }
         RECENT.with(|recent| {
