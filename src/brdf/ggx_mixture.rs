@@ -400,8 +400,8 @@ mod tests {
 
     #[test]
     fn remembered_fits_are_the_fits_of_the_alpha_asked() {
-        // More α values than are remembered, asked round robin twice (the second round asks
-        // each after REMEMBERED others), then one repeated: every answer is that α's own fit.
+        // More α values than are remembered, asked round robin twice with α = 0.3 between
+        // every two (so the second round finds each evicted): every answer is that α's fit.
         let alphas: Vec<f64> = (0..REMEMBERED + 3)
             .map(|i| 0.02 + 0.05 * i as f64)
             .collect();
