@@ -218,21 +218,21 @@ impl GgxMixture {
     /// alternately; the shaders get the fit once as uniforms, `glsl::uniforms`). A pure
     /// function of α: what is remembered changes no result.
     pub fn of(alpha: f64) -> GgxMixture {
-        // The fits by α's bits, and the slot the next new one replaces.
+        // The fits by α's bits, and the slot the next new one replaces (borrowed in place: the
+        // CPU twin asks once per lobe, so the array is not copied per call).
         type Recent = ([Option<(u64, GgxMixture)>; REMEMBERED], usize);
         thread_local! {
-            static RECENT: std::cell::Cell<Recent> =
-                const { std::cell::Cell::new(([None; REMEMBERED], 0)) };
+            static RECENT: std::cell::RefCell<Recent> =
+                const { std::cell::RefCell::new(([None; REMEMBERED], 0)) };
         }
-        RECENT.with(|recent| {
-            let (mut fits, next) = recent.get();
-            let bits = alpha.to_bits();
+        let bits = alpha.to_bits();
+        RECENT.with_borrow_mut(|(fits, next)| {
             if let Some((_, m)) = fits.iter().flatten().find(|(b, _)| *b == bits) {
                 return *m;
             }
             let m = GgxMixture::fit(alpha);
-            fits[next] = Some((bits, m));
-            recent.set((fits, (next + 1) % REMEMBERED));
+            fits[*next] = Some((bits, m));
+            *next = (*next + 1) % REMEMBERED;
             m
         })
     }

@@ -10,7 +10,7 @@
 
 use crate::headless::context;
 use crate::methods::MethodSpec;
-use ndfmap::bake::{BakeOptions, Method};
+use ndfmap::bake::Method;
 use ndfmap::format::Format;
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, manual_sampling};
 use ndfmap::methods::bake_with;
@@ -38,7 +38,7 @@ pub struct BenchOptions {
     /// Timed frames per shader, view and format.
     pub frames: u32,
     /// Alignment strength C of the aligned mixtures (`None`: each method's usual C,
-    /// [`BakeOptions::default_align_strength`]).
+    /// [`MethodSpec::bake_options`]).
     pub align: Option<f64>,
     /// Side of the procedural sample the shaders are baked from.
     pub sample_size: u32,
@@ -154,17 +154,7 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
     let mut rows = Vec::new();
     let bake_start = Instant::now();
     for spec in specs(options) {
-        let d = BakeOptions::default();
-        let bake_options = BakeOptions {
-            lobes: spec.lobes.max(1),
-            align: spec.aligned.then(|| {
-                options
-                    .align
-                    .unwrap_or(d.default_align_strength(spec.method))
-            }),
-            lmax: spec.lobes,
-            ..d
-        };
+        let bake_options = spec.bake_options(options.align);
         let b = bake_with(&map, spec.method, &bake_options).map_err(|e| e.to_string())?;
         let manual = manual_sampling(&ShaderSpec::of(&b), &options.shader);
         let mut renderers = Vec::new();

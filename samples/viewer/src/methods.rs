@@ -72,6 +72,21 @@ impl MethodSpec {
         }
     }
 
+    /// The bake options of this spec: its lobes (or band limit), aligned with strength `align`
+    /// when the spec is aligned (`None`: the method's usual C,
+    /// [`BakeOptions::default_align_strength`]).
+    pub fn bake_options(&self, align: Option<f64>) -> BakeOptions {
+        let d = BakeOptions::default();
+        BakeOptions {
+            lobes: self.lobes.max(1),
+            align: self
+                .aligned
+                .then(|| align.unwrap_or_else(|| d.default_align_strength(self.method))),
+            lmax: self.lobes,
+            ..d
+        }
+    }
+
     /// Whether the method is a mixture (vMF or Tan 2005), whose lobe count can change.
     pub fn is_mixture(&self) -> bool {
         matches!(self.method, Method::Vmf | Method::Tan2005)
@@ -297,15 +312,9 @@ fn bake_key(
         anisotropic: spec.pbr == PbrKind::Anisotropic,
         ..PbrOptions::default()
     };
-    let d = BakeOptions::default();
     let options = BakeOptions {
-        lobes: spec.lobes.max(1),
-        align: spec
-            .aligned
-            .then(|| align.unwrap_or(d.default_align_strength(spec.method))),
-        lmax: spec.lobes,
         pbr,
-        ..d
+        ..spec.bake_options(align)
     };
     if spec.method == Method::Pbr && spec.pbr == PbrKind::Mip {
         bake_formula(map, &pbr, None, Widening::Constant(0.0)).map_err(|e| e.to_string())
