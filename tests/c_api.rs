@@ -12,6 +12,7 @@
 //! where `scripts/test` installs them and their absence is a failure.
 
 use ndfmap::bake::{Bake, BakeOptions, Method};
+use ndfmap::em::AlignmentForm;
 use ndfmap::format::Format;
 use ndfmap::format::ValueRange;
 use ndfmap::glsl::{ShaderOptions, ShaderSpec, Stage, source_for};
@@ -23,12 +24,6 @@ use std::process::Command;
 
 /// Side of the test map (as `SIZE` in consumer.c and consumer.cpp).
 const SIZE: u32 = 16;
-
-/// The alignment strength the consumers bake vMF with (`tests/c/consumer.c`, `.cpp`). Not the
-/// default 0.03: at 0.03 the dev profile's cdylib and rlib bake different bits from the same
-/// input (release builds agree; `docs/baker.md`, "How strong the pull should be"), which is a
-/// codegen question, not the ABI this test checks.
-const CONSUMER_ALIGN: f64 = 1.0;
 
 /// What a Rust static library needs from the system on Linux (`rustc --print
 /// native-static-libs`), as README's "Using ndfmap from C/C++" lists it.
@@ -127,6 +122,11 @@ fn run(wrapper: &[&str], program: &Path, args: &[&Path]) -> String {
         }
         None => Command::new(program),
     };
+    // `cargo test` puts `target/<profile>` on LD_LIBRARY_PATH, and the dynamic loader searches
+    // it before the program's RUNPATH: a `libndfmap.so` left there by an earlier `cargo build`
+    // (cargo refreshes that copy only when it builds the library target itself, not for tests)
+    // would be loaded instead of this build's. The programs find their library by RUNPATH.
+    cmd.env_remove("LD_LIBRARY_PATH");
     let result = cmd.args(args).output().unwrap();
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert!(
@@ -198,7 +198,7 @@ fn bakes() -> Vec<Bake> {
         .map(|m| {
             let options = BakeOptions {
                 lobes: 2,
-                align: (m == Method::Vmf).then_some(CONSUMER_ALIGN),
+                align: (m == Method::Vmf).then_some(AlignmentForm::Appendix.default_strength()),
                 ..BakeOptions::default()
             };
             bake_with(&map, m, &options).unwrap()

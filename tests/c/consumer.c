@@ -528,7 +528,6 @@ int main(int argc, char **argv) {
 
     vo.lobes = 2;
     vo.aligned = 1;
-    vo.align_strength = 1.0;
     to.lobes = 2;
     for (m = NDF_METHOD_PLAIN; m <= NDF_METHOD_SH; m++) {
         /* The file and the pixels are the same map: the vMF bake comes from the file. */

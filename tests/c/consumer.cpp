@@ -64,7 +64,6 @@ int main() {
     ndf_vmf_options vo = ndf_vmf_options_default();
     vo.lobes = 2;
     vo.aligned = 1;
-    vo.align_strength = 1.0;
     vo.progress = [](float fraction, void *user) -> int {
         int *count = static_cast<int *>(user);
         ++*count;
