@@ -154,7 +154,8 @@ impl Bake {
 
     /// A short label for tables: the method name, with the lobe count and `a` for aligned lobes
     /// for mixtures, and for vMF `f` for the fast mode and `x` for the exact one (`vmf6`,
-    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), the band limit for SH (`sh4`), `-aniso` for an
+    /// `vmf6a`, `vmf6f`, `vmf6ax`, `tan2005-4`), then the alignment strength when it is not the
+    /// method's default (`vmf6a(C=1)`), the band limit for SH (`sh4`), `-aniso` for an
     /// anisotropic PBR bake (`pbr-aniso`), and the format when it is not f32 (`vmf6a f16`).
     pub fn label(&self) -> String {
         let mut l = self.method.name().to_string();
@@ -176,6 +177,17 @@ impl Bake {
                 Some("fast") => l.push('f'),
                 Some("exact") => l.push('x'),
                 _ => {}
+            }
+            if let Some(c) = self.parameters["align_strength"].as_f64() {
+                let form = match self.parameters["align_form"].as_str() {
+                    Some("main-text") => crate::em::AlignmentForm::MainText,
+                    _ => crate::em::AlignmentForm::Appendix,
+                };
+                let options = BakeOptions {
+                    align_form: form,
+                    ..BakeOptions::default()
+                };
+                l += &strength_suffix(c, options.default_align_strength(self.method));
             }
         }
         if self.format != Format::F32 {
@@ -388,6 +400,16 @@ impl BakeOptions {
             Method::Tan2005 => crate::tan2005::DEFAULT_ALIGN_STRENGTH,
             _ => self.align_form.default_strength(),
         }
+    }
+}
+
+/// `(C=…)` for an alignment strength `c` other than the method's `default`, else nothing: the
+/// labels of bakes at two strengths must differ, and the default's stays short.
+pub(crate) fn strength_suffix(c: f64, default: f64) -> String {
+    if c == default {
+        String::new()
+    } else {
+        format!("(C={c})")
     }
 }
 

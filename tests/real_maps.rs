@@ -77,7 +77,7 @@ fn vmf_beats_toksvig_and_lean_on_rock_at_far_levels() {
         align: Some(AlignmentForm::default().default_strength()),
         ..BakeOptions::default()
     };
-    let vmfa = bake_with(&map, Method::Vmf, &aligned).unwrap(); // eq 29, C = 1
+    let vmfa = bake_with(&map, Method::Vmf, &aligned).unwrap(); // eq 29, C = 0.03
     let toksvig = bake(&map, Method::Toksvig);
     let lean = bake(&map, Method::Lean);
     let errors = evaluate(

@@ -67,7 +67,7 @@ fn report_writes_markdown_json_plots_and_images() {
             "--lobes",
             "1,2",
             "--align",
-            "none,0.1",
+            "none,default",
             "--tan-lobes",
             "1",
             "--sh-lmax",

@@ -170,8 +170,12 @@ impl Config {
                     l.push('-');
                 }
                 l += &self.options.lobes.to_string();
-                if self.options.align.is_some() {
+                if let Some(c) = self.options.align {
                     l.push('a');
+                    l += &crate::bake::strength_suffix(
+                        c,
+                        self.options.default_align_strength(self.method),
+                    );
                 }
                 l
             }
@@ -745,8 +749,12 @@ fn masked_tonemap(image: &Image, fill: &Image, mask: &[bool], exposure: f64) -> 
     tonemap(&merged, exposure)
 }
 
+/// A label as part of a file name: `vmf6a(C=1) f16` → `vmf6a-c1_f16`.
 fn file_label(label: &str) -> String {
-    label.replace(' ', "_")
+    label
+        .replace("(C=", "-c")
+        .replace(')', "")
+        .replace(' ', "_")
 }
 
 /// Compares a render with the ground truth of its view: the errors, the tone-mapped render
@@ -1687,4 +1695,54 @@ fn targets(report: &Report) -> String {
         let _ = writeln!(s);
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::em::AlignmentForm;
+    use crate::ingest::{IngestOptions, Samples};
+
+    /// Bakes at two alignment strengths get two labels, the default's the short one, and a
+    /// configuration's label is its bake's.
+    #[test]
+    fn labels_name_an_alignment_strength_other_than_the_default() {
+        let pixels: Vec<u8> = (0..8 * 8 * 3).map(|i| (i * 37 % 251) as u8).collect();
+        let map = NormalMap::from_samples(
+            "pixels",
+            8,
+            8,
+            3,
+            Samples::U8(&pixels),
+            &IngestOptions::default(),
+        )
+        .unwrap();
+        let cases = [
+            (Method::Vmf, AlignmentForm::Appendix, 0.03, "vmf2a"),
+            (Method::Vmf, AlignmentForm::Appendix, 1.0, "vmf2a(C=1)"),
+            (Method::Vmf, AlignmentForm::MainText, 0.1, "vmf2a"),
+            (Method::Vmf, AlignmentForm::MainText, 0.03, "vmf2a(C=0.03)"),
+            (Method::Tan2005, AlignmentForm::Appendix, 1.0, "tan2005-2a"),
+            (
+                Method::Tan2005,
+                AlignmentForm::Appendix,
+                0.5,
+                "tan2005-2a(C=0.5)",
+            ),
+        ];
+        for (method, form, c, want) in cases {
+            let config = Config {
+                method,
+                options: BakeOptions {
+                    lobes: 2,
+                    align: Some(c),
+                    align_form: form,
+                    ..BakeOptions::default()
+                },
+            };
+            let baked = bake_with(&map, method, &config.options).unwrap();
+            assert_eq!(baked.label(), want);
+            assert_eq!(config.label(), want);
+        }
+    }
 }

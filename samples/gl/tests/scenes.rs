@@ -148,7 +148,9 @@ fn renderers(gl: &Gl) -> Vec<(BakeRenderer, Option<Brdf>)> {
 }
 
 fn file_stem(scene: &Scene, renderer: &BakeRenderer) -> String {
-    format!("{}-{}", scene.name, renderer.label().replace(' ', "-"))
+    // `vmf4a(C=1)` → `vmf4a-c1`: no brackets in file names.
+    let label = renderer.label().replace("(C=", "-c").replace(')', "");
+    format!("{}-{}", scene.name, label.replace(' ', "-"))
 }
 
 /// Compares `pixels` with the reference `stem.png` (or writes it when blessing), pushing a
