@@ -2896,6 +2896,7 @@ fn report(a: ReportArgs) -> Result<()> {
         Progress::Done => bar.inc(1),
     };
     let mut rep = ndfmap::report::run(&inputs, &options, &a.output, &progress, flip_metric)?;
+    let after_run = std::time::Instant::now();
     if !a.no_stability {
         progress(Progress::Step("stability sweep"));
         let w = ndfmap::report::Stopwatch::start();
@@ -2953,6 +2954,12 @@ fn report(a: ReportArgs) -> Result<()> {
     }
     progress(Progress::Done);
     bar.finish_and_clear();
+    // The totals cover the sections measured after `run` too.
+    rep.seconds += after_run.elapsed().as_secs_f64();
+    rep.cpu_seconds = ndfmap::report::cpu_seconds().or(rep.cpu_seconds);
+    if let (Some((start, end)), now) = (rep.load_average, ndfmap::report::load_average()) {
+        rep.load_average = Some((start, now.unwrap_or(end)));
+    }
     let t = std::time::Instant::now();
     ndfmap::report::write(&rep, &a.output)?;
     println!(

@@ -484,14 +484,16 @@ pub struct Report {
     pub rows: Vec<Row>,
     /// Worker threads.
     pub threads: usize,
-    /// Wall seconds of [`run`].
+    /// Wall seconds of [`run`]; `ndfmap report` adds the sections it measures after it
+    /// (stability, planner, environment, frame times), so its figure is the whole report's.
     pub seconds: f64,
     /// CPU seconds (user + system, all threads) of the process and its waited-for children at
-    /// the end of [`run`] (Linux).
+    /// the end of [`run`] (Linux; `ndfmap report`: at the end of its last section).
     #[serde(default)]
     pub cpu_seconds: Option<f64>,
-    /// `/proc/loadavg`'s 1-minute load at the start and the end of [`run`] (Linux): other
-    /// work on the machine slows the wall times down.
+    /// `/proc/loadavg`'s 1-minute load at the start and the end of [`run`] (Linux; `ndfmap
+    /// report`: the end of its last section): other work on the machine slows the wall times
+    /// down.
     #[serde(default)]
     pub load_average: Option<(f64, f64)>,
     /// Stability sweep (cases × methods), when run.
