@@ -611,6 +611,13 @@ impl<'a> WholeMap<'a> {
 /// The measurement context: samples, BRDFs, directions, and the sample bakes of every
 /// configuration measured so far (each configuration is baked once; quantizing and dropping
 /// lobes edit a copy).
+/// What [`Measure::run`] does to a sample bake before measuring it (quantize, drop lobes).
+type Edit = dyn Fn(Bake) -> Result<Bake> + Sync;
+
+/// The environment's errors of one crop per level (diffuse, specular), as
+/// [`EnvMeasure::errors`] gives them.
+type EnvErrors = Vec<Option<(f64, f64)>>;
+
 struct Measure<'a> {
     samples: &'a Samples,
     brdfs: Vec<Brdf>,
@@ -623,64 +630,83 @@ struct Measure<'a> {
     levels: usize,
     /// The finest map level measured.
     from: usize,
-    bakes: std::cell::RefCell<Vec<(Config, usize, std::rc::Rc<Bake>)>>,
+    bakes: std::sync::Mutex<Vec<(Config, usize, std::sync::Arc<Bake>)>>,
 }
 
 impl Measure<'_> {
     /// The bake of `config` on sample map `i`, baked on first use (a sample map standing for
     /// none of the levels measured is never baked: a scene whose finest level is coarse skips
     /// the fine crops).
-    fn bake(&self, config: Config, i: usize) -> Result<std::rc::Rc<Bake>> {
-        if let Some((_, _, b)) = self
-            .bakes
-            .borrow()
-            .iter()
-            .find(|(c, j, _)| *c == config && *j == i)
-        {
-            return Ok(b.clone());
+    fn bake(&self, config: Config, i: usize) -> Result<std::sync::Arc<Bake>> {
+        let cached = |bakes: &[(Config, usize, std::sync::Arc<Bake>)]| {
+            bakes
+                .iter()
+                .find(|(c, j, _)| *c == config && *j == i)
+                .map(|(_, _, b)| b.clone())
+        };
+        if let Some(b) = cached(&self.bakes.lock().expect("no panic holds the lock")) {
+            return Ok(b);
         }
         let map = &self.samples.maps[i].0;
-        let b = std::rc::Rc::new(crate::methods::bake_with(
+        let b = std::sync::Arc::new(crate::methods::bake_with(
             map,
             config.method,
             &config.bake_options(),
         )?);
-        self.bakes.borrow_mut().push((config, i, b.clone()));
+        // Each (config, crop) is baked by one call of `run_from` only, so no other thread
+        // has put it there since.
+        self.bakes
+            .lock()
+            .expect("no panic holds the lock")
+            .push((config, i, b.clone()));
         Ok(b)
     }
 
     /// Measures `config`'s sample bakes after `edit` (quantizing, dropping lobes), at map
     /// levels `from` and coarser.
-    fn run(&self, config: Config, edit: &dyn Fn(Bake) -> Result<Bake>) -> Result<Measured> {
+    fn run(&self, config: Config, edit: &Edit) -> Result<Measured> {
         self.run_from(config, edit, self.from, usize::MAX)
     }
 
     /// [`Measure::run`] at map levels `from..=to` only (a level range's own checks; the
     /// other levels are unmeasured).
-    fn run_from(
-        &self,
-        config: Config,
-        edit: &dyn Fn(Bake) -> Result<Bake>,
-        from: usize,
-        to: usize,
-    ) -> Result<Measured> {
+    fn run_from(&self, config: Config, edit: &Edit, from: usize, to: usize) -> Result<Measured> {
+        use rayon::prelude::*;
+        /// One crop's errors: its levels `first..=last`, the bake (for the lobes' α), the
+        /// per-BRDF texel-space errors and the environment's.
+        type CropErrors = (usize, usize, Bake, Vec<crate::eval::MethodError>, EnvErrors);
+        // The crops are measured in parallel (each is small: their bakes and errors alone
+        // leave a core idle), then summed in crop order, so the result does not depend on the
+        // thread count.
+        let crops: Vec<Option<CropErrors>> = self
+            .samples
+            .maps
+            .par_iter()
+            .enumerate()
+            .map(|(i, (_, stands))| -> Result<Option<CropErrors>> {
+                let inside = |l: &Option<usize>| l.is_some_and(|l| (from..=to).contains(&l));
+                let Some(first) = stands.iter().position(inside) else {
+                    return Ok(None);
+                };
+                let last = stands.iter().rposition(inside).unwrap_or(first);
+                let bake = edit(Bake::clone(&*self.bake(config, i)?))?;
+                let errors = match self.exact.get(i).and_then(Option::as_ref) {
+                    Some(exact) => exact.evaluate_levels(&[&bake], first..=last),
+                    None => Vec::new(),
+                };
+                let env = match &self.env {
+                    Some(env) => env.errors(i, &bake, first..=last)?,
+                    None => Vec::new(),
+                };
+                Ok(Some((first, last, bake, errors, env)))
+            })
+            .collect::<Result<_>>()?;
         // Per map level: Σ squared relative errors over samples, count.
         let mut acc = vec![(0.0f64, 0.0f64, 0usize); self.levels];
         let mut alpha_max = vec![Vec::<f64>::new(); self.levels];
-        for (i, (_, stands)) in self.samples.maps.iter().enumerate() {
-            let inside = |l: &Option<usize>| l.is_some_and(|l| (from..=to).contains(&l));
-            let Some(first) = stands.iter().position(inside) else {
+        for ((_, stands), crop) in self.samples.maps.iter().zip(crops) {
+            let Some((first, last, bake, errors, env)) = crop else {
                 continue;
-            };
-            let last = stands.iter().rposition(inside).unwrap_or(first);
-            let bake = edit(Bake::clone(&*self.bake(config, i)?))?;
-            let errors = match self.exact.get(i).and_then(Option::as_ref) {
-                Some(exact) => exact.evaluate_levels(&[&bake], first..=last),
-                None => Vec::new(),
-            };
-            let env = match &self.env {
-                Some(env) => env.errors(i, &bake, first..=last)?,
-                None => Vec::new(),
             };
             for (k, level) in stands.iter().enumerate().take(last + 1).skip(first) {
                 let Some(level) = *level else { continue };
@@ -865,9 +891,10 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     let exact = if dirs.is_empty() {
         Vec::new()
     } else {
+        use rayon::prelude::*;
         samples
             .maps
-            .iter()
+            .par_iter()
             .map(|(map, stands)| {
                 stands
                     .iter()
