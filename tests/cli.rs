@@ -626,3 +626,25 @@ fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
         .collect();
     assert!(pid_dirs.is_empty(), "left behind: {pid_dirs:?}");
 }
+
+/// A command line clap refuses is one line too (its tip and usage are dropped), exit status 2;
+/// help and version still print as clap prints them.
+#[test]
+fn refused_command_lines_are_one_line_errors() {
+    for (args, needles) in [
+        (&["bake", "--bogus"][..], &["'--bogus'"][..]),
+        (
+            &["bake", "x.png", "--align", "strong"],
+            &["'strong'", "--align"],
+        ),
+        (&["eval"], &["required", "<INPUT>"]),
+        (&["no-such-command"], &["no-such-command"]),
+    ] {
+        let run = ndfmap(args);
+        assert_one_line_error(&run, needles);
+        assert_eq!(run.status.code(), Some(2), "{args:?}");
+    }
+    let help = ndfmap(&["bake", "--help"]);
+    assert!(help.status.success());
+    assert!(String::from_utf8_lossy(&help.stdout).contains("Usage: ndfmap bake"));
+}

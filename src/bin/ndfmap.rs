@@ -3055,7 +3055,10 @@ fn pbr_report(
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return command_line_error(e),
+    };
     match run(cli) {
         Ok(status) => ExitCode::from(status),
         Err(e) => {
@@ -3066,6 +3069,32 @@ fn main() -> ExitCode {
                 text.split_whitespace().collect::<Vec<_>>().join(" ")
             );
             ExitCode::FAILURE
+        }
+    }
+}
+
+/// A command line clap refuses: help and version as clap prints them; anything else as one
+/// line, `ndfmap: error: …` (clap's first paragraph: what is wrong; its tip and usage dropped),
+/// exit status 2 as clap's.
+fn command_line_error(e: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    match e.kind() {
+        ErrorKind::DisplayHelp
+        | ErrorKind::DisplayVersion
+        | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
+        _ => {
+            // The first paragraph (a missing argument's names follow its line), on one line.
+            let text = e.render().to_string();
+            let first: Vec<&str> = text
+                .lines()
+                .map(str::trim)
+                .skip_while(|l| l.is_empty())
+                .take_while(|l| !l.is_empty())
+                .collect();
+            let first = first.join(" ");
+            let first = first.strip_prefix("error: ").unwrap_or(&first);
+            eprintln!("ndfmap: error: {first} (--help lists the options)");
+            ExitCode::from(2)
         }
     }
 }
