@@ -394,11 +394,21 @@ mod tests {
         ] {
             let spec: MethodSpec = spec.parse().unwrap();
             let key = BakeKey { spec, color: false };
-            let b = bake_key(&map, key, Some(0.1), 0.3).unwrap();
+            // At the method's default strength (no `--align` value) the labels agree.
+            let b = bake_key(&map, key, None, 0.3).unwrap();
             assert_eq!(b.label(), spec.to_string());
             let finest = finest_level_only(&b);
             assert_eq!(finest.level_count(), 1);
             assert!(finest.textures.iter().all(|t| t.levels.len() == 1));
         }
+        // Another strength shows in the bake's label (the window's), not in the spec (the
+        // benchmark's, whose frame times do not depend on it).
+        let spec: MethodSpec = "vmf2a".parse().unwrap();
+        let key = BakeKey { spec, color: false };
+        let b = bake_key(&map, key, Some(1.0), 0.3).unwrap();
+        assert_eq!(
+            (b.label(), spec.to_string()),
+            ("vmf2a(C=1)".into(), "vmf2a".into())
+        );
     }
 }
