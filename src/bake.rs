@@ -179,12 +179,11 @@ impl Bake {
                 _ => {}
             }
             if let Some(c) = self.parameters["align_strength"].as_f64() {
-                let form = match self.parameters["align_form"].as_str() {
-                    Some("main-text") => crate::em::AlignmentForm::MainText,
-                    _ => crate::em::AlignmentForm::Appendix,
-                };
                 let options = BakeOptions {
-                    align_form: form,
+                    align_form: self.parameters["align_form"]
+                        .as_str()
+                        .and_then(|f| f.parse().ok())
+                        .unwrap_or_default(),
                     ..BakeOptions::default()
                 };
                 l += &strength_suffix(c, options.default_align_strength(self.method));
@@ -411,6 +410,12 @@ pub(crate) fn strength_suffix(c: f64, default: f64) -> String {
     } else {
         format!("(C={c})")
     }
+}
+
+/// A label's alignment strength spelled for a file name: `vmf6a(C=1)` → `vmf6a-c1` (other
+/// characters unchanged; callers choose what a space becomes).
+pub fn file_label(label: &str) -> String {
+    label.replace("(C=", "-c").replace(')', "")
 }
 
 impl Default for BakeOptions {

@@ -3062,15 +3062,19 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(status) => ExitCode::from(status),
         Err(e) => {
-            // One line, whatever a decoder's message holds.
-            let text = e.to_string();
-            eprintln!(
-                "ndfmap: error: {}",
-                text.split_whitespace().collect::<Vec<_>>().join(" ")
-            );
+            print_error(&e.to_string());
             ExitCode::FAILURE
         }
     }
+}
+
+/// Prints `text` as the CLI's one error line, `ndfmap: error: …`, whatever line breaks a
+/// decoder's (or clap's) message holds.
+fn print_error(text: &str) {
+    eprintln!(
+        "ndfmap: error: {}",
+        text.split_whitespace().collect::<Vec<_>>().join(" ")
+    );
 }
 
 /// A command line clap refuses: help and version as clap prints them; anything else as one
@@ -3087,13 +3091,12 @@ fn command_line_error(e: clap::Error) -> ExitCode {
             let text = e.render().to_string();
             let first: Vec<&str> = text
                 .lines()
-                .map(str::trim)
-                .skip_while(|l| l.is_empty())
-                .take_while(|l| !l.is_empty())
+                .skip_while(|l| l.trim().is_empty())
+                .take_while(|l| !l.trim().is_empty())
                 .collect();
             let first = first.join(" ");
-            let first = first.strip_prefix("error: ").unwrap_or(&first);
-            eprintln!("ndfmap: error: {first} (--help lists the options)");
+            let first = first.trim_start().strip_prefix("error: ").unwrap_or(&first);
+            print_error(&format!("{first} (--help lists the options)"));
             ExitCode::from(2)
         }
     }

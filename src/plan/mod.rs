@@ -608,9 +608,6 @@ impl<'a> WholeMap<'a> {
     }
 }
 
-/// The measurement context: samples, BRDFs, directions, and the sample bakes of every
-/// configuration measured so far (each configuration is baked once; quantizing and dropping
-/// lobes edit a copy).
 /// What [`Measure::run`] does to a sample bake before measuring it (quantize, drop lobes).
 type Edit = dyn Fn(Bake) -> Result<Bake> + Sync;
 
@@ -618,6 +615,9 @@ type Edit = dyn Fn(Bake) -> Result<Bake> + Sync;
 /// [`EnvMeasure::errors`] gives them.
 type EnvErrors = Vec<Option<(f64, f64)>>;
 
+/// The measurement context: samples, BRDFs, directions, and the sample bakes of every
+/// configuration measured so far (each configuration is baked once; quantizing and dropping
+/// lobes edit a copy).
 struct Measure<'a> {
     samples: &'a Samples,
     brdfs: Vec<Brdf>,

@@ -753,10 +753,7 @@ fn masked_tonemap(image: &Image, fill: &Image, mask: &[bool], exposure: f64) -> 
 
 /// A label as part of a file name: `vmf6a(C=1) f16` → `vmf6a-c1_f16`.
 fn file_label(label: &str) -> String {
-    label
-        .replace("(C=", "-c")
-        .replace(')', "")
-        .replace(' ', "_")
+    crate::bake::file_label(label).replace(' ', "_")
 }
 
 /// Compares a render with the ground truth of its view: the errors, the tone-mapped render

@@ -148,8 +148,7 @@ fn renderers(gl: &Gl) -> Vec<(BakeRenderer, Option<Brdf>)> {
 }
 
 fn file_stem(scene: &Scene, renderer: &BakeRenderer) -> String {
-    // `vmf4a(C=1)` → `vmf4a-c1`: no brackets in file names.
-    let label = renderer.label().replace("(C=", "-c").replace(')', "");
+    let label = ndfmap::bake::file_label(renderer.label());
     format!("{}-{}", scene.name, label.replace(' ', "-"))
 }
 
