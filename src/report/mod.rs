@@ -952,46 +952,57 @@ pub fn run(
                 (Some(p), Some(b)) => Some(p.saturating_sub(b)),
                 _ => None,
             };
-            // The formats in the order asked, the f32 bake itself (not a copy) among them.
-            let mut variants: Vec<Option<Bake>> = Vec::new();
-            let w = Stopwatch::start();
-            for &format in &options.formats {
-                if format == Format::F32 {
-                    variants.push(None);
-                    continue;
-                }
-                match crate::pack::quantize(&baked, format) {
-                    Ok(q) => variants.push(Some(q)),
-                    Err(e) => skipped.push(format!("{label} in {format}: {e}")),
-                }
-            }
+            // The formats in the order asked, one at a time: each narrower one is rounded from
+            // the f32 bake, measured and dropped before the next, and the last format that
+            // needs the f32 bake rounds it in place (`quantize_into`), so at most two copies of
+            // the bake's textures are held (three formats held at once made SH l* = 8, 448 MiB
+            // in f32 at 1024², the report's memory peak). Without the kept reference each
+            // format recomputes the exact answers: the price of that memory on maps too large
+            // for REFERENCE_BUDGET.
             let mut baked = Some(baked);
-            let variants: Vec<Bake> = variants
-                .into_iter()
-                .filter_map(|v| v.or_else(|| baked.take()))
-                .collect();
-            drop(baked);
-            w.stop(&mut ph.quantize);
-            let refs: Vec<&Bake> = variants.iter().collect();
-            let errors = timed(&mut ph.texel_eval, || match &reference {
-                Some(r) => r.evaluate(&refs),
-                None => evaluate_from(map, &refs, std::slice::from_ref(&brdf), &directions, first),
-            });
-            // Shader costs not known yet (the first map's), one `glslangValidator` per core.
-            timed(&mut ph.shader_cost, || {
-                use rayon::prelude::*;
-                let missing: Vec<&Bake> = variants
-                    .iter()
-                    .filter(|b| !costs.contains_key(&format!("{label}/{}", b.format)))
-                    .collect();
-                let found: Vec<ShaderCost> =
-                    missing.par_iter().map(|b| cost::shader_cost(b)).collect();
-                for (b, c) in missing.iter().zip(found) {
-                    costs.insert(format!("{label}/{}", b.format), c);
+            for (i, &format) in options.formats.iter().enumerate() {
+                let w = Stopwatch::start();
+                let needed_later = !options.formats[i + 1..].is_empty();
+                let quantized = match (format, baked.take()) {
+                    (_, None) => break,
+                    (Format::F32, Some(f32_bake)) => Ok(f32_bake),
+                    (_, Some(f32_bake)) if needed_later => {
+                        let q = crate::pack::quantize(&f32_bake, format);
+                        baked = Some(f32_bake);
+                        q
+                    }
+                    (_, Some(f32_bake)) => crate::pack::quantize_into(f32_bake, format),
+                };
+                w.stop(&mut ph.quantize);
+                let bake = match quantized {
+                    Ok(b) => b,
+                    Err(e) => {
+                        skipped.push(format!("{label} in {format}: {e}"));
+                        continue;
+                    }
+                };
+                let b = &bake;
+                let err = timed(&mut ph.texel_eval, || {
+                    let refs: [&Bake; 1] = [b];
+                    match &reference {
+                        Some(r) => r.evaluate(&refs),
+                        None => evaluate_from(
+                            map,
+                            &refs,
+                            std::slice::from_ref(&brdf),
+                            &directions,
+                            first,
+                        ),
+                    }
+                    .remove(0)
+                });
+                // Shader cost not known yet (the first map's).
+                let key = format!("{label}/{}", b.format);
+                if !costs.contains_key(&key) {
+                    let c = timed(&mut ph.shader_cost, || cost::shader_cost(b));
+                    costs.insert(key.clone(), c);
                 }
-            });
-            for (b, err) in variants.iter().zip(&errors) {
-                let cost = costs[&format!("{label}/{}", b.format)].clone();
+                let cost = costs[&key].clone();
                 let textures = crate::glsl::sampled_textures(
                     &crate::glsl::ShaderSpec::of(b),
                     &Default::default(),
@@ -1098,6 +1109,10 @@ pub fn run(
                     views: view_errors,
                     aniso_views,
                 });
+                // The f32 bake, measured in place, goes back for the formats after it.
+                if format == Format::F32 && needed_later {
+                    baked = Some(bake);
+                }
             }
             progress(Progress::Done);
         }
