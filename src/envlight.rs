@@ -20,11 +20,11 @@
 //! - **Specular, prefiltered route**: per lobe the BRDF widened by the lobe (eq 20 `s'`, GGX
 //!   `α'`), its lobe over incident directions `w(ω_i) = f'(ω_h·μ) max(ω_i·μ, 0)` replaced by
 //!   the vMF matching its first moment (mean direction and mean resultant length, tabulated per
-//!   `(ω_o·μ, s')` by [`lobe_moments`]: the mean direction is a tabulated blend of μ and the
+//!   `(ω_o·μ, s')` by `energy_quadrature::lobe_moments`: the mean direction is a tabulated blend of μ and the
 //!   reflected direction `r = 2(ω_o·μ)μ − ω_o`, κ_i from the mean's length; the `4(ω_o·ω_h)` Jacobian, the cosine and the horizon are in both — the earlier
 //!   `κ_i = s'/4` about `r` was off by up to 14 % at 80° views under an overcast sky), one
 //!   lookup (GGX: two, a core vMF at the lobe's mode and a tail vMF about its mean, the same
-//!   first moment in total: [`two_vmf_fit`]) of the prefiltered environment at `LOD = ½ log2(Ω_s/Ω_p)`, times the lobe's energy
+//!   first moment in total: `energy_quadrature::two_vmf_fit`) of the prefiltered environment at `LOD = ½ log2(Ω_s/Ω_p)`, times the lobe's energy
 //!   `E(ω_o·μ, s') = ∫ w dω_i` from the same table (the "split sum": exact for a constant
 //!   environment), times `g(r, μ)`.
 //! - **Specular, SH route** (eq 26): per lobe `Σ_l ρ̂_l e^{−l²/2κ} Σ_m L′_lm(ω_o) Y_lm(μ)` with
@@ -39,7 +39,7 @@
 //! plain, Toksvig, LEAN, vMF, SH.
 
 use crate::bake::{Bake, Method};
-use crate::brdf::{Brdf, ggx};
+use crate::brdf::Brdf;
 use crate::environment::lights::{Light, LightOptions};
 use crate::environment::prefilter::Prefiltered;
 use crate::environment::projection::{self, ReflectedTable};
@@ -48,6 +48,9 @@ use crate::environment::{Environment, LUMINANCE, Radiance};
 use crate::error::{Error, Result};
 use crate::harmonics::{Basis, count, lambda};
 use crate::pyramid::pyramid;
+
+#[cfg(test)]
+mod energy_quadrature;
 use crate::rng::Rng;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -263,7 +266,7 @@ impl EnvLight {
     /// The prefiltered route's lobe table of `brdf`'s family (Blinn-Phong or GGX):
     /// [`ENERGY_BLOCKS`] × [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values, row-major — the
     /// energy `E(c_o, p)`, then the blend, `log2 κ_c`, the tail share `t`, `log2 κ_t` and the
-    /// core's blend ([`lobe_moments`]) — what the shaders
+    /// core's blend (`energy_quadrature::lobe_moments`) — what the shaders
     /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones). One
     /// table for all channels.
     pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
@@ -345,64 +348,53 @@ pub struct Estimate {
     pub specular_se: Vec<f64>,
 }
 
-/// Draws a half vector about `n` from the BRDF's sampling density; returns it and the density
-/// (per steradian of ω_h). Lambert has none.
-fn sample_half(brdf: &Brdf, n: DVec3, u1: f64, u2: f64) -> Option<(DVec3, f64)> {
-    let (c, pdf_of_c): (f64, Box<dyn Fn(f64) -> f64>) = match brdf {
-        Brdf::BlinnPhong { s } => {
-            let s = *s;
-            (
-                u1.powf(1.0 / (s + 1.0)),
-                Box::new(move |c| crate::brdf::blinn_phong(c, s)),
-            )
-        }
+/// Draws a half vector about `n` from the BRDF's sampling density (Blinn-Phong `f(c)`, GGX
+/// `D(c)·c` per steradian of ω_h; [`integrand_and_pdf`] gives that density). Lambert has none.
+fn sample_half(brdf: &Brdf, n: DVec3, u1: f64, u2: f64) -> Option<DVec3> {
+    let c = match brdf {
+        Brdf::BlinnPhong { s } => u1.powf(1.0 / (s + 1.0)),
         Brdf::Ggx(g) => {
             let a2 = g.alpha * g.alpha;
             let t2 = a2 * u1 / (1.0 - u1).max(1e-300);
-            let a = g.alpha;
-            (
-                (1.0 / (1.0 + t2)).sqrt(),
-                Box::new(move |c| ggx(c, a) * c.max(0.0)),
-            )
+            (1.0 / (1.0 + t2)).sqrt()
         }
         _ => return None,
     };
     let phi = 2.0 * PI * u2;
     let s = (1.0 - c * c).max(0.0).sqrt();
     let (t1, t2) = crate::brdf::tangent_frame(n);
-    let h = (t1 * (s * phi.cos()) + t2 * (s * phi.sin()) + n * c).normalize();
-    Some((h, pdf_of_c(c)))
+    Some((t1 * (s * phi.cos()) + t2 * (s * phi.sin()) + n * c).normalize())
 }
 
-/// The density over ω_i of [`sample_half`] reflected about the view `o` (0 where the half
-/// vector faces away from the view).
-fn half_pdf_to_light(brdf: &Brdf, n: DVec3, o: DVec3, l: DVec3) -> f64 {
-    let Some(h) = (l + o).try_normalize() else {
-        return 0.0;
-    };
-    let oh = o.dot(h);
-    if oh <= 0.0 {
-        return 0.0;
-    }
-    let c = n.dot(h);
-    let ph = match brdf {
-        Brdf::BlinnPhong { s } => crate::brdf::blinn_phong(c, *s),
-        Brdf::Ggx(g) => ggx(c, g.alpha) * c.max(0.0),
-        _ => 0.0,
-    };
-    ph / (4.0 * oh)
-}
-
-/// The specular integrand without L: `f(ω_h·n) max(ω_i·n, 0) g(ω_i, ω_h)`.
-fn specular_integrand(brdf: &Brdf, n: DVec3, o: DVec3, l: DVec3) -> f64 {
+/// For light `l`, view `o` and normal `n`: the specular integrand without L,
+/// `f(ω_h·n) max(ω_i·n, 0) g(ω_i, ω_h)`, and, where it is positive, the density over ω_i of
+/// [`sample_half`] reflected about the view (`p(ω_h)/4(ω_o·ω_h)`, 0 where the half vector faces
+/// away from the view). One half vector and one lobe evaluation serve both (the sampling
+/// density is the lobe itself for Blinn-Phong and `D·c` for GGX).
+fn integrand_and_pdf(brdf: &Brdf, n: DVec3, o: DVec3, l: DVec3) -> (f64, f64) {
     let cos_i = n.dot(l);
     if cos_i <= 0.0 {
-        return 0.0;
+        return (0.0, 0.0);
     }
     let Some(h) = (l + o).try_normalize() else {
-        return 0.0;
+        return (0.0, 0.0);
     };
-    brdf.lobe(n.dot(h)) * cos_i * brdf.g(l, h)
+    let c = n.dot(h);
+    let lobe = brdf.lobe(c);
+    let f = lobe * cos_i * brdf.g(l, h);
+    if f <= 0.0 {
+        return (f, 0.0);
+    }
+    let oh = o.dot(h);
+    if oh <= 0.0 {
+        return (f, 0.0);
+    }
+    let ph = match brdf {
+        Brdf::BlinnPhong { .. } => lobe,
+        Brdf::Ggx(_) => lobe * c.max(0.0),
+        _ => 0.0,
+    };
+    (f, ph / (4.0 * oh))
 }
 
 /// The footprint average over `normals` (unit, with weights summing to 1) of the diffuse and
@@ -499,9 +491,9 @@ pub fn ground_truth_with(
             x[0] += cos * v / (pe + cos / PI);
             for (b, brdf) in brdfs.iter().enumerate() {
                 if brdf.has_specular() {
-                    let f = specular_integrand(brdf, n, view, le);
+                    let (f, p) = integrand_and_pdf(brdf, n, view, le);
                     if f > 0.0 {
-                        x[1 + b] += f * v / (pe + half_pdf_to_light(brdf, n, view, le));
+                        x[1 + b] += f * v / (pe + p);
                     }
                 }
             }
@@ -516,20 +508,21 @@ pub fn ground_truth_with(
             let cos = n.dot(l).max(0.0);
             let (lv, texel) = radiance(l);
             if cos > 0.0 && lv > 0.0 {
-                x[0] += cos * value(j, texel, lv) / (cos / PI + sampler.pdf(env, l));
+                // `sampler.pdf(env, l)`, from the texel just read.
+                x[0] += cos * value(j, texel, lv) / (cos / PI + lv / sampler.total());
             }
         }
         // BRDF samples for each specular term.
         for (b, brdf) in brdfs.iter().enumerate() {
             let (u1, u2) = (rng.range(0.0, 1.0), rng.range(0.0, 1.0));
-            if let Some((h, _)) = sample_half(brdf, n, u1, u2) {
+            if let Some(h) = sample_half(brdf, n, u1, u2) {
                 let oh = view.dot(h);
                 if oh > 0.0 {
                     let l = 2.0 * oh * h - view;
-                    let f = specular_integrand(brdf, n, view, l);
+                    let (f, pb) = integrand_and_pdf(brdf, n, view, l);
                     let (lv, texel) = radiance(l);
                     if f > 0.0 && lv > 0.0 {
-                        let p = half_pdf_to_light(brdf, n, view, l) + sampler.pdf(env, l);
+                        let p = pb + lv / sampler.total();
                         x[1 + b] += f * value(j, texel, lv) / p;
                     }
                 }
@@ -567,87 +560,49 @@ pub const ENERGY_COS: usize = 33;
 /// `log10 α' ∈ [−3, 0]`) in equal steps.
 pub const ENERGY_PARAM: usize = 49;
 /// Blocks of a lobe table, [`ENERGY_PARAM`] rows each: the energy, the blend, `log2 κ_c` (the
-/// core vMF), the tail's energy share `t` and `log2 κ_t` ([`lobe_moments`]; Blinn-Phong has
+/// core vMF), the tail's energy share `t` and `log2 κ_t` (`energy_quadrature::lobe_moments`; Blinn-Phong has
 /// `t = 0`, one vMF; GGX two), the core's blend (its lookup direction, the lobe's mode), and
 /// the energy and blend with the cosine taken at the half vector instead of the lobe's centre
-/// (blocks 6 and 7), and the shift of `log2 κ` under those weights (block 8) ([`lobe_moments`];
+/// (blocks 6 and 7), and the shift of `log2 κ` under those weights (block 8) (`energy_quadrature::lobe_moments`;
 /// mixed in by the NDF's share of the lobe, [`ndf_share`]).
 pub const ENERGY_BLOCKS: usize = 9;
 
-/// The [`lobe_moments`] (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
+/// The `energy_quadrature::lobe_moments` (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
 /// for a view at `cos θ_o = c_o`: Blinn-Phong over
 /// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.
-/// Each family's table is computed on first use (a Lambert-only or GGX-only user never
-/// pays for the other's quadrature, about a second each on two cores).
+/// Each family's table is decoded from its embedded copy on first use ([`BLINN_PHONG_TABLE`]).
 struct EnergyTables {
     blinn_phong: std::sync::OnceLock<Vec<f64>>,
     ggx: std::sync::OnceLock<Vec<f64>>,
 }
 
-fn bp_param(i: usize) -> f64 {
-    (-4.0 + 24.0 * i as f64 / (ENERGY_PARAM - 1) as f64).exp2()
-}
-
-fn ggx_param(i: usize) -> f64 {
-    10f64.powf(-3.0 + 3.0 * i as f64 / (ENERGY_PARAM - 1) as f64)
-}
-
-/// The lobe-energy tables, computed once per process: they depend on no environment (the
-/// same values every [`EnvLight`] used to compute for itself).
+/// The lobe-energy tables, decoded once per process: they depend on no environment.
 fn energy_tables() -> &'static EnergyTables {
     static TABLES: std::sync::OnceLock<EnergyTables> = std::sync::OnceLock::new();
     TABLES.get_or_init(EnergyTables::new)
 }
 
-/// One family's table: `lobe(c, p)` over [`ENERGY_PARAM`] parameters `param(i)` (quadrature
-/// width `width(p)`) × [`ENERGY_COS`] view cosines, for each of the [`ENERGY_BLOCKS`]
-/// quantities of [`lobe_moments`] (block after block).
-///
-/// With `gaussian` (GGX: `p ↦ s`, the Blinn-Phong exponent of the same variance), block 6 is
-/// not the lobe's own half-vector energy but `E_0 · E_h^BP / E_0^BP` at that exponent: the
-/// cosine inside the lobe comes from the spread of the *normals*, a vMF, whose shape is
-/// Blinn-Phong's, not GGX's long tail (a GGX α' lobe with the cosine at its half vector
-/// over-counts its tail towards the view: measured +21 … +36 % at κ = 8 under a constant
-/// environment, against +3 … +6 % this way; `one_lobe_matches_its_exact_integral_…`).
-fn energy_table_of(
-    lobe: &(dyn Fn(f64, f64) -> f64 + Sync),
-    param: fn(usize) -> f64,
-    width: fn(f64) -> f64,
-    two_vmf: bool,
-    gaussian: Option<fn(f64) -> f64>,
-) -> Vec<f64> {
-    let cells: Vec<[f64; ENERGY_BLOCKS]> = (0..ENERGY_PARAM * ENERGY_COS)
-        .into_par_iter()
-        .map(|k| {
-            let p = param(k / ENERGY_COS);
-            let co = k as f64 % ENERGY_COS as f64 / (ENERGY_COS - 1) as f64;
-            let mut m = lobe_moments(&|c| lobe(c, p), width(p), co, two_vmf);
-            if let Some(to_s) = gaussian {
-                let s = to_s(p);
-                let bp = lobe_moments(
-                    &|c| crate::brdf::blinn_phong(c, s),
-                    (1.0 / s.sqrt()).min(0.5 * PI),
-                    co,
-                    false,
-                );
-                m[6] = if bp[0] > 0.0 {
-                    m[0] * bp[6] / bp[0]
-                } else {
-                    m[0]
-                };
-                m[8] = bp[8];
-            }
-            m
+/// The Blinn-Phong lobe table as `energy_quadrature` (envlight/energy_quadrature.rs) computes it (little-endian `f64`, in
+/// [`EnergyTables::lookup`]'s order), embedded: about a CPU second of quadrature per family
+/// that every process lit by an environment (the planner, `eval`, the C API's environment
+/// load) paid on first use. The test `energy_quadrature::tests::embedded_tables_are_the_quadrature`
+/// recomputes both tables and compares; `NDFMAP_BLESS=1` rewrites the files.
+const BLINN_PHONG_TABLE: &[u8] = include_bytes!("envlight/energy-blinn-phong.f64le");
+/// The GGX lobe table, as [`BLINN_PHONG_TABLE`].
+const GGX_TABLE: &[u8] = include_bytes!("envlight/energy-ggx.f64le");
+const _: () = assert!(BLINN_PHONG_TABLE.len() == 8 * ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
+const _: () = assert!(GGX_TABLE.len() == 8 * ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
+
+/// An embedded table's values.
+fn decode_table(bytes: &[u8]) -> Vec<f64> {
+    bytes
+        .chunks_exact(8)
+        .map(|c| {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(c);
+            f64::from_le_bytes(b)
         })
-        .collect();
-    let n = cells.len();
-    let mut out = vec![0.0; ENERGY_BLOCKS * n];
-    for (k, c) in cells.iter().enumerate() {
-        for (b, v) in c.iter().enumerate() {
-            out[b * n + k] = *v;
-        }
-    }
-    out
+        .collect()
 }
 
 impl EnergyTables {
@@ -658,33 +613,15 @@ impl EnergyTables {
         }
     }
 
-    /// The Blinn-Phong table (computed on first use).
+    /// The Blinn-Phong table (decoded on first use).
     fn blinn_phong_table(&self) -> &[f64] {
-        self.blinn_phong.get_or_init(|| {
-            energy_table_of(
-                &|c, s| crate::brdf::blinn_phong(c, s),
-                bp_param,
-                |s| (1.0 / s.sqrt()).min(0.5 * PI),
-                false,
-                None,
-            )
-        })
+        self.blinn_phong
+            .get_or_init(|| decode_table(BLINN_PHONG_TABLE))
     }
 
-    /// The GGX table (computed on first use).
+    /// The GGX table (decoded on first use).
     fn ggx_table(&self) -> &[f64] {
-        self.ggx.get_or_init(|| {
-            energy_table_of(
-                &|c, a| ggx(c, a),
-                ggx_param,
-                |a| a.min(0.5 * PI),
-                true,
-                // The widening rule equates an NDF variance v with `c·v` of α'²
-                // (`brdf::GGX_WIDENING_C`), so α' stands for a per-axis variance α'²/c:
-                // Blinn-Phong's `s = c/α'²`.
-                Some(|a| crate::brdf::GGX_WIDENING_C / (a * a).max(1e-12)),
-            )
-        })
+        self.ggx.get_or_init(|| decode_table(GGX_TABLE))
     }
 
     /// Bilinear lookup of each block of `table` over (param index, c_o).
@@ -712,290 +649,8 @@ impl EnergyTables {
     }
 }
 
-/// The view angle the moments of a view at the normal are taken at (its limit: at exactly
-/// 0 the reflected lobe has no plane to tilt in).
-const MOMENT_MIN_ANGLE: f64 = 1e-3;
-
-/// Bins of the histogram of `x = 1 − cos γ` (γ the angle from the lobe's mean direction) the
-/// two-vMF fit reads its quantiles from: log-spaced over `[MIX_X_MIN, 2]`.
-const MIX_BINS: usize = 512;
-/// The smallest `1 − cos γ` binned (γ ≈ 4.5·10⁻⁵ rad; below it everything is bin 0).
-const MIX_X_MIN: f64 = 1e-9;
-/// The quantiles of the lobe's angular distribution the two-vMF fit matches.
-const MIX_QUANTILES: [f64; 14] = [
-    0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98,
-];
-/// The largest tail share the fit considers.
-const MIX_TAIL_MAX: f64 = 0.9;
-
-/// The weight of the squared log ratio of the mixture's density at its mean direction to the
-/// lobe's in the two-vMF fit's measure (against the CDF errors at the quantiles): a sun in
-/// the lobe's core sees that density.
-const MIX_PEAK_WEIGHT: f64 = 100.0;
-
-/// The density of a normalized vMF of concentration `kappa` at its mean direction,
-/// `κ / (2π (1 − e^{−2κ}))` (`1/4π` as κ → 0).
-fn vmf_peak(kappa: f64) -> f64 {
-    if kappa < 1e-9 {
-        return 0.25 / PI;
-    }
-    kappa / (2.0 * PI * (-(-2.0 * kappa).exp_m1()))
-}
-
-/// `P(1 − cos γ ≤ x)` under a vMF of concentration `kappa` (γ from its mean):
-/// `(1 − e^{−κx}) / (1 − e^{−2κ})`.
-fn vmf_cdf(kappa: f64, x: f64) -> f64 {
-    if kappa < 1e-9 {
-        return 0.5 * x;
-    }
-    (-(-kappa * x).exp_m1()) / (-(-2.0 * kappa).exp_m1())
-}
-
-/// The two-vMF split of a lobe (both about its mean direction) with total first moment `r`
-/// (mean resultant length) whose angular distribution has `1 − cos γ` equal to `xq[j]` at the
-/// quantiles [`MIX_QUANTILES`]: `(1 − t)·vMF(κ_c) + t·vMF(κ_t)` with
-/// `(1 − t) A(κ_c) + t A(κ_t) = r` (the first moment stays the single vMF's; `A` is
-/// [`crate::vmf::a_kappa`]) and `κ_t ≤ κ_c`, the `(t, κ_c)` minimizing the squared CDF error
-/// at the quantiles plus [`MIX_PEAK_WEIGHT`] times the squared log ratio of the mixture's
-/// density at the mean direction to the lobe's (`peak`, 0: not used) over a grid (t in steps of 0.02 up to [`MIX_TAIL_MAX`], κ_c from the single
-/// vMF's κ in steps of 2^{1/8} up to 2^{12} times it). `t = 0` (the single vMF) is a candidate,
-/// so the fit is never worse than it in this measure. Returns `(κ_c, t, κ_t)`.
-fn two_vmf_fit(r: f64, xq: &[f64; MIX_QUANTILES.len()], peak: f64) -> (f64, f64, f64) {
-    let kappa1 = crate::vmf::kappa_from_r_exact(r);
-    let err = |kc: f64, t: f64, kt: f64| -> f64 {
-        let cdf: f64 = MIX_QUANTILES
-            .iter()
-            .zip(xq)
-            .map(|(q, &x)| {
-                let f = (1.0 - t) * vmf_cdf(kc, x) + t * vmf_cdf(kt, x);
-                (f - q) * (f - q)
-            })
-            .sum();
-        let p = (1.0 - t) * vmf_peak(kc) + t * vmf_peak(kt);
-        let dp = if peak > 0.0 && p > 0.0 {
-            (p / peak).ln()
-        } else {
-            0.0
-        };
-        cdf + MIX_PEAK_WEIGHT * dp * dp
-    };
-    let mut best = (err(kappa1, 0.0, kappa1), kappa1, 0.0, kappa1);
-    if !kappa1.is_finite() {
-        return (kappa1, 0.0, kappa1);
-    }
-    for i in 1..=(MIX_TAIL_MAX / 0.02).round() as usize {
-        let t = 0.02 * i as f64;
-        for k in 1..=96 {
-            let kc = kappa1 * (k as f64 / 8.0).exp2();
-            let at = (r - (1.0 - t) * crate::vmf::a_kappa(kc)) / t;
-            // NaN or ≤ 0: κ_c alone carries the whole moment (and more as it grows).
-            if at.is_nan() || at <= 0.0 {
-                break;
-            }
-            let kt = crate::vmf::kappa_from_r_exact(at.min(1.0));
-            if kt > kc {
-                continue;
-            }
-            let e = err(kc, t, kt);
-            if e < best.0 {
-                best = (e, kc, t, kt);
-            }
-        }
-    }
-    (best.1, best.2, best.3)
-}
-
-/// The lobe's split-sum quantities for the view at `cos θ_o = co` in the xz plane, by
-/// quadrature over ω_h (`dω_i = 4(ω_o·ω_h) dω_h`: polar panels sized to the lobe
-/// ([`crate::harmonics::polar_quadrature`]) × 128 azimuths) of the weight
-/// `w(ω_i) = f(ω_h·z) max(ω_i·z, 0)`:
-/// 0. the energy `E = ∫ w dω_i`;
-/// 1. the weight's mean direction `m = ∫ ω_i w / E` as a blend of the normal and the reflected
-///    direction r: `m̂ = normalize(b z + (1 − b) r)` (the cosine and the horizon pull the lobe
-///    towards the normal, by up to a third of r's angle at grazing views);
-/// 2. `log2 κ_c`: with `two_vmf` false, the κ of the vMF whose mean resultant length is `|m|`
-///    ([`crate::vmf::kappa_from_r_exact`]: the vMF matching the lobe's first moment, which
-///    includes the `4(ω_o·ω_h)` Jacobian and the horizon; `s'/4` is its limit for a sharp lobe
-///    seen head on); with `two_vmf` (GGX, whose long tail makes that single vMF much broader
-///    than its core) the core's κ of [`two_vmf_fit`] over the weight's distribution of
-///    `1 − m̂·ω_i`;
-/// 3. the tail's share `t` of the energy (0 without `two_vmf`);
-/// 4. `log2 κ_t`, the tail's κ (equal to block 2 when `t = 0`);
-/// 5. the core's blend: the lobe's mode (its density's maximum in the plane of incidence) as
-///    block 1 gives the mean; the core is looked up there, the tail about the mean (block 1
-///    when `t = 0`). The fit's peak density is the lobe's at its mode;
-/// 6. the energy with the cosine at the half vector, `E_h = ∫ f(ω_h·z) 4(ω_o·ω_h)² dω_h` over
-///    `ω_o·ω_h > 0`: the limit of an NDF lobe much wider than the BRDF's, where the normal
-///    that reflects ω_o into ω_i is ω_h itself, so the cosine `ω_i·n = ω_o·ω_h` varies across
-///    the lobe (blocks 0 and 1 take it at the lobe's centre, `ω_i·z`, exact for a sharp NDF
-///    lobe). The route mixes blocks 0 and 6 by the NDF's share `w` of the lobe's variance
-///    ([`ndf_share`]): the normal given ω_h is then, to second order, `(1 − w) μ + w ω_h`
-///    (the posterior of the vMF normal under the BRDF lobe about ω_h), and
-///    `E = (1 − w) E_0 + w E_h` (the posterior's spread and its mean's normalization cancel
-///    at second order);
-///    (GGX's table replaces this block by a Gaussian-shaped lobe's ratio, [`energy_table_of`]);
-/// 7. the mean direction's blend (as block 1) under the weights of block 6;
-/// 8. the shift `Δ = log2 κ_h − log2 κ` of the first-moment vMF's concentration under the
-///    weights of block 6 (GGX's table: the Gaussian-shaped lobe's shift, as block 6); the
-///    route adds `w·Δ` to `log2 κ_c` and `log2 κ_t`.
-fn lobe_moments(
-    f: &dyn Fn(f64) -> f64,
-    width: f64,
-    co: f64,
-    two_vmf: bool,
-) -> [f64; ENERGY_BLOCKS] {
-    let co = co.min(MOMENT_MIN_ANGLE.cos());
-    let o = DVec3::new((1.0 - co * co).max(0.0).sqrt(), 0.0, co);
-    let nphi = 128;
-    // The azimuths' (cos, sin), shared by every ring (the same values as computed per ring).
-    let azimuths: Vec<(f64, f64)> = (0..nphi)
-        .map(|j| {
-            let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
-            (phi.cos(), phi.sin())
-        })
-        .collect();
-    let quadrature = crate::harmonics::polar_quadrature(width);
-    // One pass over the samples: `visit(l, weight, weight with the cosine at ω_h)` for every
-    // incident direction.
-    let each = |visit: &mut dyn FnMut(DVec3, f64, f64)| {
-        for &(theta, w) in &quadrature {
-            let (st, ct) = theta.sin_cos();
-            let fv = f(ct);
-            if fv == 0.0 {
-                continue;
-            }
-            let k = w * st * fv * 2.0 * PI / nphi as f64;
-            for &(cp, sp) in &azimuths {
-                let h = DVec3::new(st * cp, st * sp, ct);
-                let oh = o.dot(h);
-                if oh <= 0.0 {
-                    continue;
-                }
-                let l = 2.0 * oh * h - o;
-                let x = l.z.max(0.0) * 4.0 * oh;
-                visit(l, k * x, k * 4.0 * oh * oh);
-            }
-        }
-    };
-    let (mut sum, mut sum_h) = (0.0, 0.0);
-    let (mut m, mut m_h) = (DVec3::ZERO, DVec3::ZERO);
-    each(&mut |l, x, xh| {
-        sum += x;
-        m += x * l;
-        sum_h += xh;
-        m_h += xh * l;
-    });
-    if sum.is_nan() || sum <= 0.0 {
-        return [0.0, 1.0, 60.0, 0.0, 60.0, 1.0, 0.0, 1.0, 0.0];
-    }
-    let mean = m / sum;
-    let theta_o = co.clamp(-1.0, 1.0).acos();
-    // The view is at +x, the reflected direction at −x; the mean lies between the normal and
-    // it, at θ_m from the normal: the direction `∝ sin(θ_o − θ_m) z + sin(θ_m) r`, stored as
-    // the blend weight of the normal (a normalize in the shader, no inverse trigonometry).
-    let theta_m = (-mean.x).atan2(mean.z).clamp(0.0, theta_o);
-    let blend_at = |theta_m: f64| {
-        let (a, b) = ((theta_o - theta_m).sin(), theta_m.sin());
-        if a + b > 0.0 { a / (a + b) } else { 0.0 }
-    };
-    let blend = blend_at(theta_m);
-    let blend_h = if sum_h > 0.0 {
-        blend_at((-m_h.x).atan2(m_h.z).clamp(0.0, theta_o))
-    } else {
-        blend
-    };
-    let r = mean.length().min(1.0);
-    let kappa = crate::vmf::kappa_from_r_exact(r);
-    let lk = |k: f64| k.max(1e-6).log2().min(60.0);
-    let shift = if sum_h > 0.0 {
-        lk(crate::vmf::kappa_from_r_exact(
-            (m_h / sum_h).length().min(1.0),
-        )) - lk(kappa)
-    } else {
-        0.0
-    };
-    if !two_vmf || !kappa.is_finite() {
-        return [
-            sum,
-            blend,
-            lk(kappa),
-            0.0,
-            lk(kappa),
-            blend,
-            sum_h,
-            blend_h,
-            shift,
-        ];
-    }
-    // The lobe's mode in the plane of incidence, `l(θ) = (−sin θ, 0, cos θ)`, θ ∈ [0, θ_o]
-    // (golden-section search of the density `f(ĥ·z) cos θ`): the core is looked up there.
-    let density = |th: f64| {
-        let l = DVec3::new(-th.sin(), 0.0, th.cos());
-        let h = (o + l).try_normalize().unwrap_or(DVec3::Z);
-        f(h.z) * l.z.max(0.0)
-    };
-    let (mut lo, mut hi) = (0.0, theta_o);
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    for _ in 0..80 {
-        let (p, q) = (hi - g * (hi - lo), lo + g * (hi - lo));
-        if density(p) < density(q) {
-            lo = p;
-        } else {
-            hi = q;
-        }
-    }
-    let theta_mode = 0.5 * (lo + hi);
-    let blend_core = blend_at(theta_mode);
-    // The distribution of x = 1 − m̂·ω_i (log-spaced bins), then its quantiles (log-linear
-    // within a bin).
-    let mhat = mean / mean.length();
-    let span = (2.0 / MIX_X_MIN).ln();
-    let mut hist = vec![0.0f64; MIX_BINS];
-    each(&mut |l, x, _| {
-        if x <= 0.0 {
-            return;
-        }
-        let g = (1.0 - mhat.dot(l)).max(MIX_X_MIN);
-        let i = ((g / MIX_X_MIN).ln() / span * MIX_BINS as f64) as usize;
-        hist[i.min(MIX_BINS - 1)] += x;
-    });
-    let edge = |i: usize| MIX_X_MIN * (span * i as f64 / MIX_BINS as f64).exp();
-    let mut xq = [0.0; MIX_QUANTILES.len()];
-    let (mut acc, mut j) = (0.0, 0);
-    for (i, h) in hist.iter().enumerate() {
-        while j < xq.len() && acc + h >= MIX_QUANTILES[j] * sum {
-            let f = if *h > 0.0 {
-                ((MIX_QUANTILES[j] * sum - acc) / h).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            xq[j] = (edge(i).ln() + f * (edge(i + 1).ln() - edge(i).ln())).exp();
-            j += 1;
-        }
-        acc += h;
-    }
-    for v in xq.iter_mut().skip(j) {
-        *v = 2.0;
-    }
-    // The lobe's own density at m̂ (per unit solid angle of ω_i, normalized):
-    // f(ĥ·z) max(m̂·z, 0) / E with ĥ the half vector of m̂ and the view.
-    let peak = density(theta_mode) / sum;
-    let (kc, t, kt) = two_vmf_fit(r, &xq, peak);
-    [
-        sum,
-        blend,
-        lk(kc),
-        t,
-        lk(kt),
-        if t > 0.0 { blend_core } else { blend },
-        sum_h,
-        blend_h,
-        shift,
-    ]
-}
-
 /// The lookup direction of a lobe about `mu` with reflected direction `r`: `normalize(blend·μ +
-/// (1 − blend)·r)`, the mean direction of [`lobe_moments`] (`blend` its block 1).
+/// (1 − blend)·r)`, the mean direction of `energy_quadrature::lobe_moments` (`blend` its block 1).
 fn tilted(mu: DVec3, r: DVec3, blend: f64) -> DVec3 {
     (mu * blend + r * (1.0 - blend))
         .try_normalize()
@@ -1170,7 +825,7 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
 }
 
 /// The effective half-vector lobe of `brdf` widened by per-axis variance `var` at `co`: the
-/// [`lobe_moments`] of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_c, tail share,
+/// `energy_quadrature::lobe_moments` of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_c, tail share,
 /// log2 κ_t, core blend, energy and blend with the cosine at the half vector).
 fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
@@ -1186,7 +841,7 @@ fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLO
 /// the NDF's). The normal that reflects the view into ω_i is, given ω_h, about
 /// `(1 − w) μ + w ω_h` (the product of the vMF about μ and the BRDF lobe about ω_h), so the
 /// route's energy and mean direction mix the centre-cosine and half-vector-cosine blocks of
-/// [`lobe_moments`] by w (GLSL: `ndf_env_share`).
+/// `energy_quadrature::lobe_moments` by w (GLSL: `ndf_env_share`).
 fn ndf_share(brdf: &Brdf, var: f64) -> f64 {
     let var = var.clamp(0.0, 1e6);
     let w = match brdf {
@@ -2118,7 +1773,9 @@ pub fn format_table(e: &Evaluation) -> String {
 
 #[cfg(test)]
 mod tests {
+    use super::energy_quadrature::*;
     use super::*;
+    use crate::brdf::ggx;
     use crate::environment::Sky;
 
     fn bp_closed_form(s: f64) -> f64 {
