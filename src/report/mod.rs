@@ -1759,4 +1759,72 @@ mod tests {
             assert_eq!(config.label(), want);
         }
     }
+
+    /// A FLIP stand-in (zero error everywhere): the rows' FLIP column is not what this module's
+    /// tests check, and the metric is C++ linked into the binary only.
+    fn no_flip(_: &[u8], _: &[u8], width: u32, height: u32) -> (Vec<f32>, Vec<u8>) {
+        let n = (width * height) as usize;
+        (vec![0.0; n], vec![0; 3 * n])
+    }
+
+    /// The storage formats are measured one at a time (the f32 bake handed back when formats
+    /// follow it, the last narrower one rounded from it in place): in any order, every
+    /// (configuration, format) row has the texel and image errors of another order's, and
+    /// every format asked gets its row.
+    #[test]
+    fn format_rows_do_not_depend_on_the_order_of_the_formats() {
+        let map = crate::procedural::generate(16, 7).map;
+        let maps = [MapInput {
+            name: "sample".into(),
+            map,
+        }];
+        let dir = tempfile::tempdir().unwrap();
+        let run_with = |formats: Vec<Format>| {
+            let options = ReportOptions {
+                image_size: 12,
+                spp: 2,
+                convergence_spp: 0,
+                lobes: vec![2],
+                align: vec![None],
+                tan_lobes: vec![],
+                sh_lmax: vec![],
+                image_formats: formats.clone(),
+                formats,
+                oracle_samples: 0,
+                zoom_lods: vec![1.0],
+                images: ImageSet::None,
+                ..ReportOptions::default()
+            };
+            run(&maps, &options, dir.path(), &|_| {}, no_flip)
+                .unwrap()
+                .rows
+        };
+        let first = run_with(vec![Format::F32, Format::F16, Format::Unorm8]);
+        let second = run_with(vec![Format::Unorm8, Format::F32, Format::F16]);
+        assert_eq!(first.len(), second.len());
+        let formats: std::collections::BTreeSet<String> =
+            first.iter().map(|r| r.format.to_string()).collect();
+        assert_eq!(formats.len(), 3, "{formats:?}");
+        for a in &first {
+            let b = second
+                .iter()
+                .find(|b| b.label == a.label)
+                .unwrap_or_else(|| panic!("{} missing", a.label));
+            assert_eq!(a.format, b.format);
+            assert_eq!(
+                a.texel_specular.to_bits(),
+                b.texel_specular.to_bits(),
+                "{}",
+                a.label
+            );
+            assert_eq!(a.texel_levels, b.texel_levels, "{}", a.label);
+            let rmse = |r: &Row| r.views.iter().map(|v| v.rel_rmse).collect::<Vec<_>>();
+            assert_eq!(rmse(a), rmse(b), "{}", a.label);
+            assert!(
+                !a.views.is_empty() || a.format != Format::F32,
+                "{}",
+                a.label
+            );
+        }
+    }
 }
