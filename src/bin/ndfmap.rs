@@ -2955,11 +2955,7 @@ fn report(a: ReportArgs) -> Result<()> {
     progress(Progress::Done);
     bar.finish_and_clear();
     // The totals cover the sections measured after `run` too.
-    rep.seconds += after_run.elapsed().as_secs_f64();
-    rep.cpu_seconds = ndfmap::report::cpu_seconds().or(rep.cpu_seconds);
-    if let (Some((start, end)), now) = (rep.load_average, ndfmap::report::load_average()) {
-        rep.load_average = Some((start, now.unwrap_or(end)));
-    }
+    rep.extend_totals(after_run.elapsed());
     let t = std::time::Instant::now();
     ndfmap::report::write(&rep, &a.output)?;
     println!(

@@ -485,7 +485,8 @@ pub struct Report {
     /// Worker threads.
     pub threads: usize,
     /// Wall seconds of [`run`]; `ndfmap report` adds the sections it measures after it
-    /// (stability, planner, environment, frame times), so its figure is the whole report's.
+    /// (stability, planner, environment, frame times: [`Report::extend_totals`]), so its
+    /// figure is the whole report's.
     pub seconds: f64,
     /// CPU seconds (user + system, all threads) of the process and its waited-for children at
     /// the end of [`run`] (Linux; `ndfmap report`: at the end of its last section).
@@ -516,6 +517,18 @@ pub struct Report {
 }
 
 impl Report {
+    /// Extends the totals ([`Report::seconds`], [`Report::cpu_seconds`], the end of
+    /// [`Report::load_average`]) over `extra` wall time spent after [`run`] on the sections
+    /// measured after it (stability, planner, environment, frame times), so they describe the
+    /// whole report: call it once, after the last section.
+    pub fn extend_totals(&mut self, extra: std::time::Duration) {
+        self.seconds += extra.as_secs_f64();
+        self.cpu_seconds = cpu_seconds().or(self.cpu_seconds);
+        if let (Some((start, end)), now) = (self.load_average, load_average()) {
+            self.load_average = Some((start, now.unwrap_or(end)));
+        }
+    }
+
     /// Fills every row's `frame_ms` and `frame_ratio` from `times` (by configuration label and
     /// format; rows the benchmark did not draw get `None`) and keeps `times` in the report.
     pub fn set_frame_times(&mut self, times: frame::FrameTimes) {
