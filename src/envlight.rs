@@ -48,14 +48,15 @@ use crate::environment::{Environment, LUMINANCE, Radiance};
 use crate::error::{Error, Result};
 use crate::harmonics::{Basis, count, lambda};
 use crate::pyramid::pyramid;
-
-#[cfg(test)]
-mod energy_quadrature;
 use crate::rng::Rng;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::f64::consts::PI;
+
+/// How the lobe tables are computed (tests only; the library embeds them).
+#[cfg(test)]
+mod energy_quadrature;
 
 /// Band limit of the environment's SH (eq 25, 26): the paper's l* = 8.
 pub const ENV_LMAX: usize = 8;

@@ -12,10 +12,14 @@ use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
+/// Row i's Blinn-Phong exponent: `log2 s` in equal steps over [−4, 20] (the lookup,
+/// `EnergyTables::blinn_phong`, inverts it).
 fn bp_param(i: usize) -> f64 {
     (-4.0 + 24.0 * i as f64 / (ENERGY_PARAM - 1) as f64).exp2()
 }
 
+/// Row i's GGX roughness: `log10 α` in equal steps over [−3, 0] (`EnergyTables::ggx`
+/// inverts it).
 fn ggx_param(i: usize) -> f64 {
     10f64.powf(-3.0 + 3.0 * i as f64 / (ENERGY_PARAM - 1) as f64)
 }
