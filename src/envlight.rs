@@ -485,7 +485,7 @@ pub fn ground_truth_with(
         ];
         let (le, _) = sampler.sample(env, ue);
         let (lv, texel) = radiance(le);
-        let pe = lv / sampler.total();
+        let pe = sampler.pdf_of_radiance(lv);
         if pe > 0.0 {
             let v = value(j, texel, lv);
             let cos = n.dot(le).max(0.0);
@@ -509,8 +509,7 @@ pub fn ground_truth_with(
             let cos = n.dot(l).max(0.0);
             let (lv, texel) = radiance(l);
             if cos > 0.0 && lv > 0.0 {
-                // `sampler.pdf(env, l)`, from the texel just read.
-                x[0] += cos * value(j, texel, lv) / (cos / PI + lv / sampler.total());
+                x[0] += cos * value(j, texel, lv) / (cos / PI + sampler.pdf_of_radiance(lv));
             }
         }
         // BRDF samples for each specular term.
@@ -523,7 +522,7 @@ pub fn ground_truth_with(
                     let (f, pb) = integrand_and_pdf(brdf, n, view, l);
                     let (lv, texel) = radiance(l);
                     if f > 0.0 && lv > 0.0 {
-                        let p = pb + lv / sampler.total();
+                        let p = pb + sampler.pdf_of_radiance(lv);
                         x[1 + b] += f * value(j, texel, lv) / p;
                     }
                 }

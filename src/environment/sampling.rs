@@ -72,7 +72,13 @@ impl EnvSampler {
     /// The density (per steradian) of [`EnvSampler::sample`] at direction `d`:
     /// `L_texel(d) / ∫ L dω`.
     pub fn pdf(&self, env: &Radiance, d: DVec3) -> f64 {
-        env.nearest(d) / self.total
+        self.pdf_of_radiance(env.nearest(d))
+    }
+
+    /// [`EnvSampler::pdf`] at a direction whose texel's radiance `radiance` the caller has
+    /// already read (no second texel lookup).
+    pub fn pdf_of_radiance(&self, radiance: f64) -> f64 {
+        radiance / self.total
     }
 }
 
