@@ -813,6 +813,24 @@ fn env_sections() -> Result<(String, String)> {
     Ok((whole[..cut].to_string(), whole[cut..].to_string()))
 }
 
+/// What an engine should know before drawing the [`lod_switch`] shader of `parts` lit by
+/// `light`, where something is known: `Some` for two parts or more under the environment. Each
+/// part shades its own environment term, so the shader holds one inlined copy of the prefiltered
+/// lookups per part. On an NVIDIA H100/H200 the planner's mixed scene's switch (two parts, both
+/// lights) cost 1.83× its costliest part, for the second copy and not for work done
+/// (docs/planner.md, "Frame time on a GPU"); llvmpipe showed 1.02–1.13×. `None` otherwise.
+pub fn lod_switch_caution(parts: &[LodPart], light: ShaderLight) -> Option<String> {
+    (parts.len() >= 2 && light.is_env()).then(|| {
+        format!(
+            "the LOD-switching shader has {} parts lit by the environment, each with its own copy \
+             of the environment's shading: on an NVIDIA H100/H200 such a switch cost 1.83x its \
+             costliest part (docs/planner.md, \"Frame time on a GPU\"); time it on your GPU, or \
+             draw each part's shader for the levels it holds",
+            parts.len()
+        )
+    })
+}
+
 /// The generated switch of [`lod_switch_source`]: `ndf_shade` (and, anisotropic,
 /// `ndf_shade_footprint`) choosing the part by level of detail, blending two parts across a
 /// boundary.
@@ -1213,6 +1231,12 @@ mod tests {
             part(vmf(3, false), 4, 5),
         ];
         let src = lod_switch_source(&parts, (32, 32), Stage::Fragment, &o).unwrap();
+        // The caution for several parts under the environment only.
+        let env = ShaderLight::PointAndEnvPrefiltered;
+        assert!(lod_switch_caution(&parts, env).is_some_and(|c| c.contains("has 3 parts")));
+        assert!(lod_switch_caution(&parts, ShaderLight::EnvPrefiltered).is_some());
+        assert_eq!(lod_switch_caution(&parts, ShaderLight::Point), None);
+        assert_eq!(lod_switch_caution(&parts[..1], env), None);
         // Exactly the samplers each part reads, renamed per part; no unrenamed sampler.
         for (k, n) in [(0, 1), (1, 2), (2, 3)] {
             for i in 0..4 {

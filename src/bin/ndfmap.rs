@@ -756,7 +756,12 @@ fn plan_cmd(
         .collect::<Result<_>>()?;
     // The one shader switching method by LOD, where it is built (else the reason, printed).
     let switch = match plan.lod_switch_shader(addressing) {
-        Ok(s) => Some(s),
+        Ok(s) => {
+            if let Some(c) = plan.lod_switch_caution(addressing) {
+                eprintln!("note: {c}");
+            }
+            Some(s)
+        }
         Err(e) => {
             eprintln!("note: no LOD-switching shader (lod_switch.frag): {e}");
             None

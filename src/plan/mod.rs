@@ -1667,6 +1667,19 @@ impl Plan {
         self.lod_switch(addressing).map(|s| s.source)
     }
 
+    /// What an engine should know before drawing the plan's LOD-switching shader
+    /// ([`crate::glsl::lod_switch_caution`] of [`Plan::lod_switch_parts`]): `Some` where it has
+    /// several parts lit by the environment.
+    pub fn lod_switch_caution(&self, addressing: crate::ingest::Addressing) -> Option<String> {
+        let parts: Vec<crate::glsl::LodPart> = self
+            .lod_switch_parts(addressing)
+            .into_iter()
+            .map(|p| p.0)
+            .collect();
+        let light = parts.first()?.options.light;
+        crate::glsl::lod_switch_caution(&parts, light)
+    }
+
     /// [`Plan::lod_switch_shader`] with the samplers the generator declares per switch part
     /// ([`crate::glsl::LodSwitch`]).
     pub fn lod_switch(
