@@ -818,7 +818,7 @@ fn env_sections() -> Result<(String, String)> {
 /// part shades its own environment term, so the shader holds one inlined copy of the prefiltered
 /// lookups per part. On an NVIDIA H100/H200 the planner's mixed scene's switch (two parts, both
 /// lights) cost 1.83× its costliest part, for the second copy and not for work done
-/// (docs/planner.md, "Frame time on a GPU"); llvmpipe showed 1.02–1.13×. `None` otherwise.
+/// (docs/planner.md, "Frame time on a GPU"); llvmpipe showed 0.99–1.14×. `None` otherwise.
 pub fn lod_switch_caution(parts: &[LodPart], light: ShaderLight) -> Option<String> {
     (parts.len() >= 2 && light.is_env()).then(|| {
         format!(
