@@ -82,6 +82,14 @@
 #define NDF_PLAN_TEXT_LOD_SWITCH_SHADER 3
 
 /**
+ * `ndf_plan_text`: what an engine should know before drawing that shader
+ * (`Plan::lod_switch_caution`, the `note:` of `ndfmap plan`): one line where the switch has
+ * several parts lit by the environment (on an NVIDIA H100/H200 such a switch cost 1.83× its
+ * costliest part), else the empty string. `part` ignored.
+ */
+#define NDF_PLAN_TEXT_LOD_SWITCH_CAUTION 4
+
+/**
  * Status of a call. `NDF_STATUS_OK` (0) is success; the numbers are stable and never reused.
  */
 enum ndf_status

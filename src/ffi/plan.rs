@@ -33,6 +33,11 @@ pub const NDF_PLAN_TEXT_SHADER: u32 = 2;
 /// level; `part` ignored). `NDF_STATUS_INVALID_ARGUMENT` with the reason where it is not built
 /// (parts lit differently, more than 32 samplers).
 pub const NDF_PLAN_TEXT_LOD_SWITCH_SHADER: u32 = 3;
+/// `ndf_plan_text`: what an engine should know before drawing that shader
+/// (`Plan::lod_switch_caution`, the `note:` of `ndfmap plan`): one line where the switch has
+/// several parts lit by the environment (on an NVIDIA H100/H200 such a switch cost 1.83× its
+/// costliest part), else the empty string. `part` ignored.
+pub const NDF_PLAN_TEXT_LOD_SWITCH_CAUTION: u32 = 4;
 
 /// A scene (the fields of the scene file, `docs/planner.md`). Initialize with
 /// `ndf_scene_default()`, then set the fields.
@@ -346,6 +351,9 @@ fn text_of(p: &ndf_plan, what: u32, part: u32) -> Outcome<Vec<u8>> {
             p.plan.shader(i, p.addressing)?
         }
         NDF_PLAN_TEXT_LOD_SWITCH_SHADER => p.plan.lod_switch_shader(p.addressing)?,
+        NDF_PLAN_TEXT_LOD_SWITCH_CAUTION => {
+            p.plan.lod_switch_caution(p.addressing).unwrap_or_default()
+        }
         v => {
             return Err(fail(
                 ndf_status::InvalidArgument,
@@ -496,6 +504,7 @@ mod tests {
             NDF_PLAN_TEXT_EXPLAIN,
             NDF_PLAN_TEXT_SHADER,
             NDF_PLAN_TEXT_LOD_SWITCH_SHADER,
+            NDF_PLAN_TEXT_LOD_SWITCH_CAUTION,
         ] {
             let mut size = 0usize;
             assert_eq!(
@@ -517,6 +526,19 @@ mod tests {
             assert_eq!(len, size);
             assert_eq!(buf[size - 1], 0);
         }
+        // The caution: one line exactly where the switch has several parts (lit by the
+        // environment here), else empty.
+        let p = unsafe { &*plan };
+        let Ok(caution) = text_of(p, NDF_PLAN_TEXT_LOD_SWITCH_CAUTION, 0) else {
+            panic!("the caution text failed");
+        };
+        let switch_parts = p.plan.lod_switch_parts(p.addressing).len();
+        assert_eq!(
+            caution.len() == 1,
+            switch_parts < 2,
+            "{switch_parts} switch parts"
+        );
+        assert!(!caution[..caution.len() - 1].contains(&b'\n'));
         let mut size = 0usize;
         assert_eq!(
             unsafe { ndf_plan_text_size(plan, NDF_PLAN_TEXT_SHADER, parts, &mut size) },
