@@ -8,11 +8,16 @@
 //
 // Per texel the method gives isotropic lobes (alpha, mu, |r|, var = 1/kappa; var = 0 is kappa =
 // infinity): plain one lobe of var 0; Toksvig |r| = |m| and Banerjee's kappa; LEAN the mean of
-// its two slope variances and |r| = A(kappa); vMF the decoded lobes of Algorithm 2 (with
-// NDF_COLOR each vMF lobe's terms are weighted per channel by its colour texel alpha*y, texture
-// NDF_LOBES + j, instead of alpha: eq 22 / Algorithm 2 line 14 as under a point light). Then
+// its two slope variances and |r| = A(kappa); Olano-North one lobe about E[n], var the mean of
+// its tangent-plane covariance's diagonal (its diffuse term from the moments, below); vMF the
+// decoded lobes of Algorithm 2, Tan 2005 its Gaussians (mu lifted from the planar mean, var =
+// sigma^2, |r| = A(1/var)) (with NDF_COLOR each mixture lobe's terms are weighted per channel by
+// its colour texel alpha*y, texture NDF_LOBES + j, instead of alpha: eq 22 / Algorithm 2 line
+// 14 as under a point light). Then
 //   diffuse (eq 25)  alpha sum_{l<=2} rhoL_l A_l sum_m L_lm Y_lm(mu), A_1 = |r|,
-//                    A_2 = max(1 - 3|r| var, 0), clamped at 0 per lobe;
+//                    A_2 = max(1 - 3|r| var, 0), clamped at 0 per lobe; Olano-North instead
+//                    max(sum_{l<=2} rhoL_l sum_m L_lm E[Y_lm(n)], 0), E[Y_lm] linear in its
+//                    stored E[n] and E[nn^T] (the footprint's band-limited irradiance exactly);
 //   specular         per lobe facing the view (co = v.mu > 0), r = 2 co mu - v, times g(r, mu):
 //     prefiltered    the BRDF widened by the lobe (s' = s/(1 + s var); GGX alpha', exponent
 //                    2/alpha'^2 - 2); its lobe over incident directions replaced by the vMF of the
@@ -415,6 +420,25 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #endif
 }
 
+#ifndef NDF_NO_DIFFUSE
+// The footprint average of the band-limited irradiance from the normals' moments m = E[n] and
+// e = E[nn^T] (environment frame): sum_{l<=2} rhoL_l sum_m L_lm E[Y_lm(n)], the Y_2m as traceless
+// quadratic forms (CPU: envlight::moment_basis and moments_diffuse). Olano-North's diffuse term;
+// outside any method's #if so that the LOD-switching shader's shared helpers hold it.
+vec3 ndf_env_moments_diffuse(vec3 m, mat3 e) {
+    // e[j][i] is row i, column j (symmetric).
+    float y[9] = float[](0.28209479177387814, 0.4886025119029199 * m.y,
+                         0.4886025119029199 * m.z, 0.4886025119029199 * m.x,
+                         1.0925484305920792 * e[1][0], 1.0925484305920792 * e[2][1],
+                         0.31539156525252005 * (2.0 * e[2][2] - e[0][0] - e[1][1]),
+                         1.0925484305920792 * e[2][0], 0.5462742152960396 * (e[0][0] - e[1][1]));
+    const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
+    vec3 sum = vec3(0.0);
+    for (int k = 0; k < 9; ++k) sum += lambert[k == 0 ? 0 : (k < 4 ? 1 : 2)] * ndf_env_sh[k] * y[k];
+    return sum;
+}
+#endif
+
 // Environment-lit shading of one texel for the view v (tangent frame): (diffuse, specular) per
 // colour channel (CPU: envlight::shade).
 void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 specular) {
@@ -446,6 +470,48 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
     float var = 0.5 * (vx + vy);
     float r = var > 0.0 ? ndf_env_a_kappa(1.0 / var) : 1.0;
     ndf_env_lobe(1.0, mu, r, var, v, NDF_ENV_LP d, s);
+#elif defined(NDF_METHOD_OLANO)
+    // One lobe about E[n] (the point-light decoding of ndf_baselines.glsl); the lobe's own
+    // diffuse term is dropped for the moments' exact one.
+    vec3 m = t[0].xyz;
+    mat3 second = mat3(t[1].x, t[2].x, t[2].y,
+                       t[2].x, t[1].y, t[2].z,
+                       t[2].y, t[2].z, t[1].z);
+    vec3 mu = ndf_normalize_or_z(m);
+    vec3 t1;
+    vec3 t2;
+    ndf_tangent_frame(mu, t1, t2);
+    vec3 cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
+    float var = 0.5 * (cov.x + cov.y);
+    vec3 lobe_diffuse = vec3(0.0);
+    ndf_env_lobe(1.0, mu, min(length(m), 1.0), var > 0.0 ? var : 0.0, v, NDF_ENV_LP lobe_diffuse,
+                 s);
+#ifndef NDF_NO_DIFFUSE
+    d = max(ndf_env_moments_diffuse(ndf_env_frame * m,
+                                    ndf_env_frame * second * transpose(ndf_env_frame)),
+            0.0);
+#endif
+#elif defined(NDF_METHOD_TAN2005)
+    for (int j = 0; j < NDF_LOBES; ++j) {
+        // The point-light decoding of ndf_tan2005.glsl (CPU: tan2005::Gaussian::from_texel).
+        float alpha = t[j].x;
+        if (!(alpha > 0.0 && alpha < 1e30)) continue;
+        vec2 mean = t[j].yz / alpha;
+        float var = t[j].w / alpha - dot(mean, mean);
+        var = var > 0.0 && var < 1e30 ? var : 0.0;
+        vec3 mu = ndf_tan_lift(mean);
+        float rlen = var > 0.0 ? ndf_env_a_kappa(1.0 / var) : 1.0;
+#ifdef NDF_COLOR
+        vec3 dj = vec3(0.0);
+        vec3 sj = vec3(0.0);
+        ndf_env_lobe(1.0, mu, rlen, var, v, NDF_ENV_LP dj, sj);
+        vec3 weight = t[NDF_LOBES + j].rgb;
+        d += weight * dj;
+        s += weight * sj;
+#else
+        ndf_env_lobe(alpha, mu, rlen, var, v, NDF_ENV_LP d, s);
+#endif
+    }
 #elif defined(NDF_METHOD_SH)
     ndf_env_sh_texel(t, v, NDF_ENV_LP d, s);
 #elif defined(NDF_METHOD_VMF)
@@ -476,7 +542,8 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
 #ifdef NDF_ENV_LIGHTS
 // The texel with its NDF convolved with a vMF of concentration k (a light's spread; CPU:
 // envlight::spread_texels): vMF lobes' and Toksvig's mean vectors times A(k), LEAN's second
-// moments plus 1/k, an SH bake's band l times e^{-l^2/2k}; plain unchanged.
+// moments plus 1/k, Olano-North's moments convolved exactly, Tan 2005's sigma^2 plus 1/k, an SH
+// bake's band l times e^{-l^2/2k}; plain unchanged.
 void ndf_env_spread(inout vec4 t[NDF_TEXTURES], float k) {
 #if defined(NDF_METHOD_VMF)
     float a = ndf_env_a_kappa(k);
@@ -485,6 +552,17 @@ void ndf_env_spread(inout vec4 t[NDF_TEXTURES], float k) {
     t[0].xyz *= ndf_env_a_kappa(k);
 #elif defined(NDF_METHOD_LEAN)
     t[0].zw += vec2(1.0 / k);
+#elif defined(NDF_METHOD_OLANO)
+    // E[n] times A(k); E[nn^T] -> (A/k) I + (1 - 3A/k) E[nn^T].
+    float a = ndf_env_a_kappa(k);
+    float iso = a / k;
+    float keep = 1.0 - 3.0 * iso;
+    t[0].xyz *= a;
+    t[1].xyz = vec3(iso) + keep * t[1].xyz;
+    t[2].xyz *= keep;
+#elif defined(NDF_METHOD_TAN2005)
+    // Each Gaussian's sigma^2 raised by 1/k: its fourth number by alpha/k.
+    for (int j = 0; j < NDF_LOBES; ++j) t[j].w += t[j].x / k;
 #elif defined(NDF_METHOD_SH)
     for (int l = 1; l <= NDF_SH_LMAX; ++l) {
         float f = exp(-float(l * l) / (2.0 * k));

@@ -422,15 +422,8 @@ pub fn source_for(spec: &ShaderSpec, stage: Stage, options: &ShaderOptions) -> R
         ));
     }
     if options.light.is_env() {
-        if !matches!(
-            spec.method,
-            Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf | Method::Sh
-        ) {
-            return Err(Error::InvalidOption(format!(
-                "environment-lit shaders exist for plain, toksvig, lean, vmf and sh bakes, not {}",
-                spec.method
-            )));
-        }
+        // The methods the CPU twin shades (`envlight::check_method`): all but the PBR bake.
+        crate::envlight::check_method(spec.method)?;
         if spec.method == Method::Sh && options.light != ShaderLight::EnvSh {
             return Err(Error::InvalidOption(
                 "an sh bake is lit by the environment's SH (light env-sh), not by prefiltered \
@@ -1563,10 +1556,21 @@ mod tests {
                     .unwrap()
                     .contains("#define NDF_R_MAX")
             );
-            assert!(matches!(
-                source(&bake(&map(), Method::Olano), Stage::Fragment, &o),
-                Err(Error::InvalidOption(_))
-            ));
+            // Olano–North (its moments' diffuse term) and Tan 2005 (a lobe per Gaussian).
+            let olano = source(&bake(&map(), Method::Olano), Stage::Fragment, &o).unwrap();
+            assert!(olano.contains("#define NDF_METHOD_OLANO 1"));
+            assert!(olano.contains("vec3 ndf_env_moments_diffuse("));
+            let tan = bake_with(
+                &map(),
+                Method::Tan2005,
+                &BakeOptions {
+                    lobes: 2,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            let tan = source(&tan, Stage::Fragment, &o).unwrap();
+            assert!(tan.contains("#define NDF_METHOD_TAN2005 1") && tan.contains("ndf_tan_lift("));
             // SH bakes: the SH route only, with the rotation's constant table.
             let sh = bake_with(&map(), Method::Sh, &BakeOptions::default()).unwrap();
             match light {

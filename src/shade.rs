@@ -311,8 +311,9 @@ fn lean_moments(texels: &[[f32; 4]]) -> (DVec2, [f64; 3]) {
 }
 
 /// Olano–North's texels decoded: mean normal `E[n]`, its direction μ with tangent frame, and
-/// the covariance of the normal projected on that frame (PSD-projected).
-fn olano_moments(texels: &[[f32; 4]]) -> (DVec3, DVec3, (DVec3, DVec3), [f64; 3]) {
+/// the covariance of the normal projected on that frame (PSD-projected). Also the
+/// environment routes' decoding of an Olano–North texel (`envlight`).
+pub(crate) fn olano_moments(texels: &[[f32; 4]]) -> (DVec3, DVec3, (DVec3, DVec3), [f64; 3]) {
     let m = v3(texels[0]);
     let (d, o) = (texels[1], texels[2]);
     let e = |a: DVec3, b: DVec3| -> f64 {

@@ -333,10 +333,11 @@ struct EnvArgs {
     /// Light with an equirectangular environment (Radiance .hdr or OpenEXR, 2:1, linear), or
     /// `sky` for the generated sky with a small bright sun, instead of point lights; the error
     /// is of the luminance, against a Monte Carlo ground truth (MIS of the environment and the
-    /// BRDF). Methods: plain, toksvig, lean, vmf, sh (others are left out); BRDFs: lambert,
+    /// BRDF). Methods: plain, toksvig, lean, olano, vmf, tan2005, sh; BRDFs: lambert,
     /// blinn-phong, ggx. With `--feature ALBEDO` the surface is coloured: the ground truth
-    /// weights each normal by its albedo, vMF bakes are shaded with their colour textures
-    /// (eq 22) and the other methods times the footprint's mean albedo (the albedo MIP).
+    /// weights each normal by its albedo, vMF and Tan 2005 bakes are shaded with their colour
+    /// textures (eq 22) and the other methods times the footprint's mean albedo (the albedo
+    /// MIP).
     #[arg(long)]
     env: Option<String>,
     /// vMF specular routes under the environment, comma-separated: prefiltered, sh.

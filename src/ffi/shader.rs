@@ -137,9 +137,8 @@ pub struct ndf_shader_options {
     /// SH bakes: the diffuse term, `NDF_SH_DIFFUSE_*`. Default `NDF_SH_DIFFUSE_MOMENTS`.
     pub sh_diffuse: ndf_sh_diffuse,
     /// The lighting, `NDF_LIGHT_*`: a point light or an environment by one of its routes
-    /// (plain, Toksvig, LEAN, vMF and SH bakes, SH by `NDF_LIGHT_ENV_SH` only; Lambert,
-    /// Blinn-Phong or GGX; no colour). Default
-    /// `NDF_LIGHT_POINT`.
+    /// (every bake but PBR, SH by `NDF_LIGHT_ENV_SH` only; Lambert, Blinn-Phong or GGX).
+    /// Default `NDF_LIGHT_POINT`.
     pub light: ndf_light,
     /// vMF bakes under Blinn-Phong or GGX (point lights): the lobes' specular rule,
     /// `NDF_VMF_SPECULAR_*`. Default `NDF_VMF_SPECULAR_AUTO`.

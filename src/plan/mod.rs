@@ -743,8 +743,8 @@ impl Measure<'_> {
 /// The candidates, cheapest first (fewest textures; at equal count the cheaper shading: the
 /// moment baselines LEAN (2 textures) and Olano–North (3) before the vMF mixture of as many
 /// textures, Tan 2005's aligned Gaussian mixtures (J = 2, 4) after it — the paper's Fig 6 has
-/// vMF ahead at equal lobe count). Under an environment only the methods its routes shade
-/// (`envlight::check_method`: plain, Toksvig, LEAN, vMF, SH) are candidates.
+/// vMF ahead at equal lobe count). Every one of them is shaded by the environment routes
+/// (`envlight::check_method`), so an environment-lit scene has the same candidates.
 fn candidates(scene: &Scene) -> Vec<Config> {
     let c = |method, lobes, lmax, aligned| Config {
         method,
@@ -767,7 +767,6 @@ fn candidates(scene: &Scene) -> Vec<Config> {
     // (Not under an environment alone: the environment shaders have no SH-bake variant.)
     let env_only = scene.has_environment() && !scene.has_direct();
     let sh = (lmax <= 3 && !env_only).then(|| c(Method::Sh, 0, lmax, false));
-    let env = scene.has_environment();
     for j in [1, 2, 3, 4, 6, 8] {
         if let Some(s) = sh
             && s.textures() <= j
@@ -778,11 +777,11 @@ fn candidates(scene: &Scene) -> Vec<Config> {
         if j == 2 {
             out.push(c(Method::Lean, 0, 0, false));
         }
-        if j == 3 && !env {
+        if j == 3 {
             out.push(c(Method::Olano, 0, 0, false));
         }
         out.push(c(Method::Vmf, j, 0, true));
-        if (j == 2 || j == 4) && !env {
+        if j == 2 || j == 4 {
             out.push(c(Method::Tan2005, j, 0, true));
         }
     }
@@ -2160,8 +2159,8 @@ error = 0.05
 
     #[test]
     fn lean_olano_and_tan2005_are_candidates_and_plans_carry_them() {
-        // The candidate set: the moment baselines and Tan 2005 where the scene's light can
-        // shade them (the environment routes shade LEAN, not Olano–North or Tan 2005).
+        // The candidate set: the moment baselines and Tan 2005, under point lights and under
+        // the environment alike.
         let glossy = scene(GLOSSY);
         let c = candidates(&glossy);
         let has = |c: &[Config], m: Method, j: usize| {
@@ -2183,7 +2182,7 @@ error = 0.05
         assert!(at(Method::Vmf, 2) < at(Method::Tan2005, 2));
         let matte = candidates(&scene(MATTE));
         assert!(has(&matte, Method::Lean, 0));
-        assert!(!has(&matte, Method::Olano, 0) && !has(&matte, Method::Tan2005, 2));
+        assert!(has(&matte, Method::Olano, 0) && has(&matte, Method::Tan2005, 2));
 
         // A plan whose one part is each of them: the plan file round-trips, `bake --plan`
         // bakes exactly that method's textures (against a direct bake, f32: bit for bit), and

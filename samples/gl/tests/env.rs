@@ -4,7 +4,8 @@
 //! same filtering: `ndfmap::sample::trilinear` for hardware sampling, each texel shaded and
 //! blended for manual sampling), texel for texel, at every level (integer LOD) and at a
 //! fractional LOD, for four views (the zenith, θ_o = 35°, 60° and 80°), plain, Toksvig, LEAN,
-//! vMF (3 unaligned lobes, manual; 2 aligned lobes, hardware; f32 and f16), Lambert,
+//! vMF (3 unaligned lobes, manual; 2 aligned lobes, hardware; f32 and f16), Olano–North, Tan
+//! 2005 (2 aligned Gaussians, hardware; with colour textures in the colour test), Lambert,
 //! Blinn-Phong s = 32 and 256 and GGX α = 0.3 with its g factor, both routes.
 //!
 //! The environment is the project's generated sky with a sun (64 × 32: the sun's texel holds
@@ -118,7 +119,19 @@ fn bakes() -> Vec<Bake> {
     out.push(ndfmap::pack::quantize(&v3, Format::F16).unwrap());
     out.push(v3);
     out.push(v2);
+    out.push(bake(&map, Method::Olano));
+    out.push(tan2(&map));
     out
+}
+
+/// Tan 2005 with 2 aligned Gaussians (hardware sampling).
+fn tan2(map: &ndfmap::NormalMap) -> Bake {
+    let o = BakeOptions {
+        lobes: 2,
+        align: Some(1.0),
+        ..Default::default()
+    };
+    bake_with(map, Method::Tan2005, &o).unwrap()
 }
 
 /// Per colour channel (R, G, B): (diffuse, specular).
@@ -457,6 +470,10 @@ fn run_framed(route: ndfmap_gl::Route) {
         cases.push((bake(&map, Method::Toksvig), r, tolerance(r)));
         cases.push((v3.clone(), r, tolerance(r)));
     }
+    // Olano–North's diffuse term rotates its moments into the environment's frame.
+    for r in [Route::Prefiltered, Route::Sh] {
+        cases.push((bake(&map, Method::Olano), r, tolerance(r)));
+    }
     // Through OSMesa: SH l* = 4 and vMF J = 3 by the SH route, Blinn-Phong s = 32 and GGX.
     let cases = for_route(route, cases, &[1, 6]);
     let mut failures = Vec::new();
@@ -624,10 +641,10 @@ fn point_and_env_shader_matches_the_sum_of_the_twins_through_osmesa() {
     both(ndfmap_gl::Route::OsMesa);
 }
 
-/// vMF bakes of a map with a two-colour albedo (orange where the normal leans to +x, blue
+/// Mixture bakes of a map with a two-colour albedo (orange where the normal leans to +x, blue
 /// elsewhere, so lobes of one texel differ in colour and the channels in weight): 3 unaligned
-/// lobes (manual sampling; f32 and f16) and 2 aligned lobes (hardware), each with its colour
-/// textures (`α·y`).
+/// lobes (manual sampling; f32 and f16) and 2 aligned lobes (hardware), and Tan 2005 with 2
+/// aligned Gaussians (hardware), each with its colour textures (`α·y`).
 fn coloured_bakes() -> Vec<Bake> {
     let map = ndfmap::procedural::generate(16, 5).map;
     let albedo = map
@@ -661,10 +678,16 @@ fn coloured_bakes() -> Vec<Bake> {
         },
     )
     .unwrap();
-    for b in [&v3, &v2] {
+    let t2 = tan2(&map);
+    for b in [&v3, &v2, &t2] {
         assert_eq!(b.textures.len(), 2 * b.lobes, "colour textures baked");
     }
-    vec![ndfmap::pack::quantize(&v3, Format::F16).unwrap(), v3, v2]
+    vec![
+        ndfmap::pack::quantize(&v3, Format::F16).unwrap(),
+        v3,
+        v2,
+        t2,
+    ]
 }
 
 /// Eq 22 under the environment: the `NDF_COLOR` probes of [`coloured_bakes`] under the orange
@@ -792,7 +815,8 @@ fn extracted_lights(route: ndfmap_gl::Route) {
         },
     )
     .unwrap();
-    // (bake, colour): plain, Toksvig, LEAN, vMF J = 2 aligned, the same with colour, SH l* = 2.
+    // (bake, colour): plain, Toksvig, LEAN, vMF J = 2 aligned, the same with colour, SH l* = 2,
+    // Olano–North, Tan 2005 J = 2 aligned without and with colour.
     // Through OSMesa: vMF J = 2 aligned and SH l* = 2, Blinn-Phong s = 32 and GGX.
     let cases: Vec<(&Bake, bool)> = for_route(
         route,
@@ -803,6 +827,9 @@ fn extracted_lights(route: ndfmap_gl::Route) {
             (&all[5], false),
             (&coloured[2], true),
             (&sh2, false),
+            (&all[6], false),
+            (&all[7], false),
+            (&coloured[3], true),
         ],
         &[3, 5],
     );

@@ -31,8 +31,8 @@ Window controls:
   ] / [             BRDF exponent s x2 / /2   T            Torrance-Sparrow / Blinn-Phong
                     (PBR methods: always GGX at --roughness)
   arrows            turn the light            F            f32 / f16 textures
-  E                 environment lighting on / off (the panorama as background; plain,
-                    toksvig, lean, vmf; Blinn-Phong, GGX)
+  E                 environment lighting on / off (the panorama as background; every
+                    method but the PBR bakes; Lambert, Blinn-Phong, GGX)
   left / right      (environment mode) turn the environment 15 deg about its zenith
   H                 (environment mode) specular route: prefiltered / SH (eq 26)
   R                 reset the view            Esc, Q       quit

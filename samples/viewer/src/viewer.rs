@@ -177,10 +177,7 @@ pub struct Settings {
 /// Whether the environment shaders implement `spec` (`glsl/ndf_env.glsl`: plain, Toksvig,
 /// LEAN, vMF, and SH by the SH route only).
 pub fn env_capable(spec: MethodSpec) -> bool {
-    matches!(
-        spec.method,
-        Method::Plain | Method::Toksvig | Method::Lean | Method::Vmf | Method::Sh
-    )
+    ndfmap::envlight::check_method(spec.method).is_ok()
 }
 
 impl Settings {
@@ -903,27 +900,27 @@ mod tests {
 
     #[test]
     fn environment_mode_steps_through_the_methods_it_draws() {
-        let methods: Vec<MethodSpec> = ["olano", "plain", "tan2005-4", "vmf6a", "sh4"]
+        let methods: Vec<MethodSpec> = ["pbr", "olano", "pbr-mip", "tan2005-4", "sh4"]
             .iter()
             .map(|m| m.parse().unwrap())
             .collect();
         let mut s = Settings::new(methods, ViewName::Sphere);
-        assert_eq!(s.method().to_string(), "olano");
+        assert_eq!(s.method().to_string(), "pbr");
         s.set_env(true).unwrap();
-        assert!(s.env_lit && s.method().to_string() == "plain");
+        assert!(s.env_lit && s.method().to_string() == "olano");
         s.step_method(1);
-        assert_eq!(s.method().to_string(), "vmf6a");
+        assert_eq!(s.method().to_string(), "tan2005-4");
         s.step_method(1);
         assert_eq!(s.method().to_string(), "sh4");
         s.step_method(1);
-        assert_eq!(s.method().to_string(), "plain");
+        assert_eq!(s.method().to_string(), "olano");
         s.step_method(-1);
         assert_eq!(s.method().to_string(), "sh4");
         s.set_env(false).unwrap();
         s.step_method(1);
-        assert_eq!(s.method().to_string(), "olano");
+        assert_eq!(s.method().to_string(), "pbr");
         // No method the environment shaders draw: refused, nothing changed.
-        let mut none = Settings::new(vec!["olano".parse().unwrap()], ViewName::Sphere);
+        let mut none = Settings::new(vec!["pbr".parse().unwrap()], ViewName::Sphere);
         assert!(none.set_env(true).is_err() && !none.env_lit);
         // Torrance-Sparrow has no environment route: Blinn-Phong of the same exponent.
         s.torrance_sparrow = true;
