@@ -655,9 +655,8 @@ typedef struct ndf_shader_options {
   ndf_sh_diffuse sh_diffuse;
   /**
    * The lighting, `NDF_LIGHT_*`: a point light or an environment by one of its routes
-   * (plain, Toksvig, LEAN, vMF and SH bakes, SH by `NDF_LIGHT_ENV_SH` only; Lambert,
-   * Blinn-Phong or GGX; no colour). Default
-   * `NDF_LIGHT_POINT`.
+   * (every bake but PBR, SH by `NDF_LIGHT_ENV_SH` only; Lambert, Blinn-Phong or GGX).
+   * Default `NDF_LIGHT_POINT`.
    */
   ndf_light light;
   /**

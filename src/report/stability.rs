@@ -812,7 +812,7 @@ fn bounded(
 }
 
 /// Runs the environment cases on a small bumpy map (16 × 16) with plain, Toksvig, LEAN,
-/// vMF J = 3 and SH l* = 4 bakes, Blinn-Phong s = 1, 10⁵, GGX α = 10⁻³, 1 and Lambert, both
+/// Olano–North, vMF J = 3, Tan 2005 J = 3 and SH l* = 4 bakes, Blinn-Phong s = 1, 10⁵, GGX α = 10⁻³, 1 and Lambert, both
 /// routes, 9 views, every level.
 pub fn environment() -> EnvStability {
     use crate::environment::Radiance;
@@ -822,8 +822,16 @@ pub fn environment() -> EnvStability {
         (Method::Plain, BakeOptions::default()),
         (Method::Toksvig, BakeOptions::default()),
         (Method::Lean, BakeOptions::default()),
+        (Method::Olano, BakeOptions::default()),
         (
             Method::Vmf,
+            BakeOptions {
+                lobes: 3,
+                ..BakeOptions::default()
+            },
+        ),
+        (
+            Method::Tan2005,
             BakeOptions {
                 lobes: 3,
                 ..BakeOptions::default()
