@@ -144,17 +144,20 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
             }
         }
     }
-    // Issue 16: the environment-lit specializations (both routes) of plain, Toksvig, LEAN and
-    // vMF (J = 1, 3, 8), Lambert, Blinn-Phong and GGX with and without g, every sampling, mesh
-    // and probe, f32 and unorm8 (wrap and clamp).
+    // Issue 16: the environment-lit specializations (both routes) of plain, Toksvig, LEAN,
+    // Olano–North, vMF (J = 1, 3, 8) and Tan 2005 (J = 2, 4), Lambert, Blinn-Phong and GGX with
+    // and without g, every sampling, mesh and probe, f32 and unorm8 (wrap and clamp).
     for light in [ShaderLight::EnvPrefiltered, ShaderLight::EnvSh] {
         for (method, lobes) in [
             (Method::Plain, 0),
             (Method::Toksvig, 0),
             (Method::Lean, 0),
+            (Method::Olano, 0),
             (Method::Vmf, 1),
             (Method::Vmf, 3),
             (Method::Vmf, 8),
+            (Method::Tan2005, 2),
+            (Method::Tan2005, 4),
         ] {
             for brdf in [
                 ShaderBrdf::BlinnPhong,
@@ -204,14 +207,18 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
             }
         }
     }
-    // Eq 22 under the environment: vMF bakes with colour textures (NDF_COLOR) lit by either
-    // route and by the point light + environment shader.
+    // Eq 22 under the environment: vMF and Tan 2005 bakes with colour textures (NDF_COLOR)
+    // lit by either route and by the point light + environment shader.
     for light in [
         ShaderLight::EnvPrefiltered,
         ShaderLight::EnvSh,
         ShaderLight::PointAndEnvPrefiltered,
     ] {
-        for lobes in [3usize, 8] {
+        for (method, lobes) in [
+            (Method::Vmf, 3usize),
+            (Method::Vmf, 8),
+            (Method::Tan2005, 3),
+        ] {
             for brdf in [
                 ShaderBrdf::BlinnPhong,
                 ShaderBrdf::Lambert,
@@ -220,9 +227,9 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                 for sampling in [Sampling::Hardware, Sampling::Manual] {
                     for probe in [false, true] {
                         let spec = ShaderSpec {
-                            method: Method::Vmf,
+                            method,
                             lobes,
-                            ranges: texture_ranges(Method::Vmf, lobes, true),
+                            ranges: texture_ranges(method, lobes, true),
                             format: Format::F16,
                             aligned: sampling == Sampling::Hardware,
                             addressing: Addressing::Wrap,
@@ -238,7 +245,7 @@ fn variants() -> Vec<(String, ShaderSpec, ShaderOptions)> {
                             ..Default::default()
                         };
                         let name = format!(
-                            "env-colour-{light:?}-vmf{lobes}-{brdf:?}-{sampling:?}-p{}",
+                            "env-colour-{light:?}-{method}{lobes}-{brdf:?}-{sampling:?}-p{}",
                             probe as u8
                         );
                         out.push((name, spec, opts));
@@ -478,6 +485,8 @@ fn lod_switch_variants() -> Vec<(String, (Vec<LodPart>, (u32, u32)), ShaderOptio
                 spec(Method::Lean, 0, Format::F32, false, a),
                 spec(Method::Vmf, 3, Format::Unorm16, true, a),
                 spec(Method::Vmf, 2, Format::F32, false, a),
+                spec(Method::Olano, 0, Format::F32, false, a),
+                spec(Method::Tan2005, 2, Format::F32, true, a),
             ]
         };
         for light in [
