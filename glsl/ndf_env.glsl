@@ -209,6 +209,26 @@ void ndf_env_reflected_at(vec3 v, out vec3 lp[NDF_ENV_COUNT]) {
 // ndf_env_basis(d, y): Y_lm(d), l <= 8, is ndf_sh_basis.glsl instantiated before this file
 // (ndfmap::glsl).
 
+// Y_lm, l <= 2, as polynomials of a unit vector (CPU: envlight::moment_basis; the recurrence's
+// values, test moment_basis_is_the_harmonics_basis): Y_00, Y_1m = C1 (y, z, x), and the five
+// quadratic forms of band 2, written traceless so that they hold for E[nn^T] as well.
+const float NDF_ENV_Y0 = 0.28209479177387814;   // 1/sqrt(4 pi)
+const float NDF_ENV_Y1 = 0.4886025119029199;    // sqrt(3/(4 pi))
+const float NDF_ENV_Y2 = 1.0925484305920792;    // sqrt(15/(4 pi)): xy, yz, xz
+const float NDF_ENV_Y20 = 0.31539156525252005;  // sqrt(5/(16 pi)): 2z^2 - x^2 - y^2
+const float NDF_ENV_Y22 = 0.5462742152960396;   // sqrt(15/(16 pi)): x^2 - y^2
+
+// Y_lm(d), l <= 2, in closed form: eq 25's basis, all the prefiltered route reads (the
+// recurrence to l = 8, 81 values per lobe, cost the prefiltered route half of plain's frame on
+// llvmpipe).
+void ndf_env_basis2(vec3 d, out float y[9]) {
+    d = ndf_normalize_or_z(d);
+    y = float[](NDF_ENV_Y0, NDF_ENV_Y1 * d.y, NDF_ENV_Y1 * d.z, NDF_ENV_Y1 * d.x,
+                NDF_ENV_Y2 * d.x * d.y, NDF_ENV_Y2 * d.y * d.z,
+                NDF_ENV_Y20 * (2.0 * d.z * d.z - d.x * d.x - d.y * d.y), NDF_ENV_Y2 * d.x * d.z,
+                NDF_ENV_Y22 * (d.x * d.x - d.y * d.y));
+}
+
 // A(kappa) = coth kappa - 1/kappa, the vMF's mean resultant length (CPU: vmf::a_kappa).
 float ndf_env_a_kappa(float kappa) {
     if (!(kappa > 0.0)) return 0.0;
@@ -350,10 +370,14 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
                   vec3 lp[NDF_ENV_COUNT],
 #endif
                   inout vec3 diffuse, inout vec3 specular) {
+#if defined(NDF_LIGHT_ENV_SH) && !defined(NDF_BRDF_LAMBERT)
+    // The basis at mu to l = 8: the SH route's specular (eq 26) and eq 25's bands.
     float y[NDF_ENV_COUNT];
-#if !defined(NDF_NO_DIFFUSE) || defined(NDF_LIGHT_ENV_SH)
-    // The basis at mu: eq 25's, and the SH route's specular.
     ndf_env_basis(ndf_env_frame * mu, y);
+#elif !defined(NDF_NO_DIFFUSE)
+    // Eq 25 reads the bands l <= 2 only.
+    float y[9];
+    ndf_env_basis2(ndf_env_frame * mu, y);
 #endif
 #ifndef NDF_NO_DIFFUSE
     // Eq 25 (CPU: diffuse_lobe).
@@ -427,11 +451,10 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 // outside any method's #if so that the LOD-switching shader's shared helpers hold it.
 vec3 ndf_env_moments_diffuse(vec3 m, mat3 e) {
     // e[j][i] is row i, column j (symmetric).
-    float y[9] = float[](0.28209479177387814, 0.4886025119029199 * m.y,
-                         0.4886025119029199 * m.z, 0.4886025119029199 * m.x,
-                         1.0925484305920792 * e[1][0], 1.0925484305920792 * e[2][1],
-                         0.31539156525252005 * (2.0 * e[2][2] - e[0][0] - e[1][1]),
-                         1.0925484305920792 * e[2][0], 0.5462742152960396 * (e[0][0] - e[1][1]));
+    float y[9] = float[](NDF_ENV_Y0, NDF_ENV_Y1 * m.y, NDF_ENV_Y1 * m.z, NDF_ENV_Y1 * m.x,
+                         NDF_ENV_Y2 * e[1][0], NDF_ENV_Y2 * e[2][1],
+                         NDF_ENV_Y20 * (2.0 * e[2][2] - e[0][0] - e[1][1]), NDF_ENV_Y2 * e[2][0],
+                         NDF_ENV_Y22 * (e[0][0] - e[1][1]));
     const float lambert[3] = float[](NDF_PI, 2.0 * NDF_PI / 3.0, NDF_PI / 4.0);
     vec3 sum = vec3(0.0);
     for (int k = 0; k < 9; ++k) sum += lambert[k == 0 ? 0 : (k < 4 ? 1 : 2)] * ndf_env_sh[k] * y[k];

@@ -1,7 +1,8 @@
 //! Frame time of each environment route relative to plain normal mapping under the same
 //! environment (issue 16, "Cost"): the sphere scene (`Scene::standard`'s third view, 512²) lit
-//! by the generated sky (1024 × 512, sun included), drawn with plain, Toksvig, LEAN and vMF
-//! J = 4 / 6 (unaligned: manual sampling; aligned: hardware), Blinn-Phong s = 256, by the
+//! by the generated sky (1024 × 512, sun included), drawn with plain, Toksvig, LEAN,
+//! Olano–North, vMF J = 4 / 6 (unaligned: manual sampling; aligned: hardware) and Tan 2005
+//! J = 4 aligned, Blinn-Phong s = 256, by the
 //! prefiltered and the SH route, and SH bakes l* = 2, 4, 8 by the SH route (the environment
 //! rotated per fragment into the tangent frame). `--sh-only`: plain (the base) and the SH
 //! bakes only. `--prefiltered-only`: the prefiltered route only, with the vMF J = 6 aligned
@@ -90,10 +91,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         bake(&map, Method::Plain),
         bake(&map, Method::Toksvig),
         bake(&map, Method::Lean),
+        bake(&map, Method::Olano),
         bake_with(&map, Method::Vmf, &mixture(4, Some(1.0)))?,
         bake_with(&map, Method::Vmf, &mixture(6, Some(1.0)))?,
         bake_with(&map, Method::Vmf, &mixture(4, None))?,
         bake_with(&map, Method::Vmf, &mixture(6, None))?,
+        bake_with(&map, Method::Tan2005, &mixture(4, Some(1.0)))?,
     ];
     for er in [EnvRoute::Prefiltered, EnvRoute::Sh] {
         for b in &bakes {
