@@ -2,6 +2,21 @@
 // Olano-North (DESIGN.md "Texture layouts"). CPU twin: shade::shade and shade::shade_brdf,
 // one arm per method; see src/shade.rs for the derivations.
 
+#if defined(NDF_METHOD_OLANO)
+// Olano-North's texels decoded (CPU: shade::olano_moments): E[n], E[nn^T], mu = normalize(E[n])
+// with its tangent frame, and the covariance of n projected on that frame (PSD-projected).
+void ndf_olano_moments(vec4 t[NDF_TEXTURES], out vec3 m, out mat3 second, out vec3 mu,
+                       out vec3 t1, out vec3 t2, out vec3 cov) {
+    m = t[0].xyz;
+    second = mat3(t[1].x, t[2].x, t[2].y,
+                  t[2].x, t[1].y, t[2].z,
+                  t[2].y, t[2].z, t[1].z);
+    mu = ndf_normalize_or_z(m);
+    ndf_tangent_frame(mu, t1, t2);
+    cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
+}
+#endif
+
 void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
 #if defined(NDF_METHOD_PLAIN)
     // The normalized mean normal shaded with the unchanged BRDF.
@@ -62,15 +77,13 @@ void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out
 
 #elif defined(NDF_METHOD_OLANO)
     // Olano-North: E[n] and E[nn^T]; the covariance of n projected on mu's tangent plane.
-    vec3 m = t[0].xyz;
-    mat3 second = mat3(t[1].x, t[2].x, t[2].y,
-                       t[2].x, t[1].y, t[2].z,
-                       t[2].y, t[2].z, t[1].z);
-    vec3 mu = ndf_normalize_or_z(m);
+    vec3 m;
+    mat3 second;
+    vec3 mu;
     vec3 t1;
     vec3 t2;
-    ndf_tangent_frame(mu, t1, t2);
-    vec3 cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
+    vec3 cov;
+    ndf_olano_moments(t, m, second, mu, t1, t2, cov);
     vec2 dir = vec2(dot(h, t1), dot(h, t2));
 #ifndef NDF_NO_DIFFUSE
     float d = max(dot(m, l), 0.0);

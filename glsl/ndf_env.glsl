@@ -496,15 +496,13 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
 #elif defined(NDF_METHOD_OLANO)
     // One lobe about E[n] (the point-light decoding of ndf_baselines.glsl); the lobe's own
     // diffuse term is dropped for the moments' exact one.
-    vec3 m = t[0].xyz;
-    mat3 second = mat3(t[1].x, t[2].x, t[2].y,
-                       t[2].x, t[1].y, t[2].z,
-                       t[2].y, t[2].z, t[1].z);
-    vec3 mu = ndf_normalize_or_z(m);
+    vec3 m;
+    mat3 second;
+    vec3 mu;
     vec3 t1;
     vec3 t2;
-    ndf_tangent_frame(mu, t1, t2);
-    vec3 cov = ndf_psd(vec3(dot(t1, second * t1), dot(t2, second * t2), dot(t1, second * t2)));
+    vec3 cov;
+    ndf_olano_moments(t, m, second, mu, t1, t2, cov);
     float var = 0.5 * (cov.x + cov.y);
     vec3 lobe_diffuse = vec3(0.0);
     ndf_env_lobe(1.0, mu, min(length(m), 1.0), var > 0.0 ? var : 0.0, v, NDF_ENV_LP lobe_diffuse,
@@ -517,12 +515,10 @@ void ndf_env_texel(vec4 t[NDF_TEXTURES], vec3 v, out vec3 diffuse, out vec3 spec
 #elif defined(NDF_METHOD_TAN2005)
     for (int j = 0; j < NDF_LOBES; ++j) {
         // The point-light decoding of ndf_tan2005.glsl (CPU: tan2005::Gaussian::from_texel).
-        float alpha = t[j].x;
-        if (!(alpha > 0.0 && alpha < 1e30)) continue;
-        vec2 mean = t[j].yz / alpha;
-        float var = t[j].w / alpha - dot(mean, mean);
-        var = var > 0.0 && var < 1e30 ? var : 0.0;
-        vec3 mu = ndf_tan_lift(mean);
+        float alpha;
+        vec3 mu;
+        float var;
+        if (!ndf_tan_decode(t[j], alpha, mu, var)) continue;
         float rlen = var > 0.0 ? ndf_env_a_kappa(1.0 / var) : 1.0;
 #ifdef NDF_COLOR
         vec3 dj = vec3(0.0);

@@ -18,16 +18,28 @@ vec3 ndf_tan_lift(vec2 m) {
     return vec3(m, sqrt(max(1.0 - len2, 0.0)));
 }
 
+// Component c decoded (CPU: tan2005::Gaussian::from_texel): its weight, lifted mean and
+// variance; false for an empty (or non-finite) weight.
+bool ndf_tan_decode(vec4 c, out float alpha, out vec3 mu, out float var) {
+    alpha = c.x;
+    mu = vec3(0.0, 0.0, 1.0);
+    var = 0.0;
+    if (!(alpha > 0.0 && alpha < 1e30)) return false;
+    vec2 mean = c.yz / alpha;
+    var = c.w / alpha - dot(mean, mean);
+    var = var > 0.0 && var < 1e30 ? var : 0.0;
+    mu = ndf_tan_lift(mean);
+    return true;
+}
+
 void ndf_shade_texel(vec4 t[NDF_TEXTURES], vec3 l, vec3 h, out vec3 diffuse, out vec3 specular) {
     diffuse = vec3(0.0);
     specular = vec3(0.0);
     for (int j = 0; j < NDF_LOBES; ++j) {
-        float alpha = t[j].x;
-        if (!(alpha > 0.0 && alpha < 1e30)) continue;
-        vec2 mean = t[j].yz / alpha;
-        float var = t[j].w / alpha - dot(mean, mean);
-        var = var > 0.0 && var < 1e30 ? var : 0.0;
-        vec3 mu = ndf_tan_lift(mean);
+        float alpha;
+        vec3 mu;
+        float var;
+        if (!ndf_tan_decode(t[j], alpha, mu, var)) continue;
 #ifdef NDF_COLOR
         vec3 weight = t[NDF_LOBES + j].rgb;
 #else

@@ -1986,6 +1986,19 @@ mod tests {
         ]
     }
 
+    /// The sky, the four [`quad_normals`] as a 2 × 2 map, a tangent frame turned 60° towards
+    /// the sun and an oblique view: the probe of the tilted-frame diffuse tests.
+    fn quad_turned_to_the_sun() -> (EnvLight, Vec<glam::Vec3>, crate::NormalMap, DMat3, DVec3) {
+        let normals = quad_normals();
+        (
+            sky_light(),
+            normals.clone(),
+            map_of(2, 2, normals),
+            DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -1.05),
+            DVec3::new(0.2, 0.3, 0.93).normalize(),
+        )
+    }
+
     fn map_of(w: u32, h: u32, v: Vec<glam::Vec3>) -> crate::NormalMap {
         crate::NormalMap::from_vectors(w, h, v, Default::default(), Default::default()).unwrap()
     }
@@ -2315,11 +2328,7 @@ mod tests {
         // to f32 storage of the moments), and against the Monte Carlo ground truth of the
         // normals (the bands above 2 of a smooth sky are small). Toksvig's one lobe, which
         // knows only |E[n]|, is further off the band-limited average.
-        let light = sky_light();
-        let normals = quad_normals();
-        let map = map_of(2, 2, normals.clone());
-        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -1.05);
-        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
+        let (light, normals, map, frame, view) = quad_turned_to_the_sun();
         let basis = Basis::new(2);
         let mut y = vec![0.0; 9];
         let band_limited: f64 = normals
@@ -2453,11 +2462,7 @@ mod tests {
         // The surface's tangent frame turned 60° towards the sun: every method's diffuse term
         // (SH bakes through the rotated L_lm) against the ground truth over the normals turned
         // into the environment's frame; the identity frame is far off, so the frame is used.
-        let light = sky_light();
-        let normals = quad_normals();
-        let map = map_of(2, 2, normals.clone());
-        let frame = DMat3::from_axis_angle(DVec3::new(0.3, 1.0, 0.0).normalize(), -1.05);
-        let view = DVec3::new(0.2, 0.3, 0.93).normalize();
+        let (light, normals, map, frame, view) = quad_turned_to_the_sun();
         let turned: Vec<(DVec3, f64)> = normals
             .iter()
             .map(|n| (frame * n.as_dvec3().normalize(), 0.25))
