@@ -23,8 +23,9 @@
 //!   `E[n]` and `E[Y_2m]` linear in `E[nnᵀ]` ([`moments_diffuse`]), the footprint average
 //!   itself up to the environment's band 2, as for SH bakes.
 //! - **Specular, prefiltered route**: per lobe (Olano–North: one, about `normalize(E[n])`
-//!   with κ the inverse of the mean per-axis variance of its tangent-plane covariance) the BRDF widened by the lobe (eq 20 `s'`, GGX
-//!   `α'`), its lobe over incident directions `w(ω_i) = f'(ω_h·μ) max(ω_i·μ, 0)` replaced by
+//!   with κ the inverse of the mean per-axis variance of its tangent-plane covariance) the
+//!   BRDF widened by the lobe (eq 20 `s'`, GGX `α'`), its lobe over incident directions
+//!   `w(ω_i) = f'(ω_h·μ) max(ω_i·μ, 0)` replaced by
 //!   the vMF matching its first moment (mean direction and mean resultant length, tabulated per
 //!   `(ω_o·μ, s')` by `energy_quadrature::lobe_moments`: the mean direction is a tabulated blend of μ and the
 //!   reflected direction `r = 2(ω_o·μ)μ − ω_o`, κ_i from the mean's length; the `4(ω_o·ω_h)` Jacobian, the cosine and the horizon are in both — the earlier
@@ -863,7 +864,8 @@ const LAMBERT: [f64; 3] = [PI, 2.0 * PI / 3.0, PI / 4.0];
 
 /// `Y_lm`, l ≤ 2, of [`crate::harmonics`] (order `l² + l + m`) as polynomials of a unit
 /// vector: `Y_00 = C0`, `Y_1m = C1 (y, z, x)`, `Y_2,±m` from the products below (test
-/// `moment_basis_is_the_harmonics_basis`; GLSL `ndf_env_moment_basis`).
+/// `moment_basis_is_the_harmonics_basis`; GLSL `ndf_env_basis2` at a direction,
+/// `ndf_env_moments_diffuse` of moments).
 const Y_C0: f64 = 0.282_094_791_773_878_14; // 1/√(4π)
 const Y_C1: f64 = 0.488_602_511_902_919_9; // √(3/4π)
 const Y_C2: f64 = 1.092_548_430_592_079_2; // √(15/4π): xy, yz, xz
