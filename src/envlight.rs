@@ -893,10 +893,8 @@ fn moment_basis(m: DVec3, second: DMat3) -> [f64; 9] {
 /// An Olano–North texel's moments `(E[n], E[nnᵀ])` turned into the environment's frame by
 /// `frame` (tangent → environment): `F E[n]` and `F E[nnᵀ] Fᵀ`.
 fn olano_moments_in(texels: &[[f32; 4]], frame: DMat3) -> (DVec3, DMat3) {
-    let m = v3(texels[0]);
-    let (d, o) = (texels[1].map(f64::from), texels[2].map(f64::from));
-    let second = DMat3::from_cols_array(&[d[0], o[0], o[1], o[0], d[1], o[2], o[1], o[2], d[2]]);
-    (frame * m, frame * second * frame.transpose())
+    let second = crate::shade::olano_second_moment(texels);
+    (frame * v3(texels[0]), frame * second * frame.transpose())
 }
 
 /// The diffuse term of a texel known by its normals' first and second moments (environment

@@ -21,7 +21,7 @@ use crate::brdf::{
     Brdf, Ggx, Shading, blinn_phong, clamp_eigenvalues, ggx, ggx_aniso, psd, reference,
     tangent_frame, torrance_sparrow_lobe, widened_lobe,
 };
-use glam::{DVec2, DVec3};
+use glam::{DMat3, DVec2, DVec3};
 
 fn v3(t: [f32; 4]) -> DVec3 {
     DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64)
@@ -315,15 +315,18 @@ fn lean_moments(texels: &[[f32; 4]]) -> (DVec2, [f64; 3]) {
 /// environment routes' decoding of an Olano–North texel (`envlight`).
 pub(crate) fn olano_moments(texels: &[[f32; 4]]) -> (DVec3, DVec3, (DVec3, DVec3), [f64; 3]) {
     let m = v3(texels[0]);
-    let (d, o) = (texels[1], texels[2]);
-    let e = |a: DVec3, b: DVec3| -> f64 {
-        a.x * (d[0] as f64 * b.x + o[0] as f64 * b.y + o[1] as f64 * b.z)
-            + a.y * (o[0] as f64 * b.x + d[1] as f64 * b.y + o[2] as f64 * b.z)
-            + a.z * (o[1] as f64 * b.x + o[2] as f64 * b.y + d[2] as f64 * b.z)
-    };
+    let second = olano_second_moment(texels);
+    let e = |a: DVec3, b: DVec3| a.dot(second * b);
     let mu = m.try_normalize().unwrap_or(DVec3::Z);
     let (t1, t2) = tangent_frame(mu);
     (m, mu, (t1, t2), psd([e(t1, t1), e(t2, t2), e(t1, t2)]))
+}
+
+/// Olano–North's `E[nnᵀ]` from its texels: the diagonal `(xx, yy, zz)` in texture 1, the
+/// off-diagonal `(xy, xz, yz)` in texture 2 (DESIGN.md "Texture layouts").
+pub(crate) fn olano_second_moment(texels: &[[f32; 4]]) -> DMat3 {
+    let (d, o) = (texels[1].map(f64::from), texels[2].map(f64::from));
+    DMat3::from_cols_array(&[d[0], o[0], o[1], o[0], d[1], o[2], o[1], o[2], d[2]])
 }
 
 /// Which diffuse term a vMF lobe contributes (Algorithm 2 line 14's cosine).
