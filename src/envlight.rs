@@ -1149,8 +1149,12 @@ pub fn shade_in_with(
     color: bool,
 ) -> RgbShading {
     let mut out = RgbShading::default();
-    let basis = Basis::new(ENV_LMAX);
-    let mut y = vec![0.0f64; count(ENV_LMAX)];
+    let sh_route = route == Route::Sh && brdf.has_specular();
+    // Eq 25 (the diffuse term) reads bands ≤ 2 of each lobe's basis; only the SH route's
+    // specular term (eq 26) reads them all. The recurrence gives bands ≤ 2 the same bits
+    // whatever the band limit.
+    let basis = Basis::new(if sh_route { ENV_LMAX } else { 2 });
+    let mut y = vec![0.0f64; count(basis.lmax())];
     let identity = frame == DMat3::IDENTITY;
     let to_tangent = frame.transpose();
     if bake.method == Method::Sh {
@@ -1204,7 +1208,6 @@ pub fn shade_in_with(
     let lobes = lobes_of(bake, texels);
     let weights = lobe_weights(bake, texels, &lobes, color);
     debug_assert_eq!(lobes.len(), weights.len());
-    let sh_route = route == Route::Sh && brdf.has_specular();
     let rho = if sh_route {
         brdf.sh_coefficients(ENV_LMAX)
     } else {
