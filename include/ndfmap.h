@@ -85,7 +85,8 @@
  * `ndf_plan_text`: what an engine should know before drawing that shader
  * (`Plan::lod_switch_caution`, the `note:` of `ndfmap plan`): one line where the switch has
  * several parts lit by the environment (on an NVIDIA H100/H200 such a switch cost 1.83× its
- * costliest part), else the empty string. `part` ignored.
+ * costliest part; the planner avoids it unless a part's target or the texture budget forbids),
+ * else the empty string. `part` ignored.
  */
 #define NDF_PLAN_TEXT_LOD_SWITCH_CAUTION 4
 

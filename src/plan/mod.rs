@@ -1279,6 +1279,18 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         }
     }
 
+    if scene.has_environment() {
+        one_environment_part(
+            &m,
+            scene,
+            range,
+            (w, h),
+            &mut parts,
+            &mut predictions,
+            &mut decisions,
+        )?;
+    }
+
     // Colour decisions.
     let colour_line = match (color_measured, color) {
         (Some(v), false) => format!(
@@ -1427,6 +1439,134 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         full_bytes,
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// A part's texture bytes, its colour textures' included.
+fn part_bytes((w, h): (u32, u32), p: &Part) -> u64 {
+    let levels = [p.first, p.last];
+    bytes(w, h, levels, p.textures(), p.format)
+        + if p.color {
+            bytes(w, h, levels, p.textures(), p.color_format)
+        } else {
+            0
+        }
+}
+
+/// What makes two parts' shaders differ: configuration, lobes left out, storage formats,
+/// colour. The LOD-switching shader merges neighbouring parts that agree on all of it.
+fn shading_of(p: &Part) -> (Config, &[usize], Format, bool, Format) {
+    (p.config, &p.dropped, p.format, p.color, p.color_format)
+}
+
+/// Under an environment, gives every part the shading of the plan's costliest part (most
+/// fetches per pixel) where that still meets the part's targets — measured with that part's
+/// lobes left out and storage format — and the scene's texture budget allows, so that the
+/// LOD-switching shader has one part lit by the environment. Each part of a switch carries its
+/// own copy of the environment's shading, and an NVIDIA H100/H200 paid for the second copy in
+/// every pixel: the mixed scene's two-part switch (plain at level 0, vMF J = 8 aligned above)
+/// cost 1.83× its costliest part, while the same switch without its plain part cost 0.98×
+/// (docs/planner.md, "Frame time on a GPU" and "One part lit by the environment"). The trade is
+/// texture bytes for frame time; one decision line per part says which and how much.
+fn one_environment_part(
+    m: &Measure,
+    scene: &Scene,
+    range: [usize; 2],
+    size: (u32, u32),
+    parts: &mut [Part],
+    predictions: &mut [LevelPrediction],
+    decisions: &mut Vec<String>,
+) -> Result<()> {
+    let cost = |p: &Part| p.config.fetches(p.color) - p.dropped.len() * (1 + p.color as usize);
+    let Some(top) = (0..parts.len()).max_by(|&a, &b| {
+        // The first of equally costly parts (max_by keeps the last of equals).
+        cost(&parts[a]).cmp(&cost(&parts[b])).then(b.cmp(&a))
+    }) else {
+        return Ok(());
+    };
+    let lead = parts[top].clone();
+    let mut total: u64 = parts.iter().map(|p| part_bytes(size, p)).sum();
+    for p in parts.iter_mut() {
+        if shading_of(p) == shading_of(&lead) {
+            continue;
+        }
+        let taken = Part {
+            first: p.first,
+            last: p.last,
+            ..lead.clone()
+        };
+        let (dropped, format) = (lead.dropped.clone(), lead.format);
+        let q = m.run_from(
+            lead.config,
+            &move |b| crate::pack::quantize_into(drop_lobes(b, &dropped), format),
+            p.first,
+            p.last,
+        )?;
+        let levels = p.first..=p.last;
+        let predicted = levels
+            .clone()
+            .map(|k| q.error(k, scene))
+            .fold(0.0, f64::max);
+        let meets = levels
+            .clone()
+            .all(|k| q.error(k, scene) <= MARGIN * scene.target_at(range[0], k));
+        let (before, after) = (part_bytes(size, p), part_bytes(size, &taken));
+        let within = scene
+            .budget
+            .as_ref()
+            .and_then(|b| b.texture_bytes)
+            .is_none_or(|limit| total - before + after <= limit);
+        let what = format!(
+            "{} {}{}",
+            lead.config.label(),
+            lead.format,
+            if lead.dropped.is_empty() {
+                String::new()
+            } else {
+                format!(" (lobes {:?} left out)", lead.dropped)
+            }
+        );
+        let was = format!("{} {}", p.config.label(), p.format);
+        if !(meets && within) {
+            decisions.push(format!(
+                "levels {}-{}: {was} kept: {what} (the costliest part's shading, which would \
+                 leave the LOD-switching shader one part lit by the environment) {}; the \
+                 switch keeps a second copy of the environment's shading",
+                p.first,
+                p.last,
+                if meets {
+                    "exceeds the texture budget".to_string()
+                } else {
+                    format!("is predicted at {} here, above the target", pct(predicted))
+                }
+            ));
+            continue;
+        }
+        decisions.push(format!(
+            "levels {}-{}: {what} instead of {was}, the costliest part's shading, so that the \
+             LOD-switching shader has one part lit by the environment (each part carries its \
+             own copy of the environment's shading: a second one cost an NVIDIA H100/H200 \
+             1.83x the costliest part): predicted {} (was {}); {}",
+            p.first,
+            p.last,
+            pct(predicted),
+            pct(p.predicted),
+            if after >= before {
+                format!("costs {} more texture bytes", after - before)
+            } else {
+                format!("saves {} texture bytes", before - after)
+            }
+        ));
+        for lp in predictions
+            .iter_mut()
+            .filter(|lp| levels.contains(&lp.level))
+        {
+            lp.chosen = lead.config.label();
+            lp.predicted = q.error(lp.level, scene);
+        }
+        total = total - before + after;
+        *p = Part { predicted, ..taken };
+    }
+    Ok(())
 }
 
 /// `bake` without the lobes `drop` (and their colour textures).
@@ -1670,7 +1810,8 @@ impl Plan {
 
     /// What an engine should know before drawing the plan's LOD-switching shader
     /// ([`crate::glsl::lod_switch_caution`] of [`Plan::lod_switch_parts`]): `Some` where it has
-    /// several parts lit by the environment.
+    /// several parts lit by the environment — which [`plan`] avoids unless a part's target or
+    /// the scene's texture budget forbids giving it the costliest part's shading.
     pub fn lod_switch_caution(&self, addressing: crate::ingest::Addressing) -> Option<String> {
         let parts: Vec<crate::glsl::LodPart> = self
             .lod_switch_parts(addressing)
@@ -2157,6 +2298,72 @@ error = 0.05
         }
         // The matte scene needs fewer textures than the glossy one.
         assert!(fetches[1] < fetches[0], "{fetches:?}");
+    }
+
+    #[test]
+    fn under_an_environment_the_lod_switch_keeps_one_part() {
+        // Glossy, from the finest level: point-lit, level 0 is plain and the coarser levels
+        // need lobes, so the LOD switch has several parts. Lit by the environment as well,
+        // every level takes the costliest part's shading where it meets the target, so the
+        // switch has one part lit by the environment (no caution), the plan still meets its
+        // targets, and a decision line says what it cost.
+        let map = crate::procedural::generate(128, 7).map;
+        let direct = plan(&map, &scene(GLOSSY), None).unwrap();
+        assert_eq!(
+            direct.parts[0].config.method,
+            Method::Plain,
+            "{}",
+            direct.explain()
+        );
+        assert!(
+            direct.parts.iter().any(|p| p.config.method == Method::Vmf),
+            "{}",
+            direct.explain()
+        );
+        let lit = GLOSSY.replace(
+            r#"lights = ["directional"]"#,
+            "lights = [\"directional\", \"environment\"]\nenvironment = \"overcast\"",
+        );
+        let s = scene(&lit);
+        let plan = plan(&map, &s, None).unwrap();
+        let lead = shading_of(&plan.parts[plan.parts.len() - 1]);
+        assert!(
+            plan.parts.iter().all(|p| shading_of(p) == lead),
+            "{}",
+            plan.explain()
+        );
+        let addressing = crate::ingest::Addressing::Wrap;
+        assert_eq!(plan.lod_switch_caution(addressing), None);
+        assert_eq!(plan.lod_switch_parts(addressing).len(), 1);
+        let line = plan
+            .decisions
+            .iter()
+            .find(|d| d.starts_with("levels 0-") && d.contains("instead of plain"))
+            .unwrap_or_else(|| panic!("{}", plan.explain()));
+        assert!(line.contains("more texture bytes"), "{line}");
+        for (k, e) in measured(&plan, &map) {
+            let pr = plan.predictions.iter().find(|p| p.level == k).unwrap();
+            assert_eq!(pr.chosen, plan.parts[0].config.label());
+            assert!(
+                e <= pr.target,
+                "level {k}: {e} > {}\n{}",
+                pr.target,
+                plan.explain()
+            );
+        }
+        // A texture budget below what the takeover costs keeps the cheaper part (and says so).
+        let bytes_direct: u64 = direct.parts.iter().map(|p| part_bytes((128, 128), p)).sum();
+        let tight = format!("{lit}\n[budget]\ntexture_bytes = {}\n", bytes_direct + 1024);
+        let p = super::plan(&map, &scene(&tight), None).unwrap();
+        assert_eq!(p.parts[0].config.method, Method::Plain, "{}", p.explain());
+        assert_eq!(p.bytes, bytes_direct, "{}", p.explain());
+        assert!(
+            p.decisions
+                .iter()
+                .any(|d| d.contains("exceeds the texture budget")),
+            "{}",
+            p.explain()
+        );
     }
 
     #[test]
