@@ -708,13 +708,16 @@ impl Route {
     }
 }
 
-/// One isotropic NDF lobe: weight, direction, `|r|` (mean length, the vMF's `A_1`) and κ.
+/// One isotropic NDF lobe: weight, direction, `|r|` (mean length, the vMF's `A_1`) and κ, and
+/// the mixture component it decodes (its texture, whose colour texture is `lobes + slot`; 0
+/// for the single-lobe methods).
 #[derive(Debug, Clone, Copy)]
 struct Lobe {
     alpha: f64,
     mu: DVec3,
     r: f64,
     kappa: f64,
+    slot: usize,
 }
 
 fn v3(t: [f32; 4]) -> DVec3 {
@@ -729,6 +732,7 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
             mu: v3(texels[0]).try_normalize().unwrap_or(DVec3::Z),
             r: 1.0,
             kappa: f64::INFINITY,
+            slot: 0,
         }],
         Method::Toksvig => {
             let m = v3(texels[0]);
@@ -748,6 +752,7 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
                 } else {
                     crate::vmf::kappa_from_r(r)
                 },
+                slot: 0,
             }]
         }
         Method::Lean => {
@@ -770,6 +775,7 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
                     crate::vmf::a_kappa(kappa)
                 },
                 kappa,
+                slot: 0,
             }]
         }
         Method::Olano => {
@@ -783,13 +789,15 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
                 mu,
                 r: m.length().min(1.0),
                 kappa: if var > 0.0 { 1.0 / var } else { f64::INFINITY },
+                slot: 0,
             }]
         }
         Method::Tan2005 => texels[..bake.lobes]
             .iter()
             .map(|&t| crate::tan2005::Gaussian::from_texel(t))
-            .filter(|g| !g.is_empty())
-            .map(|g| {
+            .enumerate()
+            .filter(|(_, g)| !g.is_empty())
+            .map(|(slot, g)| {
                 // The shaders' decoding (`tan2005::shade`): the planar mean lifted to the
                 // sphere, Blinn-Phong widened by σ², i.e. a vMF of κ = 1/σ² (eq 20).
                 let var = g.variance.max(0.0);
@@ -799,6 +807,7 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
                     mu: crate::tan2005::lift(g.mean),
                     r: crate::vmf::a_kappa(kappa),
                     kappa,
+                    slot,
                 }
             })
             .collect(),
@@ -809,8 +818,9 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
             );
             texels[..bake.lobes]
                 .iter()
-                .filter_map(|&t| crate::shade::vmf_decode(t, rmax, amin))
-                .map(|t| Lobe {
+                .enumerate()
+                .filter_map(|(slot, &t)| Some((slot, crate::shade::vmf_decode(t, rmax, amin)?)))
+                .map(|(slot, t)| Lobe {
                     alpha: t.alpha,
                     mu: t.mu,
                     r: t.r_len.min(rmax),
@@ -819,6 +829,7 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
                     } else {
                         f64::INFINITY
                     },
+                    slot,
                 })
                 .collect()
         }
@@ -827,8 +838,8 @@ fn lobes_of(bake: &Bake, texels: &[[f32; 4]]) -> Vec<Lobe> {
 }
 
 /// Per lobe of [`lobes_of`] (same order), its weight per colour channel: α in every channel,
-/// or with `color` for a mixture bake (vMF, Tan 2005) the lobe's colour texel `α·y` (texture
-/// `lobes + j`, eq 22).
+/// or with `color` for a mixture bake (vMF, Tan 2005) the lobe's colour texel `α·y` (eq 22:
+/// texture `lobes + slot`, `slot` the component the lobe was decoded from).
 fn lobe_weights(bake: &Bake, texels: &[[f32; 4]], lobes: &[Lobe], color: bool) -> Vec<[f64; 3]> {
     if !(color && is_mixture(bake.method)) {
         return lobes.iter().map(|l| [l.alpha; 3]).collect();
@@ -837,17 +848,10 @@ fn lobe_weights(bake: &Bake, texels: &[[f32; 4]], lobes: &[Lobe], color: bool) -
         bake.lobes > 0 && texels.len() >= 2 * bake.lobes,
         "colour shading needs a mixture bake with colour textures"
     );
-    let (rmax, amin) = (
-        crate::vmf::r_max(bake.format),
-        crate::vmf::alpha_min(bake.format),
-    );
-    (0..bake.lobes)
-        .filter(|&j| match bake.method {
-            Method::Tan2005 => !crate::tan2005::Gaussian::from_texel(texels[j]).is_empty(),
-            _ => crate::shade::vmf_decode(texels[j], rmax, amin).is_some(),
-        })
-        .map(|j| {
-            let y = texels[bake.lobes + j];
+    lobes
+        .iter()
+        .map(|l| {
+            let y = texels[bake.lobes + l.slot];
             [y[0] as f64, y[1] as f64, y[2] as f64]
         })
         .collect()
@@ -2239,6 +2243,7 @@ mod tests {
                 mu: n,
                 r: 1.0,
                 kappa: f64::INFINITY,
+                slot: 0,
             };
             let y = crate::harmonics::eval(ENV_LMAX, n);
             let e = diffuse_lobe(light.channel(0).sh(), &y, &lobe);
