@@ -153,6 +153,23 @@ impl Part {
     pub fn textures(&self) -> usize {
         self.config.textures() - self.dropped.len()
     }
+
+    /// Texture fetches per pixel of its shader: [`Config::fetches`] less the lobes (and their
+    /// colour textures) left out.
+    fn fetches(&self) -> usize {
+        self.config.fetches(self.color) - self.dropped.len() * (1 + usize::from(self.color))
+    }
+
+    /// Its texture bytes on a `w × h` map, colour textures included.
+    fn bytes(&self, (w, h): (u32, u32)) -> u64 {
+        let levels = [self.first, self.last];
+        bytes(w, h, levels, self.textures(), self.format)
+            + if self.color {
+                bytes(w, h, levels, self.textures(), self.color_format)
+            } else {
+                0
+            }
+    }
 }
 
 /// The map a plan was made for.
@@ -414,6 +431,19 @@ impl Measured {
         }
         e
     }
+
+    /// The largest [`Measured::error`] over `levels`.
+    fn worst(&self, levels: std::ops::RangeInclusive<usize>, scene: &Scene) -> f64 {
+        levels.map(|k| self.error(k, scene)).fold(0.0, f64::max)
+    }
+
+    /// Whether every level of `levels` meets its target with the [`MARGIN`] (`first`: the
+    /// scene's finest level, which its per-level targets count from).
+    fn meets(&self, levels: std::ops::RangeInclusive<usize>, scene: &Scene, first: usize) -> bool {
+        levels
+            .into_iter()
+            .all(|k| self.error(k, scene) <= MARGIN * scene.target_at(first, k))
+    }
 }
 
 /// The lobe count of the aligned vMF candidate measured first when the planner reaches the
@@ -666,6 +696,21 @@ impl Measure<'_> {
     /// levels `from` and coarser.
     fn run(&self, config: Config, edit: &Edit) -> Result<Measured> {
         self.run_from(config, edit, self.from, usize::MAX)
+    }
+
+    /// [`Measure::run_from`] of `config`'s bakes as a part ships them: without the lobes
+    /// `dropped`, stored in `format`.
+    fn run_stored(
+        &self,
+        config: Config,
+        dropped: &[usize],
+        format: Format,
+        from: usize,
+        to: usize,
+    ) -> Result<Measured> {
+        let dropped = dropped.to_vec();
+        let edit = move |b| crate::pack::quantize_into(drop_lobes(b, &dropped), format);
+        self.run_from(config, &edit, from, to)
     }
 
     /// [`Measure::run`] at map levels `from..=to` only (a level range's own checks; the
@@ -1056,18 +1101,9 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             .clone()
             .unwrap_or_else(|| full_measured.clone());
         let levels = p.first..=p.last;
-        let err = |x: &Measured| {
-            levels
-                .clone()
-                .map(|k| x.error(k, scene))
-                .fold(0.0, f64::max)
-        };
+        let err = |x: &Measured| x.worst(levels.clone(), scene);
         let full_err = err(&full_measured);
-        let targets_ok = |x: &Measured| {
-            levels
-                .clone()
-                .all(|k| x.error(k, scene) <= MARGIN * scene.target_at(range[0], k))
-        };
+        let targets_ok = |x: &Measured| x.meets(levels.clone(), scene, range[0]);
         let mut e = err(&meas);
         let mut last = meas.clone();
         // A range whose configuration already misses a target cannot meet it with fewer
@@ -1233,13 +1269,7 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
             if crate::pack::check_ranges(p.config.method, &ranges, f).is_err() {
                 continue;
             }
-            let dropped = p.dropped.clone();
-            let q = m.run_from(
-                p.config,
-                &move |b| crate::pack::quantize_into(drop_lobes(b, &dropped), f),
-                p.first,
-                p.last,
-            )?;
+            let q = m.run_stored(p.config, &p.dropped, f, p.first, p.last)?;
             if targets_ok(&q) {
                 format = f;
                 format_err = err(&q);
@@ -1380,22 +1410,8 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
         "environment code: left out (the scene has point/directional lights only)".into()
     });
 
-    let plan_bytes: u64 = parts
-        .iter()
-        .map(|p| {
-            bytes(w, h, [p.first, p.last], p.textures(), p.format)
-                + if p.color {
-                    bytes(w, h, [p.first, p.last], p.textures(), p.color_format)
-                } else {
-                    0
-                }
-        })
-        .sum();
-    let plan_fetches = parts
-        .iter()
-        .map(|p| p.config.fetches(p.color) - p.dropped.len() * if p.color { 2 } else { 1 })
-        .max()
-        .unwrap_or(0);
+    let plan_bytes: u64 = parts.iter().map(|p| p.bytes((w, h))).sum();
+    let plan_fetches = parts.iter().map(Part::fetches).max().unwrap_or(0);
     if let Some(b) = &scene.budget {
         if let Some(limit) = b.texture_bytes
             && plan_bytes > limit
@@ -1441,17 +1457,6 @@ pub fn plan(map: &NormalMap, scene: &Scene, path: Option<&str>) -> Result<Plan> 
     })
 }
 
-/// A part's texture bytes, its colour textures' included.
-fn part_bytes((w, h): (u32, u32), p: &Part) -> u64 {
-    let levels = [p.first, p.last];
-    bytes(w, h, levels, p.textures(), p.format)
-        + if p.color {
-            bytes(w, h, levels, p.textures(), p.color_format)
-        } else {
-            0
-        }
-}
-
 /// What makes two parts' shaders differ: configuration, lobes left out, storage formats,
 /// colour. The LOD-switching shader merges neighbouring parts that agree on all of it.
 fn shading_of(p: &Part) -> (Config, &[usize], Format, bool, Format) {
@@ -1476,15 +1481,14 @@ fn one_environment_part(
     predictions: &mut [LevelPrediction],
     decisions: &mut Vec<String>,
 ) -> Result<()> {
-    let cost = |p: &Part| p.config.fetches(p.color) - p.dropped.len() * (1 + p.color as usize);
     let Some(top) = (0..parts.len()).max_by(|&a, &b| {
         // The first of equally costly parts (max_by keeps the last of equals).
-        cost(&parts[a]).cmp(&cost(&parts[b])).then(b.cmp(&a))
+        parts[a].fetches().cmp(&parts[b].fetches()).then(b.cmp(&a))
     }) else {
         return Ok(());
     };
     let lead = parts[top].clone();
-    let mut total: u64 = parts.iter().map(|p| part_bytes(size, p)).sum();
+    let mut total: u64 = parts.iter().map(|p| p.bytes(size)).sum();
     for p in parts.iter_mut() {
         if shading_of(p) == shading_of(&lead) {
             continue;
@@ -1494,22 +1498,11 @@ fn one_environment_part(
             last: p.last,
             ..lead.clone()
         };
-        let (dropped, format) = (lead.dropped.clone(), lead.format);
-        let q = m.run_from(
-            lead.config,
-            &move |b| crate::pack::quantize_into(drop_lobes(b, &dropped), format),
-            p.first,
-            p.last,
-        )?;
+        let q = m.run_stored(lead.config, &lead.dropped, lead.format, p.first, p.last)?;
         let levels = p.first..=p.last;
-        let predicted = levels
-            .clone()
-            .map(|k| q.error(k, scene))
-            .fold(0.0, f64::max);
-        let meets = levels
-            .clone()
-            .all(|k| q.error(k, scene) <= MARGIN * scene.target_at(range[0], k));
-        let (before, after) = (part_bytes(size, p), part_bytes(size, &taken));
+        let predicted = q.worst(levels.clone(), scene);
+        let meets = q.meets(levels.clone(), scene, range[0]);
+        let (before, after) = (p.bytes(size), taken.bytes(size));
         let within = scene
             .budget
             .as_ref()
@@ -2352,7 +2345,7 @@ error = 0.05
             );
         }
         // A texture budget below what the takeover costs keeps the cheaper part (and says so).
-        let bytes_direct: u64 = direct.parts.iter().map(|p| part_bytes((128, 128), p)).sum();
+        let bytes_direct: u64 = direct.parts.iter().map(|p| p.bytes((128, 128))).sum();
         let tight = format!("{lit}\n[budget]\ntexture_bytes = {}\n", bytes_direct + 1024);
         let p = super::plan(&map, &scene(&tight), None).unwrap();
         assert_eq!(p.parts[0].config.method, Method::Plain, "{}", p.explain());
