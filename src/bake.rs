@@ -132,11 +132,11 @@ pub struct Bake {
 }
 
 impl Bake {
-    /// The same bake without its colour textures (eq 22's `α·y`, textures `lobes..`): the
-    /// lobe textures only, what a renderer without colour textures samples. Other bakes are
-    /// returned whole.
+    /// The same mixture bake (vMF, Tan 2005) without its colour textures (eq 22's `α·y`,
+    /// textures `lobes..`): the lobe textures only, what a renderer without colour textures
+    /// samples. Other bakes are returned whole.
     pub fn lobes_only(&self) -> Bake {
-        let keep = if self.method == Method::Vmf {
+        let keep = if matches!(self.method, Method::Vmf | Method::Tan2005) {
             self.lobes.min(self.textures.len())
         } else {
             self.textures.len()

@@ -2569,15 +2569,16 @@ struct ReportArgs {
     #[arg(long)]
     no_planner: bool,
     /// Also light the plane and sphere views by this environment (Radiance .hdr or OpenEXR, 2:1,
-    /// linear; `sky`: the generated sky with its sun) and measure plain, Toksvig, LEAN, SH l* 2/4/8
-    /// and vMF (--lobes' largest, both routes) against a per-pixel Monte Carlo ground truth
+    /// linear; `sky`: the generated sky with its sun) and measure plain, Toksvig, LEAN,
+    /// Olano–North, SH l* 2/4/8, Tan 2005 (--tan-lobes' largest) and vMF (--lobes' largest),
+    /// the mixtures by both routes, against a per-pixel Monte Carlo ground truth
     /// (docs/environment.md); the material's BRDF must be lambert, blinn-phong or ggx.
     #[arg(long)]
     env: Option<String>,
     /// Albedo images (linear-RGB colour, each the size of its map), comma-separated, one per
     /// map in the maps' order (`-` for a map without): the --env section then scores colour —
-    /// the ground truth with each normal's albedo, vMF by eq 22's colour, every other
-    /// configuration times the albedo MIP (docs/environment.md).
+    /// the ground truth with each normal's albedo, vMF and Tan 2005 by eq 22's colour, every
+    /// other configuration times the albedo MIP (docs/environment.md).
     #[arg(long, value_delimiter = ',')]
     env_albedo: Vec<PathBuf>,
     /// Ground-truth MIS iterations per pixel under --env.
@@ -2934,6 +2935,12 @@ fn report(a: ReportArgs) -> Result<()> {
                 subpixels: a.env_subpixels,
                 samples: a.env_samples,
                 lobes: a.lobes.iter().max().map(|&j| vec![j]).unwrap_or_default(),
+                tan_lobes: options
+                    .tan_lobes
+                    .iter()
+                    .max()
+                    .map(|&j| vec![j])
+                    .unwrap_or_default(),
                 ..EnvImageOptions::default()
             },
             brdf: options.material_brdf().to_string(),

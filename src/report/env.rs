@@ -12,11 +12,11 @@
 //!
 //! Colour: a map with an albedo (its feature image, `report --env-albedo`) is scored as `eval
 //! --env --feature` scores it in texel space: the ground truth reflects each sub-pixel
-//! normal's own albedo ([`envlight::ground_truth_with`]), vMF bakes with colour textures are
-//! shaded by eq 22's per-lobe colour, and every other configuration — and each colour vMF bake
-//! again without its colour textures, labelled `× albedo mip` — by its shading times the
-//! albedo MIP sampled like the bake (trilinear at the pixel's level of detail), which is what an
-//! engine shading with a separate albedo texture draws.
+//! normal's own albedo ([`envlight::ground_truth_with`]), vMF and Tan 2005 bakes with colour
+//! textures are shaded by eq 22's per-lobe colour, and every other configuration — and each
+//! colour mixture bake again without its colour textures, labelled `× albedo mip` — by its
+//! shading times the albedo MIP sampled like the bake (trilinear at the pixel's level of
+//! detail), which is what an engine shading with a separate albedo texture draws.
 //!
 //! Frames: every pixel is shaded in the tangent frame its centre ray hits
 //! ([`crate::render::Hit::frame`], the same construction as the shaders' per-fragment frame),
@@ -49,6 +49,9 @@ pub struct EnvImageOptions {
     pub seed: u64,
     /// vMF lobe counts (unaligned), each drawn by both routes.
     pub lobes: Vec<usize>,
+    /// Tan 2005 lobe counts (unaligned), each drawn by both routes.
+    #[serde(default)]
+    pub tan_lobes: Vec<usize>,
     /// SH band limits l* of the SH NDF rows.
     pub sh_lmax: Vec<usize>,
 }
@@ -60,6 +63,7 @@ impl Default for EnvImageOptions {
             samples: 64,
             seed: 2007,
             lobes: vec![6],
+            tan_lobes: vec![4],
             sh_lmax: vec![2, 4, 8],
         }
     }
@@ -194,11 +198,13 @@ struct EnvConfig {
     color: bool,
 }
 
-/// The configurations measured; with an albedo (`map`'s feature), each vMF bake carries colour
-/// textures and is measured twice: with them (eq 22) and without (`× albedo mip`).
+/// The configurations measured: the four baselines (prefiltered lookup), SH per band limit,
+/// and Tan 2005 and vMF per lobe count (unaligned) by both routes. With an albedo (`map`'s
+/// feature), each mixture bake carries colour textures and is measured twice: with them
+/// (eq 22) and without (`× albedo mip`).
 fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>> {
     let mut out = Vec::new();
-    for m in [Method::Plain, Method::Toksvig, Method::Lean] {
+    for m in Method::BASELINES {
         out.push(EnvConfig {
             label: m.to_string(),
             bake: bake_with(map, m, &BakeOptions::default())?,
@@ -218,16 +224,19 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
             color: false,
         });
     }
-    for &j in &options.lobes {
+    let mixtures = (options.tan_lobes.iter().map(|&j| (Method::Tan2005, j)))
+        .chain(options.lobes.iter().map(|&j| (Method::Vmf, j)));
+    for (method, j) in mixtures {
         let o = BakeOptions {
             lobes: j,
             ..BakeOptions::default()
         };
-        let bake = bake_with(map, Method::Vmf, &o)?;
+        let label = crate::report::Config { method, options: o }.label();
+        let bake = bake_with(map, method, &o)?;
         let color = bake.textures.len() >= 2 * bake.lobes;
         for route in [Route::Prefiltered, Route::Sh] {
             out.push(EnvConfig {
-                label: format!("vmf{j} {}", route.name()),
+                label: format!("{label} {}", route.name()),
                 bake: bake.clone(),
                 route,
                 color,
@@ -238,7 +247,7 @@ fn configs(map: &NormalMap, options: &EnvImageOptions) -> Result<Vec<EnvConfig>>
             let lobes_only = bake.lobes_only();
             for route in [Route::Prefiltered, Route::Sh] {
                 out.push(EnvConfig {
-                    label: format!("vmf{j} {}", route.name()),
+                    label: format!("{label} {}", route.name()),
                     bake: lobes_only.clone(),
                     route,
                     color: false,
@@ -576,6 +585,7 @@ mod tests {
             samples: 256,
             seed: 5,
             lobes: vec![2],
+            tan_lobes: vec![2],
             sh_lmax: vec![2],
         };
         let mut a = section(options.clone());
@@ -585,7 +595,14 @@ mod tests {
         for g in &a.ground_truth {
             assert!(g.pixels > 20, "{g:?}");
             assert!(g.noise > 0.0 && g.noise < 0.03, "{g:?}");
-            for label in ["plain", "toksvig", "lean", "vmf2 prefiltered"] {
+            for label in [
+                "plain",
+                "toksvig",
+                "lean",
+                "olano",
+                "tan2005-2 prefiltered",
+                "vmf2 prefiltered",
+            ] {
                 let r = a
                     .rows
                     .iter()
@@ -662,6 +679,7 @@ mod tests {
             samples: 512,
             seed: 3,
             lobes: vec![2],
+            tan_lobes: vec![2],
             sh_lmax: vec![2],
         });
         measure("proc", &map, &scenes, &light, &mut a).unwrap();
@@ -710,13 +728,15 @@ mod tests {
             samples: 128,
             seed: 11,
             lobes: vec![3],
+            tan_lobes: vec![3],
             sh_lmax: vec![2],
         }
     }
 
     /// A white albedo scores every configuration as no albedo does (the coloured ground truth
     /// is the uncoloured one to f32 rounding; eq 22 with `y = 1` is α; the albedo MIP is 1),
-    /// under the labels of a coloured run, with the lobes-only vMF rows beside the colour ones.
+    /// under the labels of a coloured run, with the lobes-only vMF and Tan 2005 rows beside the
+    /// colour ones.
     #[test]
     fn a_white_albedo_scores_like_no_albedo() {
         let light = EnvLight::new(&crate::environment::coloured_test_sky());
@@ -731,7 +751,7 @@ mod tests {
             // The floor reflects each normal's own (white) albedo: one row, its own label.
             let labels = if r.config == FLOOR_LABEL {
                 vec![r.config.clone()]
-            } else if r.config.starts_with("vmf") {
+            } else if r.config.starts_with("vmf") || r.config.starts_with("tan2005") {
                 vec![r.config.clone(), format!("{} × albedo mip", r.config)]
             } else {
                 vec![format!("{} × albedo mip", r.config); 2]
@@ -751,13 +771,14 @@ mod tests {
                 );
             }
         }
-        assert_eq!(a.rows.len(), b.rows.len() + 2 * scenes.len());
+        // Two mixtures (vMF, Tan 2005), each by two routes, again without colour.
+        assert_eq!(a.rows.len(), b.rows.len() + 4 * scenes.len());
     }
 
     /// A map whose colour follows its normals under a broad orange sun facing the red ones:
     /// where a pixel's footprint mixes both colours, the albedo MIP times the shading is wrong
-    /// and eq 22's per-lobe colour is not, so the colour vMF rows must beat the same lobes
-    /// times the albedo MIP in the coarse zoom view; and colour changes the ground truth.
+    /// and eq 22's per-lobe colour is not, so the colour vMF and Tan 2005 rows must beat the
+    /// same lobes times the albedo MIP in the zoom views; and colour changes the ground truth.
     #[test]
     fn eq_22_colour_beats_the_albedo_mip_where_colours_mix() {
         let sky = crate::environment::Sky {
@@ -795,6 +816,14 @@ mod tests {
                 u * u - c * c > 0.01,
                 "{view}: eq 22 {c} against albedo mip {u}"
             );
+            // Tan 2005 J = 3's colour textures (eq 22 over its lobes) help less where its
+            // lobes mix the colours more: measured zoom1 35.5 % against 39.0 %, zoom2.5 47.4 %
+            // against 48.0 %. They must still beat its lobes times the albedo MIP.
+            let (c, u) = (
+                err(view, "tan2005-3 prefiltered"),
+                err(view, "tan2005-3 prefiltered × albedo mip"),
+            );
+            assert!(c < u, "{view}: Tan 2005 eq 22 {c} against albedo mip {u}");
         }
         let mut grey = section(options());
         let plain = crate::procedural::generate(16, 5).map;
