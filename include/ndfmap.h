@@ -701,15 +701,15 @@ typedef struct ndf_material_options {
    */
   ndf_brdf model;
   /**
-   * `NDF_BRDF_BLINN_PHONG`: exponent s, finite and > 0. Default 64.
+   * `NDF_BRDF_BLINN_PHONG`: exponent s in (0, 1e7]. Default 64.
    */
   double s;
   /**
-   * `NDF_BRDF_TORRANCE_SPARROW`: roughness σ of eq 18, finite and > 0. Default 0.1.
+   * `NDF_BRDF_TORRANCE_SPARROW`: roughness σ of eq 18, finite and >= 2.5e-4. Default 0.1.
    */
   double sigma;
   /**
-   * `NDF_BRDF_GGX`: roughness α (glTF's perceptual roughness squared), finite and > 0.
+   * `NDF_BRDF_GGX`: roughness α (glTF's perceptual roughness squared), in [5e-4, 1].
    * Default 0.1.
    */
   double alpha;

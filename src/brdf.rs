@@ -316,6 +316,15 @@ impl Ggx {
     }
 }
 
+/// The sharpest Blinn-Phong exponent [`Brdf::validate`] accepts (about a 0.02° lobe).
+pub const MAX_EXPONENT: f64 = 1e7;
+
+/// The narrowest Torrance–Sparrow σ [`Brdf::validate`] accepts (eq 20: `s = 1/(2σ²)` = 8·10⁶).
+pub const MIN_SIGMA: f64 = 2.5e-4;
+
+/// The smallest GGX α [`Brdf::validate`] accepts (`2/α² − 2` ≈ 8·10⁶).
+pub const MIN_ALPHA: f64 = 5e-4;
+
 /// A BRDF of the library (module docs): the specular lobe `f(ω_h·n)` with its parameters and
 /// g factor; the Lambert term is always there as the diffuse term.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -367,23 +376,36 @@ impl Brdf {
         !matches!(self, Brdf::Lambert)
     }
 
-    /// Checks the parameters: s, σ, α finite and positive, F0 in [0, 1], c ≥ 0.
+    /// Checks the parameters: s in (0, [`MAX_EXPONENT`]], σ ≥ [`MIN_SIGMA`] and finite, α in
+    /// [[`MIN_ALPHA`], 1], F0 in [0, 1], c ≥ 0. The bounds on s, σ and α keep lobes no sharper
+    /// than a Blinn-Phong exponent of about 10⁷ (eq 20's `s = 1/(2σ²)`, GGX's `2/α² − 2`):
+    /// sharper ones are 0 in f64 a fraction of a degree off their peak, so the exact footprint
+    /// average an error is relative to is 0 at every light/view pair (`eval` printed `inf`).
     pub fn validate(&self) -> crate::error::Result<()> {
-        let bad = |what: &str, v: f64| {
+        let bad = |what: &str, v: f64, range: &str| {
+            // Compact for any magnitude (1e308 is not 309 digits).
+            let v = if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+                format!("{v:e}")
+            } else {
+                format!("{v}")
+            };
             Err(crate::error::Error::InvalidOption(format!(
-                "{what} {v} (must be finite and > 0)"
+                "{what} {v} (must be {range})"
             )))
         };
         match *self {
-            Brdf::BlinnPhong { s } if !(s.is_finite() && s > 0.0) => bad("Blinn-Phong exponent", s),
-            Brdf::TorranceSparrow { sigma } if !(sigma.is_finite() && sigma > 0.0) => {
-                bad("Torrance-Sparrow sigma", sigma)
-            }
-            Brdf::Ggx(g) if !(g.alpha > 0.0 && g.alpha <= 1.0) => {
-                Err(crate::error::Error::InvalidOption(format!(
-                    "GGX alpha {} (must be in (0, 1])",
-                    g.alpha
-                )))
+            Brdf::BlinnPhong { s } if !(s > 0.0 && s <= MAX_EXPONENT) => bad(
+                "Blinn-Phong exponent",
+                s,
+                &format!("in (0, {MAX_EXPONENT:e}]"),
+            ),
+            Brdf::TorranceSparrow { sigma } if !(sigma.is_finite() && sigma >= MIN_SIGMA) => bad(
+                "Torrance-Sparrow sigma",
+                sigma,
+                &format!("finite and >= {MIN_SIGMA:e}"),
+            ),
+            Brdf::Ggx(g) if !(g.alpha >= MIN_ALPHA && g.alpha <= 1.0) => {
+                bad("GGX alpha", g.alpha, &format!("in [{MIN_ALPHA:e}, 1]"))
             }
             Brdf::Ggx(g) if !((0.0..=1.0).contains(&g.f0) && g.widening >= 0.0) => {
                 Err(crate::error::Error::InvalidOption(format!(

@@ -317,6 +317,39 @@ const LOCK: &str = ".ndfmap-lock";
 ///   (`manifest.json`, the files it lists, files named like texture levels, and staging
 ///   folders of older versions): a folder of other files is an error, untouched.
 pub fn write_folder(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    write_folder_of(dir, Owned::Bake, fill)
+}
+
+/// What files of an existing folder a writer may replace (with the staging folders of older
+/// versions).
+#[derive(Clone, Copy)]
+enum Owned<'a> {
+    /// A bake's: `manifest.json`, the files it lists and files named like texture levels.
+    Bake,
+    /// The files the function names, and no others; the string names the kind of folder
+    /// (`plan`) in errors.
+    Named(&'a str, &'a dyn Fn(&str) -> bool),
+}
+
+/// [`write_folder`] for a folder of another `kind` (a word for errors: `plan`): an existing
+/// `dir` is replaced only if every file in it is one `owns` names, so a writer of one kind
+/// never replaces a bake nor a folder of other files. `ndfmap plan -o` writes its plan
+/// folders so (`plan::write_plan_folder`).
+pub fn write_folder_owning(
+    dir: &Path,
+    kind: &str,
+    owns: &dyn Fn(&str) -> bool,
+    fill: impl FnOnce(&Path) -> Result<()>,
+) -> Result<()> {
+    write_folder_of(dir, Owned::Named(kind, owns), fill)
+}
+
+/// [`write_folder`] replacing an existing folder only if it holds nothing but `owned` files.
+fn write_folder_of(
+    dir: &Path,
+    owned: Owned<'_>,
+    fill: impl FnOnce(&Path) -> Result<()>,
+) -> Result<()> {
     if dir.as_os_str().is_empty() {
         return Err(Error::InvalidOption(
             "the output folder's path is empty".into(),
@@ -332,7 +365,7 @@ pub fn write_folder(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Resul
     std::fs::create_dir_all(&parent).map_err(|e| write_err(&parent, e))?;
     let lock = lock_writers(&parent, &name)?;
     clean_up(&parent, &name, dir)?;
-    check_replaceable(dir)?;
+    check_replaceable(dir, owned)?;
     let nonce = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.subsec_nanos());
@@ -428,8 +461,8 @@ fn clean_up(parent: &Path, name: &str, dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Whether `dir` may be replaced: missing, empty, or holding only an ndfmap bake.
-fn check_replaceable(dir: &Path) -> Result<()> {
+/// Whether `dir` may be replaced: missing, empty, or holding only `owned` files.
+fn check_replaceable(dir: &Path, owned: Owned<'_>) -> Result<()> {
     let meta = match std::fs::symlink_metadata(dir) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
         Err(e) => return Err(write_err(dir, e)),
@@ -438,22 +471,33 @@ fn check_replaceable(dir: &Path) -> Result<()> {
     if !meta.is_dir() {
         return Err(write_err(dir, "exists and is not a folder"));
     }
-    let listed: Vec<String> = std::fs::read_to_string(dir.join(MANIFEST))
-        .ok()
-        .and_then(|text| serde_json::from_str::<Manifest>(&text).ok())
-        .map(|m| m.textures.into_iter().flat_map(|t| t.files).collect())
-        .unwrap_or_default();
+    let listed: Vec<String> = match owned {
+        Owned::Bake => std::fs::read_to_string(dir.join(MANIFEST))
+            .ok()
+            .and_then(|text| serde_json::from_str::<Manifest>(&text).ok())
+            .map(|m| m.textures.into_iter().flat_map(|t| t.files).collect())
+            .unwrap_or_default(),
+        Owned::Named(..) => Vec::new(),
+    };
     for entry in std::fs::read_dir(dir).map_err(|e| write_err(dir, e))? {
         let entry = entry.map_err(|e| write_err(dir, e))?;
         let n = entry.file_name().to_string_lossy().into_owned();
-        if n == MANIFEST || listed.contains(&n) || is_level_file(&n) || n.starts_with(STAGING) {
+        let ours = match owned {
+            Owned::Bake => n == MANIFEST || listed.contains(&n) || is_level_file(&n),
+            Owned::Named(_, owns) => owns(&n),
+        };
+        if ours || n.starts_with(STAGING) {
             continue;
         }
         return Err(write_err(
             dir,
             format!(
-                "holds '{n}', which no ndfmap bake wrote: not replacing a folder of other \
-                 files (write into a new or empty folder)"
+                "holds '{n}', which no ndfmap {} wrote: not replacing a folder of other \
+                 files (write into a new or empty folder)",
+                match owned {
+                    Owned::Bake => "bake",
+                    Owned::Named(kind, _) => kind,
+                }
             ),
         ));
     }

@@ -771,14 +771,17 @@ fn plan_cmd(
     if explain {
         print!("{}", plan.explain());
     }
+    // Measured before anything is written, so that verify.json goes into the folder with the
+    // plan.
+    let verified = if verify {
+        Some(ndfmap::report::planner::measure(&plan, &map)?)
+    } else {
+        None
+    };
     match output {
         Some(dir) => {
-            // Every file is complete before it is renamed into place; only these names are
-            // written (a folder's other files are left alone).
-            std::fs::create_dir_all(dir).map_err(|e| Error::Write {
-                path: dir.to_path_buf(),
-                message: e.to_string(),
-            })?;
+            // The folder is written as a whole (staged, then renamed into place): a failure
+            // leaves it as it was.
             let mut files = vec![
                 ("plan.json".to_string(), plan.to_json()),
                 ("explain.txt".to_string(), plan.explain()),
@@ -789,15 +792,11 @@ fn plan_cmd(
             if let Some(s) = &switch {
                 files.push((ndfmap::plan::LOD_SWITCH_FILE.to_string(), s.clone()));
             }
-            for (name, text) in files {
-                let tmp = dir.join(format!(".{name}.tmp"));
-                std::fs::write(&tmp, text)
-                    .and_then(|_| std::fs::rename(&tmp, dir.join(&name)))
-                    .map_err(|e| Error::Write {
-                        path: dir.join(&name),
-                        message: e.to_string(),
-                    })?;
+            if let Some(row) = &verified {
+                let json = serde_json::to_string_pretty(row).unwrap_or_default();
+                files.push(("verify.json".to_string(), json));
             }
+            ndfmap::plan::write_plan_folder(dir, &files)?;
             println!(
                 "planned in {:.2} s: {} part(s), {} texture bytes (full: {}): {}",
                 plan.seconds,
@@ -810,8 +809,7 @@ fn plan_cmd(
         None if !explain && !verify => print!("{}", plan.to_json()),
         None => {}
     }
-    if verify {
-        let row = ndfmap::report::planner::measure(&plan, &map)?;
+    if let Some(row) = verified {
         let name = scene_path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -821,13 +819,6 @@ fn plan_cmd(
              plan / full | plan s | meets target | prediction factor |\n|---|---|---|---|---|---|---|---|---|"
         );
         print!("{}", row.markdown(&name));
-        if let Some(dir) = output {
-            let json = serde_json::to_string_pretty(&row).unwrap_or_default();
-            std::fs::write(dir.join("verify.json"), json).map_err(|e| Error::Write {
-                path: dir.join("verify.json"),
-                message: e.to_string(),
-            })?;
-        }
     }
     Ok(())
 }

@@ -21,11 +21,11 @@ pub struct ndf_material_options {
     pub struct_size: usize,
     /// The model, `NDF_BRDF_*`. Default `NDF_BRDF_GGX`.
     pub model: ndf_brdf,
-    /// `NDF_BRDF_BLINN_PHONG`: exponent s, finite and > 0. Default 64.
+    /// `NDF_BRDF_BLINN_PHONG`: exponent s in (0, 1e7]. Default 64.
     pub s: f64,
-    /// `NDF_BRDF_TORRANCE_SPARROW`: roughness σ of eq 18, finite and > 0. Default 0.1.
+    /// `NDF_BRDF_TORRANCE_SPARROW`: roughness σ of eq 18, finite and >= 2.5e-4. Default 0.1.
     pub sigma: f64,
-    /// `NDF_BRDF_GGX`: roughness α (glTF's perceptual roughness squared), finite and > 0.
+    /// `NDF_BRDF_GGX`: roughness α (glTF's perceptual roughness squared), in [5e-4, 1].
     /// Default 0.1.
     pub alpha: f64,
     /// `NDF_BRDF_GGX`: nonzero multiplies by the g factor, Smith's height-correlated masking

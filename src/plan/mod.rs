@@ -149,6 +149,67 @@ pub struct Part {
 }
 
 impl Part {
+    /// Checks a part read from a plan file for what the planner never writes and a
+    /// bake could not honour: a method the planner does not choose, a lobe count or band limit
+    /// out of range, colour textures on a method without lobes, and left-out lobes that
+    /// repeat, do not exist, or leave none. [`Error::InvalidOption`] naming the part and field.
+    fn check(&self) -> Result<()> {
+        let c = &self.config;
+        let refuse = |what: String| {
+            Err(Error::InvalidOption(format!(
+                "part levels {}-{}: {what}",
+                self.first, self.last
+            )))
+        };
+        let mixture = matches!(c.method, Method::Vmf | Method::Tan2005);
+        match c.method {
+            Method::Vmf | Method::Tan2005 if !(1..=crate::em::MAX_LOBES).contains(&c.lobes) => {
+                return refuse(format!(
+                    "lobe count {} (expected 1 to {})",
+                    c.lobes,
+                    crate::em::MAX_LOBES
+                ));
+            }
+            Method::Sh if c.lmax > crate::sh::MAX_LMAX => {
+                return refuse(format!(
+                    "SH band limit {} (expected 0 to {})",
+                    c.lmax,
+                    crate::sh::MAX_LMAX
+                ));
+            }
+            Method::Pbr => return refuse("method pbr is not one a plan bakes".into()),
+            _ => {}
+        }
+        if self.color && !mixture {
+            return refuse(format!(
+                "colour textures on a {} part (only vMF and Tan 2005 parts carry them)",
+                c.method
+            ));
+        }
+        if !self.dropped.is_empty() && !mixture {
+            return refuse(format!(
+                "left-out lobes on a {} part (only mixtures have lobes)",
+                c.method
+            ));
+        }
+        if mixture && self.dropped.len() >= c.lobes {
+            return refuse(format!(
+                "{} left-out lobes of {} (at least one lobe must stay)",
+                self.dropped.len(),
+                c.lobes
+            ));
+        }
+        for (i, &j) in self.dropped.iter().enumerate() {
+            if j >= c.lobes || self.dropped[..i].contains(&j) {
+                return refuse(format!(
+                    "left-out lobe {j} (expected distinct lobe indices below {})",
+                    c.lobes
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Lobe (or method) textures shipped.
     pub fn textures(&self) -> usize {
         self.config.textures() - self.dropped.len()
@@ -1635,24 +1696,55 @@ impl Plan {
             )));
         }
         plan.scene.check()?;
-        let mut next = plan.levels[0];
-        for p in &plan.parts {
-            if p.first != next || p.last < p.first || p.dropped.len() >= p.config.textures().max(1)
-            {
-                return Err(Error::InvalidOption(format!(
-                    "plan {name}: part levels {}-{} do not continue the ranges before them",
-                    p.first, p.last
-                )));
-            }
-            next = p.last + 1;
-        }
-        if next != plan.levels[1] + 1 || plan.parts.is_empty() {
+        plan.check_parts().map_err(|e| match e {
+            Error::InvalidOption(m) => Error::InvalidOption(format!("plan {name}: {m}")),
+            e => e,
+        })?;
+        Ok(plan)
+    }
+
+    /// Checks the plan's levels and parts against the map size it records: the levels exist,
+    /// the parts cover them in order, and each part is one a bake can honour
+    /// ([`Part::check`]). What [`Plan::from_json`] and [`bake_chains`] check before any work
+    /// (a plan file can be edited by hand; a library caller can build one).
+    fn check_parts(&self) -> Result<()> {
+        if self.map.width == 0 || self.map.height == 0 {
             return Err(Error::InvalidOption(format!(
-                "plan {name}: the parts do not cover levels {}-{}",
-                plan.levels[0], plan.levels[1]
+                "map size {}x{} (expected a map of at least 1x1)",
+                self.map.width, self.map.height
             )));
         }
-        Ok(plan)
+        let levels = crate::pyramid::level_sizes(self.map.width, self.map.height).len();
+        if self.levels[0] > self.levels[1] || self.levels[1] >= levels {
+            return Err(Error::InvalidOption(format!(
+                "levels {}-{} (the {}x{} map it was made for has levels 0-{})",
+                self.levels[0],
+                self.levels[1],
+                self.map.width,
+                self.map.height,
+                levels - 1
+            )));
+        }
+        let mut next = self.levels[0];
+        for p in &self.parts {
+            // `p.last ≤ levels[1] < levels`, so `p.last + 1` cannot overflow.
+            if p.first != next || p.last < p.first || p.last > self.levels[1] {
+                return Err(Error::InvalidOption(format!(
+                    "part levels {}-{} do not continue the ranges before them within levels \
+                     {}-{}",
+                    p.first, p.last, self.levels[0], self.levels[1]
+                )));
+            }
+            p.check()?;
+            next = p.last + 1;
+        }
+        if next != self.levels[1] + 1 || self.parts.is_empty() {
+            return Err(Error::InvalidOption(format!(
+                "the parts do not cover levels {}-{}",
+                self.levels[0], self.levels[1]
+            )));
+        }
+        Ok(())
     }
 
     /// Checks that this plan was made for `map`: size and [`content_hash`].
@@ -1865,14 +1957,26 @@ pub struct PlanBake {
 
 /// Bakes each part of `plan` over the map's whole MIP chain (each distinct configuration
 /// once), drops the part's lobes and quantizes to the part's formats: per part, the bake (its
-/// levels and the coarser ones; the finer levels are empty) and the seconds its method took. [`execute`] keeps each part's levels; the
-/// report measures the error of the chains.
+/// levels and the coarser ones; the finer levels are empty) and the seconds its method took.
+/// [`execute`] keeps each part's levels; the report measures the error of the chains.
+/// [`Error::InvalidOption`] before any work for a plan made for another map, or with colour
+/// textures when `map` carries no albedo (its feature image).
 pub fn bake_chains(plan: &Plan, map: &NormalMap) -> Result<Vec<(Bake, f64)>> {
     plan.check_map(map)?;
+    plan.check_parts()?;
+    // A part with colour textures needs the albedo: without it the files would lack the
+    // colour textures its shader reads.
+    if let (Some(p), None) = (plan.parts.iter().find(|p| p.color), map.feature()) {
+        return Err(Error::InvalidOption(format!(
+            "part levels {}-{} ships colour textures (the scene's colour varies), and the map \
+             has no albedo: give the one the plan was made with (bake --feature)",
+            p.first, p.last
+        )));
+    }
     let mut parts = Vec::new();
     let mut cache: Vec<(Config, bool, Bake, f64)> = Vec::new();
     for p in &plan.parts {
-        let color = p.color && map.feature().is_some();
+        let color = p.color;
         let idx = cache
             .iter()
             .position(|(c, col, _, _)| *c == p.config && *col == color);
@@ -2052,6 +2156,43 @@ pub struct SwitchPartManifest {
 
 /// File name of a plan bake's LOD-switching fragment shader.
 pub const LOD_SWITCH_FILE: &str = "lod_switch.frag";
+
+/// Whether `name` is a file of a plan folder (`ndfmap plan -o`): `plan.json`, `explain.txt`,
+/// `verify.json`, `partN.frag`, [`LOD_SWITCH_FILE`], or the `.NAME.tmp` of one (what earlier
+/// versions left behind a failed write).
+pub fn is_plan_file(name: &str) -> bool {
+    let own = |n: &str| {
+        matches!(
+            n,
+            "plan.json" | "explain.txt" | "verify.json" | LOD_SWITCH_FILE
+        ) || n
+            .strip_prefix("part")
+            .and_then(|r| r.strip_suffix(".frag"))
+            .is_some_and(|i| !i.is_empty() && i.bytes().all(|b| b.is_ascii_digit()))
+    };
+    own(name)
+        || name
+            .strip_prefix('.')
+            .and_then(|n| n.strip_suffix(".tmp"))
+            .is_some_and(own)
+}
+
+/// Writes a plan folder (`ndfmap plan -o DIR`: `files` as name and text) as a whole, atomically
+/// ([`crate::output::write_folder_owning`]): a failure leaves `dir` as it was, and an existing
+/// `dir` is replaced only if it holds nothing but a plan's files ([`is_plan_file`]) — never a
+/// bake (`bake --plan`'s folder) or other files.
+pub fn write_plan_folder(dir: &std::path::Path, files: &[(String, String)]) -> Result<()> {
+    crate::output::write_folder_owning(dir, "plan", &is_plan_file, |staging| {
+        for (name, text) in files {
+            let path = staging.join(name);
+            std::fs::write(&path, text).map_err(|e| Error::Write {
+                path: dir.join(name),
+                message: e.to_string(),
+            })?;
+        }
+        Ok(())
+    })
+}
 
 /// File name of texture `name` of part `part` at map level `level`: `p{part}{name}_L{level}`.
 pub fn part_file(part: usize, name: &str, level: usize, format: Format) -> String {
@@ -2478,6 +2619,107 @@ error = 0.05
             .unwrap_err()
             .to_string();
         assert!(e.contains("version 99"), "{e}");
+    }
+
+    /// Hand-edited plan files (the planner never writes these): levels past the map's
+    /// coarsest (which made `bake --plan` panic on a slice) or so large that `last + 1`
+    /// wraps, lobe counts of 0, left-out lobes that repeat, do not exist or leave none, colour
+    /// on a part without lobes: each one line naming the field, none a panic; and a colour
+    /// plan needs the albedo it was made with.
+    #[test]
+    fn hand_edited_plans_are_checked_before_any_work() {
+        let map = crate::procedural::generate(32, 5).map; // levels 0-5
+        let p = plan(&map, &scene(&MATTE.replace("[2, 6]", "[1, 5]")), None).unwrap();
+        let base: serde_json::Value = serde_json::from_str(&p.to_json()).unwrap();
+        let n = base["parts"].as_array().unwrap().len();
+        let vmf = |lobes: usize, dropped: &[usize], color: bool| {
+            let mut v = base.clone();
+            let last = &mut v["parts"][n - 1];
+            last["config"] = serde_json::json!({
+                "method": "vmf", "lobes": lobes, "lmax": 0, "aligned": true
+            });
+            last["dropped"] = serde_json::json!(dropped);
+            last["color"] = color.into();
+            v
+        };
+        let mut cases: Vec<(serde_json::Value, &str)> = Vec::new();
+        let mut v = base.clone();
+        v["levels"][1] = 6.into();
+        v["parts"][n - 1]["last"] = 6.into();
+        cases.push((
+            v,
+            "levels 1-6 (the 32x32 map it was made for has levels 0-5)",
+        ));
+        let mut v = base.clone();
+        v["levels"][1] = u64::MAX.into();
+        v["parts"][n - 1]["last"] = u64::MAX.into();
+        cases.push((v, "levels 1-18446744073709551615"));
+        let mut v = base.clone();
+        v["parts"][0]["last"] = u64::MAX.into();
+        cases.push((v, "do not continue"));
+        cases.push((vmf(0, &[], false), "lobe count 0 (expected 1 to 8)"));
+        cases.push((vmf(6, &[0, 0], false), "left-out lobe 0 (expected distinct"));
+        cases.push((vmf(6, &[6], false), "left-out lobe 6 (expected distinct"));
+        cases.push((vmf(2, &[0, 1], false), "2 left-out lobes of 2"));
+        let mut v = base.clone();
+        v["parts"][0]["config"] =
+            serde_json::json!({"method": "toksvig", "lobes": 0, "lmax": 0, "aligned": false});
+        v["parts"][0]["color"] = true.into();
+        cases.push((v, "colour textures on a toksvig part"));
+        for (v, needle) in cases {
+            let e = Plan::from_json("p", &v.to_string())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle) && !e.contains('\n'), "{needle}: {e}");
+        }
+        // A valid vMF part with colour: refused without the albedo, baked with one.
+        let coloured = Plan::from_json("p", &vmf(2, &[1], true).to_string()).unwrap();
+        let e = execute(&coloured, &map).err().unwrap().to_string();
+        assert!(e.contains("no albedo"), "{e}");
+        let albedo = vec![[0.5f32, 0.4, 0.3, 1.0]; 32 * 32];
+        let baked = execute(&coloured, &map.clone().with_feature(albedo).unwrap()).unwrap();
+        let last = &baked.parts[n - 1].0;
+        assert_eq!((last.lobes, last.textures.len()), (1, 2));
+    }
+
+    /// `ndfmap plan -o` writes its folder as a whole: it replaces an earlier plan (stale part
+    /// shaders gone), refuses a bake's folder or one of other files (untouched), and a failed
+    /// write leaves the earlier plan as it was.
+    #[test]
+    fn plan_folders_are_written_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("plan");
+        let files = |names: &[&str]| -> Vec<(String, String)> {
+            names
+                .iter()
+                .map(|n| (n.to_string(), format!("{n}\n")))
+                .collect()
+        };
+        write_plan_folder(&out, &files(&["plan.json", "part0.frag", "part1.frag"])).unwrap();
+        write_plan_folder(&out, &files(&["plan.json", "part0.frag", LOD_SWITCH_FILE])).unwrap();
+        let mut names: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["lod_switch.frag", "part0.frag", "plan.json"]);
+        // A failing write (a file in a missing sub-folder) leaves the plan as it was.
+        assert!(write_plan_folder(&out, &files(&["plan.json", "no/such.frag"])).is_err());
+        let text = std::fs::read_to_string(out.join(LOD_SWITCH_FILE)).unwrap();
+        assert_eq!(text, "lod_switch.frag\n");
+        // A folder of other files, and a bake's folder, are refused and untouched.
+        for other in ["mine.txt", crate::output::MANIFEST] {
+            let d = dir.path().join(other.replace('.', "_"));
+            std::fs::create_dir(&d).unwrap();
+            std::fs::write(d.join(other), "x").unwrap();
+            let e = write_plan_folder(&d, &files(&["plan.json"]))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(&format!("holds '{other}'")), "{e}");
+            assert!(!d.join("plan.json").exists());
+        }
+        assert!(is_plan_file("part12.frag") && is_plan_file(".plan.json.tmp"));
+        assert!(!is_plan_file("part.frag") && !is_plan_file("partx.frag"));
     }
 
     #[test]

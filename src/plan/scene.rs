@@ -259,6 +259,19 @@ impl Scene {
                 None => {}
             }
         }
+        // The ends of the ranges as the BRDF library takes them (its sharpness bounds).
+        for b in self.brdfs() {
+            let name = match m.model {
+                Model::BlinnPhong => "material.exponent",
+                Model::Ggx => "material.alpha",
+                Model::TorranceSparrow => "material.sigma",
+                Model::Lambert => "material.model",
+            };
+            b.validate().map_err(|e| match e {
+                Error::InvalidOption(msg) => field(name, msg),
+                e => e,
+            })?;
+        }
         finite("material.kd", m.kd)?;
         if m.kd < 0.0 {
             return Err(field("material.kd", format!("{} is negative", m.kd)));
