@@ -432,19 +432,19 @@ pub fn parse_batch(
     out_root: Option<&Path>,
     memory: Option<u64>,
 ) -> Result<Vec<Job>> {
+    // The parsers' messages quote the input (TOML its line, serde a key or value): cut to a
+    // few hundred characters, so a megabyte-long line still makes one readable line.
+    let parse_error = |m: String| {
+        let m = m.split_whitespace().collect::<Vec<_>>().join(" ");
+        Error::InvalidOption(format!(
+            "batch file {name}: {}",
+            crate::error::clip_message(&m, crate::error::MAX_PARSE_ERROR_CHARS)
+        ))
+    };
     let file: BatchFile = if json {
-        serde_json::from_str(text)
-            .map_err(|e| Error::InvalidOption(format!("batch file {name}: {e}")))?
+        serde_json::from_str(text).map_err(|e| parse_error(e.to_string()))?
     } else {
-        toml::from_str(text).map_err(|e| {
-            Error::InvalidOption(format!(
-                "batch file {name}: {}",
-                e.to_string()
-                    .split_whitespace()
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            ))
-        })?
+        toml::from_str(text).map_err(|e| parse_error(e.to_string()))?
     };
     if file.defaults.path.is_some() || file.defaults.output.is_some() {
         return Err(Error::InvalidOption(format!(
@@ -520,25 +520,44 @@ fn normalized(path: &Path) -> PathBuf {
     out
 }
 
-/// For each job, the error for an output folder that another job of the batch also writes
-/// (compared after making paths absolute and resolving `.` and `..`), naming the other inputs:
-/// such jobs are not run (which one's bake would stay is a race).
+/// For each job, the error for an output folder that another job of the batch also writes,
+/// or that lies inside another job's output folder or holds one (compared after making paths
+/// absolute and resolving `.` and `..`), naming the other inputs: such jobs are not run (which
+/// one's bake would stay is a race, and a folder inside another's would be a file its
+/// manifest does not list).
 pub fn output_collisions(jobs: &[Job]) -> Vec<Option<Error>> {
     let outs: Vec<PathBuf> = jobs.iter().map(|j| normalized(&j.output)).collect();
     (0..jobs.len())
         .map(|i| {
-            let others: Vec<String> = (0..jobs.len())
-                .filter(|&k| k != i && outs[k] == outs[i])
-                .map(|k| jobs[k].input.display().to_string())
-                .collect();
-            (!others.is_empty()).then(|| {
-                Error::InvalidOption(format!(
-                    "output folder {} is also the output of {}: give each input its own \
-                     output",
-                    jobs[i].output.display(),
-                    others.join(", ")
-                ))
-            })
+            let others = |related: &dyn Fn(&Path, &Path) -> bool| -> Vec<String> {
+                (0..jobs.len())
+                    .filter(|&k| k != i && related(&outs[i], &outs[k]))
+                    .map(|k| jobs[k].input.display().to_string())
+                    .collect()
+            };
+            let message = |relation: &str, others: Vec<String>| {
+                (!others.is_empty()).then(|| {
+                    Error::InvalidOption(format!(
+                        "output folder {} {relation} {}: give each input its own output, \
+                         none inside another's",
+                        jobs[i].output.display(),
+                        others.join(", ")
+                    ))
+                })
+            };
+            message("is also the output of", others(&|a, b| a == b))
+                .or_else(|| {
+                    message(
+                        "lies inside the output of",
+                        others(&|a, b| a != b && a.starts_with(b)),
+                    )
+                })
+                .or_else(|| {
+                    message(
+                        "holds the output of",
+                        others(&|a, b| a != b && b.starts_with(a)),
+                    )
+                })
         })
         .collect()
 }
@@ -637,6 +656,9 @@ pub fn run(
                     }
                     on_start(i);
                     let outcome = match &collisions[i] {
+                        Some(Error::InvalidOption(m)) => {
+                            Outcome::Failed(Error::InvalidOption(m.clone()))
+                        }
                         Some(e) => Outcome::Failed(Error::InvalidOption(e.to_string())),
                         None => run_job(&jobs[i], limit, options.force, &budget),
                     };
@@ -1002,5 +1024,92 @@ mod tests {
         assert!(c[0].as_ref().unwrap().to_string().contains("/w/b.png"));
         assert!(c[1].as_ref().unwrap().to_string().contains("/w/a.png"));
         assert!(c[2].is_none());
+    }
+
+    #[test]
+    fn nested_outputs_are_refused_like_identical_ones() {
+        // `x` and `x/y` were both baked, leaving x holding a folder its manifest does not
+        // list; compared as absolute paths with `.` and `..` resolved.
+        let job = |base: &str, input: &str, output: &str| {
+            Settings {
+                path: Some(input.into()),
+                output: Some(output.into()),
+                method: Some("plain".into()),
+                ..Settings::default()
+            }
+            .job(Path::new(base), None, None)
+            .unwrap()
+        };
+        let cwd = std::env::current_dir().unwrap();
+        let absolute = cwd.join("rel").join("p").join("q");
+        let jobs = [
+            job("/w", "a.png", "out/x"),
+            job("/w", "b.png", "out/x/../x/y"),
+            job("/w", "c.png", "/w/out/x/y/z/"),
+            job("/w", "d.png", "out/xy"),
+            job("", "e.png", "rel/./p"),
+            job("/w", "f.png", absolute.to_str().unwrap()),
+            job("/w", "g.png", "other/../out2"),
+        ];
+        let c: Vec<Option<String>> = output_collisions(&jobs)
+            .into_iter()
+            .map(|e| e.map(|e| e.to_string()))
+            .collect();
+        let says = |i: usize, relation: &str, others: &str| {
+            let e = c[i].as_deref().unwrap_or_default();
+            assert!(
+                e.contains(&format!(
+                    "{relation} {others}: give each input its own output"
+                )),
+                "{i}: {e}"
+            );
+        };
+        says(0, "holds the output of", "/w/b.png, /w/c.png");
+        says(1, "lies inside the output of", "/w/a.png");
+        says(2, "lies inside the output of", "/w/a.png, /w/b.png");
+        assert!(c[3].is_none(), "{:?}", c[3]);
+        says(4, "holds the output of", "/w/f.png");
+        says(5, "lies inside the output of", "e.png");
+        assert!(c[6].is_none(), "{:?}", c[6]);
+        // Run, the colliding jobs fail without reading anything, their message said once.
+        let outcomes = run(&jobs[..2], &RunOptions::default(), &|_| {}, &|_, _| {});
+        for o in outcomes {
+            let Outcome::Failed(e) = o else {
+                panic!("{o:?}")
+            };
+            let e = e.to_string();
+            assert!(
+                e.starts_with("invalid option: output folder /w/out/x"),
+                "{e}"
+            );
+            assert_eq!(e.matches("invalid option").count(), 1, "{e}");
+        }
+    }
+
+    #[test]
+    fn parse_errors_quoting_a_huge_line_stay_short() {
+        // The TOML error quoted the offending line (a 1 MB key made megabytes of message).
+        let key = "k".repeat(1 << 20);
+        for (text, json) in [
+            (format!("[[input]]\n{key} = 1\n"), false),
+            (format!("{{\"input\": [{{\"{key}\": 1}}]}}"), true),
+        ] {
+            let e = parse_batch(
+                "b",
+                &text,
+                json,
+                &Settings::default(),
+                Path::new("."),
+                None,
+                None,
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(
+                e.len() < 1000 && e.contains("batch file b: ") && e.ends_with("characters)"),
+                "{}",
+                &e[..e.len().min(600)]
+            );
+        }
     }
 }

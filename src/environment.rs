@@ -106,7 +106,7 @@ impl Environment {
         if !(options.intensity.is_finite() && options.intensity >= 0.0) {
             return Err(Error::InvalidOption(format!(
                 "environment intensity {} (must be finite and >= 0)",
-                options.intensity
+                crate::error::compact_f64(options.intensity)
             )));
         }
         if !options.yaw_deg.is_finite() {
@@ -278,13 +278,13 @@ pub(crate) fn check_size(what: &str, width: u32, height: u32) -> Result<()> {
 
 /// Reads an environment from a file: Radiance `.hdr` (RGBE) or OpenEXR (R, G, B of the first
 /// layer; a missing channel reads as 0), chosen by the file's magic bytes, linear radiance,
-/// any 2:1 size up to [`MAX_WIDTH`]. Errors: [`Error::Read`], [`Error::Decode`] (corrupt,
-/// truncated, neither format), [`Error::Dimensions`], [`Error::BadEnvironment`].
+/// any 2:1 size up to [`MAX_WIDTH`]. Only a regular file is read (a FIFO, a device or a
+/// folder is refused without blocking), of at most the default memory budget
+/// ([`crate::budget::default_memory_limit`]), as images are. Errors: [`Error::Read`],
+/// [`Error::MemoryBudget`], [`Error::Decode`] (corrupt, truncated, neither format),
+/// [`Error::Dimensions`], [`Error::BadEnvironment`].
 pub fn load(path: &Path, options: &EnvOptions) -> Result<Environment> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::ingest::read_file(path, None)?;
     from_memory(&path.display().to_string(), &bytes, options)
 }
 

@@ -1454,6 +1454,15 @@ fn spread_texels(bake: &Bake, texels: &[[f32; 4]], k: f64) -> Vec<[f32; 4]> {
 // Texel-space evaluation
 // ---------------------------------------------------------------------------------------------
 
+/// The most ground-truth MIS iterations per texel and view [`EvalOptions::samples`] may ask
+/// for: 2¹⁶, eight times the most the docs use (8192). The work grows as their product with
+/// the texels and views, so an absurd count is refused instead of running for days.
+pub const MAX_SAMPLES: usize = 1 << 16;
+
+/// The most texels per level [`EvalOptions::texels_per_level`] may ask for: 1024 (a whole
+/// 32 × 32 level), about twenty times the default 48 and the most the docs use.
+pub const MAX_TEXELS_PER_LEVEL: usize = 1024;
+
 /// What `evaluate` measures and with how many samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalOptions {
@@ -1461,11 +1470,11 @@ pub struct EvalOptions {
     pub views: Vec<DVec3>,
     /// First level measured (levels below are skipped; the overall error is over the rest).
     pub first_level: usize,
-    /// Texels drawn per level (all of a level with fewer).
+    /// Texels drawn per level (all of a level with fewer), 1 to [`MAX_TEXELS_PER_LEVEL`].
     pub texels_per_level: usize,
-    /// Ground-truth MIS iterations per texel and view (a level with fewer texels than
-    /// `texels_per_level` gets `texels_per_level / texels` times as many per texel, so that
-    /// every level's ground truth has the same sample count).
+    /// Ground-truth MIS iterations per texel and view, 1 to [`MAX_SAMPLES`] (a level with
+    /// fewer texels than `texels_per_level` gets `texels_per_level / texels` times as many per
+    /// texel, so that every level's ground truth has the same sample count).
     pub samples: usize,
     /// Seed of the texel choice and the ground truth.
     pub seed: u64,
@@ -1572,7 +1581,8 @@ impl Reference {
     /// Draws the texels of `options` from `map`'s pyramid and computes their ground truth
     /// under `light` for `brdfs` (deterministic for a seed, whatever the thread count). With
     /// [`EvalOptions::color`] the ground truth is the coloured one ([`ground_truth_with`] with
-    /// the map's feature as albedo); a map without a feature is then an error.
+    /// the map's feature as albedo); a map without a feature is then an error, as are a sample
+    /// or texel count of 0 or above [`MAX_SAMPLES`] / [`MAX_TEXELS_PER_LEVEL`].
     pub fn new(
         map: &crate::NormalMap,
         brdfs: &[Brdf],
@@ -1581,6 +1591,20 @@ impl Reference {
     ) -> Result<Reference> {
         for b in brdfs {
             check_brdf(b)?;
+        }
+        for (name, value, max) in [
+            ("samples", options.samples, MAX_SAMPLES),
+            (
+                "texels_per_level",
+                options.texels_per_level,
+                MAX_TEXELS_PER_LEVEL,
+            ),
+        ] {
+            if !(1..=max).contains(&value) {
+                return Err(Error::InvalidOption(format!(
+                    "environment evaluation: {name} {value} (expected 1 to {max})"
+                )));
+            }
         }
         let feature = match (options.color, map.feature()) {
             (false, _) => None,
@@ -1642,7 +1666,9 @@ impl Reference {
                 // samples per texel: every level's ground truth has the same sample count.
                 let (w, h) = levels[k].size;
                 let n = (w as usize * h as usize).max(1);
-                let samples = options.samples * (options.texels_per_level / n).max(1);
+                let samples = options
+                    .samples
+                    .saturating_mul((options.texels_per_level / n).max(1));
                 let truths = options
                     .views
                     .iter()
@@ -2534,6 +2560,48 @@ mod tests {
             }
         }
         assert_eq!(checked, 42);
+    }
+
+    #[test]
+    fn sample_and_texel_counts_outside_their_ranges_are_refused() {
+        // `samples * (texels_per_level / n)` wrapped to 0 for samples = 2⁶² (every error then
+        // inf, exit 0); 0 samples gave an empty ground truth. The bounds are accepted.
+        let sky = crate::environment::coloured_test_sky();
+        let light = EnvLight::prefiltered_only(&sky);
+        let map = map_of(2, 2, quad_normals());
+        let brdfs = [Brdf::Lambert];
+        for (samples, texels, words) in [
+            (0, 4, "samples 0 (expected 1 to 65536)"),
+            (MAX_SAMPLES + 1, 4, "samples 65537 (expected 1 to 65536)"),
+            (1 << 62, 4, "samples 4611686018427387904"),
+            (8, 0, "texels_per_level 0 (expected 1 to 1024)"),
+            (8, MAX_TEXELS_PER_LEVEL + 1, "texels_per_level 1025"),
+            (8, usize::MAX, "texels_per_level 18446744073709551615"),
+        ] {
+            let options = EvalOptions {
+                samples,
+                texels_per_level: texels,
+                ..Default::default()
+            };
+            match Reference::new(&map, &brdfs, &light, &options) {
+                Err(Error::InvalidOption(m)) => assert!(m.contains(words), "{m}"),
+                other => panic!("{samples} {texels}: {:?}", other.map(|_| ())),
+            }
+        }
+        for (samples, texels) in [(1, 1), (MAX_SAMPLES, 1), (1, MAX_TEXELS_PER_LEVEL)] {
+            let options = EvalOptions {
+                samples,
+                texels_per_level: texels,
+                views: vec![DVec3::Z],
+                ..Default::default()
+            };
+            let reference = Reference::new(&map, &brdfs, &light, &options).unwrap();
+            let bake = crate::methods::bake(&map, Method::Plain);
+            let e = reference
+                .score(&[&bake], &light, &[Route::Prefiltered])
+                .unwrap();
+            assert!(e.errors.iter().all(|e| e.diffuse.is_finite()), "{e:?}");
+        }
     }
 
     #[test]

@@ -179,6 +179,35 @@ pub(crate) fn bytes_in_words(bytes: u64) -> String {
     format!("{bytes} bytes")
 }
 
+/// `v` for a message: as `{}` writes it at moderate magnitudes (and 0, NaN, ±inf), in
+/// scientific notation (`1e308`, `1e-300`) outside 10⁻⁴ ≤ |v| < 10¹⁰, so that an absurd value
+/// cannot make a one-line error hundreds of digits long.
+pub fn compact_f64(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e10).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// `message` cut to at most `max` characters (on a character boundary) with `…` and the
+/// number of characters left out: a parser's error that quotes a megabyte-long line of its
+/// input stays one readable line.
+pub fn clip_message(message: &str, max: usize) -> String {
+    match message.char_indices().nth(max) {
+        None => message.to_string(),
+        Some((end, _)) => format!(
+            "{}… ({} more characters)",
+            &message[..end],
+            message[end..].chars().count()
+        ),
+    }
+}
+
+/// How long a parse error of a scene, plan or batch file may be, in characters (what
+/// [`clip_message`] keeps): room for the place and a few hundred characters of the line.
+pub const MAX_PARSE_ERROR_CHARS: usize = 400;
+
 /// The value of `all` whose `name` equals `s` (ASCII case ignored), or
 /// [`Error::InvalidOption`] "unknown {what} 's' (expected one of: …)" listing every name: the
 /// `FromStr` of ndfmap's named choices (methods, formats, containers, codecs).
@@ -202,3 +231,51 @@ pub(crate) fn parse_named<T: Copy>(
 
 /// Shorthand for results carrying [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_print_compactly_at_absurd_magnitudes_only() {
+        for (v, want) in [
+            (0.0, "0"),
+            (-0.0, "-0"),
+            (0.05, "0.05"),
+            (1e-4, "0.0001"),
+            (128.0, "128"),
+            (-1.5, "-1.5"),
+            (1e9, "1000000000"),
+            (1e10, "1e10"),
+            (1e308, "1e308"),
+            (f64::MAX, "1.7976931348623157e308"),
+            (-1e300, "-1e300"),
+            (1e-300, "1e-300"),
+            (5e-324, "5e-324"),
+            (f64::NAN, "NaN"),
+            (f64::INFINITY, "inf"),
+            (f64::NEG_INFINITY, "-inf"),
+        ] {
+            assert_eq!(compact_f64(v), want, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn messages_are_clipped_on_a_character_boundary() {
+        assert_eq!(clip_message("short", 5), "short");
+        assert_eq!(clip_message("", 0), "");
+        assert_eq!(clip_message("abcdef", 3), "abc… (3 more characters)");
+        // Multi-byte characters count as one and are never split.
+        assert_eq!(clip_message("ααααα", 2), "αα… (3 more characters)");
+        let long = "x".repeat(1 << 20);
+        let c = clip_message(&long, MAX_PARSE_ERROR_CHARS);
+        assert_eq!(
+            c,
+            format!(
+                "{}… ({} more characters)",
+                "x".repeat(MAX_PARSE_ERROR_CHARS),
+                (1 << 20) - MAX_PARSE_ERROR_CHARS
+            )
+        );
+    }
+}

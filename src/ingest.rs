@@ -901,7 +901,8 @@ struct Decoded {
 /// Opens an input file for reading if it is a regular file (a FIFO would block, a device such
 /// as `/dev/zero` never ends, a folder is not a file): [`Error::Read`] naming the kind
 /// otherwise. Returns the open file and its metadata. Every reader of input files (images,
-/// features, tabulated BRDFs) opens through it, then bounds what it reads.
+/// features, tabulated BRDFs, environments, text inputs: [`read_text_file`]) opens through
+/// it, then bounds what it reads.
 pub(crate) fn open_regular_file(path: &Path) -> Result<(std::fs::File, std::fs::Metadata)> {
     let read_error = |source: std::io::Error| Error::Read {
         path: path.to_path_buf(),
@@ -955,6 +956,64 @@ pub(crate) fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
         .map_err(read_error)?;
     file_budget(bytes.len() as u64)?; // it grew while being read
     Ok(bytes)
+}
+
+/// The most bytes a text input may hold: a scene, a plan, a batch file, a report's JSON
+/// (`report --from-json`), frame times. 64 MiB: the largest real ones are far smaller (a full
+/// report's JSON is about 0.6 MiB, scenes, plans and batch files a few KiB), so the bound
+/// refuses no real file, while a runaway or hostile one (`/dev/zero` copied to a file, a
+/// generated file gone wrong) is refused before it is read into memory and parsed.
+pub const MAX_TEXT_FILE_BYTES: u64 = 64 << 20;
+
+/// Reads at most `max` bytes of a regular file ([`open_regular_file`]); a larger file is
+/// [`Error::Read`] naming its size and the bound (`what` names the kind of file).
+pub(crate) fn read_bounded(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let read_error = |source: std::io::Error| Error::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let too_big = |len: u64| {
+        read_error(std::io::Error::new(
+            std::io::ErrorKind::FileTooLarge,
+            format!(
+                "a file of {}, more than the {} {what} may hold",
+                crate::budget::format_bytes(len),
+                crate::budget::format_bytes(max)
+            ),
+        ))
+    };
+    let (file, meta) = open_regular_file(path)?;
+    if meta.len() > max {
+        return Err(too_big(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(max.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(read_error)?;
+    if bytes.len() as u64 > max {
+        return Err(too_big(bytes.len() as u64)); // it grew while being read
+    }
+    Ok(bytes)
+}
+
+/// Reads a whole text input file (a scene, a plan, a batch file, a report's JSON): only a
+/// regular file (a FIFO, a device or a folder is refused before it is opened for reading, so
+/// nothing blocks), of at most [`MAX_TEXT_FILE_BYTES`], UTF-8.
+///
+/// # Errors
+///
+/// [`Error::Read`] naming the path when it is not a regular file, cannot be read, is larger
+/// than [`MAX_TEXT_FILE_BYTES`] or is not UTF-8 text.
+pub fn read_text_file(path: &Path) -> Result<String> {
+    let bytes = read_bounded(path, MAX_TEXT_FILE_BYTES, "a text input")?;
+    String::from_utf8(bytes).map_err(|e| Error::Read {
+        path: path.to_path_buf(),
+        source: std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
+        ),
+    })
 }
 
 /// What a file that is not a regular file is, in words.

@@ -606,7 +606,8 @@ pub(crate) fn check(options: &BakeOptions) -> Result<()> {
         && !(0.0..=MAX_ALIGN_STRENGTH).contains(&c)
     {
         return Err(Error::InvalidOption(format!(
-            "alignment strength {c} (expected C from 0 to {MAX_ALIGN_STRENGTH})"
+            "alignment strength {} (expected C from 0 to {MAX_ALIGN_STRENGTH})",
+            crate::error::compact_f64(c)
         )));
     }
     if !(1..=MAX_EM_ITERATIONS).contains(&options.em.max_iterations) {

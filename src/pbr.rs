@@ -1341,7 +1341,7 @@ pub fn check_options(options: &PbrOptions) -> Result<()> {
     if !(0.0..=1.0).contains(&options.roughness) {
         return Err(Error::InvalidOption(format!(
             "roughness {} (expected a perceptual roughness in [0, 1])",
-            options.roughness
+            crate::error::compact_f64(options.roughness)
         )));
     }
     fit_set(options).map(|_| ())
@@ -1360,8 +1360,9 @@ pub fn fit_set(options: &PbrOptions) -> Result<FitSet> {
     };
     FitSet::view_range(deg).ok_or_else(|| {
         Error::InvalidOption(format!(
-            "fit max angle {deg}° (expected the widest view and light angle the renderer \
-                 shows, {MIN_FIT_ANGLE}° to 90°)"
+            "fit max angle {}° (expected the widest view and light angle the renderer \
+                 shows, {MIN_FIT_ANGLE}° to 90°)",
+            crate::error::compact_f64(deg)
         ))
     })
 }

@@ -54,6 +54,25 @@
 //!   paths, coefficients, peak, table) and `c_bake_sh` (`ndf_bake_sh` with l* of any `u32`,
 //!   tiny budgets, cancelling callbacks, tiny maps).
 //!
+//! Robustness sweep (findings D2, D4, D8–D10):
+//! - Text inputs (scene, plan, batch file, report JSON, frame times) and environments
+//!   (`--env`, a scene's `environment`) that are a FIFO or a device are refused without
+//!   blocking, text over `MAX_TEXT_FILE_BYTES` (64 MiB) or not UTF-8 too:
+//!   `text_and_environment_inputs_that_are_not_regular_files_are_refused_without_blocking`.
+//! - `--env-samples`, `--env-texels`, `report --spp`/`--convergence-spp`/`--env-samples` out of
+//!   their ranges (0 included) and `--env-light-max-sr` outside (0, 4π]:
+//!   `sample_counts_and_light_sizes_outside_their_ranges_are_refused_naming_the_option` (and
+//!   `src/envlight.rs` `sample_and_texel_counts_outside_their_ranges_are_refused`).
+//! - Nested batch outputs refused like identical ones, messages with one prefix:
+//!   `nested_batch_outputs_are_refused_up_front_with_one_prefix` (and `src/batch.rs`
+//!   `nested_outputs_are_refused_like_identical_ones`).
+//! - Command-line values named as options, `--roughness` with `--roughness-map` refused, absurd
+//!   numbers printed compactly:
+//!   `command_line_values_are_named_as_options_and_numbers_print_compactly`; scene arrays of
+//!   the wrong length and huge parse errors: `src/plan/scene.rs`
+//!   `two_element_arrays_of_any_other_length_are_refused_naming_the_field`,
+//!   `parse_errors_quoting_a_huge_line_stay_one_short_line`.
+//!
 //! Earlier classes (their tests live beside the code they guard):
 //! - Corrupt, truncated, empty, missing files and folders as input: `tests/ingest.rs`
 //!   `corrupt_truncated_empty_and_missing_files`; through the CLI, one line and no manifest:
@@ -1830,4 +1849,359 @@ fn pbr_material_values_outside_0_1_or_nan_are_refused() {
         assert_one_line_error(&r, &[words]);
     }
     assert!(!dir.path().join("o").exists(), "nothing written");
+}
+
+// ---- Robustness sweep (findings D2, D4, D9, D10) -------------------------------------------
+
+/// Runs `ndfmap args` with stdin closed; panics naming the command if it has not ended within
+/// 30 s (a read blocked on a FIFO), after killing it.
+fn ndfmap_within_30_s(args: &[&str]) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t.elapsed() > Duration::from_secs(30) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("ndfmap {args:?} blocks");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// A FIFO at `path` (`mkfifo`); false, with a note, where the command is missing.
+fn make_fifo(path: &Path) -> bool {
+    match Command::new("mkfifo").arg(path).status() {
+        Ok(s) if s.success() => true,
+        other => {
+            eprintln!("note: mkfifo unavailable ({other:?}): the FIFO cases are skipped");
+            false
+        }
+    }
+}
+
+/// Finding D2: the text inputs (a scene, a plan, a batch file, a report's JSON) and the
+/// environment (`--env`, a scene's `environment`) were read to their end whatever they were:
+/// a FIFO blocked forever, `/dev/zero` grew memory until the allocator failed. They are now
+/// read as images are, regular files only (a FIFO or a device refused before it is opened),
+/// the text ones of at most `MAX_TEXT_FILE_BYTES`. Library readers and every command, each
+/// refusing both at once with one line naming the path.
+#[cfg(unix)]
+#[test]
+fn text_and_environment_inputs_that_are_not_regular_files_are_refused_without_blocking() {
+    use ndfmap::environment::EnvOptions;
+    use ndfmap::ingest::{MAX_TEXT_FILE_BYTES, read_text_file};
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("input.fifo");
+    let mut specials: Vec<(PathBuf, &str)> = vec![("/dev/zero".into(), "(a device)")];
+    if make_fifo(&fifo) {
+        specials.push((fifo.clone(), "(a FIFO)"));
+    }
+    let unblock = |p: PathBuf| {
+        move || {
+            let _ = std::fs::OpenOptions::new().write(true).open(p);
+        }
+    };
+    // The library readers: read_text_file, Scene::load, environment::load.
+    for (path, kind) in &specials {
+        type Reader = fn(&Path) -> Result<(), Error>;
+        let readers: [(&str, Reader); 3] = [
+            ("read_text_file", |p| read_text_file(p).map(|_| ())),
+            ("Scene::load", |p| ndfmap::plan::Scene::load(p).map(|_| ())),
+            ("environment::load", |p| {
+                ndfmap::environment::load(p, &EnvOptions::default()).map(|_| ())
+            }),
+        ];
+        for (name, read) in readers {
+            let p = path.clone();
+            let e = within_30_s(name, move || read(&p), unblock(path.clone()))
+                .expect_err(name)
+                .to_string();
+            assert!(
+                e.contains(s(path)) && e.contains("not a regular file") && e.contains(kind),
+                "{name}: {e}"
+            );
+        }
+    }
+    // A text file over the bound is refused from its size (a sparse file: nothing is
+    // written), and one that is not UTF-8 names the byte.
+    let big = dir.path().join("big.toml");
+    std::fs::File::create(&big)
+        .unwrap()
+        .set_len(MAX_TEXT_FILE_BYTES + 1)
+        .unwrap();
+    let e = read_text_file(&big).unwrap_err().to_string();
+    assert!(e.contains(s(&big)) && e.contains("64 MiB"), "{e}");
+    let latin1 = dir.path().join("latin1.toml");
+    std::fs::write(&latin1, b"name = \"caf\xe9\"\n").unwrap();
+    let e = read_text_file(&latin1).unwrap_err().to_string();
+    assert!(e.contains("not UTF-8 text (byte 11)"), "{e}");
+    // The commands.
+    let map = dir.path().join("n.png");
+    write_png(&map, 16, 16);
+    let out = dir.path().join("out");
+    for (path, kind) in &specials {
+        let scene = dir.path().join("env.toml");
+        std::fs::write(
+            &scene,
+            format!(
+                "lights = [\"environment\"]\nenvironment = \"{}\"\n[material]\n\
+                 model = \"blinn-phong\"\nexponent = [8, 32]\n[view]\nlevels = [1, 3]\n\
+                 [target]\nerror = 0.2\n",
+                s(path)
+            ),
+        )
+        .unwrap();
+        let p = s(path);
+        let runs: [Vec<&str>; 7] = [
+            vec!["plan", p, s(&map)],
+            vec!["plan", s(&scene), s(&map)],
+            vec!["eval", s(&map), "--methods", "plain", "--env", p],
+            vec!["bake", s(&map), "--plan", p, "-o", s(&out)],
+            vec!["bake", "--batch", p, "-o", s(&out)],
+            vec!["report", s(&map), "--from-json", p, "-o", s(&out)],
+            vec!["report", s(&map), "--frame-times", p, "-o", s(&out)],
+        ];
+        for args in runs {
+            let run = ndfmap_within_30_s(&args);
+            assert_one_line_error(&run, &[p, "cannot read: not a regular file", kind]);
+            assert!(!out.exists(), "{args:?}");
+        }
+    }
+}
+
+/// Finding D4: `eval --env --env-samples 2⁶²` wrapped the per-texel sample count to 0 and
+/// printed `inf` with exit 0; 0 was taken as 1, `--env-texels 0` as "all"; `report --spp`
+/// and `--convergence-spp` had no upper bound (10⁹ ran for hours). D10: a largest light solid
+/// angle of -1 or NaN silently disabled light extraction. Each is one line naming the option
+/// and its range, before any work; the bounds themselves are accepted.
+#[test]
+fn sample_counts_and_light_sizes_outside_their_ranges_are_refused_naming_the_option() {
+    let (dir, map) = folder_with_map(8, 8);
+    let out = dir.path().join("out");
+    let eval = |extra: &[&str]| {
+        let mut args = vec!["eval", s(&map), "--methods", "plain", "--env", "sky"];
+        args.extend_from_slice(extra);
+        ndfmap(&args)
+    };
+    let huge = (1u64 << 62).to_string();
+    let cases: [(&[&str], &str); 8] = [
+        (
+            &["--env-samples", &huge],
+            "--env-samples 4611686018427387904 (expected 1 to 65536)",
+        ),
+        (
+            &["--env-samples", "0"],
+            "--env-samples 0 (expected 1 to 65536)",
+        ),
+        (
+            &["--env-samples", "65537"],
+            "--env-samples 65537 (expected 1 to 65536)",
+        ),
+        (
+            &["--env-texels", "0"],
+            "--env-texels 0 (expected 1 to 1024)",
+        ),
+        (
+            &["--env-texels", "1000000"],
+            "--env-texels 1000000 (expected 1 to 1024)",
+        ),
+        (
+            &["--env-light-max-sr=-1"],
+            "--env-light-max-sr -1 (expected a solid angle in (0, 4π]",
+        ),
+        (&["--env-light-max-sr=nan"], "--env-light-max-sr NaN"),
+        (&["--env-light-max-sr=1e308"], "--env-light-max-sr 1e308"),
+    ];
+    for (extra, words) in cases {
+        let t = Instant::now();
+        assert_one_line_error(&eval(extra), &[words]);
+        assert!(t.elapsed() < Duration::from_secs(20), "{extra:?}");
+    }
+    // The bounds: the smallest counts and the whole sphere run, with finite errors.
+    let run = eval(&[
+        "--env-samples",
+        "1",
+        "--env-texels",
+        "1",
+        "--env-light-max-sr",
+        "12.566",
+        "--json",
+    ]);
+    assert_success(&run);
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let errors = v["evaluation"]["errors"].as_array().unwrap();
+    assert!(!errors.is_empty());
+    for e in errors {
+        assert!(e["diffuse"].as_f64().is_some_and(f64::is_finite), "{e}");
+    }
+    let report = |extra: &[&str]| {
+        let mut args = vec!["report", s(&map), "-o", s(&out)];
+        args.extend_from_slice(extra);
+        ndfmap(&args)
+    };
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &["--spp", "1000000000"],
+            "--spp 1000000000 (expected 1 to 65536)",
+        ),
+        (&["--spp", "0"], "--spp 0 (expected 1 to 65536)"),
+        (&["--convergence-spp", "65537"], "--convergence-spp 65537"),
+        (
+            &["--env-samples", "0"],
+            "--env-samples 0 (expected 1 to 65536)",
+        ),
+        (
+            &["--env-samples", &huge],
+            "--env-samples 4611686018427387904",
+        ),
+    ];
+    for (extra, words) in cases {
+        assert_one_line_error(&report(extra), &[words]);
+        assert!(!out.exists(), "{extra:?}");
+    }
+}
+
+/// Finding D9: a batch whose entries write `x` and `x/y` baked both, leaving `x` with a
+/// folder its manifest does not list (and every later run of `x` failed). Nested outputs are
+/// refused before any work, like identical ones, whatever the spelling (`..`, `.`, absolute);
+/// D10: the message says "invalid option" once, and a job's read error names its path once.
+#[test]
+fn nested_batch_outputs_are_refused_up_front_with_one_prefix() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_png(&d.join("a.png"), 8, 8);
+    write_png(&d.join("b.png"), 8, 8);
+    write_png(&d.join("c.png"), 8, 8);
+    let absolute_inner = d.join("x").join("y");
+    let batch = d.join("nested.toml");
+    std::fs::write(
+        &batch,
+        format!(
+            "[defaults]\nmethod = \"plain\"\n\
+             [[input]]\npath = \"a.png\"\noutput = \"x\"\n\
+             [[input]]\npath = \"b.png\"\noutput = \"{}\"\n\
+             [[input]]\npath = \"c.png\"\noutput = \"z/../x2\"\n",
+            s(&absolute_inner)
+        ),
+    )
+    .unwrap();
+    let run = ndfmap(&["bake", "--batch", s(&batch), "--jobs", "1"]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{err}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("ndfmap: error"))
+        .collect();
+    assert_eq!(lines.len(), 2, "{err}");
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.contains("holds the output of") && l.contains("b.png")),
+        "{err}"
+    );
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.contains("lies inside the output of") && l.contains("a.png")),
+        "{err}"
+    );
+    for l in &lines {
+        assert_eq!(l.matches("invalid option").count(), 1, "{l}");
+    }
+    assert!(!d.join("x").exists(), "{err}");
+    // The third entry (x2 is a sibling of x, not inside it) was baked.
+    assert!(d.join("x2").join("manifest.json").is_file(), "{err}");
+    // A read error of one job names its path once.
+    let devzero = d.join("devzero.toml");
+    std::fs::write(
+        &devzero,
+        "[[input]]\npath = \"/dev/zero\"\nmethod = \"plain\"\noutput = \"dz\"\n\
+         [[input]]\npath = \"a.png\"\nmethod = \"plain\"\noutput = \"dz2\"\n",
+    )
+    .unwrap();
+    let run = ndfmap(&["bake", "--batch", s(&devzero), "--jobs", "1"]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("ndfmap: error"))
+        .unwrap();
+    assert_eq!(line.matches("/dev/zero").count(), 1, "{line}");
+    assert!(line.contains("not a regular file (a device)"), "{line}");
+}
+
+/// Finding D10: command-line values that failed as jobs were named as batch keys
+/// (`batch key 'container'`); `--roughness` and `--roughness-map` together let the map win
+/// silently; absurd numbers were printed with hundreds of digits.
+#[test]
+fn command_line_values_are_named_as_options_and_numbers_print_compactly() {
+    let (dir, map) = folder_with_map(8, 8);
+    let out = dir.path().join("out");
+    let bake = |extra: &[&str]| {
+        let mut args = vec!["bake", s(&map), "-o", s(&out)];
+        args.extend_from_slice(extra);
+        ndfmap(&args)
+    };
+    for (extra, words) in [
+        (
+            &["-m", "plain", "--container", "foo"][..],
+            "--container: unknown container 'foo'",
+        ),
+        (
+            &["-m", "plain", "--format", "foo"],
+            "--format: unknown format 'foo'",
+        ),
+        (
+            &["-m", "plain", "--container", "ktx2", "--compress", "foo"],
+            "--compress: unknown",
+        ),
+        (&["-m", "vmf", "--align-form", "foo"], "--align-form: "),
+        (&["-m", "vmf", "--mode", "foo"], "--mode: "),
+    ] {
+        let run = bake(extra);
+        assert_one_line_error(&run, &[words]);
+        assert!(!String::from_utf8_lossy(&run.stderr).contains("batch key"));
+    }
+    let roughness_map = dir.path().join("r.png");
+    image::GrayImage::from_pixel(8, 8, image::Luma([128]))
+        .save(&roughness_map)
+        .unwrap();
+    let run = bake(&[
+        "-m",
+        "pbr",
+        "--roughness",
+        "0.3",
+        "--roughness-map",
+        s(&roughness_map),
+    ]);
+    assert_one_line_error(
+        &run,
+        &["--roughness", "cannot be used with", "--roughness-map"],
+    );
+    for (extra, words) in [
+        (
+            &["-m", "vmf", "--lobes", "2", "--align", "1e308"][..],
+            "alignment strength 1e308 ",
+        ),
+        (
+            &["-m", "pbr", "--fit-max-angle", "1e308"],
+            "fit max angle 1e308°",
+        ),
+        (&["-m", "pbr", "--roughness=-1e300"], "roughness -1e300 "),
+    ] {
+        let run = bake(extra);
+        assert_one_line_error(&run, &[words]);
+        assert!(
+            run.stderr.len() < 300,
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+    }
+    assert!(!out.exists());
 }

@@ -5,6 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use ndfmap::bake::{Bake, BakeOptions, FitMode, Method};
 use ndfmap::brdf::Brdf;
 use ndfmap::em::AlignmentForm;
+use ndfmap::error::compact_f64;
 use ndfmap::eval::{default_directions, evaluate, evaluate_with, format_table};
 use ndfmap::format::Format;
 use ndfmap::glsl::{Sampling, ShaderBrdf, Stage};
@@ -349,10 +350,10 @@ struct EnvArgs {
     /// Environment radiance multiplier.
     #[arg(long, default_value_t = 1.0)]
     env_intensity: f64,
-    /// Ground-truth MIS iterations per texel and view.
+    /// Ground-truth MIS iterations per texel and view, 1 to 65536.
     #[arg(long, default_value_t = 512)]
     env_samples: usize,
-    /// Texels drawn per MIP level (all of a smaller level).
+    /// Texels drawn per MIP level (all of a smaller level), 1 to 1024.
     #[arg(long, default_value_t = 48)]
     env_texels: usize,
     /// Extract up to N compact bright sources (a sun, lamps) from the environment and shade
@@ -364,12 +365,36 @@ struct EnvArgs {
     #[arg(long, default_value_t = 4)]
     env_lights: usize,
     /// Largest solid angle (sr) of an extracted light, of its texels and of its spread's cap
-    /// `4π/κ` (`--env-lights`; docs/environment.md).
+    /// `4π/κ` (`--env-lights`; docs/environment.md), in (0, 4π].
     #[arg(long, default_value_t = 0.05)]
     env_light_max_sr: f64,
 }
 
 impl EnvArgs {
+    /// Refuses sample and texel counts outside their ranges (0 included: it would mean
+    /// nothing measured) and a largest light solid angle that is not in (0, 4π] sr.
+    fn check(&self) -> Result<()> {
+        use ndfmap::envlight::{MAX_SAMPLES, MAX_TEXELS_PER_LEVEL};
+        for (option, value, max) in [
+            ("--env-samples", self.env_samples, MAX_SAMPLES),
+            ("--env-texels", self.env_texels, MAX_TEXELS_PER_LEVEL),
+        ] {
+            if !(1..=max).contains(&value) {
+                return Err(Error::InvalidOption(format!(
+                    "{option} {value} (expected 1 to {max})"
+                )));
+            }
+        }
+        let sr = self.env_light_max_sr;
+        if !(sr > 0.0 && sr <= 4.0 * std::f64::consts::PI) {
+            return Err(Error::InvalidOption(format!(
+                "--env-light-max-sr {} (expected a solid angle in (0, 4π] sr, 4π = 12.566)",
+                compact_f64(sr)
+            )));
+        }
+        Ok(())
+    }
+
     /// The environment's luminance, ready to light with; prints what was repaired and the
     /// projection's check against Filament's cmgen (or that cmgen is absent).
     fn load(&self, quiet: bool) -> Result<Option<(String, ndfmap::envlight::EnvLight)>> {
@@ -564,7 +589,7 @@ struct BrdfArgs {
 #[derive(Args)]
 struct PbrArgs {
     /// pbr: the base perceptual roughness √α (glTF's), 0 to 1, for every texel (default 0.5).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "roughness_map")]
     roughness: Option<f64>,
     /// pbr: a roughness map (perceptual √α, linear data: the G channel of an RGB(A) image in
     /// glTF's metallic-roughness layout, or a grey image), the normal map's size.
@@ -825,11 +850,17 @@ fn plan_cmd(
 
 /// `ndfmap bake --plan`: the plan is read and checked against the map before any work.
 fn bake_plan(plan_path: &Path, input: &Path, output: &Path, ingest: &IngestArgs) -> Result<()> {
-    let text = std::fs::read_to_string(plan_path).map_err(|source| Error::Read {
-        path: plan_path.to_path_buf(),
-        source,
+    let text = ndfmap::ingest::read_text_file(plan_path)?;
+    let name = plan_path.display().to_string();
+    // Serde's message may quote a key or value of any length: a few hundred characters
+    // beyond the name are kept, so a megabyte-long value still makes one readable line.
+    let plan = ndfmap::plan::Plan::from_json(&name, &text).map_err(|e| match e {
+        Error::InvalidOption(m) => Error::InvalidOption(ndfmap::error::clip_message(
+            &m,
+            name.chars().count() + ndfmap::error::MAX_PARSE_ERROR_CHARS,
+        )),
+        e => e,
     })?;
-    let plan = ndfmap::plan::Plan::from_json(&plan_path.display().to_string(), &text)?;
     let (w, h) = ndfmap::ingest::probe_size(input, &ingest.options()?)?;
     if (w, h) != (plan.map.width, plan.map.height) {
         return Err(Error::InvalidOption(format!(
@@ -863,7 +894,8 @@ fn parse_methods(names: &[String]) -> Result<Vec<Method>> {
 fn check_exponents(s: &[f64]) -> Result<()> {
     match s.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
         Some(bad) => Err(Error::InvalidOption(format!(
-            "Blinn-Phong exponent {bad} (must be finite and > 0)"
+            "Blinn-Phong exponent {} (must be finite and > 0)",
+            compact_f64(*bad)
         ))),
         None if s.is_empty() => Err(Error::InvalidOption("no Blinn-Phong exponent given".into())),
         None => Ok(()),
@@ -1155,6 +1187,18 @@ struct BakeCommand {
     ingest: IngestArgs,
 }
 
+/// A batch job's error on one line, led by its input's name unless the error already starts
+/// with it (a read or decode error names its file).
+fn job_error(input: &Path, e: &Error) -> String {
+    let text = e.to_string();
+    let input = input.display().to_string();
+    if text.starts_with(&format!("{input}: ")) {
+        one_line(&text)
+    } else {
+        one_line(&format!("{input}: {text}"))
+    }
+}
+
 /// `ndfmap bake`: one input into `-o`, or many (files, globs, a batch file) each into its own
 /// folder, through `ndfmap::batch`. Returns the number of failed inputs (0 for one input:
 /// its failure is the command's error).
@@ -1200,6 +1244,26 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     };
     let memory = a.ingest.memory_limit()?;
     a.ingest.options()?; // every ingest flag parses
+    // The command line's values parse, and a bad one is named as its option (the jobs would
+    // name it as a batch file's key).
+    let option = |name: &'static str| {
+        move |e: Error| match e {
+            Error::InvalidOption(m) => Error::InvalidOption(format!("--{name}: {m}")),
+            e => e,
+        }
+    };
+    a.format.parse::<Format>().map_err(option("format"))?;
+    a.container
+        .parse::<ndfmap::container::Container>()
+        .map_err(option("container"))?;
+    if let Some(c) = &a.compress {
+        c.parse::<ndfmap::compress::Codec>()
+            .map_err(option("compress"))?;
+    }
+    a.align_form
+        .parse::<AlignmentForm>()
+        .map_err(option("align-form"))?;
+    a.mode.parse::<FitMode>().map_err(option("mode"))?;
     let base = Settings {
         feature: a.ingest.feature.as_ref().map(|f| f.display().to_string()),
         method: a.method.clone(),
@@ -1239,10 +1303,7 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     }
     let mut jobs = Vec::new();
     if let Some(file) = &a.batch {
-        let text = std::fs::read_to_string(file).map_err(|source| Error::Read {
-            path: file.clone(),
-            source,
-        })?;
+        let text = ndfmap::ingest::read_text_file(file)?;
         let json = file
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
@@ -1289,12 +1350,7 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
                 }
                 Err(e) => {
                     stale += 1;
-                    let text = e.to_string();
-                    eprintln!(
-                        "ndfmap: error: {}: {}",
-                        job.input.display(),
-                        text.split_whitespace().collect::<Vec<_>>().join(" ")
-                    );
+                    eprintln!("ndfmap: error: {}", job_error(&job.input, &e));
                 }
             }
         }
@@ -1371,16 +1427,10 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
                 Outcome::UpToDate { manifest } => {
                     say(format!("up to date {input}: {}", manifest.display()), false)
                 }
-                Outcome::Failed(e) => {
-                    let text = e.to_string();
-                    say(
-                        format!(
-                            "ndfmap: error: {input}: {}",
-                            text.split_whitespace().collect::<Vec<_>>().join(" ")
-                        ),
-                        true,
-                    )
-                }
+                Outcome::Failed(e) => say(
+                    format!("ndfmap: error: {}", job_error(&jobs[i].input, e)),
+                    true,
+                ),
             }
             #[cfg(feature = "report")]
             bar.inc(1);
@@ -1528,13 +1578,15 @@ fn run(cli: Cli) -> Result<u8> {
             ingest,
         } => {
             // Everything is checked before any work.
+            env.check()?;
             let mut mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
             mixtures.memory_limit = ingest.memory_limit()?;
             mixtures.lmax = lmax;
             check_exponents(&s)?;
             if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
                 return Err(Error::InvalidOption(format!(
-                    "Torrance-Sparrow sigma {bad} (must be finite and > 0)"
+                    "Torrance-Sparrow sigma {} (must be finite and > 0)",
+                    compact_f64(*bad)
                 )));
             }
             let shading = ndfmap::shade::ShadeOptions {
@@ -1633,8 +1685,8 @@ fn run(cli: Cli) -> Result<u8> {
                 let t = Instant::now();
                 let options = ndfmap::envlight::EvalOptions {
                     first_level: first_level.max(1),
-                    texels_per_level: env.env_texels.max(1),
-                    samples: env.env_samples.max(1),
+                    texels_per_level: env.env_texels,
+                    samples: env.env_samples,
                     color,
                     ..Default::default()
                 };
@@ -2503,11 +2555,11 @@ struct ReportArgs {
     /// Side of each rendered view, pixels.
     #[arg(long, default_value_t = 256)]
     size: u32,
-    /// Ground-truth samples per pixel.
+    /// Ground-truth samples per pixel, 1 to 65536.
     #[arg(long, default_value_t = 256)]
     spp: u32,
     /// Samples per pixel of the second ground truth that estimates the first's Monte Carlo
-    /// error on one view (0 skips it).
+    /// error on one view (0 skips it), at most 65536.
     #[arg(long, default_value_t = 1024)]
     convergence_spp: u32,
     /// vMF lobe counts, comma-separated (the full sweep, 1 to 8, takes about 1.6× as long).
@@ -2572,7 +2624,7 @@ struct ReportArgs {
     /// other configuration times the albedo MIP (docs/environment.md).
     #[arg(long, value_delimiter = ',')]
     env_albedo: Vec<PathBuf>,
-    /// Ground-truth MIS iterations per pixel under --env.
+    /// Ground-truth MIS iterations per pixel under --env, 1 to 65536.
     #[arg(long, default_value_t = 64)]
     env_samples: usize,
     /// Extract up to N bright compact sources from --env as distant lights, and up to N wide
@@ -2681,10 +2733,7 @@ fn load_frame_times(a: &ReportArgs) -> Result<Option<ndfmap::report::frame::Fram
     a.frame_times
         .as_ref()
         .map(|path| {
-            let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
-                path: path.clone(),
-                source,
-            })?;
+            let text = ndfmap::ingest::read_text_file(path)?;
             ndfmap::report::frame::FrameTimes::from_json(&text).map_err(|message| Error::Decode {
                 path: path.clone(),
                 message,
@@ -2714,14 +2763,14 @@ fn shared_maps_dir() -> Option<PathBuf> {
 fn report(a: ReportArgs) -> Result<()> {
     use ndfmap::report::{ImageSet, MapInput, Progress, ReportOptions};
     if let Some(path) = &a.from_json {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
-            path: path.clone(),
-            source,
-        })?;
+        let text = ndfmap::ingest::read_text_file(path)?;
         let mut rep: ndfmap::report::Report =
             serde_json::from_str(&text).map_err(|e| Error::Decode {
                 path: path.clone(),
-                message: e.to_string(),
+                message: ndfmap::error::clip_message(
+                    &e.to_string(),
+                    ndfmap::error::MAX_PARSE_ERROR_CHARS,
+                ),
             })?;
         if a.frame_times.is_some() {
             let given = load_frame_times(&a)?;
@@ -2755,10 +2804,30 @@ fn report(a: ReportArgs) -> Result<()> {
             ndfmap::em::MAX_LOBES
         )));
     }
-    if !(8..=4096).contains(&a.size) || a.spp == 0 {
+    if !(8..=4096).contains(&a.size) {
         return Err(Error::InvalidOption(format!(
-            "--size {} / --spp {} (expected size 8 to 4096, spp > 0)",
-            a.size, a.spp
+            "--size {} (expected 8 to 4096)",
+            a.size
+        )));
+    }
+    use ndfmap::report::MAX_SPP;
+    if !(1..=MAX_SPP).contains(&a.spp) {
+        return Err(Error::InvalidOption(format!(
+            "--spp {} (expected 1 to {MAX_SPP})",
+            a.spp
+        )));
+    }
+    if a.convergence_spp > MAX_SPP {
+        return Err(Error::InvalidOption(format!(
+            "--convergence-spp {} (expected 0, to skip it, to {MAX_SPP})",
+            a.convergence_spp
+        )));
+    }
+    let max_env = ndfmap::envlight::MAX_SAMPLES;
+    if !(1..=max_env).contains(&a.env_samples) {
+        return Err(Error::InvalidOption(format!(
+            "--env-samples {} (expected 1 to {max_env})",
+            a.env_samples
         )));
     }
     check_exponents(&[a.s])?;
@@ -2804,10 +2873,10 @@ fn report(a: ReportArgs) -> Result<()> {
         ));
     }
     if env.is_some() {
-        if a.env_samples == 0 || !(1..=16).contains(&a.env_subpixels) {
+        if !(1..=16).contains(&a.env_subpixels) {
             return Err(Error::InvalidOption(format!(
-                "--env-samples {} / --env-subpixels {} (expected samples > 0, subpixels 1 to 16)",
-                a.env_samples, a.env_subpixels
+                "--env-subpixels {} (expected 1 to 16)",
+                a.env_subpixels
             )));
         }
         ndfmap::envlight::check_brdf(
@@ -2988,7 +3057,8 @@ fn pbr_report(
     use ndfmap::report::pbr::{compare, find_filament, markdown};
     if let Some(bad) = alphas.iter().find(|a| !(**a > 0.0 && **a <= 1.0)) {
         return Err(Error::InvalidOption(format!(
-            "--alpha {bad} (expected 0 < α ≤ 1)"
+            "--alpha {} (expected 0 < α ≤ 1)",
+            compact_f64(*bad)
         )));
     }
     if levels.0 > levels.1 {
@@ -3068,13 +3138,22 @@ fn main() -> ExitCode {
     }
 }
 
+/// The longest error line the CLI prints, in characters: twice the longest path Linux opens
+/// (4096 bytes), so a real message is never cut, while one quoting a megabyte-long value
+/// from an input file (a batch entry's path) stays readable.
+const MAX_ERROR_CHARS: usize = 8192;
+
+/// One error line: `text`'s whitespace runs (line breaks included) as single spaces, cut to
+/// [`MAX_ERROR_CHARS`].
+fn one_line(text: &str) -> String {
+    let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
+    ndfmap::error::clip_message(&text, MAX_ERROR_CHARS)
+}
+
 /// Prints `text` as the CLI's one error line, `ndfmap: error: …`, whatever line breaks a
 /// decoder's (or clap's) message holds.
 fn print_error(text: &str) {
-    eprintln!(
-        "ndfmap: error: {}",
-        text.split_whitespace().collect::<Vec<_>>().join(" ")
-    );
+    eprintln!("ndfmap: error: {}", one_line(text));
 }
 
 /// A command line clap refuses: help and version as clap prints them; anything else as one

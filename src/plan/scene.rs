@@ -6,7 +6,7 @@
 //! with one error naming the field.
 
 use crate::brdf::Brdf;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, compact_f64};
 use serde::{Deserialize, Serialize};
 
 /// The most MIP levels a scene may name (a 2¹⁶-texel side has 17).
@@ -26,7 +26,11 @@ pub struct Scene {
     pub lights: Vec<LightKind>,
     /// The elevation of the point and directional lights above the surface, degrees, `[min,
     /// max]` in (0, 90] (default `[10, 90]`): a low sun is `[5, 20]`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "pair::light_elevation"
+    )]
     pub light_elevation: Option<[f64; 2]>,
     /// The environment of an `"environment"` light: `"sky"` (the generated sky with a small
     /// bright sun, [`crate::environment::Sky`], the default), `"overcast"` (the same sky
@@ -68,13 +72,25 @@ pub struct Material {
     /// The BRDF model.
     pub model: Model,
     /// Blinn-Phong exponent range `[min, max]`, each > 0 (only with `blinn-phong`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "pair::exponent"
+    )]
     pub exponent: Option<[f64; 2]>,
     /// GGX α range `[min, max]`, each in (0, 1] (only with `ggx`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "pair::alpha"
+    )]
     pub alpha: Option<[f64; 2]>,
     /// Torrance–Sparrow σ range `[min, max]`, each in (0, 1] (only with `torrance-sparrow`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "pair::sigma"
+    )]
     pub sigma: Option<[f64; 2]>,
     /// Weight of the Lambert term, ≥ 0 (default 1; 0 with Lambert is contradictory).
     #[serde(default = "one")]
@@ -121,10 +137,18 @@ pub struct Color {
 #[serde(deny_unknown_fields)]
 pub struct View {
     /// The MIP levels reached, `[finest, coarsest]` (0 = the map's own resolution).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "pair::levels"
+    )]
     pub levels: Option<[u32; 2]>,
     /// Viewing distances `[near, far]`, > 0, in the unit of `texel_density`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "pair::distances"
+    )]
     pub distances: Option<[f64; 2]>,
     /// Texels per screen pixel at distance 1 (> 0): at distance d a pixel covers
     /// `texel_density·d` texels, MIP level `log2(texel_density·d)`.
@@ -161,6 +185,57 @@ pub struct Budget {
     pub fetches: Option<u32>,
 }
 
+/// Readers of the two-element array fields (`[min, max]`, `[finest, coarsest]`, `[near, far]`):
+/// any other length is an error naming the field, in TOML as in JSON (the toml crate's
+/// fixed-size arrays take the first two elements of a longer array and ignore the rest).
+mod pair {
+    use serde::de::{Deserialize, Deserializer, Error};
+
+    /// An optional array of exactly two `T`; `name` and `shape` are for the message.
+    fn pair<'de, D: Deserializer<'de>, T: Deserialize<'de>>(
+        d: D,
+        name: &str,
+        shape: &str,
+    ) -> Result<Option<[T; 2]>, D::Error> {
+        let Some(v) = Option::<Vec<T>>::deserialize(d)? else {
+            return Ok(None);
+        };
+        let n = v.len();
+        <[T; 2]>::try_from(v).map(Some).map_err(|_| {
+            D::Error::custom(format!(
+                "field '{name}': {n} value{} (expected {shape})",
+                if n == 1 { "" } else { "s" }
+            ))
+        })
+    }
+
+    pub(super) fn light_elevation<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<Option<[f64; 2]>, D::Error> {
+        pair(d, "light_elevation", "[min, max]")
+    }
+
+    pub(super) fn exponent<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+        pair(d, "material.exponent", "[min, max]")
+    }
+
+    pub(super) fn alpha<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+        pair(d, "material.alpha", "[min, max]")
+    }
+
+    pub(super) fn sigma<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+        pair(d, "material.sigma", "[min, max]")
+    }
+
+    pub(super) fn levels<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[u32; 2]>, D::Error> {
+        pair(d, "view.levels", "[finest, coarsest]")
+    }
+
+    pub(super) fn distances<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+        pair(d, "view.distances", "[near, far]")
+    }
+}
+
 fn field(name: &str, message: impl std::fmt::Display) -> Error {
     Error::InvalidOption(format!("scene: field '{name}': {message}"))
 }
@@ -169,7 +244,10 @@ fn finite(name: &str, v: f64) -> Result<()> {
     if v.is_finite() {
         Ok(())
     } else {
-        Err(field(name, format!("{v} is not a finite number")))
+        Err(field(
+            name,
+            format!("{} is not a finite number", compact_f64(v)),
+        ))
     }
 }
 
@@ -178,7 +256,10 @@ fn range(name: &str, r: [f64; 2], hi: f64) -> Result<()> {
     finite(name, r[0])?;
     finite(name, r[1])?;
     if r[0] <= 0.0 || r[1] > hi {
-        return Err(field(name, format!("{:?} must lie in (0, {hi}]", r)));
+        return Err(field(
+            name,
+            format!("{:?} must lie in (0, {}]", r, compact_f64(hi)),
+        ));
     }
     if r[0] > r[1] {
         return Err(field(name, format!("{:?}: min is greater than max", r)));
@@ -197,16 +278,24 @@ impl Scene {
                 "scene {name}: the file is empty (expected a TOML or JSON scene, docs/planner.md)"
             )));
         }
+        // The parsers' messages quote the input (TOML its line, serde a key or value): cut to
+        // a few hundred characters, so a megabyte-long line still makes one readable line.
+        let clip = |m: String| {
+            let m = m.split_whitespace().collect::<Vec<_>>().join(" ");
+            crate::error::clip_message(&m, crate::error::MAX_PARSE_ERROR_CHARS)
+        };
         let scene: Scene = if trimmed.starts_with('{') {
             serde_json::from_str(trimmed).map_err(|e| {
-                Error::InvalidOption(format!("scene {name}: not a valid JSON scene: {e}"))
+                Error::InvalidOption(format!(
+                    "scene {name}: not a valid JSON scene: {}",
+                    clip(e.to_string())
+                ))
             })?
         } else {
             toml::from_str(trimmed).map_err(|e| {
-                let m = e.to_string().replace('\n', " ");
                 Error::InvalidOption(format!(
                     "scene {name}: not a valid TOML scene: {}",
-                    m.split_whitespace().collect::<Vec<_>>().join(" ")
+                    clip(e.to_string())
                 ))
             })?
         };
@@ -214,12 +303,12 @@ impl Scene {
         Ok(scene)
     }
 
-    /// Reads and parses a scene file ([`Scene::parse`]).
+    /// Reads and parses a scene file ([`Scene::parse`]): a regular file (a FIFO, a device or
+    /// a folder is [`Error::Read`], without blocking) of at most
+    /// [`crate::ingest::MAX_TEXT_FILE_BYTES`].
     pub fn load(path: &std::path::Path) -> Result<Scene> {
-        let bytes = std::fs::read(path).map_err(|source| Error::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let bytes =
+            crate::ingest::read_bounded(path, crate::ingest::MAX_TEXT_FILE_BYTES, "a scene file")?;
         let text = String::from_utf8(bytes).map_err(|_| {
             Error::InvalidOption(format!(
                 "scene {}: not UTF-8 text (expected TOML or JSON)",
@@ -274,17 +363,26 @@ impl Scene {
         }
         finite("material.kd", m.kd)?;
         if m.kd < 0.0 {
-            return Err(field("material.kd", format!("{} is negative", m.kd)));
+            return Err(field(
+                "material.kd",
+                format!("{} is negative", compact_f64(m.kd)),
+            ));
         }
         if let Some(ks) = m.ks {
             finite("material.ks", ks)?;
             if ks < 0.0 {
-                return Err(field("material.ks", format!("{ks} is negative")));
+                return Err(field(
+                    "material.ks",
+                    format!("{} is negative", compact_f64(ks)),
+                ));
             }
             if m.model == Model::Lambert && ks > 0.0 {
                 return Err(field(
                     "material.ks",
-                    format!("{ks} > 0, but a Lambert material has no specular term"),
+                    format!(
+                        "{} > 0, but a Lambert material has no specular term",
+                        compact_f64(ks)
+                    ),
                 ));
             }
         }
@@ -353,7 +451,10 @@ impl Scene {
                 range("view.distances", d, f64::MAX)?;
                 finite("view.texel_density", t)?;
                 if t <= 0.0 {
-                    return Err(field("view.texel_density", format!("{t} must be > 0")));
+                    return Err(field(
+                        "view.texel_density",
+                        format!("{} must be > 0", compact_f64(t)),
+                    ));
                 }
             }
             (None, Some(_), None) => {
@@ -551,7 +652,10 @@ fn target_value(name: &str, e: f64) -> Result<()> {
     if e <= 0.0 || e > 1.0 {
         return Err(field(
             name,
-            format!("{e} must lie in (0, 1] (a relative RMS error: 0.05 = 5 %)"),
+            format!(
+                "{} must lie in (0, 1] (a relative RMS error: 0.05 = 5 %)",
+                compact_f64(e)
+            ),
         ));
     }
     Ok(())
@@ -731,5 +835,122 @@ error = 0.05
         let s = Scene::parse("t", &GLOSSY.replace("[0, 4]", "[0, 12]")).unwrap();
         let e = s.level_range(11).unwrap_err().to_string();
         assert!(e.contains("view.levels"), "{e}");
+    }
+
+    #[test]
+    fn two_element_arrays_of_any_other_length_are_refused_naming_the_field() {
+        // The toml crate's fixed-size arrays took the first two elements of `[8, 16, 32]` and
+        // ignored the rest; JSON refused a third element without naming the field.
+        let with_model = |model: &str, line: &str| {
+            GLOSSY.replace(
+                "model = \"blinn-phong\"\nexponent = [16, 256]",
+                &format!("model = \"{model}\"\n{line}"),
+            )
+        };
+        let cases: [(String, &str, &str, f64, f64); 6] = [
+            (
+                GLOSSY.into(),
+                "exponent = [16, 256]",
+                "material.exponent",
+                16.0,
+                256.0,
+            ),
+            (
+                with_model("ggx", "alpha = [0.1, 0.25]"),
+                "alpha = [0.1, 0.25]",
+                "material.alpha",
+                0.1,
+                0.25,
+            ),
+            (
+                with_model("torrance-sparrow", "sigma = [0.1, 0.25]"),
+                "sigma = [0.1, 0.25]",
+                "material.sigma",
+                0.1,
+                0.25,
+            ),
+            (
+                format!("light_elevation = [10, 80]\n{GLOSSY}"),
+                "light_elevation = [10, 80]",
+                "light_elevation",
+                10.0,
+                80.0,
+            ),
+            (GLOSSY.into(), "levels = [0, 4]", "view.levels", 0.0, 4.0),
+            (
+                GLOSSY.replace(
+                    "levels = [0, 4]",
+                    "distances = [2, 40]\ntexel_density = 1.0",
+                ),
+                "distances = [2, 40]",
+                "view.distances",
+                2.0,
+                40.0,
+            ),
+        ];
+        for (text, line, name, a, b) in cases {
+            let key = line.split(' ').next().unwrap();
+            let path: Vec<&str> = name.split('.').collect();
+            // Two values parse, and are the ones written.
+            let scene = Scene::parse("t", &text).unwrap();
+            let json = serde_json::to_value(&scene).unwrap();
+            let at = path.iter().fold(&json, |v, k| &v[*k]);
+            let want = if name == "view.levels" {
+                serde_json::json!([a as u32, b as u32])
+            } else {
+                serde_json::json!([a, b])
+            };
+            assert_eq!(at, &want, "{name}");
+            for n in [0usize, 1, 3, 5] {
+                let values: Vec<f64> = (0..n).map(|i| if i % 2 == 0 { a } else { b }).collect();
+                let words = format!(
+                    "field '{name}': {n} value{} (expected [",
+                    if n == 1 { "" } else { "s" }
+                );
+                let list: Vec<String> = values.iter().map(|v| v.to_string()).collect();
+                let toml_text = text.replace(line, &format!("{key} = [{}]", list.join(", ")));
+                assert_ne!(toml_text, text);
+                let e = err(&toml_text);
+                assert!(e.contains(&words) && e.contains("scene t"), "{n}: {e}");
+                let mut bad = json.clone();
+                let slot = path.iter().fold(&mut bad, |v, k| &mut v[*k]);
+                *slot = if name == "view.levels" {
+                    serde_json::json!(values.iter().map(|&v| v as u32).collect::<Vec<_>>())
+                } else {
+                    serde_json::json!(values)
+                };
+                let e = err(&bad.to_string());
+                assert!(e.contains(&words) && e.contains("JSON"), "{n}: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn parse_errors_quoting_a_huge_line_stay_one_short_line() {
+        // The TOML error quoted the offending line three times: a 1 MB key made a 3 MB error.
+        let key = "k".repeat(1 << 20);
+        for text in [
+            format!("{key} = 1\n{GLOSSY}"),
+            format!("{{\"{key}\": 1}}"),
+            GLOSSY.replace("model = \"blinn-phong\"", &format!("model = \"{key}\"")),
+        ] {
+            let e = err(&text);
+            assert!(
+                e.len() < 1000 && e.contains("scene t: not a valid") && e.ends_with("characters)"),
+                "{}",
+                &e[..e.len().min(600)]
+            );
+        }
+        // Range bounds and absurd values print compactly, not as 309-digit numbers.
+        let e = err(&GLOSSY.replace(
+            "levels = [0, 4]",
+            "distances = [0, 4.0]\ntexel_density = 1.0",
+        ));
+        assert!(
+            e.ends_with("[0.0, 4.0] must lie in (0, 1.7976931348623157e308]"),
+            "{e}"
+        );
+        let e = err(&GLOSSY.replace("kd = 0.2", "kd = -1e300"));
+        assert!(e.ends_with("'material.kd': -1e300 is negative"), "{e}");
     }
 }

@@ -331,7 +331,8 @@ fn shade_sampled(
 /// Measures `map` (named `name`) in `scenes` (planes and the sphere), lit by `light` with the
 /// scenes' material (its BRDF must be one the environment routes implement), and appends the
 /// ground truths, rows and skipped views to `section`; a map with a feature is scored in colour
-/// (module docs). Deterministic for the options' seed, whatever the thread count.
+/// (module docs). Deterministic for the options' seed, whatever the thread count. Samples
+/// outside 1 to [`envlight::MAX_SAMPLES`] are [`crate::Error::InvalidOption`].
 pub fn measure(
     name: &str,
     map: &NormalMap,
@@ -340,6 +341,13 @@ pub fn measure(
     section: &mut EnvSection,
 ) -> Result<()> {
     let options = section.options.clone();
+    if !(1..=envlight::MAX_SAMPLES).contains(&options.samples) {
+        return Err(crate::Error::InvalidOption(format!(
+            "environment section: samples {} (expected 1 to {})",
+            options.samples,
+            envlight::MAX_SAMPLES
+        )));
+    }
     let configs = configs(map, &options)?;
     let size = (map.width(), map.height());
     let feature = map.feature();

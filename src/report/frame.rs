@@ -93,7 +93,7 @@ impl FrameTimes {
 
     /// Reads a JSON file written by `ndfmap-viewer --bench --bench-json`.
     pub fn load(path: &Path) -> Result<FrameTimes, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let text = crate::ingest::read_text_file(path).map_err(|e| e.to_string())?;
         FrameTimes::from_json(&text).map_err(|e| format!("{}: {e}", path.display()))
     }
 

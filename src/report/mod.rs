@@ -55,15 +55,21 @@ pub const REPRESENTATIVE: [&str; 5] = ["plain", "toksvig", "lean", "vmf6", "vmf6
 /// are recomputed for every configuration.
 const REFERENCE_BUDGET: u64 = 512 << 20;
 
+/// The most ground-truth samples per pixel [`ReportOptions::spp`] and
+/// [`ReportOptions::convergence_spp`] may ask for: 2¹⁶, 64 times the convergence default
+/// (1024). The run time grows with them, so an absurd count is refused instead of running for
+/// days.
+pub const MAX_SPP: u32 = 1 << 16;
+
 /// What to measure and how.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ReportOptions {
     /// Side of every rendered view, pixels.
     pub image_size: u32,
-    /// Ground-truth samples per pixel.
+    /// Ground-truth samples per pixel, 1 to [`MAX_SPP`].
     pub spp: u32,
     /// Samples per pixel of the second ground truth used to estimate the first's Monte Carlo
-    /// error on one view (0 skips it).
+    /// error on one view (0 skips it), at most [`MAX_SPP`].
     pub convergence_spp: u32,
     /// Seed of the ground truth's jitter.
     pub seed: u64,
@@ -806,7 +812,8 @@ fn compare(
 }
 
 /// Measures every configuration of `options` on every map; writes images under
-/// `out/images/<map>/` as `options.images` asks. `progress` hears of every step.
+/// `out/images/<map>/` as `options.images` asks. `progress` hears of every step. A sample
+/// count outside its range ([`MAX_SPP`]) is [`crate::Error::InvalidOption`] before any work.
 pub fn run(
     maps: &[MapInput],
     options: &ReportOptions,
@@ -814,6 +821,12 @@ pub fn run(
     progress: &(dyn Fn(Progress) + Sync),
     metric: FlipMetric,
 ) -> Result<Report> {
+    if !(1..=MAX_SPP).contains(&options.spp) || options.convergence_spp > MAX_SPP {
+        return Err(crate::Error::InvalidOption(format!(
+            "report: spp {} / convergence spp {} (expected 1 to {MAX_SPP} / 0 to {MAX_SPP})",
+            options.spp, options.convergence_spp
+        )));
+    }
     let start = Instant::now();
     let load_start = load_average();
     let configs = configs(options);

@@ -5,7 +5,7 @@
 //! prediction.
 
 use crate::bake::{Bake, Method};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::glsl::{ShaderOptions, ShaderSpec, Stage};
 use crate::ingest::NormalMap;
 use crate::plan::{FULL, Plan, WholeMap, bake_chains};
@@ -347,14 +347,16 @@ impl FrameTimes {
             .map(std::path::PathBuf::from)
             .unwrap_or_else(|| std::path::PathBuf::from(FRAME_TIMES_FILE));
         let name = path.display().to_string();
-        match std::fs::read_to_string(&path) {
+        match crate::ingest::read_text_file(&path) {
             Ok(text) => FrameTimes::from_json(&name, &text).map_err(|e| e.to_string()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(format!(
-                "no frame times: {name} is absent (write it with `cargo run --release -p \
+            Err(Error::Read { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+                Err(format!(
+                    "no frame times: {name} is absent (write it with `cargo run --release -p \
                  ndfmap-gl --example plan_timings -- --json {FRAME_TIMES_FILE} ...`, \
                  docs/planner.md)"
-            )),
-            Err(e) => Err(format!("no frame times: {name}: {e}")),
+                ))
+            }
+            Err(e) => Err(format!("no frame times: {e}")),
         }
     }
 
