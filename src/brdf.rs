@@ -33,6 +33,7 @@ pub mod tabulated;
 
 pub use tabulated::Tabulated;
 
+use crate::error::compact_f64;
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
 use std::sync::Arc;
@@ -383,14 +384,9 @@ impl Brdf {
     /// average an error is relative to is 0 at every light/view pair (`eval` printed `inf`).
     pub fn validate(&self) -> crate::error::Result<()> {
         let bad = |what: &str, v: f64, range: &str| {
-            // Compact for any magnitude (1e308 is not 309 digits).
-            let v = if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
-                format!("{v:e}")
-            } else {
-                format!("{v}")
-            };
             Err(crate::error::Error::InvalidOption(format!(
-                "{what} {v} (must be {range})"
+                "{what} {} (must be {range})",
+                crate::error::compact_f64(v)
             )))
         };
         match *self {
@@ -567,13 +563,17 @@ pub fn lambert_coefficient(l: usize) -> f64 {
 }
 
 impl std::fmt::Display for Brdf {
+    /// The model and its parameter, numbers compact at any magnitude
+    /// ([`crate::error::compact_f64`]).
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Brdf::Lambert => write!(f, "Lambert"),
-            Brdf::BlinnPhong { s } => write!(f, "Blinn-Phong s = {s}"),
-            Brdf::TorranceSparrow { sigma } => write!(f, "Torrance-Sparrow sigma = {sigma}"),
+            Brdf::BlinnPhong { s } => write!(f, "Blinn-Phong s = {}", compact_f64(*s)),
+            Brdf::TorranceSparrow { sigma } => {
+                write!(f, "Torrance-Sparrow sigma = {}", compact_f64(*sigma))
+            }
             Brdf::Ggx(g) => {
-                write!(f, "GGX alpha = {}", g.alpha)?;
+                write!(f, "GGX alpha = {}", compact_f64(g.alpha))?;
                 if g.g {
                     write!(f, " (Smith, Schlick F0 = {})", g.f0)?;
                 }
