@@ -1044,21 +1044,7 @@ fn special_files_are_refused_without_blocking() {
         (vec!["info", s(dir.path())], "a folder"),
     ];
     for (args, kind) in cases {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
-            .args(&args)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let t = Instant::now();
-        while child.try_wait().unwrap().is_none() {
-            if t.elapsed() > Duration::from_secs(30) {
-                let _ = child.kill();
-                panic!("{args:?} blocks");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        let run = child.wait_with_output().unwrap();
+        let run = ndfmap_within_30_s(&args);
         assert_one_line_error(&run, &["not a regular file", kind]);
     }
     match NormalMap::load(Path::new("/dev/zero"), &IngestOptions::default()) {
