@@ -72,6 +72,13 @@
 //!   the wrong length and huge parse errors: `src/plan/scene.rs`
 //!   `two_element_arrays_of_any_other_length_are_refused_naming_the_field`,
 //!   `parse_errors_quoting_a_huge_line_stay_one_short_line`.
+//! - Hand-edited plan files (levels past the map's coarsest panicked `bake --plan`; lobe
+//!   count 0, repeated or missing left-out lobes, colour on a part without lobes), a colour
+//!   plan without its albedo, and `plan -o` written whole and only over a plan folder:
+//!   `src/plan/mod.rs` `hand_edited_plans_are_checked_before_any_work`,
+//!   `plan_folders_are_written_whole`. BRDF parameters sharper than an exponent of about 10⁷
+//!   (the exact average underflows to 0 and errors printed `inf`): `Brdf::validate` and the
+//!   scene check, `src/eval.rs` `the_sharpest_brdfs_accepted_give_finite_errors`.
 //!
 //! Earlier classes (their tests live beside the code they guard):
 //! - Corrupt, truncated, empty, missing files and folders as input: `tests/ingest.rs`
