@@ -1695,11 +1695,13 @@ impl Plan {
                 plan.format, plan.version
             )));
         }
-        plan.scene.check()?;
-        plan.check_parts().map_err(|e| match e {
-            Error::InvalidOption(m) => Error::InvalidOption(format!("plan {name}: {m}")),
-            e => e,
-        })?;
+        plan.scene
+            .check()
+            .and_then(|()| plan.check_parts())
+            .map_err(|e| match e {
+                Error::InvalidOption(m) => Error::InvalidOption(format!("plan {name}: {m}")),
+                e => e,
+            })?;
         Ok(plan)
     }
 
@@ -2657,6 +2659,9 @@ error = 0.05
         let mut v = base.clone();
         v["parts"][0]["last"] = u64::MAX.into();
         cases.push((v, "do not continue"));
+        let mut v = base.clone();
+        v["scene"]["material"]["kd"] = (-1.0).into();
+        cases.push((v, "plan p: scene: field 'material.kd'"));
         cases.push((vmf(0, &[], false), "lobe count 0 (expected 1 to 8)"));
         cases.push((vmf(6, &[0, 0], false), "left-out lobe 0 (expected distinct"));
         cases.push((vmf(6, &[6], false), "left-out lobe 6 (expected distinct"));
