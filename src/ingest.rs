@@ -928,34 +928,45 @@ pub(crate) fn open_regular_file(path: &Path) -> Result<(std::fs::File, std::fs::
     Ok((file, meta))
 }
 
+/// Reads a whole regular file ([`open_regular_file`]) of at most `max` bytes: `too_big` is the
+/// error for a file of more (called with its length, from its metadata or, if it grew while
+/// being read, from what was read). The one bounded read every input reader shares.
+pub(crate) fn read_capped(
+    path: &Path,
+    max: u64,
+    too_big: impl Fn(u64) -> Error,
+) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let (file, meta) = open_regular_file(path)?;
+    if meta.len() > max {
+        return Err(too_big(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(max.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if bytes.len() as u64 > max {
+        return Err(too_big(bytes.len() as u64)); // it grew while being read
+    }
+    Ok(bytes)
+}
+
 /// Reads a whole input file, bounded: only a regular file ([`open_regular_file`]), and at most
 /// the memory budget's bytes.
 pub(crate) fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let read_error = |source: std::io::Error| Error::Read {
-        path: path.to_path_buf(),
-        source,
-    };
-    let (file, meta) = open_regular_file(path)?;
     let limit = crate::budget::resolve(limit);
-    let file_budget = |len: u64| {
-        crate::budget::check(
-            &format!(
-                "{} (a file of {})",
-                path.display(),
-                crate::budget::format_bytes(len)
-            ),
-            len,
-            Some(limit),
-        )
-    };
-    file_budget(meta.len())?;
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(limit.saturating_add(1))
-        .read_to_end(&mut bytes)
-        .map_err(read_error)?;
-    file_budget(bytes.len() as u64)?; // it grew while being read
-    Ok(bytes)
+    read_capped(path, limit, |len| Error::MemoryBudget {
+        what: format!(
+            "{} (a file of {})",
+            path.display(),
+            crate::budget::format_bytes(len)
+        ),
+        needed: len,
+        limit,
+    })
 }
 
 /// The most bytes a text input may hold: a scene, a plan, a batch file, a report's JSON
@@ -965,36 +976,20 @@ pub(crate) fn read_file(path: &Path, limit: Option<u64>) -> Result<Vec<u8>> {
 /// generated file gone wrong) is refused before it is read into memory and parsed.
 pub const MAX_TEXT_FILE_BYTES: u64 = 64 << 20;
 
-/// Reads at most `max` bytes of a regular file ([`open_regular_file`]); a larger file is
+/// Reads at most `max` bytes of a regular file ([`read_capped`]); a larger file is
 /// [`Error::Read`] naming its size and the bound (`what` names the kind of file).
 pub(crate) fn read_bounded(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let read_error = |source: std::io::Error| Error::Read {
+    read_capped(path, max, |len| Error::Read {
         path: path.to_path_buf(),
-        source,
-    };
-    let too_big = |len: u64| {
-        read_error(std::io::Error::new(
+        source: std::io::Error::new(
             std::io::ErrorKind::FileTooLarge,
             format!(
                 "a file of {}, more than the {} {what} may hold",
                 crate::budget::format_bytes(len),
                 crate::budget::format_bytes(max)
             ),
-        ))
-    };
-    let (file, meta) = open_regular_file(path)?;
-    if meta.len() > max {
-        return Err(too_big(meta.len()));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(max.saturating_add(1))
-        .read_to_end(&mut bytes)
-        .map_err(read_error)?;
-    if bytes.len() as u64 > max {
-        return Err(too_big(bytes.len() as u64)); // it grew while being read
-    }
-    Ok(bytes)
+        ),
+    })
 }
 
 /// Reads a whole text input file (a scene, a plan, a batch file, a report's JSON): only a

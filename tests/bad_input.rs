@@ -1575,6 +1575,13 @@ fn within_30_s<T: Send + 'static>(
     }
 }
 
+/// What unblocks a reader stuck on FIFO `p` (opening it for writing), for [`within_30_s`].
+fn unblock(p: PathBuf) -> impl FnOnce() {
+    move || {
+        let _ = std::fs::OpenOptions::new().write(true).open(p);
+    }
+}
+
 /// New parser, class 7 again: a tabulated BRDF path that is a FIFO blocked `Tabulated::load`,
 /// `ndf_material_new` (`tabulated_path`) and `ndfmap bake --brdf` forever (it was read with
 /// `read_to_string`); `/dev/zero` was read until memory ran out. Only regular files are read
@@ -1598,11 +1605,6 @@ fn tabulated_brdf_paths_that_are_not_small_regular_files_are_refused_without_blo
     std::fs::write(&big, text).unwrap();
     let latin1 = dir.path().join("latin1.json");
     std::fs::write(&latin1, b"{\"name\": \"caf\xe9\", \"f\": [1, 0]}").unwrap();
-    let unblock = |p: PathBuf| {
-        move || {
-            let _ = std::fs::OpenOptions::new().write(true).open(p);
-        }
-    };
     let cases: [(PathBuf, &str, ndf_status); 5] = [
         (
             fifo.clone(),
@@ -1661,31 +1663,16 @@ fn tabulated_brdf_paths_that_are_not_small_regular_files_are_refused_without_blo
     let input = dir.path().join("n.png");
     write_png(&input, 8, 8);
     let out = dir.path().join("out");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ndfmap"))
-        .args([
-            "bake",
-            s(&input),
-            "-m",
-            "sh",
-            "-o",
-            s(&out),
-            "--brdf",
-            s(&fifo),
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t.elapsed() > Duration::from_secs(30) {
-            let _ = child.kill();
-            unblock(fifo.clone())();
-            panic!("ndfmap bake --brdf FIFO blocks");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let run = child.wait_with_output().unwrap();
+    let run = ndfmap_within_30_s(&[
+        "bake",
+        s(&input),
+        "-m",
+        "sh",
+        "-o",
+        s(&out),
+        "--brdf",
+        s(&fifo),
+    ]);
     assert_one_line_error(&run, &["not a regular file", "a FIFO"]);
     assert!(!out.exists());
 }
@@ -1896,11 +1883,6 @@ fn text_and_environment_inputs_that_are_not_regular_files_are_refused_without_bl
     if make_fifo(&fifo) {
         specials.push((fifo.clone(), "(a FIFO)"));
     }
-    let unblock = |p: PathBuf| {
-        move || {
-            let _ = std::fs::OpenOptions::new().write(true).open(p);
-        }
-    };
     // The library readers: read_text_file, Scene::load, environment::load.
     for (path, kind) in &specials {
         type Reader = fn(&Path) -> Result<(), Error>;

@@ -251,29 +251,14 @@ impl Tabulated {
     /// Reads a tabulated BRDF file (module docs): a regular file (a FIFO, a device or a folder
     /// is [`Error::Read`], without blocking) of at most [`MAX_FILE_BYTES`] of UTF-8 text.
     pub fn load(path: &Path) -> Result<Tabulated> {
-        use std::io::Read;
         let what = path.display().to_string();
-        let (file, meta) = crate::ingest::open_regular_file(path)?;
-        let too_big = |len: u64| Error::Brdf {
+        let bytes = crate::ingest::read_capped(path, MAX_FILE_BYTES, |len| Error::Brdf {
             what: what.clone(),
             message: format!(
                 "a file of {len} bytes, more than the {MAX_FILE_BYTES} bytes (4 MiB) a tabulated \
                  BRDF file may hold"
             ),
-        };
-        if meta.len() > MAX_FILE_BYTES {
-            return Err(too_big(meta.len()));
-        }
-        let mut bytes = Vec::with_capacity(meta.len() as usize);
-        file.take(MAX_FILE_BYTES + 1)
-            .read_to_end(&mut bytes)
-            .map_err(|source| Error::Read {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        if bytes.len() as u64 > MAX_FILE_BYTES {
-            return Err(too_big(bytes.len() as u64)); // it grew while being read
-        }
+        })?;
         let text = String::from_utf8(bytes).map_err(|e| Error::Brdf {
             what: what.clone(),
             message: format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
