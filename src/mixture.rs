@@ -906,7 +906,7 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
         };
         for lo in (0..count).step_by(PROGRESS_CHUNK as usize) {
             let hi = (lo + PROGRESS_CHUNK as usize).min(count);
-            let jobs = Job::split(&mut out, lo..hi);
+            let jobs = Job::split(&mut out, lo..hi, job_texels(count));
             // Workers poll the cancellation flag between jobs (and EM between iterations).
             jobs.into_par_iter().try_for_each_init(
                 || (Gather::<M>::default(), Batch::<M>::default()),
@@ -948,9 +948,18 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
     }
 }
 
-/// Texels per parallel job of the unaligned pass: gathered, fitted side by side
-/// ([`Model::fit_batch`]) and written straight into the level's planes.
+/// Most texels per parallel job of the unaligned pass: gathered, fitted side by side
+/// ([`Model::fit_batch`]) and written straight into the level's planes. A level of few texels
+/// is cut into smaller jobs ([`job_texels`]).
 const JOB_TEXELS: usize = 256;
+
+/// Texels per job of a pass over `count` texels: [`JOB_TEXELS`], or fewer where that would
+/// leave workers idle (the coarse levels' few, large texels: about four jobs per worker).
+fn job_texels(count: usize) -> usize {
+    JOB_TEXELS
+        .min(count.div_ceil(4 * rayon::current_num_threads().max(1)))
+        .max(1)
+}
 
 /// A job's texels: from texel `first` of the rows, its slices of the level's texel planes and
 /// (when colours are kept) colour planes, one per slot.
@@ -961,12 +970,12 @@ struct Job<'p> {
 }
 
 impl<'p> Job<'p> {
-    /// Texels `range` of a level's planes cut into jobs of [`JOB_TEXELS`] texels, each with
-    /// its own slices of every plane.
-    fn split(fit: &'p mut LevelFit, range: std::ops::Range<usize>) -> Vec<Job<'p>> {
+    /// Texels `range` of a level's planes cut into jobs of `size` texels, each with its own
+    /// slices of every plane.
+    fn split(fit: &'p mut LevelFit, range: std::ops::Range<usize>, size: usize) -> Vec<Job<'p>> {
         let mut jobs: Vec<Job> = range
             .clone()
-            .step_by(JOB_TEXELS)
+            .step_by(size)
             .map(|first| Job {
                 first,
                 texels: Vec::with_capacity(fit.texels.len()),
@@ -974,19 +983,13 @@ impl<'p> Job<'p> {
             })
             .collect();
         for plane in &mut fit.texels {
-            for (job, part) in jobs
-                .iter_mut()
-                .zip(plane[range.clone()].chunks_mut(JOB_TEXELS))
-            {
+            for (job, part) in jobs.iter_mut().zip(plane[range.clone()].chunks_mut(size)) {
                 job.texels.push(part);
             }
         }
         if let Some(c) = fit.colors.as_mut() {
             for plane in c {
-                for (job, part) in jobs
-                    .iter_mut()
-                    .zip(plane[range.clone()].chunks_mut(JOB_TEXELS))
-                {
+                for (job, part) in jobs.iter_mut().zip(plane[range.clone()].chunks_mut(size)) {
                     job.colors.push(part);
                 }
             }
@@ -1200,7 +1203,7 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
             level.x.taps(x as usize).count() * level.y.taps(y as usize).count() <= j
         };
         if (0..rows).any(|r| (0..w).any(|x| closed_form(x, y0 + r))) {
-            Job::split(&mut out, 0..texels)
+            Job::split(&mut out, 0..texels, JOB_TEXELS)
                 .into_par_iter()
                 .zip(closed.par_chunks_mut(JOB_TEXELS))
                 .try_for_each_init(Gather::<M>::default, |g, (mut job, flags)| {
@@ -1323,21 +1326,42 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
     /// the `parent` component (level 1's rows covering them) that scores it best (the E-step
     /// with the parent's components; the first on ties, an empty component never winning unless
     /// all are), so level 0 stays exact. A parent's components and their score constants are
-    /// decoded once per run of rows sharing a parent row; the result does not depend on the
-    /// thread count.
+    /// decoded once per run of rows sharing a parent row. One pass over the rows writes every
+    /// plane (each texel is non-zero in its slot's planes only); the result does not depend on
+    /// the thread count.
     pub(crate) fn finest_rows(&self, (y0, y1): (u32, u32), parent: Option<&Rows>) -> Rows {
         type Decoded<C> = ([C; MAX_LOBES], [[f64; 2]; MAX_LOBES]);
+        /// One row of every component plane and of every colour plane.
+        type RowPlanes<'r> = (Vec<&'r mut [[f32; 4]]>, Vec<&'r mut [[f32; 4]]>);
         let j = self.j;
         let (w, h) = self.sizes[0];
-        let texels = ((y1 - y0) * w) as usize;
+        let width = w as usize;
+        let count = ((y1 - y0) * w) as usize;
         let base = (y0 * w) as usize;
         let src = self.src;
-        let mut slots = vec![0u8; texels];
-        if let (Some(p), Some(&(pw, ph))) = (parent, self.sizes.get(1)) {
-            slots.par_chunks_mut(w as usize).enumerate().for_each_init(
-                || (u32::MAX, Vec::<Decoded<M::C>>::new()),
-                |(cached_row, decoded), (r, row)| {
-                    let y = y0 + r as u32;
+        let parent = parent.zip(self.sizes.get(1).copied());
+        // Zeroed planes (fresh pages: the zeros cost nothing until written), cut into rows.
+        let mut texels = planes(j, count, true);
+        let mut colors = src.has_feature().then(|| planes(j, count, true));
+        let mut rows: Vec<RowPlanes> = (y0..y1)
+            .map(|_| (Vec::with_capacity(j), Vec::new()))
+            .collect();
+        for plane in &mut texels {
+            for (row, part) in rows.iter_mut().zip(plane.chunks_mut(width)) {
+                row.0.push(part);
+            }
+        }
+        for plane in colors.iter_mut().flatten() {
+            for (row, part) in rows.iter_mut().zip(plane.chunks_mut(width)) {
+                row.1.push(part);
+            }
+        }
+        rows.into_par_iter().enumerate().for_each_init(
+            || (u32::MAX, Vec::<Decoded<M::C>>::new()),
+            |(cached_row, decoded), (r, (mut tex, mut col))| {
+                let y = y0 + r as u32;
+                let first = base + r * width;
+                if let Some((p, (pw, ph))) = parent {
                     let py = parent_of(y, h, ph);
                     if *cached_row != py {
                         decoded.clear();
@@ -1351,45 +1375,28 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
                         }));
                         *cached_row = py;
                     }
-                    let first = base + r * w as usize;
-                    for (x, slot) in row.iter_mut().enumerate() {
-                        let n = src.normal(first + x);
+                }
+                for x in 0..width {
+                    let n = src.normal(first + x);
+                    let mut best = (0, f64::NEG_INFINITY);
+                    if let Some((_, (pw, _))) = parent {
                         let (comps, k) = &decoded[parent_of(x as u32, w, pw) as usize];
-                        let mut best = (0, f64::NEG_INFINITY);
                         for (s, (c, &k)) in comps.iter().zip(k).enumerate().take(j) {
                             let score = M::log_score_with(c, k, n);
                             if score > best.1 {
                                 best = (s, score);
                             }
                         }
-                        *slot = best.0 as u8;
                     }
-                },
-            );
-        }
-        // Plane s holds the texels whose slot is s; the others are empty (zero).
-        let fill = |value: &(dyn Fn(usize) -> [f32; 4] + Sync)| -> Vec<Vec<[f32; 4]>> {
-            (0..j)
-                .map(|s| {
-                    slots
-                        .par_iter()
-                        .enumerate()
-                        .map(|(t, &slot)| {
-                            if slot as usize == s {
-                                value(t)
-                            } else {
-                                [0.0; 4]
-                            }
-                        })
-                        .collect()
-                })
-                .collect()
-        };
-        let texels = fill(&|t| M::texel(&M::single(src.normal(base + t))).map(|v| v as f32));
-        // α = 1 in the slot: the colour texel is the feature itself.
-        let colors = src
-            .has_feature()
-            .then(|| fill(&|t| src.feature(base + t).expect("the map has features")));
+                    let slot = best.0;
+                    tex[slot][x] = M::texel(&M::single(n)).map(|v| v as f32);
+                    // α = 1 in the slot: the colour texel is the feature itself.
+                    if let Some(c) = col.get_mut(slot) {
+                        c[x] = src.feature(first + x).expect("the map has features");
+                    }
+                }
+            },
+        );
         Rows {
             y0,
             w,
