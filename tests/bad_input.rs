@@ -2111,6 +2111,67 @@ fn nested_batch_outputs_are_refused_up_front_with_one_prefix() {
     assert!(line.contains("not a regular file (a device)"), "{line}");
 }
 
+/// Options a method would ignore (`bake -m plain --lobes 4` baked plain and said nothing) are
+/// refused, naming each and what it is for; the ones a method uses still pass.
+#[test]
+fn options_a_method_would_ignore_are_refused() {
+    let (dir, map) = folder_with_map(8, 8);
+    let out = dir.path().join("out");
+    let bake = |extra: &[&str]| {
+        let mut args = vec!["bake", s(&map), "-o", s(&out)];
+        args.extend_from_slice(extra);
+        ndfmap(&args)
+    };
+    for (extra, words) in [
+        (
+            &["-m", "plain", "--lobes", "4"][..],
+            "--lobes does not apply to --method plain",
+        ),
+        (
+            &["-m", "sh", "--lmax", "2", "--align", "--mode", "fast"],
+            "--align, --mode do not apply to --method sh",
+        ),
+        (
+            &["-m", "tan2005", "--align-form", "main-text"],
+            "--align-form does not apply to --method tan2005",
+        ),
+        (
+            &["-m", "vmf", "--lmax", "4"],
+            "--lmax does not apply to --method vmf",
+        ),
+    ] {
+        let run = bake(extra);
+        assert_one_line_error(
+            &run,
+            &[words, "--lobes and --align are for vmf and tan2005"],
+        );
+        assert!(!out.exists(), "{extra:?} wrote {}", out.display());
+    }
+    for extra in [
+        &["-m", "tan2005", "--lobes", "2", "--align"][..],
+        &["-m", "sh", "--lmax", "2"],
+        &[
+            "-m",
+            "vmf",
+            "--lobes",
+            "2",
+            "--align-form",
+            "main-text",
+            "--align",
+            "--mode",
+            "fast",
+        ],
+    ] {
+        let run = bake(extra);
+        assert!(
+            run.status.success(),
+            "{extra:?}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}
+
 /// Finding D10: command-line values that failed as jobs were named as batch keys
 /// (`batch key 'container'`); `--roughness` and `--roughness-map` together let the map win
 /// silently; absurd numbers were printed with hundreds of digits.

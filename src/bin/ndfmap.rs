@@ -1147,9 +1147,9 @@ struct BakeCommand {
     /// the folder that holds one folder per input, named after the input's file stem.
     #[arg(short, long)]
     output: Option<PathBuf>,
-    /// vmf, tan2005: lobes (mixture components) per texel, 1 to 8.
-    #[arg(long, default_value_t = 6)]
-    lobes: usize,
+    /// vmf, tan2005: lobes (mixture components) per texel, 1 to 8 [default: 6].
+    #[arg(long)]
+    lobes: Option<usize>,
     /// vmf, tan2005: coherent lobes for hardware trilinear filtering, with alignment
     /// strength C; `--align` alone takes the method's usual C (vMF eq 29: 0.03, eq 23: 0.1;
     /// Tan's prior: c = 1). Without it lobes are fitted per texel (unaligned).
@@ -1157,13 +1157,13 @@ struct BakeCommand {
     align: Option<Option<f64>>,
     /// vmf: the alignment's M-step, `appendix` (eq 29: the pull on a lobe shrinks as
     /// 1/(κα), so sharp lobes stay on their normals) or `main-text` (eq 23: the same pull
-    /// for every lobe).
-    #[arg(long, default_value = "appendix")]
-    align_form: String,
+    /// for every lobe) [default: appendix].
+    #[arg(long)]
+    align_form: Option<String>,
     /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
     /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
-    #[arg(long, default_value = "balanced")]
-    mode: String,
+    #[arg(long)]
+    mode: Option<String>,
     /// sh: band limit l* (0 to 16; (l*+1)² coefficients, four per texture). Without it,
     /// chosen from --brdf: 2 for Lambert, about √(4s) for Blinn-Phong (Sec 5.1).
     #[arg(long)]
@@ -1185,6 +1185,34 @@ struct BakeCommand {
     pbr: PbrArgs,
     #[command(flatten)]
     ingest: IngestArgs,
+}
+
+/// Refuses `bake` options that `--method m` would ignore: `--lobes` and `--align` outside the
+/// mixtures (vmf, tan2005), `--align-form` and `--mode` outside vmf, `--lmax` outside sh. (The
+/// PBR options are checked with their own message.) Only options given on the command line
+/// count: a batch file's inputs may each choose another method.
+fn refuse_options_of_other_methods(m: Method, a: &BakeCommand) -> Result<()> {
+    let mixture = matches!(m, Method::Vmf | Method::Tan2005);
+    let stray: Vec<&str> = [
+        ("--lobes", a.lobes.is_some() && !mixture),
+        ("--align", a.align.is_some() && !mixture),
+        ("--align-form", a.align_form.is_some() && m != Method::Vmf),
+        ("--mode", a.mode.is_some() && m != Method::Vmf),
+        ("--lmax", a.lmax.is_some() && m != Method::Sh),
+    ]
+    .into_iter()
+    .filter_map(|(name, stray)| stray.then_some(name))
+    .collect();
+    if stray.is_empty() {
+        return Ok(());
+    }
+    Err(Error::InvalidOption(format!(
+        "{} {} not apply to --method {} (--lobes and --align are for vmf and tan2005, \
+         --align-form and --mode for vmf, --lmax for sh)",
+        stray.join(", "),
+        if stray.len() == 1 { "does" } else { "do" },
+        m.name()
+    )))
 }
 
 /// A batch job's error on one line, led by its input's name unless the error already starts
@@ -1210,6 +1238,9 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     let pbr_flags =
         a.pbr.roughness.is_some() || pbr_maps || a.pbr.anisotropic || a.pbr.fit_max_angle.is_some();
     let method: Option<Method> = a.method.as_deref().map(str::parse).transpose()?;
+    if let Some(m) = method {
+        refuse_options_of_other_methods(m, &a)?;
+    }
     if pbr_flags && method.is_some_and(|m| m != Method::Pbr) {
         return Err(Error::InvalidOption(
             "--roughness, --roughness-map, --metallic-map, --occlusion-map, \
@@ -1260,20 +1291,22 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         c.parse::<ndfmap::compress::Codec>()
             .map_err(option("compress"))?;
     }
-    a.align_form
-        .parse::<AlignmentForm>()
-        .map_err(option("align-form"))?;
-    a.mode.parse::<FitMode>().map_err(option("mode"))?;
+    if let Some(f) = &a.align_form {
+        f.parse::<AlignmentForm>().map_err(option("align-form"))?;
+    }
+    if let Some(m) = &a.mode {
+        m.parse::<FitMode>().map_err(option("mode"))?;
+    }
     let base = Settings {
         feature: a.ingest.feature.as_ref().map(|f| f.display().to_string()),
         method: a.method.clone(),
-        lobes: Some(a.lobes),
+        lobes: a.lobes,
         align: a.align.map(|c| match c {
             Some(c) => ndfmap::batch::AlignSetting::Strength(c),
             None => ndfmap::batch::AlignSetting::Name("default".into()),
         }),
-        align_form: Some(a.align_form.clone()),
-        mode: Some(a.mode.clone()),
+        align_form: a.align_form.clone(),
+        mode: a.mode.clone(),
         lmax,
         roughness: a.pbr.roughness,
         anisotropic: Some(a.pbr.anisotropic),
@@ -1519,12 +1552,12 @@ fn run(cli: Cli) -> Result<u8> {
                     ingest,
                     ..
                 } = a;
-                let defaults = (6, None, "appendix", "balanced", None, "f32", "exr", None);
+                let defaults = (None, None, None, None, None, "f32", "exr", None);
                 if (
                     lobes,
                     align,
-                    align_form.as_str(),
-                    mode.as_str(),
+                    align_form.as_deref(),
+                    mode.as_deref(),
                     lmax,
                     format.as_str(),
                     container.as_str(),
