@@ -233,7 +233,40 @@ macro_rules! overlay {
     };
 }
 
+/// Which methods each method-specific key applies to (the others ignore it).
+const METHOD_KEYS: [(&str, &str, &[Method]); 8] = [
+    ("lobes", "vmf and tan2005", &[Method::Vmf, Method::Tan2005]),
+    ("align", "vmf and tan2005", &[Method::Vmf, Method::Tan2005]),
+    ("align_form", "vmf", &[Method::Vmf]),
+    ("mode", "vmf", &[Method::Vmf]),
+    ("lmax", "sh", &[Method::Sh]),
+    ("roughness", "pbr", &[Method::Pbr]),
+    ("anisotropic", "pbr", &[Method::Pbr]),
+    ("fit_max_angle", "pbr", &[Method::Pbr]),
+];
+
 impl Settings {
+    /// The method-specific keys set here that `method` would ignore (`lobes` for plain,
+    /// `lmax` for vmf, …; `anisotropic` only when true), with the methods each is for, in
+    /// [`METHOD_KEYS`]' order. A bake refuses them rather than ignore them silently.
+    pub fn keys_for_other_methods(&self, method: Method) -> Vec<(&'static str, &'static str)> {
+        let set = |key: &str| match key {
+            "lobes" => self.lobes.is_some(),
+            "align" => self.align.is_some(),
+            "align_form" => self.align_form.is_some(),
+            "mode" => self.mode.is_some(),
+            "lmax" => self.lmax.is_some(),
+            "roughness" => self.roughness.is_some(),
+            "anisotropic" => self.anisotropic == Some(true),
+            _ => self.fit_max_angle.is_some(),
+        };
+        METHOD_KEYS
+            .iter()
+            .filter(|(key, _, methods)| set(key) && !methods.contains(&method))
+            .map(|&(key, for_methods, _)| (key, for_methods))
+            .collect()
+    }
+
     /// `over`'s keys where it has them, else `self`'s.
     pub fn overlay(&self, over: &Settings) -> Settings {
         overlay!(
@@ -461,8 +494,21 @@ pub fn parse_batch(
         .iter()
         .enumerate()
         .map(|(i, entry)| {
-            defaults
-                .overlay(entry)
+            let settings = defaults.overlay(entry);
+            // The entry's own method-specific keys must apply to its method (a key in
+            // [defaults] or on the command line may be meant for other entries).
+            if let Some(Ok(method)) = settings.method.as_deref().map(str::parse::<Method>) {
+                let stray = entry.keys_for_other_methods(method);
+                if let Some(&(key, for_methods)) = stray.first() {
+                    return Err(Error::InvalidOption(format!(
+                        "batch file {name}, input {}: key '{key}' does not apply to method {} \
+                         (it is for {for_methods})",
+                        i + 1,
+                        method.name()
+                    )));
+                }
+            }
+            settings
                 .job(base_dir, out_root, memory)
                 .map_err(|e| match e {
                     Error::InvalidOption(m) => {

@@ -2112,7 +2112,9 @@ fn nested_batch_outputs_are_refused_up_front_with_one_prefix() {
 }
 
 /// Options a method would ignore (`bake -m plain --lobes 4` baked plain and said nothing) are
-/// refused, naming each and what it is for; the ones a method uses still pass.
+/// refused, naming each and what it is for, on the command line and as a batch entry's own
+/// keys; the ones a method uses still pass, and so does a batch file's `[defaults]` key that
+/// only some entries use.
 #[test]
 fn options_a_method_would_ignore_are_refused() {
     let (dir, map) = folder_with_map(8, 8);
@@ -2125,26 +2127,24 @@ fn options_a_method_would_ignore_are_refused() {
     for (extra, words) in [
         (
             &["-m", "plain", "--lobes", "4"][..],
-            "--lobes does not apply to --method plain",
+            "--lobes does not apply to --method plain (for vmf and tan2005)",
         ),
         (
             &["-m", "sh", "--lmax", "2", "--align", "--mode", "fast"],
-            "--align, --mode do not apply to --method sh",
+            "--align, --mode do not apply to --method sh (for vmf and tan2005; vmf)",
         ),
         (
             &["-m", "tan2005", "--align-form", "main-text"],
-            "--align-form does not apply to --method tan2005",
+            "--align-form does not apply to --method tan2005 (for vmf)",
         ),
         (
             &["-m", "vmf", "--lmax", "4"],
-            "--lmax does not apply to --method vmf",
+            "--lmax does not apply to --method vmf (for sh)",
         ),
+        (&["-m", "vmf", "--roughness", "0.5"], "are for --method pbr"),
     ] {
         let run = bake(extra);
-        assert_one_line_error(
-            &run,
-            &[words, "--lobes and --align are for vmf and tan2005"],
-        );
+        assert_one_line_error(&run, &[words]);
         assert!(!out.exists(), "{extra:?} wrote {}", out.display());
     }
     for extra in [
@@ -2170,6 +2170,30 @@ fn options_a_method_would_ignore_are_refused() {
         );
         std::fs::remove_dir_all(&out).unwrap();
     }
+    // A batch entry's own key for another method; the same key in [defaults] is fine.
+    let name = map.file_name().unwrap().to_str().unwrap();
+    let batch = dir.path().join("b.toml");
+    let write = |text: String| std::fs::write(&batch, text).unwrap();
+    write(format!(
+        "[[input]]\npath = \"{name}\"\nmethod = \"vmf\"\nlobes = 2\noutput = \"v\"\n\
+         [[input]]\npath = \"{name}\"\nmethod = \"lean\"\nmode = \"fast\"\noutput = \"l\"\n"
+    ));
+    let run = ndfmap(&["bake", "--batch", s(&batch), "-o", s(&out)]);
+    assert_one_line_error(
+        &run,
+        &["input 2: key 'mode' does not apply to method lean (it is for vmf)"],
+    );
+    write(format!(
+        "[defaults]\nlobes = 2\n\
+         [[input]]\npath = \"{name}\"\nmethod = \"vmf\"\noutput = \"v\"\n\
+         [[input]]\npath = \"{name}\"\nmethod = \"lean\"\noutput = \"l\"\n"
+    ));
+    let run = ndfmap(&["bake", "--batch", s(&batch), "-o", s(&out)]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
 }
 
 /// Finding D10: command-line values that failed as jobs were named as batch keys

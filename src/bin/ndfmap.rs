@@ -1187,34 +1187,6 @@ struct BakeCommand {
     ingest: IngestArgs,
 }
 
-/// Refuses `bake` options that `--method m` would ignore: `--lobes` and `--align` outside the
-/// mixtures (vmf, tan2005), `--align-form` and `--mode` outside vmf, `--lmax` outside sh. (The
-/// PBR options are checked with their own message.) Only options given on the command line
-/// count: a batch file's inputs may each choose another method.
-fn refuse_options_of_other_methods(m: Method, a: &BakeCommand) -> Result<()> {
-    let mixture = matches!(m, Method::Vmf | Method::Tan2005);
-    let stray: Vec<&str> = [
-        ("--lobes", a.lobes.is_some() && !mixture),
-        ("--align", a.align.is_some() && !mixture),
-        ("--align-form", a.align_form.is_some() && m != Method::Vmf),
-        ("--mode", a.mode.is_some() && m != Method::Vmf),
-        ("--lmax", a.lmax.is_some() && m != Method::Sh),
-    ]
-    .into_iter()
-    .filter_map(|(name, stray)| stray.then_some(name))
-    .collect();
-    if stray.is_empty() {
-        return Ok(());
-    }
-    Err(Error::InvalidOption(format!(
-        "{} {} not apply to --method {} (--lobes and --align are for vmf and tan2005, \
-         --align-form and --mode for vmf, --lmax for sh)",
-        stray.join(", "),
-        if stray.len() == 1 { "does" } else { "do" },
-        m.name()
-    )))
-}
-
 /// A batch job's error on one line, led by its input's name unless the error already starts
 /// with it (a read or decode error names its file).
 fn job_error(input: &Path, e: &Error) -> String {
@@ -1238,9 +1210,6 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     let pbr_flags =
         a.pbr.roughness.is_some() || pbr_maps || a.pbr.anisotropic || a.pbr.fit_max_angle.is_some();
     let method: Option<Method> = a.method.as_deref().map(str::parse).transpose()?;
-    if let Some(m) = method {
-        refuse_options_of_other_methods(m, &a)?;
-    }
     if pbr_flags && method.is_some_and(|m| m != Method::Pbr) {
         return Err(Error::InvalidOption(
             "--roughness, --roughness-map, --metallic-map, --occlusion-map, \
@@ -1322,6 +1291,26 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         feature_encoding: Some(a.ingest.feature_encoding.clone()),
         ..Settings::default()
     };
+    // Options `--method` would ignore are refused (`-m plain --lobes 4`); without `--method`
+    // on the command line, each batch entry's method decides (its own keys are checked).
+    if let Some(m) = method {
+        let stray = base.keys_for_other_methods(m);
+        if !stray.is_empty() {
+            let names: Vec<String> = stray
+                .iter()
+                .map(|(k, _)| format!("--{}", k.replace('_', "-")))
+                .collect();
+            let mut for_methods: Vec<&str> = stray.iter().map(|&(_, f)| f).collect();
+            for_methods.dedup();
+            return Err(Error::InvalidOption(format!(
+                "{} {} not apply to --method {} (for {})",
+                names.join(", "),
+                if names.len() == 1 { "does" } else { "do" },
+                m.name(),
+                for_methods.join("; ")
+            )));
+        }
+    }
     let inputs = ndfmap::batch::expand_inputs(&a.inputs)?;
     let single = a.batch.is_none() && inputs.len() == 1;
     if pbr_maps {
