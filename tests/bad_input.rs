@@ -2142,6 +2142,14 @@ fn options_a_method_would_ignore_are_refused() {
             "--lmax does not apply to --method vmf (for sh)",
         ),
         (&["-m", "vmf", "--roughness", "0.5"], "are for --method pbr"),
+        (
+            &["-m", "vmf", "--brdf", "ggx"],
+            "--alpha only choose --lmax for --method sh",
+        ),
+        (
+            &["-m", "sh", "--lmax", "2", "--alpha", "0.2"],
+            "(give them with -m sh and without --lmax)",
+        ),
     ] {
         let run = bake(extra);
         assert_one_line_error(&run, &[words]);
@@ -2150,6 +2158,7 @@ fn options_a_method_would_ignore_are_refused() {
     for extra in [
         &["-m", "tan2005", "--lobes", "2", "--align"][..],
         &["-m", "sh", "--lmax", "2"],
+        &["-m", "sh", "--brdf", "ggx", "--alpha", "0.5"],
         &[
             "-m",
             "vmf",

@@ -570,19 +570,36 @@ struct IngestArgs {
 /// The BRDF of `bake` (it picks SH's band limit when --lmax is not given).
 #[derive(Args)]
 struct BrdfArgs {
-    /// The BRDF the bake is meant for: lambert, blinn-phong, torrance-sparrow, ggx, or a
-    /// tabulated BRDF file (JSON).
-    #[arg(long, default_value = "lambert")]
-    brdf: String,
-    /// Blinn-Phong exponent.
-    #[arg(short, long = "exponent", default_value_t = 64.0)]
-    s: f64,
-    /// Torrance–Sparrow roughness σ (eq 18).
-    #[arg(long, default_value_t = 0.1)]
-    sigma: f64,
-    /// GGX roughness α.
-    #[arg(long, default_value_t = 0.1)]
-    alpha: f64,
+    /// sh without --lmax: the BRDF the bake is meant for, which chooses l*: lambert (the
+    /// default), blinn-phong, torrance-sparrow, ggx, or a tabulated BRDF file (JSON).
+    #[arg(long)]
+    brdf: Option<String>,
+    /// Blinn-Phong exponent [default: 64].
+    #[arg(short, long = "exponent")]
+    s: Option<f64>,
+    /// Torrance–Sparrow roughness σ (eq 18) [default: 0.1].
+    #[arg(long)]
+    sigma: Option<f64>,
+    /// GGX roughness α [default: 0.1].
+    #[arg(long)]
+    alpha: Option<f64>,
+}
+
+impl BrdfArgs {
+    /// Whether any of the options was given.
+    fn given(&self) -> bool {
+        self.brdf.is_some() || self.s.is_some() || self.sigma.is_some() || self.alpha.is_some()
+    }
+
+    /// The BRDF they name, defaults filled in.
+    fn brdf(&self) -> Result<Brdf> {
+        parse_brdf(
+            self.brdf.as_deref().unwrap_or("lambert"),
+            self.s.unwrap_or(64.0),
+            self.sigma.unwrap_or(0.1),
+            self.alpha.unwrap_or(0.1),
+        )
+    }
 }
 
 /// The PBR bake's options (`--method pbr`).
@@ -1224,11 +1241,19 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
                 .into(),
         ));
     }
-    // SH without --lmax: the band limit the BRDF suggests (Sec 5.1).
+    // SH without --lmax: the band limit the BRDF suggests (Sec 5.1). That is all the BRDF
+    // options do in a bake, so they are refused where they cannot.
+    if a.brdf.given() && (method != Some(Method::Sh) || a.lmax.is_some()) {
+        return Err(Error::InvalidOption(
+            "--brdf, --exponent, --sigma and --alpha only choose --lmax for --method sh \
+             (give them with -m sh and without --lmax)"
+                .into(),
+        ));
+    }
     let lmax = match (method, a.lmax) {
         (_, Some(l)) => Some(l),
         (Some(Method::Sh), None) => {
-            let b = parse_brdf(&a.brdf.brdf, a.brdf.s, a.brdf.sigma, a.brdf.alpha)?;
+            let b = a.brdf.brdf()?;
             let l = b.suggested_lmax();
             eprintln!(
                 "no --lmax: l* = {l} chosen for {b} ({})",
