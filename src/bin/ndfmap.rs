@@ -1316,9 +1316,10 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         feature_encoding: Some(a.ingest.feature_encoding.clone()),
         ..Settings::default()
     };
-    // Options `--method` would ignore are refused (`-m plain --lobes 4`); without `--method`
-    // on the command line, each batch entry's method decides (its own keys are checked).
-    if let Some(m) = method {
+    // Options `--method` would ignore are refused (`-m plain --lobes 4`). In a batch, each
+    // entry's method decides (its own keys are checked; the command line's are defaults that
+    // may be meant for other entries).
+    if let Some(m) = method.filter(|_| a.batch.is_none()) {
         let stray = base.keys_for_other_methods(m);
         if !stray.is_empty() {
             let names: Vec<String> = stray
@@ -1559,6 +1560,7 @@ fn run(cli: Cli) -> Result<u8> {
                     align_form,
                     mode,
                     lmax,
+                    brdf,
                     format,
                     pbr,
                     container,
@@ -1580,6 +1582,7 @@ fn run(cli: Cli) -> Result<u8> {
                     || pbr.roughness.is_some()
                     || pbr.anisotropic
                     || pbr.fit_max_angle.is_some()
+                    || brdf.given()
                 {
                     return Err(Error::InvalidOption(
                         "--plan decides the method, lobes, alignment, band limit, format and \
