@@ -2111,6 +2111,13 @@ fn nested_batch_outputs_are_refused_up_front_with_one_prefix() {
     assert!(line.contains("not a regular file (a device)"), "{line}");
 }
 
+/// `ndfmap bake MAP -o OUT EXTRA...`.
+fn bake_into(map: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["bake", s(map), "-o", s(out)];
+    args.extend_from_slice(extra);
+    ndfmap(&args)
+}
+
 /// Options a method would ignore (`bake -m plain --lobes 4` baked plain and said nothing) are
 /// refused, naming each and what it is for, on the command line and as a batch entry's own
 /// keys; the ones a method uses still pass, and so does a batch file's `[defaults]` key that
@@ -2119,11 +2126,7 @@ fn nested_batch_outputs_are_refused_up_front_with_one_prefix() {
 fn options_a_method_would_ignore_are_refused() {
     let (dir, map) = folder_with_map(8, 8);
     let out = dir.path().join("out");
-    let bake = |extra: &[&str]| {
-        let mut args = vec!["bake", s(&map), "-o", s(&out)];
-        args.extend_from_slice(extra);
-        ndfmap(&args)
-    };
+    let bake = |extra: &[&str]| bake_into(&map, &out, extra);
     for (extra, words) in [
         (
             &["-m", "plain", "--lobes", "4"][..],
@@ -2212,11 +2215,7 @@ fn options_a_method_would_ignore_are_refused() {
 fn command_line_values_are_named_as_options_and_numbers_print_compactly() {
     let (dir, map) = folder_with_map(8, 8);
     let out = dir.path().join("out");
-    let bake = |extra: &[&str]| {
-        let mut args = vec!["bake", s(&map), "-o", s(&out)];
-        args.extend_from_slice(extra);
-        ndfmap(&args)
-    };
+    let bake = |extra: &[&str]| bake_into(&map, &out, extra);
     for (extra, words) in [
         (
             &["-m", "plain", "--container", "foo"][..],
