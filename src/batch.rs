@@ -233,38 +233,29 @@ macro_rules! overlay {
     };
 }
 
-/// Which methods each method-specific key applies to (the others ignore it).
-const METHOD_KEYS: [(&str, &str, &[Method]); 8] = [
-    ("lobes", "vmf and tan2005", &[Method::Vmf, Method::Tan2005]),
-    ("align", "vmf and tan2005", &[Method::Vmf, Method::Tan2005]),
-    ("align_form", "vmf", &[Method::Vmf]),
-    ("mode", "vmf", &[Method::Vmf]),
-    ("lmax", "sh", &[Method::Sh]),
-    ("roughness", "pbr", &[Method::Pbr]),
-    ("anisotropic", "pbr", &[Method::Pbr]),
-    ("fit_max_angle", "pbr", &[Method::Pbr]),
-];
-
 impl Settings {
     /// The method-specific keys set here that `method` would ignore (`lobes` for plain,
-    /// `lmax` for vmf, …; `anisotropic` only when true), with the methods each is for, in
-    /// [`METHOD_KEYS`]' order. A bake refuses them rather than ignore them silently.
+    /// `lmax` for vmf, …; `anisotropic` only when true), each with the methods it is for. A
+    /// bake refuses them rather than ignore them silently.
     pub fn keys_for_other_methods(&self, method: Method) -> Vec<(&'static str, &'static str)> {
-        let set = |key: &str| match key {
-            "lobes" => self.lobes.is_some(),
-            "align" => self.align.is_some(),
-            "align_form" => self.align_form.is_some(),
-            "mode" => self.mode.is_some(),
-            "lmax" => self.lmax.is_some(),
-            "roughness" => self.roughness.is_some(),
-            "anisotropic" => self.anisotropic == Some(true),
-            _ => self.fit_max_angle.is_some(),
-        };
-        METHOD_KEYS
-            .iter()
-            .filter(|(key, _, methods)| set(key) && !methods.contains(&method))
-            .map(|&(key, for_methods, _)| (key, for_methods))
-            .collect()
+        const MIXTURES: (&str, &[Method]) = ("vmf and tan2005", &[Method::Vmf, Method::Tan2005]);
+        const VMF: (&str, &[Method]) = ("vmf", &[Method::Vmf]);
+        const SH: (&str, &[Method]) = ("sh", &[Method::Sh]);
+        const PBR: (&str, &[Method]) = ("pbr", &[Method::Pbr]);
+        [
+            ("lobes", self.lobes.is_some(), MIXTURES),
+            ("align", self.align.is_some(), MIXTURES),
+            ("align_form", self.align_form.is_some(), VMF),
+            ("mode", self.mode.is_some(), VMF),
+            ("lmax", self.lmax.is_some(), SH),
+            ("roughness", self.roughness.is_some(), PBR),
+            ("anisotropic", self.anisotropic == Some(true), PBR),
+            ("fit_max_angle", self.fit_max_angle.is_some(), PBR),
+        ]
+        .into_iter()
+        .filter(|&(_, set, (_, methods))| set && !methods.contains(&method))
+        .map(|(key, _, (for_methods, _))| (key, for_methods))
+        .collect()
     }
 
     /// `over`'s keys where it has them, else `self`'s.
