@@ -477,9 +477,10 @@ impl NormalMap {
     /// size differs from the normal map's.
     pub fn with_feature_file(self, path: &Path, opts: &IngestOptions) -> Result<NormalMap> {
         let bytes = read_file(path, opts.memory_limit)?;
+        let size = Some((self.width(), self.height()));
         self.with_feature_decoded(
             path,
-            decode_bytes(path, &bytes, Purpose::Feature, opts)?,
+            decode_bytes_kept(path, &bytes, Purpose::Feature, opts, false, size)?,
             opts,
         )
     }
@@ -494,9 +495,10 @@ impl NormalMap {
         opts: &IngestOptions,
     ) -> Result<NormalMap> {
         let path = Path::new(name);
+        let size = Some((self.width(), self.height()));
         self.with_feature_decoded(
             path,
-            decode_bytes(path, bytes, Purpose::Feature, opts)?,
+            decode_bytes_kept(path, bytes, Purpose::Feature, opts, false, size)?,
             opts,
         )
     }
@@ -1160,10 +1162,15 @@ pub struct DataImage {
 
 /// Reads a data image from `path` (the formats of [`NormalMap::load`]), under the memory
 /// budget of `opts`, with no sRGB decoding whatever `opts.feature_encoding` says: roughness,
-/// metallic and occlusion are linear data.
-pub fn load_data_image(path: &Path, opts: &IngestOptions) -> Result<DataImage> {
+/// metallic and occlusion are linear data. With `size` (the normal map's), an image of another
+/// size is refused with [`Error::FeatureSize`] from its header, before its pixels are decoded.
+pub fn load_data_image(
+    path: &Path,
+    opts: &IngestOptions,
+    size: Option<(u32, u32)>,
+) -> Result<DataImage> {
     let bytes = read_file(path, opts.memory_limit)?;
-    let d = decode_bytes(path, &bytes, Purpose::Feature, opts)?;
+    let d = decode_bytes_kept(path, &bytes, Purpose::Feature, opts, false, size)?;
     let texels = d.width as usize * d.height as usize;
     Ok(DataImage {
         width: d.width,
@@ -1188,17 +1195,20 @@ fn decode_bytes(
     purpose: Purpose,
     opts: &IngestOptions,
 ) -> Result<Decoded> {
-    decode_bytes_kept(path, bytes, purpose, opts, false)
+    decode_bytes_kept(path, bytes, purpose, opts, false, None)
 }
 
 /// [`decode_bytes`]; `compact`: the decoded 8/16-bit samples are what the caller keeps
-/// ([`CompactNormals`], [`CompactFeature`]), so the budget counts no converted copy for them.
+/// ([`CompactNormals`], [`CompactFeature`]), so the budget counts no converted copy for them;
+/// `size`: the size the image must have (a feature image's normal map's), refused from the
+/// header with [`Error::FeatureSize`] before the pixels are decoded.
 fn decode_bytes_kept(
     path: &Path,
     bytes: &[u8],
     purpose: Purpose,
     opts: &IngestOptions,
     compact: bool,
+    size: Option<(u32, u32)>,
 ) -> Result<Decoded> {
     if bytes.is_empty() {
         return Err(decode_error(path, "the file is empty"));
@@ -1213,6 +1223,7 @@ fn decode_bytes_kept(
             purpose,
             limit: opts.memory_limit,
             compact,
+            size,
         };
         match format {
             Container::Exr => decode_exr(path, bytes, purpose, &budget),
@@ -1254,6 +1265,9 @@ struct Budget<'a> {
     limit: Option<u64>,
     /// The caller keeps the decoded integer samples themselves (no converted copy).
     compact: bool,
+    /// The size the image must have (a feature image: its normal map's), refused from the
+    /// header with [`Error::FeatureSize`] before any pixel is decoded.
+    size: Option<(u32, u32)>,
 }
 
 impl Budget<'_> {
@@ -1261,6 +1275,15 @@ impl Budget<'_> {
     /// file, the decoder's buffers, and the normals or features made from them (none when the
     /// caller keeps the samples: compact and not `float`).
     fn check(&self, width: u32, height: u32, decoder_bytes: u64, float: bool) -> Result<()> {
+        if let Some((w, h)) = self.size.filter(|&s| s != (width, height)) {
+            return Err(Error::FeatureSize {
+                what: self.path.display().to_string(),
+                feature_width: width,
+                feature_height: height,
+                width: w,
+                height: h,
+            });
+        }
         let texels = width as u64 * height as u64;
         let kept = if self.compact && !float {
             0
@@ -1960,7 +1983,7 @@ pub fn load_normals_compact(
     opts: &IngestOptions,
 ) -> Result<LoadedNormals> {
     let path = Path::new(name);
-    let decoded = decode_bytes_kept(path, bytes, Purpose::Normals, opts, true)?;
+    let decoded = decode_bytes_kept(path, bytes, Purpose::Normals, opts, true, None)?;
     if matches!(decoded.samples, SampleBuf::F32(_)) {
         return NormalMap::from_decoded(path, decoded, opts).map(LoadedNormals::Decoded);
     }
@@ -2134,7 +2157,7 @@ impl CompactFeature {
         opts: &IngestOptions,
     ) -> Result<CompactFeature> {
         let path = Path::new(name);
-        let d = decode_bytes_kept(path, bytes, Purpose::Feature, opts, true)?;
+        let d = decode_bytes_kept(path, bytes, Purpose::Feature, opts, true, Some(size))?;
         let f = CompactFeature {
             width: d.width,
             height: d.height,

@@ -189,13 +189,15 @@ pub struct LoadedMap {
 }
 
 /// Reads one material map from an image file ([`crate::ingest::load_data_image`]: linear,
-/// never sRGB-decoded) and picks `channel` ([`MapChannel`]).
+/// never sRGB-decoded) and picks `channel` ([`MapChannel`]). With `size` (the normal map's), a
+/// map of another size is refused with [`Error::FeatureSize`] before its pixels are decoded.
 pub fn load_map(
     path: &std::path::Path,
     opts: &crate::ingest::IngestOptions,
     channel: MapChannel,
+    size: Option<(u32, u32)>,
 ) -> Result<LoadedMap> {
-    let img = crate::ingest::load_data_image(path, opts)?;
+    let img = crate::ingest::load_data_image(path, opts, size)?;
     let c = if img.channels <= 2 {
         0
     } else {

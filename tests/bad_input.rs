@@ -7,7 +7,8 @@
 //! 1. Decompression bombs within the dimension limit are refused from the header, before
 //!    decoding: `jpeg_header_claiming_a_huge_size_in_a_few_hundred_bytes_is_refused_at_once`,
 //!    `a_file_or_bake_over_the_memory_budget_is_refused_naming_size_and_budget`,
-//!    `an_exr_with_hundreds_of_channels_decodes_only_the_channels_used`.
+//!    `an_exr_with_hundreds_of_channels_decodes_only_the_channels_used`,
+//!    `a_feature_or_material_map_of_another_size_is_refused_before_decoding`.
 //! 2. Truncated or corrupt JPEG is an error naming the file, on one line, never grey garbage:
 //!    `truncated_jpeg_is_an_error_naming_the_file_on_one_line`,
 //!    `corrupt_jpeg_data_is_an_error_or_a_real_image_never_grey_fill`.
@@ -311,6 +312,74 @@ fn a_file_or_bake_over_the_memory_budget_is_refused_naming_size_and_budget() {
     }
     // The default budget is half the machine: a small bake passes it.
     assert!(bake_with(&map, Method::Plain, &BakeOptions::default()).is_ok());
+}
+
+/// Class 1, found by a hostile try in stop 42: a 300 KB PNG roughness map of 16384² given with
+/// a 64² normal map was decoded whole (5.2 GB, 7 s) before its size was compared; an albedo
+/// (`--feature`) likewise (800 MB). A feature or material map of another size than its normal
+/// map is now refused from its header, before its pixels are decoded: under a budget far below
+/// what decoding it would take, the error is the size mismatch, not the budget.
+#[test]
+fn a_feature_or_material_map_of_another_size_is_refused_before_decoding() {
+    let (dir, input) = folder_with_map(64, 64);
+    let big = dir.path().join("big.png");
+    // 4096² grey: 16 MiB of samples, 256 MiB as RGBA f32; a few KB on disk. The budget of
+    // 128 MiB admits the 64² bakes below but not the decoding.
+    image::GrayImage::from_pixel(4096, 4096, image::Luma([100]))
+        .save(&big)
+        .unwrap();
+    let budget = IngestOptions {
+        memory_limit: Some(128 << 20),
+        ..IngestOptions::default()
+    };
+    let refused = |r: ndfmap::Result<()>, what: &str| match r {
+        Err(Error::FeatureSize {
+            feature_width: 4096,
+            feature_height: 4096,
+            width: 64,
+            height: 64,
+            ..
+        }) => {}
+        other => panic!("{what}: expected FeatureSize, got {:?}", other.err()),
+    };
+    let map = NormalMap::load(&input, &IngestOptions::default()).unwrap();
+    refused(
+        map.clone().with_feature_file(&big, &budget).map(|_| ()),
+        "with_feature_file",
+    );
+    let bytes = std::fs::read(&big).unwrap();
+    refused(
+        map.with_feature_memory("big.png", &bytes, &budget)
+            .map(|_| ()),
+        "with_feature_memory",
+    );
+    refused(
+        ndfmap::pbr::load_map(
+            &big,
+            &budget,
+            ndfmap::pbr::MapChannel::Roughness,
+            Some((64, 64)),
+        )
+        .map(|_| ()),
+        "pbr::load_map",
+    );
+    // Without a size to match, the same map is decoded (and here over the budget).
+    assert!(matches!(
+        ndfmap::pbr::load_map(&big, &budget, ndfmap::pbr::MapChannel::Roughness, None),
+        Err(Error::MemoryBudget { .. })
+    ));
+    let out = dir.path().join("out");
+    for args in [
+        vec!["bake", s(&input), "-m", "pbr", "--roughness-map", s(&big)],
+        vec!["bake", s(&input), "-m", "vmf", "--feature", s(&big)],
+    ] {
+        let args: Vec<&str> = args
+            .into_iter()
+            .chain(["-o", s(&out), "--memory", "128M"])
+            .collect();
+        assert_one_line_error(&ndfmap(&args), &["big.png", "4096x4096", "64x64"]);
+        assert!(!out.exists());
+    }
 }
 
 /// Issue 13 class 1: an OpenEXR file with 512 channels of 4096² (17 MB on disk) decoded every
@@ -929,10 +998,12 @@ fn pauses(calls: &[Duration], end: Duration) -> (Duration, Duration) {
 /// Issue 13 class 6: cancelling took 11 s with 10⁶ iterations, and the callback was called
 /// only between levels or chunks. It is now polled at least every 50 ms while the bake runs,
 /// and a stop takes effect between texels: here within half a second (generous for a loaded
-/// 2-core CI machine; typically a few milliseconds), through the library and the C API.
+/// 2-core CI machine; typically a few milliseconds), through the library and the C API. The
+/// stop comes 100 ms into a 1024² aligned bake (about 1 s on 2 cores), so that a fast machine
+/// cannot finish the bake first (a 512² bake stopped at 600 ms did, in stop 42).
 #[test]
 fn cancelling_takes_effect_within_a_fraction_of_a_second() {
-    let map = ndfmap::procedural::generate(512, 7).map;
+    let map = ndfmap::procedural::generate(1024, 7).map;
     let options = BakeOptions {
         align: Some(1.0),
         ..BakeOptions::default()
@@ -941,7 +1012,7 @@ fn cancelling_takes_effect_within_a_fraction_of_a_second() {
     let mut polls = Polls {
         start: Instant::now(),
         calls: Vec::new(),
-        stop_after: Duration::from_millis(600),
+        stop_after: Duration::from_millis(100),
     };
     let result = bake_with_progress(&map, Method::Vmf, &options, &mut |f| {
         // SAFETY: `polls` lives on this thread for the whole bake.
@@ -956,11 +1027,11 @@ fn cancelling_takes_effect_within_a_fraction_of_a_second() {
     assert!(gap < limit && stop < limit, "gap {gap:?}, stop {stop:?}");
 
     // The C API: the same with a C callback.
-    let c = c_map(512, 512);
+    let c = c_map(1024, 1024);
     let mut polls = Polls {
         start: Instant::now(),
         calls: Vec::new(),
-        stop_after: Duration::from_millis(600),
+        stop_after: Duration::from_millis(100),
     };
     let o = ndf_vmf_options {
         aligned: 1,

@@ -636,16 +636,8 @@ impl PbrArgs {
         use ndfmap::pbr::{MapChannel, load_map};
         let read = |p: &Option<PathBuf>, c: MapChannel| -> Result<Option<Vec<f32>>> {
             let Some(p) = p else { return Ok(None) };
-            let m = load_map(p, opts, c)?;
-            if (m.width, m.height) != (w, h) {
-                return Err(Error::FeatureSize {
-                    what: p.display().to_string(),
-                    feature_width: m.width,
-                    feature_height: m.height,
-                    width: w,
-                    height: h,
-                });
-            }
+            // Another size is refused from the file's header, before its pixels are decoded.
+            let m = load_map(p, opts, c, Some((w, h)))?;
             if m.srgb_flagged {
                 eprintln!(
                     "warning: {}: flagged sRGB, but roughness, metallic and occlusion are linear \

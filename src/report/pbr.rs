@@ -153,7 +153,7 @@ pub fn run_filament(
         if !p.exists() {
             break;
         }
-        let m = crate::pbr::load_map(&p, &opts, crate::pbr::MapChannel::Roughness)?;
+        let m = crate::pbr::load_map(&p, &opts, crate::pbr::MapChannel::Roughness, None)?;
         levels.push(m.values);
     }
     Ok((levels, seconds))
