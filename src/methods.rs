@@ -195,12 +195,14 @@ pub const SH_PEAK_PER_COEFFICIENT: u64 = 6;
 /// (24), the per-level statistics (12 f64 over the levels, 4/3 × 96), one batch of per-normal
 /// values (8 f64) and the lobes. Measured peaks, rock 1024² (`ndfmap bake -m pbr`,
 /// `/usr/bin/time -f %M`): 752 MB with the earlier 39-pair set (estimate 893 MB), 981 MB with
-/// the standard 56-pair set (estimate 1107 MB).
+/// the 56-pair set (estimate 1107 MB) while every level's targets were kept; 652 MB
+/// (`--anisotropic` 705 MB) with the standard 112-pair set and level 0's targets left out
+/// (estimate 872 MB).
 pub const PBR_PEAK_BASE: u64 = 320;
 
-/// The PBR bake's peak memory per texel per fit pair: the exact targets of every level (f64,
-/// 4/3 of the finest level's texels, plus slack).
-pub const PBR_PEAK_PER_PAIR: u64 = 12;
+/// The PBR bake's peak memory per texel (of the finest level) per fit pair: the exact targets
+/// of levels 1 and coarser (f64, 1/3 of the finest level's texels: 2.7 bytes), plus slack.
+pub const PBR_PEAK_PER_PAIR: u64 = 4;
 
 /// Memory every bake command needs whatever the map's size (the program, its threads, the
 /// allocator's slack): 64 MiB.

@@ -13,7 +13,7 @@ use glam::DVec3;
 use std::f64::consts::PI;
 
 /// Lanes summed side by side.
-const LANES: usize = 4;
+const LANES: usize = 8;
 
 /// Blocks of [`LANES`] pairs in [`MAX_PAIRS`].
 const BLOCKS: usize = MAX_PAIRS / LANES;
@@ -102,10 +102,10 @@ impl IsoKernel {
     }
 }
 
-/// Sums four lanes in a fixed order.
+/// Sums the lanes in a fixed order (pairwise).
 #[inline(always)]
-fn combine(lanes: L) -> f64 {
-    (lanes[0] + lanes[1]) + (lanes[2] + lanes[3])
+fn combine(l: L) -> f64 {
+    ((l[0] + l[1]) + (l[2] + l[3])) + ((l[4] + l[5]) + (l[6] + l[7]))
 }
 
 /// One value per lane.
@@ -114,7 +114,7 @@ type L = [f64; LANES];
 /// Lane-wise arithmetic on plain arrays (the compiler turns each into one vector instruction).
 #[inline(always)]
 fn zip(a: L, b: L, f: impl Fn(f64, f64) -> f64) -> L {
-    [f(a[0], b[0]), f(a[1], b[1]), f(a[2], b[2]), f(a[3], b[3])]
+    std::array::from_fn(|i| f(a[i], b[i]))
 }
 #[inline(always)]
 fn add(a: L, b: L) -> L {
@@ -151,7 +151,7 @@ fn relu(a: L) -> L {
 #[inline(always)]
 fn block(col: &[f64; MAX_PAIRS], b: usize) -> L {
     let o = b * LANES;
-    [col[o], col[o + 1], col[o + 2], col[o + 3]]
+    std::array::from_fn(|i| col[o + i])
 }
 
 /// `x · (column triple)` for block `b`.
