@@ -534,9 +534,15 @@ pub fn ggx_tb(h: DVec3, n: DVec3, t: DVec3, b: DVec3, alpha_t: f64, alpha_b: f64
 }
 
 /// The shading of one anisotropic lobe for pair `(l, h)`: `D(h) max(n·l, 0)`.
-fn aniso_value(lobe: &AnisoLobe, l: DVec3, h: DVec3) -> f64 {
-    let (t, b) = aniso_frame(lobe.n, lobe.phi);
+/// The lobe's frame `(t, b)` ([`aniso_frame`]) is computed once by the caller.
+fn aniso_value_in(lobe: &AnisoLobe, (t, b): (DVec3, DVec3), l: DVec3, h: DVec3) -> f64 {
     ggx_tb(h, lobe.n, t, b, lobe.alpha_t, lobe.alpha_b) * lobe.n.dot(l).max(0.0)
+}
+
+/// The cost of an anisotropic lobe ([`cost`] of [`aniso_value_in`], its frame computed once).
+fn aniso_cost(set: &FitSet, target: &[f64], lobe: &AnisoLobe) -> f64 {
+    let frame = aniso_frame(lobe.n, lobe.phi);
+    cost(set, target, |l, h| aniso_value_in(lobe, frame, l, h))
 }
 
 /// The weighted squared error `Σ w_p² (F_p − G_p)²` of a lobe's values `f(l, h)` against one
@@ -672,7 +678,7 @@ pub fn fit_anisotropic(
     // The two best starts are refined (an anisotropic lobe has local minima in φ).
     let mut ranked: Vec<(f64, AnisoLobe)> = starts
         .iter()
-        .map(|s| (cost(set, target, |l, h| aniso_value(s, l, h)), *s))
+        .map(|s| (aniso_cost(set, target, s), *s))
         .collect();
     ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut out = (canonical(ranked[0].1), ranked[0].0);
@@ -705,8 +711,15 @@ fn refine_anisotropic(
     };
     let residuals = |p: &[f64; 5], r: &mut [f64]| {
         let lobe = lobe_of(p);
-        for (k, ((&(l, v), &w), g)) in set.pairs.iter().zip(&set.weights).zip(target).enumerate() {
-            r[k] = w * (aniso_value(&lobe, l, half_vector(l, v)) - g);
+        let frame = aniso_frame(lobe.n, lobe.phi);
+        let pairs = set
+            .pairs
+            .iter()
+            .zip(&set.halves)
+            .zip(&set.weights)
+            .zip(target);
+        for (k, (((&(l, _), &h), &w), g)) in pairs.enumerate() {
+            r[k] = w * (aniso_value_in(&lobe, frame, l, h) - g);
         }
     };
     let pairs = set.pairs.len();
@@ -737,10 +750,7 @@ fn refine_anisotropic(
         }
         (a, g)
     };
-    let cost_at = |p: &[f64; 5]| {
-        let lobe = lobe_of(p);
-        cost(set, target, |l, h| aniso_value(&lobe, l, h))
-    };
+    let cost_at = |p: &[f64; 5]| aniso_cost(set, target, &lobe_of(p));
     let p0 = [0.0, 0.0, best.alpha_t.ln(), best.alpha_b.ln(), best.phi];
     let (p, c) = levenberg_marquardt(
         p0,
@@ -1803,7 +1813,10 @@ mod tests {
         let target: Vec<f64> = set
             .pairs
             .iter()
-            .map(|&(l, v)| aniso_value(&truth, l, half_vector(l, v)))
+            .map(|&(l, v)| {
+                let frame = aniso_frame(truth.n, truth.phi);
+                aniso_value_in(&truth, frame, l, half_vector(l, v))
+            })
             .collect();
         let iso = IsoLobe {
             n: DVec3::Z,
