@@ -495,7 +495,30 @@ pub struct Geometry {
     pub height: u32,
 }
 
+/// The fewest rows an integration over a panorama's texels works on ([`Geometry::refinement`]):
+/// those of a 64 × 32 panorama, whose projection to SH band 8 with 2 × 2 sub-samples per texel
+/// is exact to 10⁻⁴.
+pub const FINE_ROWS: u32 = 32;
+
 impl Geometry {
+    /// How many times finer per axis an integration over the texels takes them: 1 from
+    /// [`FINE_ROWS`] rows on, else enough that a smaller panorama is integrated on the grid of
+    /// one with at least [`FINE_ROWS`] rows (each texel split into `m × m` texels equal in φ
+    /// and θ, of the same radiance; the split is exact for the piecewise-constant map). A 2 × 1
+    /// panorama's one row spans 180°: its centre alone aliases every band (a constant's SH
+    /// l = 2 energy came out 0.99 against l = 0's 3.54).
+    pub fn refinement(&self) -> u32 {
+        FINE_ROWS.div_ceil(self.height.max(1))
+    }
+
+    /// This grid with every texel split `m × m` ([`Geometry::refinement`]).
+    pub fn refined(&self, m: u32) -> Geometry {
+        Geometry {
+            width: self.width * m,
+            height: self.height * m,
+        }
+    }
+
     /// The direction at fractional position `(fx, fy)` ∈ [0, 1]² inside texel `(x, y)`,
     /// uniform in `φ` and in `cos θ` (so uniform in solid angle).
     pub fn sub_direction(&self, x: u32, y: u32, fx: f64, fy: f64) -> DVec3 {
