@@ -496,8 +496,9 @@ pub struct Geometry {
 }
 
 /// The fewest rows an integration over a panorama's texels works on ([`Geometry::refinement`]):
-/// those of a 64 × 32 panorama, whose projection to SH band 8 with 2 × 2 sub-samples per texel
-/// is exact to 10⁻⁴.
+/// those of a 64 × 32 panorama, the smallest the SH projection's accuracy is stated for
+/// (`projection` module docs; a constant's coefficients of l ≥ 1 are within 5·10⁻³ of 0
+/// there, test `small_panoramas_project_like_large_ones`).
 pub const FINE_ROWS: u32 = 32;
 
 impl Geometry {
