@@ -650,7 +650,7 @@ fn offset(n0: DVec3, t1: DVec3, t2: DVec3, u: f64, v: f64) -> DVec3 {
 /// with the analytic Jacobian `∂D/∂c = 4α²c(1 − α²)/(π d³)`, `∂D/∂ln α = 2D(1 − 2c²α²/d)`
 /// for `d = 1 − c²(1 − α²)`. Returns the lobe and its cost. `α` stays in `[floor, 1]`
 /// (the bake's floor is the footprint's base roughness `sqrt(E[α²])`: filtering only widens,
-/// and a narrower lobe fitted to a few pairs overshoots between them). The sums run in four
+/// and a narrower lobe fitted to a few pairs overshoots between them). The sums run in eight
 /// f64 lanes (`pbr/kernel.rs`); the bake stops a texel's steps early ([`FAST_CONVERGED`]),
 /// this function does not.
 pub fn fit_isotropic(

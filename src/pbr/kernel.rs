@@ -1,7 +1,7 @@
 //! The isotropic fit's inner loops (issue 17's speed goal: a 1024² map well under a second of
 //! fit per level on 2 cores). A [`FitSet`]'s pairs are held as columns padded with weight-0
-//! pairs to a multiple of four, and the cost `Σ_p w_p² (D_α(n·h_p) max(n·l_p, 0) − G_p)²` and
-//! the Levenberg–Marquardt normal equations `JᵀJ`, `Jᵀr` are summed in four f64 lanes without
+//! pairs to a multiple of eight, and the cost `Σ_p w_p² (D_α(n·h_p) max(n·l_p, 0) − G_p)²` and
+//! the Levenberg–Marquardt normal equations `JᵀJ`, `Jᵀr` are summed in eight f64 lanes without
 //! branches, so that the compiler vectorizes them. The functions are compiled for AVX-512, AVX2
 //! and SSE4.2 and chosen at run time (`multiversion`); every variant performs the same IEEE
 //! operations in the same order (no fused multiply-add, lanes combined in a fixed order), so a
