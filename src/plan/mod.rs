@@ -1763,7 +1763,7 @@ impl Plan {
         let hash = content_hash(map);
         if hash != self.map.hash {
             return Err(Error::InvalidOption(format!(
-                "the plan was made for another map of the same size (content hash {} , this \
+                "the plan was made for another map of the same size (content hash {}, this \
                  map's is {hash}): plan again",
                 self.map.hash
             )));
