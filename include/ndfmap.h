@@ -363,6 +363,12 @@ typedef struct ndf_pbr_options {
    * (grazing ones to 74° included).
    */
   double fit_max_angle;
+  /**
+   * Nonzero: keep every level's normal at the footprint's mean direction (the plain MIP
+   * chain's normal) and fit only the roughness (and anisotropy), for engines that make their
+   * own normal mips or shade mostly diffuse materials. Default 0: the fitted normal.
+   */
+  uint32_t mean_normal;
 } ndf_pbr_options;
 
 /**

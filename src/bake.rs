@@ -282,6 +282,14 @@ pub struct PbrOptions {
     /// included); `Some(θ)` fits the same design with its angles scaled into θ
     /// (`pbr::FitSet::view_range`; 20° to 90°), for a renderer that never goes grazing.
     pub fit_max_angle: Option<f64>,
+    /// Keep every level's normal at the footprint's mean direction (the normalized mean of
+    /// the finest normals it covers: the plain MIP chain's normal) and fit only the roughness
+    /// (and, anisotropic, the lobe's two α and direction) to the same shading error. For an
+    /// engine that makes its own normal mips, or whose materials are mostly diffuse: the
+    /// diffuse term is linear in the normal, so the mean direction serves it best, while the
+    /// fitted normal (default, `false`) serves the specular lobe (docs/pbr.md, "The mean
+    /// normal").
+    pub mean_normal: bool,
 }
 
 impl Default for PbrOptions {
@@ -290,6 +298,7 @@ impl Default for PbrOptions {
             roughness: 0.5,
             anisotropic: false,
             fit_max_angle: None,
+            mean_normal: false,
         }
     }
 }

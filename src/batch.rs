@@ -207,6 +207,8 @@ pub struct Settings {
     pub anisotropic: Option<bool>,
     /// pbr: the widest view and light angle the fit covers, degrees (20 to 90).
     pub fit_max_angle: Option<f64>,
+    /// pbr: keep the footprint's mean normal, fit only the roughness.
+    pub mean_normal: Option<bool>,
     /// f32, f16, unorm16, unorm8.
     pub format: Option<String>,
     /// exr, ktx2, dds.
@@ -235,7 +237,7 @@ macro_rules! overlay {
 
 impl Settings {
     /// The method-specific keys set here that `method` would ignore (`lobes` for plain,
-    /// `lmax` for vmf, …; `anisotropic` only when true), each with the methods it is for. A
+    /// `lmax` for vmf, …; `anisotropic` and `mean_normal` only when true), each with the methods it is for. A
     /// bake refuses them rather than ignore them silently.
     pub fn keys_for_other_methods(&self, method: Method) -> Vec<(&'static str, &'static str)> {
         const MIXTURES: (&str, &[Method]) = ("vmf and tan2005", &[Method::Vmf, Method::Tan2005]);
@@ -251,6 +253,7 @@ impl Settings {
             ("roughness", self.roughness.is_some(), PBR),
             ("anisotropic", self.anisotropic == Some(true), PBR),
             ("fit_max_angle", self.fit_max_angle.is_some(), PBR),
+            ("mean_normal", self.mean_normal == Some(true), PBR),
         ]
         .into_iter()
         .filter(|&(_, set, (_, methods))| set && !methods.contains(&method))
@@ -275,6 +278,7 @@ impl Settings {
             roughness,
             anisotropic,
             fit_max_angle,
+            mean_normal,
             format,
             container,
             compress,
@@ -397,6 +401,7 @@ impl Settings {
                 roughness: self.roughness.unwrap_or(d.pbr.roughness),
                 anisotropic: self.anisotropic.unwrap_or(d.pbr.anisotropic),
                 fit_max_angle: self.fit_max_angle.or(d.pbr.fit_max_angle),
+                mean_normal: self.mean_normal.unwrap_or(d.pbr.mean_normal),
             },
             memory_limit: memory,
             ..d

@@ -661,7 +661,15 @@ pub fn fit_isotropic(
     floor: f64,
 ) -> (IsoLobe, f64) {
     let k = kernel::IsoKernel::new(set);
-    kernel::fit(&k, &k.targets(target), starts, iterations, floor, 0.0)
+    kernel::fit(
+        &k,
+        &k.targets(target),
+        starts,
+        iterations,
+        floor,
+        0.0,
+        false,
+    )
 }
 
 /// Fits one anisotropic lobe to one texel's `target`: the best two of `starts`, refined by
@@ -675,6 +683,19 @@ pub fn fit_anisotropic(
     iterations: usize,
     floor: f64,
 ) -> (AnisoLobe, f64) {
+    fit_anisotropic_held(set, target, starts, iterations, floor, false)
+}
+
+/// [`fit_anisotropic`]; with `hold_normal` the steps keep each start's normal and move the
+/// two α and φ only ([`PbrOptions::mean_normal`]).
+fn fit_anisotropic_held(
+    set: &FitSet,
+    target: &[f64],
+    starts: &[AnisoLobe],
+    iterations: usize,
+    floor: f64,
+    hold_normal: bool,
+) -> (AnisoLobe, f64) {
     // The two best starts are refined (an anisotropic lobe has local minima in φ).
     let mut ranked: Vec<(f64, AnisoLobe)> = starts
         .iter()
@@ -683,7 +704,7 @@ pub fn fit_anisotropic(
     ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut out = (canonical(ranked[0].1), ranked[0].0);
     for &(c, s) in ranked.iter().take(2) {
-        let r = refine_anisotropic(set, target, s, c, iterations, floor);
+        let r = refine_anisotropic(set, target, s, c, iterations, floor, hold_normal);
         if r.1 < out.1 {
             out = r;
         }
@@ -699,6 +720,7 @@ fn refine_anisotropic(
     best_cost: f64,
     iterations: usize,
     floor: f64,
+    hold_normal: bool,
 ) -> (AnisoLobe, f64) {
     let n0 = best.n;
     let (t1, t2) = tangent_frame(n0);
@@ -748,6 +770,16 @@ fn refine_anisotropic(
                 }
             }
         }
+        if hold_normal {
+            // u and v out of the system: their rows and columns zero, so their steps are 0.
+            for u in 0..2 {
+                a[u] = [0.0; 5];
+                for row in a.iter_mut() {
+                    row[u] = 0.0;
+                }
+                g[u] = 0.0;
+            }
+        }
         (a, g)
     };
     let cost_at = |p: &[f64; 5]| aniso_cost(set, target, &lobe_of(p));
@@ -774,6 +806,13 @@ fn canonical(mut lobe: AnisoLobe) -> AnisoLobe {
     lobe.phi = lobe.phi.rem_euclid(PI);
     lobe
 }
+
+/// Levenberg–Marquardt steps of the roughness-only fit per texel ([`PbrOptions::mean_normal`]),
+/// run without the early stop: one parameter, and no mode starts to search.
+pub const HELD_ITERATIONS: usize = 20;
+
+/// α values (log-spaced from the floor to 1) among the starts of the roughness-only fit.
+pub const HELD_SCAN: usize = 16;
 
 /// Most Levenberg–Marquardt steps of the bake's isotropic fit per texel ([`Search::Fast`]).
 pub const FAST_ITERATIONS: usize = 8;
@@ -1227,10 +1266,15 @@ fn bake_fit(
         // them all.
         // The anisotropic fit (forward differences, 12× the isotropic one's cost) keeps 4.
         let aniso_iterations = iterations.min(4);
-        let converged = if search == Search::Fast {
+        let converged = if search == Search::Fast && !options.mean_normal {
             FAST_CONVERGED
         } else {
             0.0
+        };
+        let iterations = if options.mean_normal && iterations > 0 {
+            iterations.max(HELD_ITERATIONS)
+        } else {
+            iterations
         };
         let clock = std::time::Instant::now();
         let iso: Vec<IsoLobe> = if k == 0 {
@@ -1259,26 +1303,38 @@ fn bake_fit(
                         let (cx, cy) = ((2 * x + dx).min(pw - 1), (2 * y + dy).min(ph - 1));
                         Some(prev[cy as usize * pw as usize + cx as usize])
                     };
-                    let own = if search != Search::Fast {
+                    // With the mean normal held, every start is about the mean normal: no
+                    // children's, own-normal or mode starts.
+                    let hold = options.mean_normal;
+                    let own = if search != Search::Fast && !hold {
                         footprint_normals(map, lf, x, y)
                     } else {
                         Vec::new()
                     };
                     let s = &st[i * STATS..(i + 1) * STATS];
-                    let modes = if iterations > 0 {
+                    let modes = if iterations > 0 && !hold {
                         let mut sample = [(DVec3::ZERO, 0.0); MODE_TAPS * MODE_TAPS];
                         let count = footprint_sample(map, lf, x, y, &mut sample);
                         mode_starts(s, &sample[..count])
                     } else {
                         Vec::new()
                     };
-                    let starts = iso_starts(
-                        s,
-                        [child(0, 0), child(1, 0), child(0, 1), child(1, 1)],
-                        search,
-                        &own,
-                        &modes,
-                    );
+                    let children = if hold {
+                        [None; 4]
+                    } else {
+                        [child(0, 0), child(1, 0), child(0, 1), child(1, 1)]
+                    };
+                    let mut starts = iso_starts(s, children, search, &own, &modes);
+                    if hold {
+                        // One parameter: its cost can have two basins (a lobe for the
+                        // footprint's peak, a wide one for its spread), so the starts also
+                        // scan α from the floor to 1.
+                        let (n, lo) = (starts[0].n, s[3].max(0.0).sqrt().clamp(MIN_ALPHA, 1.0));
+                        starts.extend((0..HELD_SCAN).map(|j| IsoLobe {
+                            n,
+                            alpha: lo * (1.0 / lo).powf(j as f64 / (HELD_SCAN - 1) as f64),
+                        }));
+                    }
                     let t = kernel.targets(&target[k][i * p..(i + 1) * p]);
                     let floor = s[3].max(0.0).sqrt();
                     if iterations == 0 {
@@ -1288,7 +1344,15 @@ fn bake_fit(
                         let split = starts.len() - modes.len();
                         let apart = 0.5 * alpha;
                         let fit = |j: usize| {
-                            kernel::fit(&kernel, &t, &starts[j..=j], iterations, floor, converged)
+                            kernel::fit(
+                                &kernel,
+                                &t,
+                                &starts[j..=j],
+                                iterations,
+                                floor,
+                                converged,
+                                hold,
+                            )
                         };
                         two_basins(&kernel, &t, &starts, split, apart, fit).0
                     } else {
@@ -1302,7 +1366,7 @@ fn bake_fit(
                             .iter()
                             .take(keep)
                             .map(|&(_, s)| {
-                                kernel::fit(&kernel, &t, &[s], iterations, floor, converged)
+                                kernel::fit(&kernel, &t, &[s], iterations, floor, converged, hold)
                             })
                             .min_by(|a, b| a.1.total_cmp(&b.1))
                             .map(|r| r.0)
@@ -1342,7 +1406,15 @@ fn bake_fit(
                         let cov = covariance_start(s, lobe.n);
                         let t = &target[k][i * p..(i + 1) * p];
                         let floor = s[3].max(0.0).sqrt();
-                        fit_anisotropic(set, t, &aniso_starts(lobe, cov), aniso_iterations, floor).0
+                        fit_anisotropic_held(
+                            set,
+                            t,
+                            &aniso_starts(lobe, cov),
+                            aniso_iterations,
+                            floor,
+                            options.mean_normal,
+                        )
+                        .0
                     })
                     .collect()
             };
@@ -1376,6 +1448,9 @@ fn bake_fit(
             },
             "anisotropic": options.anisotropic,
             "fit": match search {
+                _ if options.mean_normal => {
+                    "levenberg-marquardt over α alone at the mean normal, 20 steps from the best of 5 formula starts and 16 α values from the floor to 1"
+                }
                 Search::Fast => {
                     "levenberg-marquardt, up to 8 steps from the best of 15 starts (9 + 6 mode starts) and from the best mode start"
                 }
@@ -1385,6 +1460,7 @@ fn bake_fit(
             },
             "fit_pairs": set.pairs.len(),
             "fit_max_angle": options.fit_max_angle,
+            "normal": if options.mean_normal { "mean" } else { "fitted" },
         }),
     ))
 }
@@ -1905,6 +1981,7 @@ mod tests {
                         FAST_ITERATIONS,
                         alpha,
                         FAST_CONVERGED,
+                        false,
                     )
                 };
                 two_basins(&k, &t, starts, split, 0.5 * alpha, fit)
@@ -2022,6 +2099,80 @@ mod tests {
         let t0 = fitted.texel(0, 3, 2);
         let n = map.normal(3, 2);
         assert!((t0[0][0] - n.x).abs() < 1e-6 && (t0[1][1] - 0.3).abs() < 1e-6);
+    }
+
+    /// `mean_normal`: every level's normal is the plain MIP chain's (the normalized footprint
+    /// mean), and the fitted roughness is, texel by texel, within 0.5 % of the lowest cost a
+    /// brute-force scan of α finds at that normal (401 values, log-spaced from the floor to 1).
+    /// Anisotropic, the normal is held as well and the cost is no higher than the isotropic
+    /// lobe's.
+    #[test]
+    fn the_mean_normal_bake_keeps_plain_mips_normal_and_fits_the_roughness() {
+        let map = bumpy(16, 16);
+        let options = PbrOptions {
+            roughness: 0.3,
+            mean_normal: true,
+            ..PbrOptions::default()
+        };
+        let held = run(&map, &options, None).unwrap();
+        assert_eq!(held.parameters["normal"], "mean");
+        let plain =
+            crate::methods::bake_with(&map, crate::bake::Method::Plain, &Default::default())
+                .unwrap();
+        let aniso = run(
+            &map,
+            &PbrOptions {
+                anisotropic: true,
+                ..options
+            },
+            None,
+        )
+        .unwrap();
+        let set = FitSet::standard();
+        let levels = pyramid(16, 16);
+        let alphas = vec![base_alpha(0.3); 256];
+        let t = targets(&map, &alphas, &set.pairs, &levels);
+        let p = set.pairs.len();
+        let brdf = Brdf::ggx(0.09);
+        let normal = |b: &Bake, k: usize, i: usize| {
+            let v = b.textures[0].levels[k][i];
+            DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64).normalize()
+        };
+        for k in 1..levels.len() {
+            let texels = (levels[k].size.0 * levels[k].size.1) as usize;
+            for i in 0..texels {
+                let n = normal(&held, k, i);
+                let angle = n.angle_between(normal(&plain, k, i));
+                assert!(
+                    angle < 1e-5,
+                    "level {k} texel {i}: {angle} rad from plain mip"
+                );
+                assert!(
+                    normal(&aniso, k, i).angle_between(n) < 1e-5,
+                    "aniso {k} {i}"
+                );
+                let target = &t[k][i * p..(i + 1) * p];
+                let tx: Vec<[f32; 4]> = held.textures.iter().map(|t| t.levels[k][i]).collect();
+                let fitted = cost(&set, target, |l, h| shade(&tx, l, h, &brdf).specular);
+                let floor = 0.09f64;
+                let scan = (0..=400)
+                    .map(|j| {
+                        let a = floor * (1.0 / floor).powf(j as f64 / 400.0);
+                        cost(&set, target, |l, h| iso_value(n, a, l, h))
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert!(
+                    fitted <= scan * 1.005 + 1e-12,
+                    "level {k} texel {i}: {fitted} > {scan}"
+                );
+                let tx: Vec<[f32; 4]> = aniso.textures.iter().map(|t| t.levels[k][i]).collect();
+                let a = cost(&set, target, |l, h| shade(&tx, l, h, &brdf).specular);
+                assert!(
+                    a <= fitted * 1.001 + 1e-12,
+                    "aniso level {k} texel {i}: {a} > {fitted}"
+                );
+            }
+        }
     }
 
     #[test]

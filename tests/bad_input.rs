@@ -1822,6 +1822,23 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
         "60",
     ]);
     assert_one_line_error(&r, &["--method pbr"]);
+    let r = ndfmap(&[
+        "bake",
+        s(&input),
+        "-m",
+        "vmf",
+        "-o",
+        s(&out),
+        "--mean-normal",
+    ]);
+    assert_one_line_error(&r, &["--method pbr", "--mean-normal"]);
+    // `--mean-normal` with pbr: baked, and the manifest says which normal was kept.
+    let held = dir.path().join("held");
+    let r = pbr_bake(&input, &held, &["--mean-normal", "--roughness", "0.4"]);
+    assert_success(&r);
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(held.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["parameters"]["normal"], "mean", "{manifest}");
     // An sRGB-flagged 8-bit roughness map: warned of, read as stored (51/255 = 0.2 at level 0).
     let mut png = Vec::new();
     image::GrayImage::from_pixel(16, 16, image::Luma([51]))

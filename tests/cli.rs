@@ -564,6 +564,7 @@ fn pbr_report_without_filament_says_so() {
         "plain mip",
         "κ Godot",
         "ndfmap pbr (isotropic fit)",
+        "ndfmap pbr --mean-normal (fitted roughness, plain mip's normal)",
         "best isotropic found",
         "best isotropic found on those pairs turned 45° (out of sample)",
     ] {

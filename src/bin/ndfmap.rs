@@ -630,6 +630,11 @@ struct PbrArgs {
     /// standard pairs, grazing ones to 74° included).
     #[arg(long, value_name = "DEG")]
     fit_max_angle: Option<f64>,
+    /// pbr: keep every level's normal at the footprint's mean direction (the plain MIP
+    /// chain's normal) and fit only the roughness: for engines that make their own normal
+    /// mips, or mostly diffuse materials (the fitted normal serves the specular lobe).
+    #[arg(long)]
+    mean_normal: bool,
 }
 
 impl PbrArgs {
@@ -1219,13 +1224,16 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     let pbr_maps = a.pbr.roughness_map.is_some()
         || a.pbr.metallic_map.is_some()
         || a.pbr.occlusion_map.is_some();
-    let pbr_flags =
-        a.pbr.roughness.is_some() || pbr_maps || a.pbr.anisotropic || a.pbr.fit_max_angle.is_some();
+    let pbr_flags = a.pbr.roughness.is_some()
+        || pbr_maps
+        || a.pbr.anisotropic
+        || a.pbr.fit_max_angle.is_some()
+        || a.pbr.mean_normal;
     let method: Option<Method> = a.method.as_deref().map(str::parse).transpose()?;
     if pbr_flags && method.is_some_and(|m| m != Method::Pbr) {
         return Err(Error::InvalidOption(
             "--roughness, --roughness-map, --metallic-map, --occlusion-map, \
-             --anisotropic and --fit-max-angle are for --method pbr"
+             --anisotropic, --fit-max-angle and --mean-normal are for --method pbr"
                 .into(),
         ));
     }
@@ -1300,6 +1308,7 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         roughness: a.pbr.roughness,
         anisotropic: Some(a.pbr.anisotropic),
         fit_max_angle: a.pbr.fit_max_angle,
+        mean_normal: Some(a.pbr.mean_normal),
         format: Some(a.format.clone()),
         container: Some(a.container.clone()),
         compress: a.compress.clone(),
@@ -1506,6 +1515,7 @@ fn bake_pbr_with_maps(a: &BakeCommand, input: &Path) -> Result<()> {
             roughness: a.pbr.roughness.unwrap_or(0.5),
             anisotropic: a.pbr.anisotropic,
             fit_max_angle: a.pbr.fit_max_angle,
+            mean_normal: a.pbr.mean_normal,
         },
         ..BakeOptions::default()
     };
@@ -1577,6 +1587,7 @@ fn run(cli: Cli) -> Result<u8> {
                     || pbr.roughness.is_some()
                     || pbr.anisotropic
                     || pbr.fit_max_angle.is_some()
+                    || pbr.mean_normal
                     || brdf.given()
                 {
                     return Err(Error::InvalidOption(

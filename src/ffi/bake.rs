@@ -251,6 +251,10 @@ pub struct ndf_pbr_options {
     /// 90: the fit's light/view pairs are scaled into it. Default 0: the standard pairs
     /// (grazing ones to 74° included).
     pub fit_max_angle: f64,
+    /// Nonzero: keep every level's normal at the footprint's mean direction (the plain MIP
+    /// chain's normal) and fit only the roughness (and anisotropy), for engines that make their
+    /// own normal mips or shade mostly diffuse materials. Default 0: the fitted normal.
+    pub mean_normal: u32,
 }
 
 /// The default PBR options: perceptual roughness 0.5 everywhere, isotropic, no material maps,
@@ -269,6 +273,7 @@ pub extern "C" fn ndf_pbr_options_default() -> ndf_pbr_options {
         progress_user_data: std::ptr::null_mut(),
         memory_limit: 0,
         fit_max_angle: d.fit_max_angle.unwrap_or(0.0),
+        mean_normal: u32::from(d.mean_normal),
     };
     guard_value(o, || o)
 }
@@ -621,6 +626,7 @@ pub unsafe extern "C" fn ndf_bake_pbr(
                 roughness: o.roughness,
                 anisotropic: o.anisotropic != 0,
                 fit_max_angle: (o.fit_max_angle != 0.0).then_some(o.fit_max_angle),
+                mean_normal: o.mean_normal != 0,
             },
             memory_limit: super::memory_limit(o.memory_limit),
             ..BakeOptions::default()

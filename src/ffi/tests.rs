@@ -650,6 +650,25 @@ fn pbr_bakes_equal_the_rust_bakes_and_bad_material_maps_make_no_bake() {
         assert_eq!((*bake).bake.textures, by_set.textures);
         assert_ne!((*bake).bake.textures, want.textures);
         ndf_bake_free(bake);
+        // The mean normal held, the roughness fitted: the Rust bake with `mean_normal`.
+        let held = ndf_pbr_options {
+            roughness: 0.3,
+            mean_normal: 1,
+            ..ndf_pbr_options_default()
+        };
+        check!(ndf_bake_pbr(map, &held, &mut bake) => Ok, "");
+        let by_mean = crate::pbr::bake_with_maps(
+            &rust,
+            &crate::bake::PbrOptions {
+                mean_normal: true,
+                ..options
+            },
+            None,
+        )
+        .unwrap();
+        assert_eq!((*bake).bake, by_mean);
+        assert_ne!((*bake).bake.textures, want.textures);
+        ndf_bake_free(bake);
         // Bad options and maps: a status naming the problem, no bake, the out-pointer alone.
         let mut nan = rough.clone();
         nan[5] = f32::NAN;

@@ -253,7 +253,8 @@ fn normal_lanes(
 
 /// [`super::fit_isotropic`] on a kernel: the best of `starts`, then up to `iterations`
 /// Levenberg–Marquardt steps over `(u, v, ln α)`, stopping early once a step lowers the cost
-/// by `converged` of itself or less (or no damping lowers it).
+/// by `converged` of itself or less (or no damping lowers it). With `hold_normal` the steps
+/// move ln α only: the best start's normal is kept ([`super::PbrOptions::mean_normal`]).
 pub(super) fn fit(
     k: &IsoKernel,
     g: &Targets,
@@ -261,6 +262,7 @@ pub(super) fn fit(
     iterations: usize,
     floor: f64,
     converged: f64,
+    hold_normal: bool,
 ) -> (IsoLobe, f64) {
     let mut best = starts[0];
     let mut best_cost = f64::INFINITY;
@@ -289,6 +291,16 @@ pub(super) fn fit(
         let du = (t1 - n * n.dot(t1)) / len;
         let dv = (t2 - n * n.dot(t2)) / len;
         let (mut a, mut b) = k.normal_equations(n, du, dv, lobe.alpha, true, g);
+        if hold_normal {
+            // u and v out of the system: their rows and columns zero, so their steps are 0.
+            for u in 0..2 {
+                a[u] = [0.0; 3];
+                for row in a.iter_mut() {
+                    row[u] = 0.0;
+                }
+                b[u] = 0.0;
+            }
+        }
         // ln α is held at a bound only while the descent direction −Jᵀr points out of the
         // range (an active set): a start at the floor (the base α) can still widen.
         if (p[2] <= lo && b[2] <= 0.0) || (p[2] >= 0.0 && b[2] >= 0.0) {

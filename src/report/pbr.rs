@@ -39,6 +39,9 @@ pub struct PbrRow {
     pub levels: Vec<f64>,
     /// The RMS of the per-level errors over the measured levels.
     pub pooled: f64,
+    /// The same for the diffuse term `max(n·l, 0)` of the row's normal (what the normal
+    /// texture costs a material's Lambert term; the roughness does not enter it).
+    pub diffuse_pooled: f64,
     /// Seconds it took to make (bake or tool run), if measured.
     pub seconds: Option<f64>,
 }
@@ -231,10 +234,12 @@ pub fn compare(
         .iter()
         .map(|&(l, v)| (turn(l), turn(v)))
         .collect();
-    // ndfmap's fits: (label, anisotropic, fit set, search); the first two give the timings.
+    // ndfmap's fits: (label, anisotropic, mean normal, fit set, search); the first two give
+    // the timings.
     let fits = [
         (
             "ndfmap pbr (isotropic fit)",
+            false,
             false,
             FitSet::standard(),
             Search::Fast,
@@ -242,11 +247,20 @@ pub fn compare(
         (
             "ndfmap pbr --anisotropic",
             true,
+            false,
+            FitSet::standard(),
+            Search::Fast,
+        ),
+        (
+            "ndfmap pbr --mean-normal (fitted roughness, plain mip's normal)",
+            false,
+            true,
             FitSet::standard(),
             Search::Fast,
         ),
         (
             "ndfmap fit on the evaluation's pairs (in-sample)",
+            false,
             false,
             FitSet::unweighted(&directions),
             Search::Fast,
@@ -254,11 +268,13 @@ pub fn compare(
         (
             "best isotropic found (fitted on the evaluation's pairs)",
             false,
+            false,
             FitSet::unweighted(&directions),
             Search::Thorough { from_level: first },
         ),
         (
             "best isotropic found on those pairs turned 45° (out of sample)",
+            false,
             false,
             FitSet::unweighted(&turned),
             Search::Thorough { from_level: first },
@@ -276,12 +292,15 @@ pub fn compare(
         .transpose()?;
     let fits = fits
         .into_iter()
-        .map(|(label, anisotropic, set, search)| (label.to_string(), anisotropic, set, search))
-        .chain(ranged.map(|(label, set)| (label, false, set, Search::Fast)));
-    for (label, anisotropic, set, search) in fits {
+        .map(|(label, anisotropic, mean_normal, set, search)| {
+            (label.to_string(), anisotropic, mean_normal, set, search)
+        })
+        .chain(ranged.map(|(label, set)| (label, false, false, set, Search::Fast)));
+    for (label, anisotropic, mean_normal, set, search) in fits {
         let t = Instant::now();
         let o = PbrOptions {
             anisotropic,
+            mean_normal,
             ..options
         };
         let (b, timing) = bake_with_set(map, &o, None, &set, search, first)?;
@@ -311,13 +330,16 @@ pub fn compare(
         .zip(labels)
         .map(|(e, (label, seconds))| {
             let levels: Vec<f64> = e.levels.iter().map(|l| l.specular).collect();
-            let measured = &levels[first.min(last)..=last];
-            let pooled =
-                (measured.iter().map(|v| v * v).sum::<f64>() / measured.len() as f64).sqrt();
+            let pool = |v: &[f64]| {
+                let measured = &v[first.min(last)..=last];
+                (measured.iter().map(|v| v * v).sum::<f64>() / measured.len() as f64).sqrt()
+            };
+            let diffuse: Vec<f64> = e.levels.iter().map(|l| l.diffuse).collect();
             PbrRow {
                 label,
+                pooled: pool(&levels),
+                diffuse_pooled: pool(&diffuse),
                 levels,
-                pooled,
                 seconds,
             }
         })
@@ -376,12 +398,15 @@ pub fn markdown(c: &PbrComparison) -> String {
     for k in first..=last {
         let _ = write!(out, " L{k} |");
     }
-    let _ = writeln!(out, " pooled | ÷ Filament | ÷ best iso | seconds |");
+    let _ = writeln!(
+        out,
+        " pooled | ÷ Filament | ÷ best iso | diffuse (pooled) | seconds |"
+    );
     let _ = write!(out, "|---|");
     for _ in first..=last {
         let _ = write!(out, "---:|");
     }
-    let _ = writeln!(out, "---:|---:|---:|---:|");
+    let _ = writeln!(out, "---:|---:|---:|---:|---:|");
     for r in &c.rows {
         let _ = write!(out, "| {} |", r.label);
         for k in first..=last {
@@ -390,10 +415,11 @@ pub fn markdown(c: &PbrComparison) -> String {
         let ratio = |d: Option<f64>| d.map_or("–".into(), |d| format!("{:.2}", r.pooled / d));
         let _ = writeln!(
             out,
-            " **{:.3}** | {} | {} | {} |",
+            " **{:.3}** | {} | {} | {:.4} | {} |",
             r.pooled,
             ratio(filament),
             ratio(best),
+            r.diffuse_pooled,
             r.seconds.map_or("–".into(), |s| format!("{s:.2}"))
         );
     }
