@@ -10,6 +10,7 @@
 //!   plain-mip normal beside them), and its formula `α′ = α + min(0.5/κ, 0.04)`;
 //! - the κ formula `α′² = α² + c/κ` with Unity's c = 0.5, Godot's 0.75 and Karis' / ndfmap's 2;
 //! - ndfmap's fitted isotropic lobe ([`crate::pbr`]) and its anisotropic lobe;
+//! - ndfmap's roughness fitted at plain mip's normal (`PbrOptions::mean_normal`);
 //! - the best isotropic lobe found per texel (multi-start Levenberg–Marquardt on the
 //!   evaluation's own pairs, [`crate::pbr::Search::Thorough`]: a lower bound for any single
 //!   isotropic lobe as far as the search finds it);
@@ -19,6 +20,9 @@
 //! - vMF J = 6 (aligned with eq 29's default C, balanced) under GGX with the default vMF rule
 //!   (the vMF-mixture convolution of GGX, `brdf::ggx_mixture`; c = 2 before H17t): a custom
 //!   shader, for scale.
+//!
+//! Beside each row's specular error, the pooled error of the diffuse term `max(n·l, 0)` its
+//! normal gives: what a fitted normal costs a material's Lambert term.
 
 use crate::bake::{Bake, BakeOptions, Method, PbrOptions};
 use crate::brdf::Brdf;

@@ -14,7 +14,7 @@ use ndfmap::eval::default_directions;
 use ndfmap::format::Format;
 use ndfmap::glsl::{ShaderBrdf, ShaderOptions};
 use ndfmap::methods::bake_with;
-use ndfmap::pbr::{FitSet, Search, Widening, bake_formula, bake_with_set};
+use ndfmap::pbr::{FitSet, Search, Widening, bake_formula, bake_with_maps, bake_with_set};
 use ndfmap::sample::{Filtering, shade_at};
 use ndfmap_gl::glam::{Mat4, Vec2, Vec3};
 use ndfmap_gl::{
@@ -229,6 +229,16 @@ fn fitted_pbr_bake_is_closer_to_the_reference_than_the_plain_mip_chain() {
     )
     .unwrap()
     .0;
+    // The roughness fitted at plain mip's normal (`--mean-normal`): printed beside the others.
+    let held = bake_with_maps(
+        &map,
+        &PbrOptions {
+            mean_normal: true,
+            ..options
+        },
+        None,
+    )
+    .unwrap();
     let mip = bake_formula(&map, &options, None, Widening::Constant(0.0)).unwrap();
     let mut finest = mip.clone();
     finest.sizes.truncate(1);
@@ -244,16 +254,18 @@ fn fitted_pbr_bake_is_closer_to_the_reference_than_the_plain_mip_chain() {
         };
         let draw = |b: &Bake| BakeRenderer::new(&gl, b, &shader).unwrap();
         let (fitted, near, mip, finest) = (draw(&fitted), draw(&near), draw(&mip), draw(&finest));
+        let held = draw(&held);
         for (repeat, distance) in [(8.0, 9.0), (4.0, 4.5)] {
             let scene = plane_scene(repeat, distance, g, kd);
             let reference = image(&gl, &scene, &finest, size, 16, block);
             let e_fitted = relative_rms(&image(&gl, &scene, &fitted, size, 1, block), &reference);
             let e_near = relative_rms(&image(&gl, &scene, &near, size, 1, block), &reference);
             let e_mip = relative_rms(&image(&gl, &scene, &mip, size, 1, block), &reference);
+            let e_held = relative_rms(&image(&gl, &scene, &held, size, 1, block), &reference);
             println!(
                 "plane x{repeat} at {distance}, g {g}, K_d {kd}: relative RMS of 8x8 blocks against the \
                  reference: plain mip {e_mip:.4}, fitted {e_fitted:.4}, fitted on near-peak pairs \
-                 {e_near:.4}"
+                 {e_near:.4}, mean normal {e_held:.4}"
             );
             if kd == 0.0 {
                 results.push((repeat, g, e_mip, e_fitted, e_near));
