@@ -2284,6 +2284,29 @@ fn options_a_method_would_ignore_are_refused() {
         &["input 2: key 'mode' does not apply to method lean (it is for vmf)"],
     );
     write(format!(
+        "[[input]]\npath = \"{name}\"\nmethod = \"plain\"\nmean_normal = true\noutput = \"p\"\n"
+    ));
+    let run = ndfmap(&["bake", "--batch", s(&batch), "-o", s(&out)]);
+    assert_one_line_error(
+        &run,
+        &["input 1: key 'mean_normal' does not apply to method plain (it is for pbr)"],
+    );
+    // For pbr the key is honoured: the manifest says which normal was kept.
+    write(format!(
+        "[[input]]\npath = \"{name}\"\nmethod = \"pbr\"\nmean_normal = true\noutput = \"m\"\n"
+    ));
+    let run = ndfmap(&["bake", "--batch", s(&batch), "-o", s(&out)]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // (An entry's `output` is relative to the batch file.)
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("m").join("manifest.json")).unwrap())
+            .unwrap();
+    assert_eq!(manifest["parameters"]["normal"], "mean", "{manifest}");
+    write(format!(
         "[defaults]\nlobes = 2\n\
          [[input]]\npath = \"{name}\"\nmethod = \"vmf\"\noutput = \"v\"\n\
          [[input]]\npath = \"{name}\"\nmethod = \"lean\"\noutput = \"l\"\n"
