@@ -1801,37 +1801,14 @@ fn pbr_material_maps_of_the_wrong_size_or_kind_are_errors_or_warned() {
     let r = pbr_bake(&input, &out, &["--metallic-map", s(&grey)]);
     assert_one_line_error(&r, &["--metallic-map", "--roughness"]);
     // PBR flags with another method.
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "plain",
-        "-o",
-        s(&out),
-        "--anisotropic",
-    ]);
-    assert_one_line_error(&r, &["--method pbr"]);
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "vmf",
-        "-o",
-        s(&out),
-        "--fit-max-angle",
-        "60",
-    ]);
-    assert_one_line_error(&r, &["--method pbr"]);
-    let r = ndfmap(&[
-        "bake",
-        s(&input),
-        "-m",
-        "vmf",
-        "-o",
-        s(&out),
-        "--mean-normal",
-    ]);
-    assert_one_line_error(&r, &["--method pbr", "--mean-normal"]);
+    for (method, flags) in [
+        ("plain", &["--anisotropic"][..]),
+        ("vmf", &["--fit-max-angle", "60"]),
+        ("vmf", &["--mean-normal"]),
+    ] {
+        let args = [&["bake", s(&input), "-m", method, "-o", s(&out)], flags].concat();
+        assert_one_line_error(&ndfmap(&args), &["--method pbr", flags[0]]);
+    }
     // `--mean-normal` with pbr: baked, and the manifest says which normal was kept.
     let held = dir.path().join("held");
     let r = pbr_bake(&input, &held, &["--mean-normal", "--roughness", "0.4"]);
