@@ -771,14 +771,7 @@ fn refine_anisotropic(
             }
         }
         if hold_normal {
-            // u and v out of the system: their rows and columns zero, so their steps are 0.
-            for u in 0..2 {
-                a[u] = [0.0; 5];
-                for row in a.iter_mut() {
-                    row[u] = 0.0;
-                }
-                g[u] = 0.0;
-            }
+            hold_normal_parameters(&mut a, &mut g);
         }
         (a, g)
     };
@@ -795,6 +788,19 @@ fn refine_anisotropic(
     );
     let lobe = if c < best_cost { lobe_of(&p) } else { best };
     (canonical(lobe), c.min(best_cost))
+}
+
+/// Takes the normal's parameters `u`, `v` (the first two) out of the normal equations
+/// `(JᵀJ, −Jᵀr)`: their rows and columns zero, so [`levenberg_marquardt`]'s steps leave them
+/// at 0 ([`PbrOptions::mean_normal`]).
+fn hold_normal_parameters<const N: usize>(a: &mut [[f64; N]; N], b: &mut [f64; N]) {
+    for u in 0..2 {
+        a[u] = [0.0; N];
+        for row in a.iter_mut() {
+            row[u] = 0.0;
+        }
+        b[u] = 0.0;
+    }
 }
 
 /// The same lobe with `α_t ≥ α_b` and `φ ∈ [0, π)`.

@@ -292,14 +292,7 @@ pub(super) fn fit(
         let dv = (t2 - n * n.dot(t2)) / len;
         let (mut a, mut b) = k.normal_equations(n, du, dv, lobe.alpha, true, g);
         if hold_normal {
-            // u and v out of the system: their rows and columns zero, so their steps are 0.
-            for u in 0..2 {
-                a[u] = [0.0; 3];
-                for row in a.iter_mut() {
-                    row[u] = 0.0;
-                }
-                b[u] = 0.0;
-            }
+            super::hold_normal_parameters(&mut a, &mut b);
         }
         // ln α is held at a bound only while the descent direction −Jᵀr points out of the
         // range (an active set): a start at the floor (the base α) can still widen.
