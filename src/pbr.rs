@@ -2184,21 +2184,24 @@ mod tests {
     #[test]
     fn the_bake_is_the_same_whatever_the_thread_count() {
         let map = bumpy(16, 8);
-        let options = PbrOptions {
-            roughness: 0.4,
-            anisotropic: true,
-            ..PbrOptions::default()
-        };
-        let a = run(&map, &options, None).unwrap();
-        let b = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap()
-            .install(|| {
-                // From a pool thread the bake runs on it (bake::run_with_progress).
-                run(&map, &options, None).unwrap()
-            });
-        assert_eq!(a, b);
+        for mean_normal in [false, true] {
+            let options = PbrOptions {
+                roughness: 0.4,
+                anisotropic: true,
+                mean_normal,
+                ..PbrOptions::default()
+            };
+            let a = run(&map, &options, None).unwrap();
+            let b = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap()
+                .install(|| {
+                    // From a pool thread the bake runs on it (bake::run_with_progress).
+                    run(&map, &options, None).unwrap()
+                });
+            assert_eq!(a, b, "mean normal {mean_normal}");
+        }
     }
 
     #[test]
