@@ -813,11 +813,9 @@ fn canonical(mut lobe: AnisoLobe) -> AnisoLobe {
     lobe
 }
 
-/// Levenberg–Marquardt steps of the roughness-only fit per texel ([`PbrOptions::mean_normal`]),
-/// run without the early stop: one parameter, and no mode starts to search.
-pub const HELD_ITERATIONS: usize = 20;
-
-/// α values (log-spaced from the floor to 1) among the starts of the roughness-only fit.
+/// α values (log-spaced from the floor to 1) among the starts of the roughness-only fit
+/// ([`PbrOptions::mean_normal`]); its steps are the default fit's ([`FAST_ITERATIONS`], the
+/// same early stop).
 pub const HELD_SCAN: usize = 16;
 
 /// Most Levenberg–Marquardt steps of the bake's isotropic fit per texel ([`Search::Fast`]).
@@ -1272,15 +1270,10 @@ fn bake_fit(
         // them all.
         // The anisotropic fit (forward differences, 12× the isotropic one's cost) keeps 4.
         let aniso_iterations = iterations.min(4);
-        let converged = if search == Search::Fast && !options.mean_normal {
+        let converged = if search == Search::Fast {
             FAST_CONVERGED
         } else {
             0.0
-        };
-        let iterations = if options.mean_normal && iterations > 0 {
-            iterations.max(HELD_ITERATIONS)
-        } else {
-            iterations
         };
         let clock = std::time::Instant::now();
         let iso: Vec<IsoLobe> = if k == 0 {
@@ -1455,7 +1448,7 @@ fn bake_fit(
             "anisotropic": options.anisotropic,
             "fit": match search {
                 _ if options.mean_normal => {
-                    "levenberg-marquardt over α alone at the mean normal, 20 steps from the best of 5 formula starts and 16 α values from the floor to 1"
+                    "levenberg-marquardt over α alone at the mean normal, up to 8 steps from the best of 5 formula starts and 16 α values from the floor to 1"
                 }
                 Search::Fast => {
                     "levenberg-marquardt, up to 8 steps from the best of 15 starts (9 + 6 mode starts) and from the best mode start"
