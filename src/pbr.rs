@@ -1323,25 +1323,26 @@ fn bake_fit(
                     } else {
                         [child(0, 0), child(1, 0), child(0, 1), child(1, 1)]
                     };
+                    // The footprint's base roughness: α′'s floor, and the scale of a basin.
+                    let floor = s[3].max(0.0).sqrt();
+                    let base = floor.clamp(MIN_ALPHA, 1.0);
                     let mut starts = iso_starts(s, children, search, &own, &modes);
-                    if hold {
+                    if hold && iterations > 0 {
                         // One parameter: its cost can have two basins (a lobe for the
                         // footprint's peak, a wide one for its spread), so the starts also
                         // scan α from the floor to 1.
-                        let (n, lo) = (starts[0].n, s[3].max(0.0).sqrt().clamp(MIN_ALPHA, 1.0));
+                        let n = starts[0].n;
                         starts.extend((0..HELD_SCAN).map(|j| IsoLobe {
                             n,
-                            alpha: lo * (1.0 / lo).powf(j as f64 / (HELD_SCAN - 1) as f64),
+                            alpha: base * (1.0 / base).powf(j as f64 / (HELD_SCAN - 1) as f64),
                         }));
                     }
                     let t = kernel.targets(&target[k][i * p..(i + 1) * p]);
-                    let floor = s[3].max(0.0).sqrt();
                     if iterations == 0 {
                         starts[0]
                     } else if keep == 1 {
-                        let alpha = s[3].max(0.0).sqrt().clamp(MIN_ALPHA, 1.0);
                         let split = starts.len() - modes.len();
-                        let apart = 0.5 * alpha;
+                        let apart = 0.5 * base;
                         let fit = |j: usize| {
                             kernel::fit(
                                 &kernel,

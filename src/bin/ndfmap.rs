@@ -638,6 +638,20 @@ struct PbrArgs {
 }
 
 impl PbrArgs {
+    /// Whether a material map (`--roughness-map`, `--metallic-map`, `--occlusion-map`) is given.
+    fn maps_given(&self) -> bool {
+        self.roughness_map.is_some() || self.metallic_map.is_some() || self.occlusion_map.is_some()
+    }
+
+    /// Whether a PBR option other than the maps is given (`--roughness`, `--anisotropic`,
+    /// `--fit-max-angle`, `--mean-normal`).
+    fn options_given(&self) -> bool {
+        self.roughness.is_some()
+            || self.anisotropic
+            || self.fit_max_angle.is_some()
+            || self.mean_normal
+    }
+
     /// The material maps, read and checked against a `w`×`h` map; warns (stderr) of an sRGB-
     /// flagged PNG, which is read as linear.
     fn maps(&self, w: u32, h: u32, opts: &ndfmap::IngestOptions) -> Result<ndfmap::pbr::PbrMaps> {
@@ -1221,14 +1235,8 @@ fn job_error(input: &Path, e: &Error) -> String {
 /// its failure is the command's error).
 fn bake_command(a: BakeCommand) -> Result<u8> {
     use ndfmap::batch::{Outcome, RunOptions, Settings};
-    let pbr_maps = a.pbr.roughness_map.is_some()
-        || a.pbr.metallic_map.is_some()
-        || a.pbr.occlusion_map.is_some();
-    let pbr_flags = a.pbr.roughness.is_some()
-        || pbr_maps
-        || a.pbr.anisotropic
-        || a.pbr.fit_max_angle.is_some()
-        || a.pbr.mean_normal;
+    let pbr_maps = a.pbr.maps_given();
+    let pbr_flags = pbr_maps || a.pbr.options_given();
     let method: Option<Method> = a.method.as_deref().map(str::parse).transpose()?;
     if pbr_flags && method.is_some_and(|m| m != Method::Pbr) {
         return Err(Error::InvalidOption(
@@ -1584,10 +1592,7 @@ fn run(cli: Cli) -> Result<u8> {
                     container.as_str(),
                     compress.as_deref(),
                 ) != defaults
-                    || pbr.roughness.is_some()
-                    || pbr.anisotropic
-                    || pbr.fit_max_angle.is_some()
-                    || pbr.mean_normal
+                    || pbr.options_given()
                     || brdf.given()
                 {
                     return Err(Error::InvalidOption(
