@@ -48,6 +48,7 @@ const int NDF_ENV_MAX_LEVELS = 24;  // envgpu::MAX_LEVELS
 const int NDF_ENV_GRID = 16;        // projection::REFLECTED_GRID
 const int NDF_ENV_ENERGY_COS = 33;  // envlight::ENERGY_COS
 const int NDF_ENV_ENERGY_PARAM = 49;
+const int NDF_ENV_ENERGY_SHARES = 9;  // envlight::ENERGY_SHARES
 
 uniform vec3 ndf_env_sh[NDF_ENV_COUNT];   // L_lm, environment frame, RGB
 mat3 ndf_env_frame = mat3(1.0);           // tangent -> environment frame (entry point sets it)
@@ -74,7 +75,9 @@ uniform sampler2D ndf_env_energy;   // lobe table: 9 blocks (energy, blend, log2
                                     // tail share t, log2 kappa_t, core blend, energy, blend
                                     // and log2 kappa shift with the cosine at the half
                                     // vector) of
-                                    // ENERGY_PARAM rows x ENERGY_COS columns
+                                    // ENERGY_PARAM rows x ENERGY_SHARES groups of
+                                    // ENERGY_COS columns (GGX: the NDF's share w = j/8;
+                                    // Blinn-Phong: one share, repeated)
 uniform float ndf_env_kappa0;      // level 0's nominal kappa, W*H/pi
 uniform float ndf_env_kappa1;      // level 1's kappa; level k >= 1 has kappa1 / 2^(k-1)
 uniform float ndf_env_level_count;
@@ -149,24 +152,33 @@ vec3 ndf_env_lookup(vec3 d, float kappa) {
     return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
 }
 
-// Bilinear lookup of block `block` of the lobe table at fractional row pi and c_o (CPU:
-// EnergyTables::lookup).
-float ndf_env_energy_at(int block, float pi, float co) {
+// Bilinear lookup of block `block` of the lobe table at fractional row pi and c_o, linear
+// between the shares at fractional share index wi (CPU: EnergyTables::lookup).
+float ndf_env_energy_at(int block, float pi, float wi, float co) {
     pi = clamp(pi, 0.0, float(NDF_ENV_ENERGY_PARAM - 1));
+    wi = clamp(wi, 0.0, float(NDF_ENV_ENERGY_SHARES - 1));
     float ci = clamp(co, 0.0, 1.0) * float(NDF_ENV_ENERGY_COS - 1);
     int p0 = int(floor(pi));
     int c0 = int(floor(ci));
+    int w0 = int(floor(wi));
     int p1 = min(p0 + 1, NDF_ENV_ENERGY_PARAM - 1);
     int c1 = min(c0 + 1, NDF_ENV_ENERGY_COS - 1);
     float fp = pi - float(p0);
     float fc = ci - float(c0);
+    float fw = wi - float(w0);
     p0 += block * NDF_ENV_ENERGY_PARAM;
     p1 += block * NDF_ENV_ENERGY_PARAM;
-    float a = texelFetch(ndf_env_energy, ivec2(c0, p0), 0).r;
-    float b = texelFetch(ndf_env_energy, ivec2(c1, p0), 0).r;
-    float c = texelFetch(ndf_env_energy, ivec2(c0, p1), 0).r;
-    float e = texelFetch(ndf_env_energy, ivec2(c1, p1), 0).r;
-    return (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+    float v[2];
+    for (int k = 0; k < 2; ++k) {
+        int col = (w0 + k) * NDF_ENV_ENERGY_COS;
+        float a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0).r;
+        float b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0).r;
+        float c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0).r;
+        float e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0).r;
+        v[k] = (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+        if (!(fw > 0.0)) return v[0];
+    }
+    return (1.0 - fw) * v[0] + fw * v[1];
 }
 #endif
 
@@ -411,18 +423,26 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
     // cosine at the lobe's centre (blocks 0, 1, 2) with the cosine at the half vector (6, 7,
     // and 8: the shift of log2 kappa).
     float w = ndf_env_share(vv);
-    float e = (1.0 - w) * ndf_env_energy_at(0, pi_row, co) + w * ndf_env_energy_at(6, pi_row, co);
-    float blend = (1.0 - w) * ndf_env_energy_at(1, pi_row, co) +
-                  w * ndf_env_energy_at(7, pi_row, co);
-    float shift = w * ndf_env_energy_at(8, pi_row, co);
-    float log_kappa = ndf_env_energy_at(2, pi_row, co) + shift;
-    float tail = ndf_env_energy_at(3, pi_row, co);
+#if defined(NDF_BRDF_GGX)
+    // GGX's lobe shape follows the NDF's share (eq 14 of the vMF and GGX; CPU:
+    // EnergyTables::ggx).
+    float wi = w * float(NDF_ENV_ENERGY_SHARES - 1);
+#else
+    float wi = 0.0;
+#endif
+    float e = (1.0 - w) * ndf_env_energy_at(0, pi_row, wi, co) +
+              w * ndf_env_energy_at(6, pi_row, wi, co);
+    float blend = (1.0 - w) * ndf_env_energy_at(1, pi_row, wi, co) +
+                  w * ndf_env_energy_at(7, pi_row, wi, co);
+    float shift = w * ndf_env_energy_at(8, pi_row, wi, co);
+    float log_kappa = ndf_env_energy_at(2, pi_row, wi, co) + shift;
+    float tail = ndf_env_energy_at(3, pi_row, wi, co);
     // The lobe's mean direction: a blend of mu and r (CPU: envlight::tilted).
     vec3 d = ndf_env_frame * ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
     if (tail > 0.0) {
         // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
-        float log_tail = ndf_env_energy_at(4, pi_row, co) + shift;
-        float blend_core = ndf_env_energy_at(5, pi_row, co);
+        float log_tail = ndf_env_energy_at(4, pi_row, wi, co) + shift;
+        float blend_core = ndf_env_energy_at(5, pi_row, wi, co);
         vec3 dc = ndf_env_frame *
                   ndf_normalize_or_z(mu * blend_core + r_dir * (1.0 - blend_core));
         spec = ((1.0 - tail) * ndf_env_lookup(dc, exp2(log_kappa)) +

@@ -950,7 +950,8 @@ typedef struct ndf_environment_info {
    */
   uint32_t reflected_rows;
   /**
-   * Columns of `ndf_environment_energy` (33 view cosines).
+   * Columns of `ndf_environment_energy`: 9 shares of the NDF lobe in the widened lobe
+   * (GGX's lobe shape; Blinn-Phong's one share repeated) of 33 view cosines (297).
    */
   uint32_t energy_columns;
   /**

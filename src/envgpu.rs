@@ -36,8 +36,11 @@
 //! The `L′` table ([`crate::environment::projection::ReflectedTable`]) is an `RGB32F` texture of
 //! `count(8) = 81` columns (the coefficients) × `16² = 256` rows (row `iθ·16 + iφ`, the views of
 //! [`crate::environment::projection::view_of`]); the lobe-energy table of the BRDF
-//! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_COS`] columns ×
-//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend, energy, blend and `log2 κ` shift with the cosine at the half vector, block after block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
+//! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_SHARES`] · [`ENERGY_COS`] columns
+//! (GGX's NDF shares, share after share; Blinn-Phong's one share repeated) ×
+//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`,
+//! core blend, energy, blend and `log2 κ` shift with the cosine at the half vector, block after
+//! block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
 //!
 //! Uniforms ([`uniforms`]): `vec3 ndf_env_sh[81]` (`L_lm`, environment frame, RGB), `ndf_env_kappa0`,
 //! `ndf_env_kappa1`, `ndf_env_level_count`, `vec4 ndf_env_level[24]` (width, height, first
@@ -55,7 +58,9 @@
 
 use crate::brdf::Brdf;
 use crate::environment::projection::REFLECTED_GRID;
-use crate::envlight::{ENERGY_BLOCKS, ENERGY_COS, ENERGY_PARAM, ENV_LMAX, EnvLight, Route};
+use crate::envlight::{
+    ENERGY_BLOCKS, ENERGY_COS, ENERGY_PARAM, ENERGY_SHARES, ENV_LMAX, EnvLight, Route,
+};
 use crate::error::{Error, Result};
 use crate::harmonics::count;
 
@@ -205,17 +210,25 @@ fn shelves(sizes: &[(u32, u32)]) -> Vec<[u32; 4]> {
 }
 
 /// The lobe table of `brdf` as f32 for upload ([`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows ×
-/// [`ENERGY_COS`] columns: energy, blend, `log2 κ_c`, tail share, `log2 κ_t`, core blend,
-/// energy, blend and `log2 κ` shift with the cosine at the half vector), `None` for a BRDF
-/// without a specular lobe.
+/// [`ENERGY_SHARES`] · [`ENERGY_COS`] columns: energy, blend, `log2 κ_c`, tail share,
+/// `log2 κ_t`, core blend, energy, blend and `log2 κ` shift with the cosine at the half vector;
+/// GGX's shares of the NDF, Blinn-Phong's single share repeated so both families upload the
+/// same size, [`ENERGY_SIZE`]), `None` for a BRDF without a specular lobe.
 pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
-    light
-        .energy_table(brdf)
-        .map(|t| t.iter().map(|&v| v as f32).collect())
+    let table = light.energy_table(brdf)?;
+    let shares = table.len() / (ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
+    let mut out = Vec::with_capacity(ENERGY_SIZE.0 * ENERGY_SIZE.1);
+    for row in table.chunks_exact(shares * ENERGY_COS) {
+        for j in 0..ENERGY_SHARES {
+            let share = &row[(j % shares) * ENERGY_COS..][..ENERGY_COS];
+            out.extend(share.iter().map(|&v| v as f32));
+        }
+    }
+    Some(out)
 }
 
 /// The size (columns, rows) of [`energy`]'s texture.
-pub const ENERGY_SIZE: (usize, usize) = (ENERGY_COS, ENERGY_BLOCKS * ENERGY_PARAM);
+pub const ENERGY_SIZE: (usize, usize) = (ENERGY_SHARES * ENERGY_COS, ENERGY_BLOCKS * ENERGY_PARAM);
 
 /// One environment uniform: its name, components per element (1: `float`, 3: `vec3`, 4:
 /// `vec4`) and values (arrays as several elements).
@@ -431,7 +444,13 @@ mod tests {
         assert_eq!(up.sh.len(), 81 * 3);
         assert_eq!(up.reflected.len(), 81 * 256 * 3);
         let e = energy(&light, &Brdf::BlinnPhong { s: 32.0 }).unwrap();
-        assert_eq!(e.len(), ENERGY_COS * ENERGY_BLOCKS * ENERGY_PARAM);
+        assert_eq!(e.len(), ENERGY_SIZE.0 * ENERGY_SIZE.1);
+        // Blinn-Phong's one share, repeated; GGX's shares differ (w = 0 against w = 1).
+        let (row, cols) = (20 * ENERGY_SIZE.0, ENERGY_COS);
+        assert_eq!(e[row..][..cols], e[row + 8 * cols..][..cols]);
+        let g = energy(&light, &Brdf::ggx(0.1)).unwrap();
+        assert_eq!(g.len(), e.len());
+        assert_ne!(g[row..][..cols], g[row + 8 * cols..][..cols]);
         assert!(energy(&light, &Brdf::Lambert).is_none());
         let u = uniforms(&up, &Brdf::ggx(0.3), Route::Sh);
         assert!(

@@ -24,7 +24,9 @@
 //!   itself up to the environment's band 2, as for SH bakes.
 //! - **Specular, prefiltered route**: per lobe (Olano–North: one, about `normalize(E[n])`
 //!   with κ the inverse of the mean per-axis variance of its tangent-plane covariance) the
-//!   BRDF widened by the lobe (eq 20 `s'`, GGX `α'`), its lobe over incident directions
+//!   BRDF widened by the lobe (eq 20 `s'`, GGX `α'` — GGX's lobe tabulated as eq 14, the
+//!   exact convolution of GGX with the vMF, over `α'` and the NDF's share of it, since a wide
+//!   vMF keeps its short tail where a widened GGX has GGX's long one), its lobe over incident directions
 //!   `w(ω_i) = f'(ω_h·μ) max(ω_i·μ, 0)` replaced by
 //!   the vMF matching its first moment (mean direction and mean resultant length, tabulated per
 //!   `(ω_o·μ, s')` by `energy_quadrature::lobe_moments`: the mean direction is a tabulated blend of μ and the
@@ -272,11 +274,12 @@ impl EnvLight {
     }
 
     /// The prefiltered route's lobe table of `brdf`'s family (Blinn-Phong or GGX):
-    /// [`ENERGY_BLOCKS`] × [`ENERGY_PARAM`] rows of [`ENERGY_COS`] values, row-major — the
-    /// energy `E(c_o, p)`, then the blend, `log2 κ_c`, the tail share `t`, `log2 κ_t` and the
-    /// core's blend (`energy_quadrature::lobe_moments`) — what the shaders
-    /// read bilinearly (`None` for a BRDF without one: Lambert and the unsupported ones). One
-    /// table for all channels.
+    /// [`ENERGY_BLOCKS`] × [`ENERGY_PARAM`] rows of `shares` × [`ENERGY_COS`] values,
+    /// row-major (GGX: [`ENERGY_SHARES`] shares; Blinn-Phong one) — the energy `E(c_o, p)`,
+    /// then the blend, `log2 κ_c`, the tail share `t`, `log2 κ_t`, the core's blend and the
+    /// half-vector blocks (`energy_quadrature::lobe_moments`) — what the shaders read
+    /// bilinearly ([`crate::envgpu::energy`] repeats Blinn-Phong's share; `None` for a BRDF
+    /// without one: Lambert and the unsupported ones). One table for all channels.
     pub fn energy_table(&self, brdf: &Brdf) -> Option<&[f64]> {
         match brdf {
             Brdf::BlinnPhong { .. } => Some(self.energy.blinn_phong_table()),
@@ -580,10 +583,16 @@ pub const ENERGY_PARAM: usize = 49;
 /// (blocks 6 and 7), and the shift of `log2 κ` under those weights (block 8) (`energy_quadrature::lobe_moments`;
 /// mixed in by the NDF's share of the lobe, [`ndf_share`]).
 pub const ENERGY_BLOCKS: usize = 9;
+/// Shares of GGX's lobe table: the NDF lobe's share `w ∈ [0, 1]` of the widened lobe's
+/// variance ([`ndf_share`]) in equal steps, `w = j/(ENERGY_SHARES − 1)`. GGX's widened lobe
+/// changes shape with w (eq 14 of a vMF and GGX: GGX's long tail at w = 0, the vMF's short one
+/// at w = 1), Blinn-Phong's does not (its table has one share, repeated on upload).
+pub const ENERGY_SHARES: usize = 9;
 
 /// The `energy_quadrature::lobe_moments` (`E(c_o, p) = ∫ f_p(ω_h·z) max(ω_i·z, 0) dω_i`, the blend, `log2 κ_i`)
 /// for a view at `cos θ_o = c_o`: Blinn-Phong over
-/// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced), both over `c_o ∈ [0, 1]`.
+/// `log2 s' ∈ [−4, 20]`, GGX over `α' ∈ [10⁻³, 1]` (log-spaced) and the NDF's share `w`
+/// ([`ENERGY_SHARES`]), both over `c_o ∈ [0, 1]`.
 /// Each family's table is decoded from its embedded copy on first use ([`BLINN_PHONG_TABLE`]).
 struct EnergyTables {
     blinn_phong: std::sync::OnceLock<Vec<f64>>,
@@ -605,7 +614,8 @@ const BLINN_PHONG_TABLE: &[u8] = include_bytes!("envlight/energy-blinn-phong.f64
 /// The GGX lobe table, as [`BLINN_PHONG_TABLE`].
 const GGX_TABLE: &[u8] = include_bytes!("envlight/energy-ggx.f64le");
 const _: () = assert!(BLINN_PHONG_TABLE.len() == 8 * ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
-const _: () = assert!(GGX_TABLE.len() == 8 * ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
+const _: () =
+    assert!(GGX_TABLE.len() == 8 * ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_SHARES * ENERGY_COS);
 
 /// An embedded table's values.
 fn decode_table(bytes: &[u8]) -> Vec<f64> {
@@ -638,28 +648,50 @@ impl EnergyTables {
         self.ggx.get_or_init(|| decode_table(GGX_TABLE))
     }
 
-    /// Bilinear lookup of each block of `table` over (param index, c_o).
-    fn lookup(table: &[f64], pi: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
+    /// Bilinear lookup of each block of `table` over (param index, c_o), linear over the
+    /// share index `wi ∈ [0, shares − 1]` of a table of `shares` shares (GLSL:
+    /// `ndf_env_energy_at`).
+    fn lookup(table: &[f64], shares: usize, pi: f64, wi: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
         let pi = pi.clamp(0.0, (ENERGY_PARAM - 1) as f64);
+        let wi = if wi.is_nan() {
+            0.0
+        } else {
+            wi.clamp(0.0, (shares - 1) as f64)
+        };
         let ci = co.clamp(0.0, 1.0) * (ENERGY_COS - 1) as f64;
-        let (p0, c0) = (pi.floor() as usize, ci.floor() as usize);
+        let (p0, c0, w0) = (
+            pi.floor() as usize,
+            ci.floor() as usize,
+            wi.floor() as usize,
+        );
         let (p1, c1) = ((p0 + 1).min(ENERGY_PARAM - 1), (c0 + 1).min(ENERGY_COS - 1));
-        let (fp, fc) = (pi - p0 as f64, ci - c0 as f64);
-        std::array::from_fn(|b| {
-            let at = |p: usize, c: usize| table[(b * ENERGY_PARAM + p) * ENERGY_COS + c];
+        let (fp, fc, fw) = (pi - p0 as f64, ci - c0 as f64, wi - w0 as f64);
+        let bilinear = |b: usize, w: usize| {
+            let at =
+                |p: usize, c: usize| table[((b * ENERGY_PARAM + p) * shares + w) * ENERGY_COS + c];
             (1.0 - fp) * ((1.0 - fc) * at(p0, c0) + fc * at(p0, c1))
                 + fp * ((1.0 - fc) * at(p1, c0) + fc * at(p1, c1))
+        };
+        std::array::from_fn(|b| {
+            let v = bilinear(b, w0);
+            if fw > 0.0 {
+                (1.0 - fw) * v + fw * bilinear(b, w0 + 1)
+            } else {
+                v
+            }
         })
     }
 
     fn blinn_phong(&self, s: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
         let pi = (s.max(1e-300).log2() + 4.0) / 24.0 * (ENERGY_PARAM - 1) as f64;
-        Self::lookup(self.blinn_phong_table(), pi, co)
+        Self::lookup(self.blinn_phong_table(), 1, pi, 0.0, co)
     }
 
-    fn ggx(&self, a: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
+    /// GGX's lobe at widened roughness `a` (α') and NDF share `w`.
+    fn ggx(&self, a: f64, w: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
         let pi = (a.max(1e-300).log10() + 3.0) / 3.0 * (ENERGY_PARAM - 1) as f64;
-        Self::lookup(self.ggx_table(), pi, co)
+        let wi = w * (ENERGY_SHARES - 1) as f64;
+        Self::lookup(self.ggx_table(), ENERGY_SHARES, pi, wi, co)
     }
 }
 
@@ -942,7 +974,7 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
 fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
         Brdf::BlinnPhong { s } => light.energy.blinn_phong(s / (1.0 + s * var), co),
-        Brdf::Ggx(g) => light.energy.ggx(g.widened(var), co),
+        Brdf::Ggx(g) => light.energy.ggx(g.widened(var), ndf_share(brdf, var), co),
         _ => [0.0; ENERGY_BLOCKS],
     }
 }
@@ -2151,7 +2183,7 @@ mod tests {
             let gt = ground_truth(&light, &n, view, std::slice::from_ref(&brdf), 40000, 11);
             let f = shade(&light, &bake, &t, view, &brdf, Route::Prefiltered).luminance();
             // The single first-moment vMF (the route before the split), for comparison.
-            let [e, blend, _, _, _, _, _, _, _] = light.energy.ggx(0.1, view.z);
+            let [e, blend, _, _, _, _, _, _, _] = light.energy.ggx(0.1, 0.0, view.z);
             let one = lobe_moments(&|c| ggx(c, 0.1), 0.1, view.z, false)[2].exp2();
             let r = 2.0 * view.z * DVec3::Z - view;
             let d = tilted(DVec3::Z, r, blend);
@@ -2168,7 +2200,10 @@ mod tests {
                 "off {off}: gt {} ± {} two {} ({err:+.3}) single {single} ({err1:+.3})",
                 gt.specular[0], gt.specular_se[0], f.specular
             );
-            assert_eq!(table.len(), ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
+            assert_eq!(
+                table.len(),
+                ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_SHARES * ENERGY_COS
+            );
             // Measured (256-wide sky), with levels whose grids resolve their lobes: core
             // −2.4 %, shoulder −30 %, 20° −12 %, 40° +17 % against the single vMF's −77 %,
             // −63 %, +33 %, −3 % (with the earlier levels, narrower than their texels: core
@@ -3023,7 +3058,7 @@ mod tests {
             .collect();
         // Worst |error|: constant new, constant old; mean |error| under the sun, new and old.
         let (mut worst, mut old_at_8, mut sun) = ([0.0f64; 2], 0.0f64, [0.0f64; 2]);
-        let mut sun_worst = 0.0f64;
+        let (mut sun_worst, mut ggx_worst) = (0.0f64, 0.0f64);
         let mut cases = 0.0;
         for brdf in &brdfs {
             // E(c) tabulated over c ∈ [−1, 1] (129 points), linear between.
@@ -3069,6 +3104,9 @@ mod tests {
                         "{brdf:?} κ {kappa} θ_o {deg}: constant {exact:.4} new {en:+.3} old {eo:+.3}; sun {exact_sun:.4} new {sn:+.3} old {so:+.3}"
                     );
                     worst = [worst[0].max(en.abs()), worst[1].max(eo.abs())];
+                    if matches!(brdf, Brdf::Ggx(_)) {
+                        ggx_worst = ggx_worst.max(en.abs());
+                    }
                     if kappa == 8.0 && *deg == 0.0 {
                         old_at_8 = old_at_8.max(-eo);
                     }
@@ -3082,13 +3120,15 @@ mod tests {
         let sun = [sun[0] / cases, sun[1] / cases];
         eprintln!("constant worst new {worst:?}; sun mean |error| new / old {sun:?}");
         // Measured: constant environment within 7.8 % (Blinn-Phong κ = 8 at the normal;
-        // ≤ 1.4 % from κ = 32 on; GGX ≤ 7.6 %), the route before within 30 % (−20 … −30 % at
-        // κ = 8 seen head on: the cosine taken at the lobe's centre).
+        // ≤ 1.4 % from κ = 32 on; GGX ≤ 3.9 % with its table over the NDF's share, 7.6 % with
+        // the widened GGX lobe alone), the route before within 30 % (−20 … −30 % at κ = 8
+        // seen head on: the cosine taken at the lobe's centre).
         assert!(
             worst[0] < 0.09,
             "new route, constant environment: {}",
             worst[0]
         );
+        assert!(ggx_worst < 0.05, "GGX, constant environment: {ggx_worst}");
         assert!(
             old_at_8 > 0.15 && worst[1] > 0.25,
             "the old route is biased: {worst:?}"

@@ -100,7 +100,8 @@ pub struct ndf_environment_info {
     pub reflected_columns: u32,
     /// Rows of `ndf_environment_reflected`.
     pub reflected_rows: u32,
-    /// Columns of `ndf_environment_energy` (33 view cosines).
+    /// Columns of `ndf_environment_energy`: 9 shares of the NDF lobe in the widened lobe
+    /// (GGX's lobe shape; Blinn-Phong's one share repeated) of 33 view cosines (297).
     pub energy_columns: u32,
     /// Rows of `ndf_environment_energy`: 9 blocks of 49 lobe parameters (energy, blend,
     /// `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend, energy, blend and `log2 κ` shift
