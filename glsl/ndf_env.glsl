@@ -71,13 +71,13 @@ float ndf_env_azimuth(vec3 d) {
 
 #if defined(NDF_LIGHT_ENV_PREFILTERED) && !defined(NDF_BRDF_LAMBERT)
 uniform sampler2D ndf_env_atlas;    // prefiltered levels stacked (envgpu::Upload)
-uniform sampler2D ndf_env_energy;   // lobe table: 9 blocks (energy, blend, log2 kappa_c,
-                                    // tail share t, log2 kappa_t, core blend, energy, blend
-                                    // and log2 kappa shift with the cosine at the half
-                                    // vector) of
-                                    // ENERGY_PARAM rows x ENERGY_SHARES groups of
-                                    // ENERGY_COS columns (GGX: the NDF's share w = j/8;
-                                    // Blinn-Phong: one share, repeated)
+uniform sampler2D ndf_env_energy;   // lobe table, RGBA: 9 blocks (energy, blend, log2
+                                    // kappa_c, tail share t | log2 kappa_t, core blend,
+                                    // energy, blend | log2 kappa shift with the cosine at
+                                    // the half vector), four to a texel, 3 x ENERGY_PARAM
+                                    // rows x ENERGY_SHARES groups of ENERGY_COS columns
+                                    // (GGX: the NDF's share w = j/8; Blinn-Phong: one
+                                    // share, repeated) (envgpu::energy)
 uniform float ndf_env_kappa0;      // level 0's nominal kappa, W*H/pi
 uniform float ndf_env_kappa1;      // level 1's kappa; level k >= 1 has kappa1 / 2^(k-1)
 uniform float ndf_env_level_count;
@@ -152,9 +152,10 @@ vec3 ndf_env_lookup(vec3 d, float kappa) {
     return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
 }
 
-// Bilinear lookup of block `block` of the lobe table at fractional row pi and c_o, linear
-// between the shares at fractional share index wi (CPU: EnergyTables::lookup).
-float ndf_env_energy_at(int block, float pi, float wi, float co) {
+// Bilinear lookup of the lobe table's blocks 4 group ... 4 group + 3 (one RGBA texel each) at
+// fractional row pi and c_o, linear between the shares at fractional share index wi (CPU:
+// EnergyTables::lookup; layout: envgpu::energy).
+vec4 ndf_env_energy_at(int group, float pi, float wi, float co) {
     pi = clamp(pi, 0.0, float(NDF_ENV_ENERGY_PARAM - 1));
     wi = clamp(wi, 0.0, float(NDF_ENV_ENERGY_SHARES - 1));
     float ci = clamp(co, 0.0, 1.0) * float(NDF_ENV_ENERGY_COS - 1);
@@ -166,19 +167,25 @@ float ndf_env_energy_at(int block, float pi, float wi, float co) {
     float fp = pi - float(p0);
     float fc = ci - float(c0);
     float fw = wi - float(w0);
-    p0 += block * NDF_ENV_ENERGY_PARAM;
-    p1 += block * NDF_ENV_ENERGY_PARAM;
-    float v[2];
-    for (int k = 0; k < 2; ++k) {
-        int col = (w0 + k) * NDF_ENV_ENERGY_COS;
-        float a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0).r;
-        float b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0).r;
-        float c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0).r;
-        float e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0).r;
-        v[k] = (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
-        if (!(fw > 0.0)) return v[0];
+    p0 += group * NDF_ENV_ENERGY_PARAM;
+    p1 += group * NDF_ENV_ENERGY_PARAM;
+    int col = w0 * NDF_ENV_ENERGY_COS;
+    vec4 a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0);
+    vec4 b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0);
+    vec4 c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0);
+    vec4 e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0);
+    vec4 v = (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+    if (fw > 0.0) {
+        // The next share (GGX only: Blinn-Phong's wi is 0).
+        col += NDF_ENV_ENERGY_COS;
+        a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0);
+        b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0);
+        c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0);
+        e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0);
+        vec4 v1 = (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+        v = (1.0 - fw) * v + fw * v1;
     }
-    return (1.0 - fw) * v[0] + fw * v[1];
+    return v;
 }
 #endif
 
@@ -430,19 +437,22 @@ void ndf_env_lobe(float alpha, vec3 mu, float r, float var, vec3 v,
 #else
     float wi = 0.0;
 #endif
-    float e = (1.0 - w) * ndf_env_energy_at(0, pi_row, wi, co) +
-              w * ndf_env_energy_at(6, pi_row, wi, co);
-    float blend = (1.0 - w) * ndf_env_energy_at(1, pi_row, wi, co) +
-                  w * ndf_env_energy_at(7, pi_row, wi, co);
-    float shift = w * ndf_env_energy_at(8, pi_row, wi, co);
-    float log_kappa = ndf_env_energy_at(2, pi_row, wi, co) + shift;
-    float tail = ndf_env_energy_at(3, pi_row, wi, co);
+    // Blocks 0-3 (energy, blend, log2 kappa_c, tail share), 4-7 (log2 kappa_t, core blend,
+    // energy and blend at the half vector) and 8 (the shift), four to a texel.
+    vec4 b03 = ndf_env_energy_at(0, pi_row, wi, co);
+    vec4 b47 = ndf_env_energy_at(1, pi_row, wi, co);
+    float b8 = ndf_env_energy_at(2, pi_row, wi, co).x;
+    float e = (1.0 - w) * b03.x + w * b47.z;
+    float blend = (1.0 - w) * b03.y + w * b47.w;
+    float shift = w * b8;
+    float log_kappa = b03.z + shift;
+    float tail = b03.w;
     // The lobe's mean direction: a blend of mu and r (CPU: envlight::tilted).
     vec3 d = ndf_env_frame * ndf_normalize_or_z(mu * blend + r_dir * (1.0 - blend));
     if (tail > 0.0) {
         // Two vMFs (GGX's core at the lobe's mode, its tail about the mean).
-        float log_tail = ndf_env_energy_at(4, pi_row, wi, co) + shift;
-        float blend_core = ndf_env_energy_at(5, pi_row, wi, co);
+        float log_tail = b47.x + shift;
+        float blend_core = b47.y;
         vec3 dc = ndf_env_frame *
                   ndf_normalize_or_z(mu * blend_core + r_dir * (1.0 - blend_core));
         spec = ((1.0 - tail) * ndf_env_lookup(dc, exp2(log_kappa)) +

@@ -950,20 +950,20 @@ typedef struct ndf_environment_info {
    */
   uint32_t reflected_rows;
   /**
-   * Columns of `ndf_environment_energy`: 9 shares of the NDF lobe in the widened lobe
-   * (GGX's lobe shape; Blinn-Phong's one share repeated) of 33 view cosines (297).
+   * Columns (texels) of `ndf_environment_energy`: 9 shares of the NDF lobe in the widened
+   * lobe (GGX's lobe shape; Blinn-Phong's one share repeated) of 33 view cosines (297).
    */
   uint32_t energy_columns;
   /**
-   * Rows of `ndf_environment_energy`: 9 blocks of 49 lobe parameters (energy, blend,
-   * `log2 κ_c`, tail share `t`, `log2 κ_t`, core blend, energy, blend and `log2 κ` shift
-   * with the cosine at the half vector; 441).
+   * Rows (texels) of `ndf_environment_energy`: 3 groups of 49 lobe parameters, four blocks
+   * per texel (energy, blend, `log2 κ_c`, tail share `t` | `log2 κ_t`, core blend, energy
+   * and blend with the cosine at the half vector | `log2 κ` shift, 0, 0, 0; 147).
    */
   uint32_t energy_rows;
   /**
    * Floats per texel or coefficient of the radiance-dependent arrays (`ndf_environment_sh`,
    * `_prefiltered`'s atlas, `_reflected`): 3, R, G, B interleaved (`RGB32F` textures,
-   * `uniform vec3 ndf_env_sh[81]`). The energy tables have one.
+   * `uniform vec3 ndf_env_sh[81]`). The energy tables have four per texel (`RGBA32F`).
    */
   uint32_t channels;
 } ndf_environment_info;
@@ -2209,7 +2209,7 @@ ndf_status ndf_environment_reflected(const struct ndf_environment *env,
 
 /**
  * The prefiltered route's lobe-energy table of a BRDF family (`NDF_BRDF_BLINN_PHONG` or
- * `NDF_BRDF_GGX`): `energy_rows` × `energy_columns` floats, an `R32F` texture (sampler
+ * `NDF_BRDF_GGX`): `energy_rows` × `energy_columns` × 4 floats, an `RGBA32F` texture (sampler
  * `ndf_env_energy`; one table for all colour channels). Other BRDFs: `NDF_STATUS_INVALID_ARGUMENT`.
  *
  * # Safety

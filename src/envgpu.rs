@@ -36,11 +36,12 @@
 //! The `L′` table ([`crate::environment::projection::ReflectedTable`]) is an `RGB32F` texture of
 //! `count(8) = 81` columns (the coefficients) × `16² = 256` rows (row `iθ·16 + iφ`, the views of
 //! [`crate::environment::projection::view_of`]); the lobe-energy table of the BRDF
-//! ([`EnvLight::energy_table`]) an `R32F` texture of [`ENERGY_SHARES`] · [`ENERGY_COS`] columns
-//! (GGX's NDF shares, share after share; Blinn-Phong's one share repeated) ×
-//! [`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows (energy, blend, `log2 κ_c`, tail share, `log2 κ_t`,
-//! core blend, energy, blend and `log2 κ` shift with the cosine at the half vector, block after
-//! block). Both are read with `texelFetch` and interpolated in the shader like the CPU does.
+//! ([`EnvLight::energy_table`]) an `RGBA32F` texture of [`ENERGY_SHARES`] · [`ENERGY_COS`]
+//! columns (GGX's NDF shares, share after share; Blinn-Phong's one share repeated) × 3 ·
+//! [`ENERGY_PARAM`] rows, its [`ENERGY_BLOCKS`] blocks (energy, blend, `log2 κ_c`, tail share,
+//! `log2 κ_t`, core blend, energy, blend and `log2 κ` shift with the cosine at the half vector)
+//! four to a texel ([`energy`]). Both are read with `texelFetch` and interpolated in the shader
+//! like the CPU does.
 //!
 //! Uniforms ([`uniforms`]): `vec3 ndf_env_sh[81]` (`L_lm`, environment frame, RGB), `ndf_env_kappa0`,
 //! `ndf_env_kappa1`, `ndf_env_level_count`, `vec4 ndf_env_level[24]` (width, height, first
@@ -209,26 +210,45 @@ fn shelves(sizes: &[(u32, u32)]) -> Vec<[u32; 4]> {
     out
 }
 
-/// The lobe table of `brdf` as f32 for upload ([`ENERGY_BLOCKS`] · [`ENERGY_PARAM`] rows ×
-/// [`ENERGY_SHARES`] · [`ENERGY_COS`] columns: energy, blend, `log2 κ_c`, tail share,
-/// `log2 κ_t`, core blend, energy, blend and `log2 κ` shift with the cosine at the half vector;
-/// GGX's shares of the NDF, Blinn-Phong's single share repeated so both families upload the
-/// same size, [`ENERGY_SIZE`]), `None` for a BRDF without a specular lobe.
+/// The lobe table of `brdf` as f32 for upload: an `RGBA32F` texture of [`ENERGY_SIZE`]
+/// texels, row-major, four blocks per texel. Column `j·ENERGY_COS + c` is share j (GGX's
+/// shares of the NDF; Blinn-Phong's single share repeated, so both families upload the same
+/// size) at view cosine c. Row `g·ENERGY_PARAM + p` is parameter p of blocks `4g … 4g + 3`:
+/// energy, blend, `log2 κ_c`, tail share (g = 0); `log2 κ_t`, core blend, energy and blend
+/// with the cosine at the half vector (g = 1); the `log2 κ` shift and three zeros (g = 2).
+/// One `texelFetch` reads the four blocks the shader interpolates together (GLSL
+/// `ndf_env_energy_at`). `None` for a BRDF without a specular lobe.
 pub fn energy(light: &EnvLight, brdf: &Brdf) -> Option<Vec<f32>> {
     let table = light.energy_table(brdf)?;
     let shares = table.len() / (ENERGY_BLOCKS * ENERGY_PARAM * ENERGY_COS);
-    let mut out = Vec::with_capacity(ENERGY_SIZE.0 * ENERGY_SIZE.1);
-    for row in table.chunks_exact(shares * ENERGY_COS) {
-        for j in 0..ENERGY_SHARES {
-            let share = &row[(j % shares) * ENERGY_COS..][..ENERGY_COS];
-            out.extend(share.iter().map(|&v| v as f32));
+    let at = |b: usize, p: usize, j: usize, c: usize| {
+        if b < ENERGY_BLOCKS {
+            table[((b * ENERGY_PARAM + p) * shares + j % shares) * ENERGY_COS + c] as f32
+        } else {
+            0.0
+        }
+    };
+    let mut out = Vec::with_capacity(ENERGY_SIZE.0 * ENERGY_SIZE.1 * ENERGY_CHANNELS);
+    for g in 0..ENERGY_GROUPS {
+        for p in 0..ENERGY_PARAM {
+            for j in 0..ENERGY_SHARES {
+                for c in 0..ENERGY_COS {
+                    out.extend((0..ENERGY_CHANNELS).map(|k| at(g * ENERGY_CHANNELS + k, p, j, c)));
+                }
+            }
         }
     }
     Some(out)
 }
 
-/// The size (columns, rows) of [`energy`]'s texture.
-pub const ENERGY_SIZE: (usize, usize) = (ENERGY_SHARES * ENERGY_COS, ENERGY_BLOCKS * ENERGY_PARAM);
+/// Floats per texel of [`energy`]'s texture (`RGBA32F`: four blocks).
+pub const ENERGY_CHANNELS: usize = 4;
+
+/// Row groups of [`energy`]'s texture: the blocks, four to a texel.
+const ENERGY_GROUPS: usize = ENERGY_BLOCKS.div_ceil(ENERGY_CHANNELS);
+
+/// The size (columns, rows) of [`energy`]'s texture, in texels of [`ENERGY_CHANNELS`] floats.
+pub const ENERGY_SIZE: (usize, usize) = (ENERGY_SHARES * ENERGY_COS, ENERGY_GROUPS * ENERGY_PARAM);
 
 /// One environment uniform: its name, components per element (1: `float`, 3: `vec3`, 4:
 /// `vec4`) and values (arrays as several elements).
@@ -344,6 +364,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_shader_declares_the_same_table_shape() {
+        let src = include_str!("../glsl/ndf_env.glsl");
+        for (name, v) in [
+            ("COS", ENERGY_COS),
+            ("PARAM", ENERGY_PARAM),
+            ("SHARES", ENERGY_SHARES),
+        ] {
+            let line = format!("const int NDF_ENV_ENERGY_{name} = {v};");
+            assert!(src.contains(&line), "{line}");
+        }
+    }
+
+    #[test]
     fn extracted_lights_are_packed_into_their_uniforms() {
         // The sky's sun, extracted: its direction, RGB power, κ and flag reach the uniforms
         // element for element, the count is 1; without extraction the count is 0 and no light
@@ -443,14 +476,26 @@ mod tests {
         assert!(up.sh[0] > 1.2 * up.sh[2], "{} {}", up.sh[0], up.sh[2]);
         assert_eq!(up.sh.len(), 81 * 3);
         assert_eq!(up.reflected.len(), 81 * 256 * 3);
-        let e = energy(&light, &Brdf::BlinnPhong { s: 32.0 }).unwrap();
-        assert_eq!(e.len(), ENERGY_SIZE.0 * ENERGY_SIZE.1);
+        let bp = Brdf::BlinnPhong { s: 32.0 };
+        let e = energy(&light, &bp).unwrap();
+        assert_eq!(e.len(), ENERGY_SIZE.0 * ENERGY_SIZE.1 * ENERGY_CHANNELS);
+        // Texel (column j·33 + c, row g·49 + p) holds blocks 4g … 4g + 3 of share j.
+        let texel = |t: &[f32], j: usize, c: usize, g: usize, p: usize| {
+            let k = ((g * ENERGY_PARAM + p) * ENERGY_SIZE.0 + j * ENERGY_COS + c) * ENERGY_CHANNELS;
+            [t[k], t[k + 1], t[k + 2], t[k + 3]]
+        };
+        let table = light.energy_table(&bp).unwrap();
+        let block = |b: usize, p: usize, c: usize| table[(b * ENERGY_PARAM + p) * ENERGY_COS + c];
+        assert_eq!(texel(&e, 0, 7, 1, 20)[1], block(5, 20, 7) as f32);
+        assert_eq!(
+            texel(&e, 0, 7, 2, 20),
+            [block(8, 20, 7) as f32, 0.0, 0.0, 0.0]
+        );
         // Blinn-Phong's one share, repeated; GGX's shares differ (w = 0 against w = 1).
-        let (row, cols) = (20 * ENERGY_SIZE.0, ENERGY_COS);
-        assert_eq!(e[row..][..cols], e[row + 8 * cols..][..cols]);
+        assert_eq!(texel(&e, 0, 7, 0, 20), texel(&e, 8, 7, 0, 20));
         let g = energy(&light, &Brdf::ggx(0.1)).unwrap();
         assert_eq!(g.len(), e.len());
-        assert_ne!(g[row..][..cols], g[row + 8 * cols..][..cols]);
+        assert_ne!(texel(&g, 0, 7, 0, 20), texel(&g, 8, 7, 0, 20));
         assert!(energy(&light, &Brdf::Lambert).is_none());
         let u = uniforms(&up, &Brdf::ggx(0.3), Route::Sh);
         assert!(

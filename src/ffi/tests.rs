@@ -2028,7 +2028,7 @@ fn environments_load_and_pack_for_upload() {
         let mut lp = vec![0.0f32; 3 * (info.reflected_columns * info.reflected_rows) as usize];
         check!(ndf_environment_reflected(env, lp.as_mut_ptr(), lp.len()) => Ok, "");
         assert_eq!(lp, up.reflected);
-        let mut e = vec![0.0f32; (info.energy_columns * info.energy_rows) as usize];
+        let mut e = vec![0.0f32; 4 * (info.energy_columns * info.energy_rows) as usize];
         check!(ndf_environment_energy(env, NDF_BRDF_GGX, e.as_mut_ptr(), e.len()) => Ok, "");
         assert_eq!(
             e,

@@ -284,12 +284,12 @@ static void environments(const ndf_bake *vmf, const ndf_bake *sh_bake) {
             }
         }
     }
-    energy = (float *)malloc((size_t)info.energy_columns * info.energy_rows * sizeof(float));
+    energy = (float *)malloc((size_t)4 * info.energy_columns * info.energy_rows * sizeof(float));
     expect(ndf_environment_energy(env, NDF_BRDF_GGX, energy,
-                                  (size_t)info.energy_columns * info.energy_rows),
+                                  (size_t)4 * info.energy_columns * info.energy_rows),
            NDF_STATUS_OK, "env energy");
     expect(ndf_environment_energy(env, NDF_BRDF_TORRANCE_SPARROW, energy,
-                                  (size_t)info.energy_columns * info.energy_rows),
+                                  (size_t)4 * info.energy_columns * info.energy_rows),
            NDF_STATUS_INVALID_ARGUMENT, "env energy brdf");
     free(energy);
     free(table);

@@ -1,6 +1,6 @@
 //! Environment lighting on the GPU (issue 16): [`EnvTextures`] uploads what the environment
 //! shaders (`glsl/ndf_env.glsl`, [`ndfmap::glsl::ShaderLight`]) read — the prefiltered levels as
-//! one equirectangular `RGB32F` atlas, the `RGB32F` `L′` table and the two `R32F` lobe-energy
+//! one equirectangular `RGB32F` atlas, the `RGB32F` `L′` table and the two `RGBA32F` lobe-energy
 //! tables (they do not depend on the radiance: one for all channels), all sampled
 //! with `texelFetch` (filtering `NEAREST`, no MIP levels) — and sets their uniforms
 //! ([`ndfmap::envgpu`]). Why an equirectangular atlas and not a cube map or a GL MIP chain:
@@ -15,7 +15,9 @@ use crate::{Gl, Result};
 use glam::Mat3;
 use glow::HasContext;
 use ndfmap::brdf::Brdf;
-use ndfmap::envgpu::{self, CHANNELS, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload};
+use ndfmap::envgpu::{
+    self, CHANNELS, ENERGY_CHANNELS, ENERGY_SIZE, REFLECTED_COLUMNS, REFLECTED_ROWS, Upload,
+};
 use ndfmap::envlight::{EnvLight, Route};
 
 /// An environment on the GPU (module docs).
@@ -47,13 +49,13 @@ impl EnvTextures {
             (
                 ENERGY_SIZE.0,
                 ENERGY_SIZE.1,
-                1,
+                ENERGY_CHANNELS,
                 envgpu::energy(light, &Brdf::BlinnPhong { s: 1.0 }).unwrap_or_default(),
             ),
             (
                 ENERGY_SIZE.0,
                 ENERGY_SIZE.1,
-                1,
+                ENERGY_CHANNELS,
                 envgpu::energy(light, &Brdf::ggx(0.5)).unwrap_or_default(),
             ),
         ];

@@ -374,7 +374,7 @@ impl Drop for BakeTextures {
 }
 
 /// Row-major float texels for [`float_texture`]: `width × height` texels of `channels` (1: a
-/// table, 3: RGB), row 0 first (texture coordinate t = 0).
+/// table, 3: RGB, 4: a table of four values per texel), row 0 first (texture coordinate t = 0).
 pub(crate) struct FloatImage<'a> {
     pub width: usize,
     pub height: usize,
@@ -392,7 +392,7 @@ pub(crate) enum FloatSampling {
     Equirectangular,
 }
 
-/// Creates a one-level `R32F` (`channels` 1) or `RGB32F` (3) texture from `image`, refused
+/// Creates a one-level `R32F` (`channels` 1), `RGB32F` (3) or `RGBA32F` (4) texture from `image`, refused
 /// with [`Error::Usage`] when a side exceeds `GL_MAX_TEXTURE_SIZE`; `what` names the upload in
 /// a GL error (the texture is deleted then). The one float upload of the crate: BRDF tables,
 /// environment tables and atlas, environment backgrounds.
@@ -411,7 +411,8 @@ pub(crate) fn float_texture(
     let (internal, format) = match channels {
         1 => (glow::R32F, glow::RED),
         3 => (glow::RGB32F, glow::RGB),
-        n => return Err(Error::Usage(format!("{what}: {n} channels (1 or 3)"))),
+        4 => (glow::RGBA32F, glow::RGBA),
+        n => return Err(Error::Usage(format!("{what}: {n} channels (1, 3 or 4)"))),
     };
     if data.len() != width * height * channels {
         return Err(Error::Usage(format!(
