@@ -1030,6 +1030,7 @@ fn lobe_var(kappa: f64) -> f64 {
 
 /// [`prefiltered_lobe`] with the cosine mixed by `share` instead of [`ndf_share`]: 0 takes the
 /// cosine at the lobe's centre (the route before the half-vector blocks), 1 at the half vector.
+/// GGX's lobe shape (its table's share axis) still follows [`ndf_share`].
 /// For analysis (`examples/env_error_split.rs` measures the route both ways in one run).
 pub fn prefiltered_lobe_with_share(
     light: &EnvLight,
