@@ -24,12 +24,12 @@ fn ggx_param(i: usize) -> f64 {
     10f64.powf(-3.0 + 3.0 * i as f64 / (ENERGY_PARAM - 1) as f64)
 }
 
-/// One family's table: the lobes `f(c) = lobe(p, w)(c)` over [`ENERGY_PARAM`] parameters `param(i)` (quadrature
-/// width `width(p)`) × `shares` NDF shares `w = j/(shares − 1)` (one share, `w = 0`, for a
-/// family whose lobe keeps its shape under an NDF lobe) × [`ENERGY_COS`] view cosines, for each
-/// of the [`ENERGY_BLOCKS`] quantities of [`lobe_moments`]: block after block, parameter after
-/// parameter, share after share (`EnergyTables::lookup`'s order, the texture's rows and
-/// columns).
+/// One family's table: the lobes `f(c) = lobe(p, w)(c)` over [`ENERGY_PARAM`] parameters
+/// `param(i)` (quadrature width `width(p)`) × `shares` NDF shares `w = j/(shares − 1)` (one
+/// share, `w = 0`, for a family whose lobe keeps its shape under an NDF lobe) × [`ENERGY_COS`]
+/// view cosines, for each of the [`ENERGY_BLOCKS`] quantities of [`lobe_moments`]: block after
+/// block, parameter after parameter, share after share (`EnergyTables::lookup`'s order;
+/// `envgpu::energy` packs it for upload).
 ///
 /// `lobe(p, w)` is built once per parameter and share.
 /// With `gaussian` (GGX: `p ↦ s`, the Blinn-Phong exponent of the same variance), block 6 is
