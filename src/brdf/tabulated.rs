@@ -133,8 +133,9 @@ impl TryFrom<TabulatedFile> for Tabulated {
     }
 }
 
-/// Piecewise-linear interpolation of `(xs, ys)` at `x` (constant beyond the ends).
-fn interp(xs: &[f64], ys: &[f64], x: f64) -> f64 {
+/// Piecewise-linear interpolation of `(xs, ys)` at `x` (constant beyond the ends); `xs`
+/// ascending.
+pub(crate) fn interp(xs: &[f64], ys: &[f64], x: f64) -> f64 {
     if x <= xs[0] {
         return ys[0];
     }

@@ -151,18 +151,7 @@ fn ggx_convolved(alpha_w: f64, w: f64) -> Box<dyn Fn(f64) -> f64> {
         .iter()
         .map(|&t| crate::brdf::convolution::convolve_vmf(&d, alpha.min(0.5 * PI), kappa, t))
         .collect();
-    Box::new(move |c| {
-        let t = c.clamp(-1.0, 1.0).acos();
-        let i = nodes.partition_point(|&x| x < t);
-        if i == 0 {
-            values[0]
-        } else if i >= nodes.len() {
-            values[nodes.len() - 1]
-        } else {
-            let u = (t - nodes[i - 1]) / (nodes[i] - nodes[i - 1]);
-            (1.0 - u) * values[i - 1] + u * values[i]
-        }
-    })
+    Box::new(move |c| crate::brdf::tabulated::interp(&nodes, &values, c.clamp(-1.0, 1.0).acos()))
 }
 
 /// The view angle the moments of a view at the normal are taken at (its limit: at exactly
