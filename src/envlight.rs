@@ -970,12 +970,11 @@ fn diffuse_lobe(sh: &[f64], y: &[f64], lobe: &Lobe) -> f64 {
 
 /// The effective half-vector lobe of `brdf` widened by per-axis variance `var` at `co`: the
 /// `energy_quadrature::lobe_moments` of its Blinn-Phong s' or GGX α' (energy, blend, log2 κ_c, tail share,
-/// log2 κ_t, core blend, energy and blend with the cosine at the half vector); GGX's at the
-/// NDF's share `shape` of the widened lobe ([`ndf_share`] of `var`).
-fn widened(light: &EnvLight, brdf: &Brdf, var: f64, shape: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
+/// log2 κ_t, core blend, energy and blend with the cosine at the half vector).
+fn widened(light: &EnvLight, brdf: &Brdf, var: f64, co: f64) -> [f64; ENERGY_BLOCKS] {
     match brdf {
         Brdf::BlinnPhong { s } => light.energy.blinn_phong(s / (1.0 + s * var), co),
-        Brdf::Ggx(g) => light.energy.ggx(g.widened(var), shape, co),
+        Brdf::Ggx(g) => light.energy.ggx(g.widened(var), ndf_share(brdf, var), co),
         _ => [0.0; ENERGY_BLOCKS],
     }
 }
@@ -1017,7 +1016,7 @@ pub fn prefiltered_lobe(
     brdf: &Brdf,
 ) -> [f64; 3] {
     let share = ndf_share(brdf, lobe_var(kappa));
-    route_lobe(light, frame, mu, kappa, view, brdf, share, share)
+    prefiltered_lobe_with_share(light, frame, mu, kappa, view, brdf, share)
 }
 
 /// The per-axis variance `1/κ` of an NDF lobe (0 for κ = ∞, at most 10⁶).
@@ -1042,23 +1041,6 @@ pub fn prefiltered_lobe_with_share(
     brdf: &Brdf,
     share: f64,
 ) -> [f64; 3] {
-    let shape = ndf_share(brdf, lobe_var(kappa));
-    route_lobe(light, frame, mu, kappa, view, brdf, shape, share)
-}
-
-/// [`prefiltered_lobe_with_share`] with the NDF's share `shape` of the widened lobe
-/// ([`ndf_share`], GGX's table axis) given, so [`prefiltered_lobe`] computes it once.
-#[allow(clippy::too_many_arguments)]
-fn route_lobe(
-    light: &EnvLight,
-    frame: DMat3,
-    mu: DVec3,
-    kappa: f64,
-    view: DVec3,
-    brdf: &Brdf,
-    shape: f64,
-    share: f64,
-) -> [f64; 3] {
     let var = lobe_var(kappa);
     let co = view.dot(mu);
     if !brdf.has_specular() || co.is_nan() || co <= 0.0 {
@@ -1076,7 +1058,7 @@ fn route_lobe(
         e_h,
         blend_h,
         shift,
-    ] = widened(light, brdf, var, shape, co);
+    ] = widened(light, brdf, var, co);
     let w = share.clamp(0.0, 1.0);
     let e = (1.0 - w) * e0 + w * e_h;
     let blend = (1.0 - w) * blend0 + w * blend_h;
