@@ -8,13 +8,15 @@
 //! default, `LightOptions::default()`); the lights' own term is the point-light path's and is
 //! left out of both.
 //!
-//! `cargo run --release --example env_lobe_probe -- ENV|sky|constant BRDFS` with BRDFS comma-separated
-//! `bpS` (Blinn-Phong exponent S) or a GGX α, e.g. `venice_sunset_1k.hdr 0.3,0.1,bp32`.
+//! `cargo run --release --example env_lobe_probe -- ENV|sky|constant BRDFS` with BRDFS
+//! comma-separated `bpS` (Blinn-Phong exponent S) or a GGX α, e.g. `venice_sunset_1k.hdr
+//! 0.3,0.1,bp32`; `constant` is a 256 × 128 environment of radiance 1, where the lookup is
+//! exactly 1 and the route's error is its energy alone.
 //!
 //! Prints, per BRDF, κ and view angle θ_o (35° and 70°), the signed bias `Σ(a − b)/Σ b` and the
 //! RMS of `(a − b)/b` over 36 geometries: μ tilted 0, 20 and 40° from the environment's zenith
 //! (the surface's tangent frame is the environment's, as in texel-space `eval`) × 12 azimuths
-//! of the view, 30° apart. About 2 min per BRDF for a 1024 × 512 panorama on two cores (`constant`, 256 × 128: 10 s).
+//! of the view, 30° apart. About 2 min per BRDF for a 1024 × 512 panorama on two cores.
 
 use glam::{DMat3, DVec3};
 use ndfmap::brdf::Brdf;
