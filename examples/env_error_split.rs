@@ -49,7 +49,7 @@ fn vmf_normals(l: &TexelLobe, out: &mut Vec<(DVec3, f64)>) {
     let (t1, t2) = ndfmap::brdf::tangent_frame(l.mu);
     for i in 0..NORMALS {
         let u = (i as f64 + 0.5) / NORMALS as f64;
-        let c = (1.0 + (u + (1.0 - u) * (-2.0 * k).exp()).ln() / k).clamp(-1.0, 1.0);
+        let c = ndfmap::vmf::cos_quantile(u, k);
         let s = (1.0 - c * c).max(0.0).sqrt();
         let phi = 2.0 * PI * (i as f64 * 0.618_033_988_749_894_9).fract();
         let n = t1 * (s * phi.cos()) + t2 * (s * phi.sin()) + l.mu * c;

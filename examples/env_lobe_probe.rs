@@ -45,7 +45,7 @@ fn vmf_normals(kappa: f64) -> Vec<(DVec3, f64)> {
     (0..RINGS)
         .flat_map(|i| {
             let u = (i as f64 + 0.5) / RINGS as f64;
-            let c = (1.0 + (u + (1.0 - u) * (-2.0 * kappa).exp()).ln() / kappa).clamp(-1.0, 1.0);
+            let c = ndfmap::vmf::cos_quantile(u, kappa);
             let s = (1.0 - c * c).max(0.0).sqrt();
             (0..AZIMUTHS).map(move |j| {
                 let phi = 2.0 * PI * (j as f64 + 0.5 * (i % 2) as f64) / AZIMUTHS as f64;

@@ -76,8 +76,9 @@ uniform sampler2D ndf_env_energy;   // lobe table, RGBA: 9 blocks (energy, blend
                                     // energy, blend | log2 kappa shift with the cosine at
                                     // the half vector), four to a texel, 3 x ENERGY_PARAM
                                     // rows x ENERGY_SHARES groups of ENERGY_COS columns
-                                    // (GGX: the NDF's share w = j/8; Blinn-Phong: one
-                                    // share, repeated) (envgpu::energy)
+                                    // (GGX: the NDF's share w = j/8, its half-vector energy
+                                    // set so the mixed energy is the NDF lobe's exact one;
+                                    // Blinn-Phong: one share, repeated) (envgpu::energy)
 uniform float ndf_env_kappa0;      // level 0's nominal kappa, W*H/pi
 uniform float ndf_env_kappa1;      // level 1's kappa; level k >= 1 has kappa1 / 2^(k-1)
 uniform float ndf_env_level_count;
@@ -152,6 +153,16 @@ vec3 ndf_env_lookup(vec3 d, float kappa) {
     return (1.0 - t) * a + t * ndf_env_bilinear(i + 1, d);
 }
 
+// One share's bilinear read of the lobe table at columns col + c0, col + c1 and rows p0, p1
+// (weights fc, fp): four blocks per texel.
+vec4 ndf_env_energy_share(int col, int c0, int c1, int p0, int p1, float fc, float fp) {
+    vec4 a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0);
+    vec4 b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0);
+    vec4 c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0);
+    vec4 e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0);
+    return (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+}
+
 // Bilinear lookup of the lobe table's blocks 4 group ... 4 group + 3 (one RGBA texel each) at
 // fractional row pi and c_o, linear between the shares at fractional share index wi (CPU:
 // EnergyTables::lookup; layout: envgpu::energy).
@@ -170,19 +181,10 @@ vec4 ndf_env_energy_at(int group, float pi, float wi, float co) {
     p0 += group * NDF_ENV_ENERGY_PARAM;
     p1 += group * NDF_ENV_ENERGY_PARAM;
     int col = w0 * NDF_ENV_ENERGY_COS;
-    vec4 a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0);
-    vec4 b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0);
-    vec4 c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0);
-    vec4 e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0);
-    vec4 v = (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+    vec4 v = ndf_env_energy_share(col, c0, c1, p0, p1, fc, fp);
     if (fw > 0.0) {
         // The next share (GGX only: Blinn-Phong's wi is 0).
-        col += NDF_ENV_ENERGY_COS;
-        a = texelFetch(ndf_env_energy, ivec2(col + c0, p0), 0);
-        b = texelFetch(ndf_env_energy, ivec2(col + c1, p0), 0);
-        c = texelFetch(ndf_env_energy, ivec2(col + c0, p1), 0);
-        e = texelFetch(ndf_env_energy, ivec2(col + c1, p1), 0);
-        vec4 v1 = (1.0 - fp) * ((1.0 - fc) * a + fc * b) + fp * ((1.0 - fc) * c + fc * e);
+        vec4 v1 = ndf_env_energy_share(col + NDF_ENV_ENERGY_COS, c0, c1, p0, p1, fc, fp);
         v = (1.0 - fw) * v + fw * v1;
     }
     return v;

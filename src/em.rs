@@ -1529,7 +1529,7 @@ mod tests {
     /// Wood's algorithm on S²: w = 1 + ln(u + (1 − u)e^{−2κ})/κ, direction uniform around μ.
     fn sample_vmf(rng: &mut Rng, mu: DVec3, kappa: f64) -> DVec3 {
         let u = rng.uniform();
-        let w = (1.0 + (u + (1.0 - u) * (-2.0 * kappa).exp()).ln() / kappa).clamp(-1.0, 1.0);
+        let w = crate::vmf::cos_quantile(u, kappa);
         let phi = 2.0 * PI * rng.uniform();
         let s = (1.0 - w * w).max(0.0).sqrt();
         let (e1, e2) = mu.any_orthonormal_pair();

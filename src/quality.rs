@@ -414,7 +414,7 @@ mod tests {
         (0..count)
             .map(|_| {
                 let u = rng.uniform();
-                let w = 1.0 + (u + (1.0 - u) * (-2.0 * kappa).exp()).ln() / kappa;
+                let w = crate::vmf::cos_quantile(u, kappa);
                 let phi = rng.range(0.0, std::f64::consts::TAU);
                 let s = (1.0 - w * w).max(0.0).sqrt();
                 (w * mu + s * (phi.cos() * t1 + phi.sin() * t2)).as_vec3()

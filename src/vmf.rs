@@ -186,6 +186,14 @@ pub fn a_kappa(kappa: f64) -> f64 {
     }
 }
 
+/// The cosine `w = cos γ` from a vMF's mean direction at quantile `u ∈ [0, 1]` of its
+/// angle, `w = 1 + ln(u + (1 − u)e^{−2κ})/κ` (Wood 1994 on S²; u = 0 is the antipode, u = 1
+/// the mean), clamped to `[−1, 1]`: what sampling a vMF draws for a uniform u, and what a
+/// stratified quadrature over a vMF places at the midpoints of u. κ > 0.
+pub fn cos_quantile(u: f64, kappa: f64) -> f64 {
+    (1.0 + (u + (1.0 - u) * (-2.0 * kappa).exp()).ln() / kappa).clamp(-1.0, 1.0)
+}
+
 /// Derivative `A'(κ) = 1 − A(κ)² − 2A(κ)/κ` (used by the Newton steps of
 /// [`kappa_from_r_exact`]); `1/3` at κ = 0.
 fn a_kappa_derivative(kappa: f64) -> f64 {

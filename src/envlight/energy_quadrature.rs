@@ -136,6 +136,50 @@ pub(super) fn ggx_table(rows: &(dyn Fn(usize) -> bool + Sync)) -> Vec<f64> {
     table
 }
 
+/// The quadrature over half vectors ω_h about the lobe's axis z of a lobe `f(ω_h·z)`: polar
+/// panels sized to the lobe ([`crate::harmonics::polar_quadrature`], rings where f vanishes
+/// dropped) × `nphi` azimuths, each node carrying `f(cos θ) sin θ dθ dφ`. What
+/// [`lobe_moments`] and [`normal_energy`] integrate over ω_i with (`dω_i = 4(ω_o·ω_h) dω_h`).
+struct HalfVectors {
+    /// Per ring: `sin θ`, `cos θ` and the node weight.
+    rings: Vec<(f64, f64, f64)>,
+    /// The azimuths' `(cos φ, sin φ)`, shared by every ring.
+    azimuths: Vec<(f64, f64)>,
+}
+
+impl HalfVectors {
+    fn new(f: &dyn Fn(f64) -> f64, width: f64, nphi: usize) -> HalfVectors {
+        let azimuths = (0..nphi)
+            .map(|j| {
+                let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
+                (phi.cos(), phi.sin())
+            })
+            .collect();
+        let rings = crate::harmonics::polar_quadrature(width)
+            .into_iter()
+            .filter_map(|(theta, w)| {
+                let (st, ct) = theta.sin_cos();
+                let fv = f(ct);
+                (fv != 0.0).then_some((st, ct, w * st * fv * 2.0 * PI / nphi as f64))
+            })
+            .collect();
+        HalfVectors { rings, azimuths }
+    }
+
+    /// `visit(ω_h, ω_o·ω_h, weight)` for every node with `ω_o·ω_h > 0`.
+    fn each(&self, o: DVec3, visit: &mut dyn FnMut(DVec3, f64, f64)) {
+        for &(st, ct, k) in &self.rings {
+            for &(cp, sp) in &self.azimuths {
+                let h = DVec3::new(st * cp, st * sp, ct);
+                let oh = o.dot(h);
+                if oh > 0.0 {
+                    visit(h, oh, k);
+                }
+            }
+        }
+    }
+}
+
 /// Nodes of [`normal_energy`]'s grid over the angle between the normal and the view, `[0, π]`.
 const NORMAL_ANGLES: usize = 129;
 /// The vMF quadrature of [`ndf_energy`]: polar nodes (midpoints of the inverse CDF) and
@@ -149,36 +193,17 @@ const VMF_AZIMUTHS: usize = 64;
 /// it), by quadrature over ω_h (`dω_i = 4(ω_o·ω_h) dω_h`, polar panels sized to the lobe × 64
 /// azimuths).
 fn normal_energy(f: &dyn Fn(f64) -> f64, width: f64) -> Vec<f64> {
-    let nphi = 64;
-    let azimuths: Vec<(f64, f64)> = (0..nphi)
-        .map(|j| (2.0 * PI * (j as f64 + 0.5) / nphi as f64).sin_cos())
-        .map(|(s, c)| (c, s))
-        .collect();
-    let rings: Vec<(f64, f64, f64)> = crate::harmonics::polar_quadrature(width)
-        .into_iter()
-        .filter_map(|(theta, w)| {
-            let (st, ct) = theta.sin_cos();
-            let fv = f(ct);
-            (fv != 0.0).then_some((st, ct, w * st * fv * 2.0 * PI / nphi as f64))
-        })
-        .collect();
+    let nodes = HalfVectors::new(f, width, 64);
     (0..NORMAL_ANGLES)
         .map(|k| {
             let (so, co) = (PI * k as f64 / (NORMAL_ANGLES - 1) as f64).sin_cos();
-            let o = DVec3::new(so, 0.0, co);
             let mut sum = 0.0;
-            for &(st, ct, weight) in &rings {
-                for &(cp, sp) in &azimuths {
-                    let h = DVec3::new(st * cp, st * sp, ct);
-                    let oh = o.dot(h);
-                    if oh > 0.0 {
-                        let cos_i = 2.0 * oh * h.z - co;
-                        if cos_i > 0.0 {
-                            sum += weight * cos_i * 4.0 * oh;
-                        }
-                    }
+            nodes.each(DVec3::new(so, 0.0, co), &mut |h, oh, weight| {
+                let cos_i = 2.0 * oh * h.z - co;
+                if cos_i > 0.0 {
+                    sum += weight * cos_i * 4.0 * oh;
                 }
-            }
+            });
             sum
         })
         .collect()
@@ -198,11 +223,9 @@ fn ndf_energy(energy: &[f64], kappa: f64, co: f64) -> f64 {
         let t = x - i as f64;
         (1.0 - t) * energy[i] + t * energy[i + 1]
     };
-    let tail = (-2.0 * kappa).exp();
     let mut sum = 0.0;
     for i in 0..VMF_POLAR {
-        let u = (i as f64 + 0.5) / VMF_POLAR as f64;
-        let cg = (1.0 + (u + (1.0 - u) * tail).ln() / kappa).clamp(-1.0, 1.0);
+        let cg = crate::vmf::cos_quantile((i as f64 + 0.5) / VMF_POLAR as f64, kappa);
         let sg = (1.0 - cg * cg).max(0.0).sqrt();
         for j in 0..VMF_AZIMUTHS {
             let psi = 2.0 * PI * (j as f64 + 0.5) / VMF_AZIMUTHS as f64;
@@ -228,9 +251,7 @@ fn exact_share_energy(table: &mut [f64], rows: &(dyn Fn(usize) -> bool + Sync)) 
         .map(|k| {
             let (i, j) = (k / ENERGY_SHARES, k % ENERGY_SHARES);
             let w = j as f64 / (ENERGY_SHARES - 1) as f64;
-            let a2 = ggx_param(i).powi(2);
-            let alpha = (a2 * (1.0 - w)).max(1e-6 * a2).sqrt();
-            let kappa = crate::brdf::GGX_WIDENING_C / (w * a2);
+            let (alpha, kappa) = ggx_cell(ggx_param(i), w);
             let energy = normal_energy(&|c| ggx(c, alpha), alpha.min(0.5 * PI));
             let e: Vec<f64> = (0..ENERGY_COS)
                 .map(|c| {
@@ -250,14 +271,21 @@ fn exact_share_energy(table: &mut [f64], rows: &(dyn Fn(usize) -> bool + Sync)) 
     }
 }
 
+/// The GGX roughness and the vMF concentration a GGX table cell `(α', w)` stands for (w > 0):
+/// `α = α'·sqrt(1 − w)` (at least `10⁻³ α'`) and `κ = c/(w α'²)`, so that `α² + c/κ = α'²`
+/// and the NDF's share of it is w ([`ggx_table`]).
+fn ggx_cell(alpha_w: f64, w: f64) -> (f64, f64) {
+    let a2 = alpha_w * alpha_w;
+    let alpha = (a2 * (1.0 - w)).max(1e-6 * a2).sqrt();
+    (alpha, crate::brdf::GGX_WIDENING_C / (w * a2))
+}
+
 /// The lobe `f(c)` of the GGX table's cell `(α', w)` ([`ggx_table`]).
 fn ggx_convolved(alpha_w: f64, w: f64) -> Box<dyn Fn(f64) -> f64> {
     if w <= 0.0 {
         return Box::new(move |c| ggx(c, alpha_w));
     }
-    let a2 = alpha_w * alpha_w;
-    let alpha = (a2 * (1.0 - w)).max(1e-6 * a2).sqrt();
-    let kappa = crate::brdf::GGX_WIDENING_C / (w * a2);
+    let (alpha, kappa) = ggx_cell(alpha_w, w);
     let nodes: Vec<f64> = crate::harmonics::polar_quadrature(alpha_w.min(0.5 * PI))
         .iter()
         .map(|n| n.0)
@@ -406,36 +434,15 @@ pub(super) fn lobe_moments(
 ) -> [f64; ENERGY_BLOCKS] {
     let co = co.min(MOMENT_MIN_ANGLE.cos());
     let o = DVec3::new((1.0 - co * co).max(0.0).sqrt(), 0.0, co);
-    let nphi = 128;
-    // The azimuths' (cos, sin), shared by every ring (the same values as computed per ring).
-    let azimuths: Vec<(f64, f64)> = (0..nphi)
-        .map(|j| {
-            let phi = 2.0 * PI * (j as f64 + 0.5) / nphi as f64;
-            (phi.cos(), phi.sin())
-        })
-        .collect();
-    let quadrature = crate::harmonics::polar_quadrature(width);
+    let nodes = HalfVectors::new(f, width, 128);
     // One pass over the samples: `visit(l, weight, weight with the cosine at ω_h)` for every
     // incident direction.
     let each = |visit: &mut dyn FnMut(DVec3, f64, f64)| {
-        for &(theta, w) in &quadrature {
-            let (st, ct) = theta.sin_cos();
-            let fv = f(ct);
-            if fv == 0.0 {
-                continue;
-            }
-            let k = w * st * fv * 2.0 * PI / nphi as f64;
-            for &(cp, sp) in &azimuths {
-                let h = DVec3::new(st * cp, st * sp, ct);
-                let oh = o.dot(h);
-                if oh <= 0.0 {
-                    continue;
-                }
-                let l = 2.0 * oh * h - o;
-                let x = l.z.max(0.0) * 4.0 * oh;
-                visit(l, k * x, k * 4.0 * oh * oh);
-            }
-        }
+        nodes.each(o, &mut |h, oh, k| {
+            let l = 2.0 * oh * h - o;
+            let x = l.z.max(0.0) * 4.0 * oh;
+            visit(l, k * x, k * 4.0 * oh * oh);
+        });
     };
     let (mut sum, mut sum_h) = (0.0, 0.0);
     let (mut m, mut m_h) = (DVec3::ZERO, DVec3::ZERO);
