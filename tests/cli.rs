@@ -591,7 +591,7 @@ fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
         .collect();
     let run = ndfmap(&[
         "bench", "--sizes", "32", "--lobes", "2", "--align", "none,1", "--modes", "fast", "--lmax",
-        "2", "--json",
+        "2", "--json", "--runs", "3",
     ]);
     assert!(
         run.status.success(),
@@ -611,6 +611,19 @@ fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
             assert!(r["seconds"].as_f64().unwrap() > 0.0);
             assert!(r["peak_bytes"].as_u64().unwrap_or(1) > 0);
         }
+    }
+    // `--runs 3`: every configuration timed three times, the median printed.
+    for r in &rows {
+        assert_eq!(r["runs"], 3);
+        let mut all: Vec<f64> = r["seconds_runs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        all.sort_by(f64::total_cmp);
+        assert_eq!(all.len(), 3, "{r}");
+        assert_eq!(r["seconds"].as_f64().unwrap(), all[1], "{r}");
     }
     // Toksvig and SH are baked in memory only.
     assert!(

@@ -83,6 +83,11 @@ enum Command {
         /// `--quality`: the levels measured, FIRST..=LAST.
         #[arg(long, default_value = "2..=8")]
         levels: String,
+        /// Time each bake this many times (1 to 100) and print the median wall and CPU
+        /// seconds and the highest peak (issue 14's speed target is the median of 5; JSON also
+        /// lists every run's wall seconds).
+        #[arg(long, default_value_t = 1)]
+        runs: usize,
     },
     /// Generate the built-in sample map, bake every method, and print the error table.
     Demo {
@@ -1982,6 +1987,7 @@ fn run(cli: Cli) -> Result<u8> {
             levels,
             scale,
             untiled_max,
+            runs,
         } => {
             if scale {
                 // One mode given: that one; else (the default list) balanced.
@@ -1998,7 +2004,7 @@ fn run(cli: Cli) -> Result<u8> {
             if quality {
                 bench_quality(&sizes, &maps, &grid, samples, &levels, json)?
             } else {
-                bench(&sizes, &grid, json)?
+                bench(&sizes, &grid, json, runs)?
             }
         }
     }
@@ -2148,17 +2154,63 @@ fn timed<T>(work: impl FnOnce() -> Result<T>) -> Result<(T, Timing)> {
     ))
 }
 
+/// [`timed`] `runs` times: the last run's output, the median wall and CPU seconds (the mean of
+/// the middle two for an even count), the highest peak, the lowest base, and every run's wall
+/// seconds in order.
+fn timed_runs<T>(
+    runs: usize,
+    mut work: impl FnMut() -> Result<T>,
+) -> Result<(T, Timing, Vec<f64>)> {
+    let median = |mut v: Vec<f64>| -> f64 {
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        }
+    };
+    let mut all = Vec::with_capacity(runs);
+    let mut last = None;
+    for _ in 0..runs.max(1) {
+        // The previous run's output is freed first, so no run's peak holds two.
+        drop(last.take());
+        let (out, t) = timed(&mut work)?;
+        all.push(t);
+        last = Some(out);
+    }
+    let seconds: Vec<f64> = all.iter().map(|t| t.seconds).collect();
+    let cpu: Option<Vec<f64>> = all.iter().map(|t| t.cpu).collect();
+    let timing = Timing {
+        seconds: median(seconds.clone()),
+        cpu: cpu.map(median),
+        peak: all.iter().filter_map(|t| t.peak).max(),
+        base: all.iter().filter_map(|t| t.base).min(),
+    };
+    Ok((last.expect("at least one run"), timing, seconds))
+}
+
 /// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo). Every
 /// configuration is timed twice: baked in memory (`methods::bake_with`, the library call, all
 /// levels held as f32 textures) and, for vMF, written the way `ndfmap bake` writes it (module
 /// `banded`: levels streamed to f32 EXR files as they are fitted, the same bytes), whose peak
-/// is what a user of the baker sees.
-fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
+/// is what a user of the baker sees. Each is timed `runs` times ([`timed_runs`]: medians).
+fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<()> {
+    if !(1..=100).contains(&runs) {
+        return Err(Error::InvalidOption(format!(
+            "--runs {runs} (expected 1 to 100)"
+        )));
+    }
     let tmp = Scratch::new("bake")?;
     let mut rows = Vec::new();
     let threads = rayon::current_num_threads();
     if !json {
-        println!("{threads} threads; built-in sample with albedo; full MIP chain");
+        let timing = if runs == 1 {
+            "one run each".to_string()
+        } else {
+            format!("median of {runs} runs each")
+        };
+        println!("{threads} threads; built-in sample with albedo; full MIP chain; {timing}");
         println!(
             "{:>6} {:>8} {:>6} {:>9} {:>8} {:>9} {:>10} {:>8} {:>12} {:>14} {:>10}",
             "size",
@@ -2205,7 +2257,7 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             stats: map.stats().clone(),
         };
         for (method, options) in jobs {
-            let (b, memory) = timed(|| bake_with(&map, method, &options))?;
+            let (b, memory, memory_runs) = timed_runs(runs, || bake_with(&map, method, &options))?;
             let texture_bytes: u64 = (0..b.textures.len())
                 .flat_map(|_| 0..b.level_count())
                 .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
@@ -2213,10 +2265,10 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
             drop(b);
             // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
             let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
-            let mut runs = vec![("memory", memory, estimate)];
+            let mut timings = vec![("memory", memory, estimate, memory_runs)];
             if method == Method::Vmf {
                 let dir = tmp.0.join(format!("{size}-{}", rows.len()));
-                let (_, streamed) = timed(|| {
+                let (_, streamed, streamed_runs) = timed_runs(runs, || {
                     ndfmap::banded::write_folder(
                         &ndfmap::banded::Map::Full(&map),
                         method,
@@ -2228,9 +2280,10 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                         None,
                         None,
                         &mut |_| true,
-                    )
+                    )?;
+                    // Every run writes a fresh folder.
+                    std::fs::remove_dir_all(&dir).map_err(bench_io_error)
                 })?;
-                std::fs::remove_dir_all(&dir).map_err(bench_io_error)?;
                 let bands = ndfmap::banded::Bands::for_size(size, size);
                 // The bench's map is decoded (`ndfmap bake` of an 8-bit file keeps its
                 // samples, a few bytes per texel, so it peaks lower still).
@@ -2238,14 +2291,14 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                     ndfmap::banded::DECODED_NORMAL_BYTES + ndfmap::banded::DECODED_FEATURE_BYTES;
                 let estimate =
                     ndfmap::banded::estimate_peak_bytes(size, size, &options, true, source, bands);
-                runs.push(("streamed", streamed, estimate));
+                timings.push(("streamed", streamed, estimate, streamed_runs));
             }
             let lobes = match method {
                 Method::Vmf => options.lobes,
                 Method::Sh => options.lmax,
                 _ => 0,
             };
-            for (bake, run, estimate) in runs {
+            for (bake, run, estimate, seconds_runs) in timings {
                 let Timing {
                     seconds,
                     cpu,
@@ -2258,6 +2311,7 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool) -> Result<()> {
                     "seconds": seconds, "cpu_seconds": cpu,
                     "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
                     "threads": threads, "texture_bytes_f32": texture_bytes,
+                    "runs": runs, "seconds_runs": seconds_runs,
                 });
                 if !json {
                     let mib = |b: Option<u64>| {
