@@ -286,19 +286,22 @@ fn feature_kernel<S: Simd32, const C: usize>(
         let mut acc = [[zero; 5]; MAX_LOBES];
         for (b, f) in run.iter().zip(fruns) {
             let (_, scale) = block_responsibilities::<S, C>(b, active, &mut e, &mut d);
-            let y = [
+            let (y0, y1, y2, y3) = (
                 S::load(&f[0]),
                 S::load(&f[1]),
                 S::load(&f[2]),
                 S::load(&f[3]),
-            ];
+            );
+            // The four channels written out: an inner loop over them (the same operations)
+            // compiled to code 1.8× slower per call on a 16-sample texel (stop 46).
             unroll!(C, j => {
                 let a = &mut acc[j];
                 let wz = e[j].mul(scale);
                 a[0] = a[0].add(wz);
-                for c in 0..4 {
-                    a[c + 1] = a[c + 1].add(wz.mul(y[c]));
-                }
+                a[1] = a[1].add(wz.mul(y0));
+                a[2] = a[2].add(wz.mul(y1));
+                a[3] = a[3].add(wz.mul(y2));
+                a[4] = a[4].add(wz.mul(y3));
             });
         }
         for (j, a) in acc.iter().enumerate().take(count) {
