@@ -639,6 +639,19 @@ fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
         .filter(|n| n.to_string_lossy().starts_with("ndfmap-bench-bake-") && !before.contains(n))
         .collect();
     assert!(pid_dirs.is_empty(), "left behind: {pid_dirs:?}");
+    // `--runs` times the speed table only, 1 to 100 times: anything else is one clear line.
+    for args in [
+        &["bench", "--quality", "--runs", "2"][..],
+        &["bench", "--sizes", "32", "--runs", "0"],
+    ] {
+        let run = ndfmap(args);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{args:?}: {err}");
+        assert!(
+            err.contains("--runs") && err.trim().lines().count() == 1,
+            "{err}"
+        );
+    }
 }
 
 /// A command line clap refuses is one line too (its tip and usage are dropped), exit status 2;

@@ -85,7 +85,7 @@ enum Command {
         levels: String,
         /// Time each bake this many times (1 to 100) and print the median wall and CPU
         /// seconds and the highest peak (issue 14's speed target is the median of 5; JSON also
-        /// lists every run's wall seconds).
+        /// lists every run's wall seconds). Not with `--quality` or `--scale`.
         #[arg(long, default_value_t = 1)]
         runs: usize,
     },
@@ -1989,6 +1989,11 @@ fn run(cli: Cli) -> Result<u8> {
             untiled_max,
             runs,
         } => {
+            if runs != 1 && (scale || quality) {
+                return Err(Error::InvalidOption(
+                    "--runs times the speed table only (not with --quality or --scale)".into(),
+                ));
+            }
             if scale {
                 // One mode given: that one; else (the default list) balanced.
                 let mode = match modes.as_slice() {
@@ -2154,12 +2159,13 @@ fn timed<T>(work: impl FnOnce() -> Result<T>) -> Result<(T, Timing)> {
     ))
 }
 
-/// [`timed`] `runs` times: the last run's output, the median wall and CPU seconds (the mean of
-/// the middle two for an even count), the highest peak, the lowest base, and every run's wall
-/// seconds in order.
+/// [`timed`] `runs` times, with `cleanup` (untimed) after each run: the last run's output, the
+/// median wall and CPU seconds (the mean of the middle two for an even count), the highest
+/// peak, the lowest base, and every run's wall seconds in order.
 fn timed_runs<T>(
     runs: usize,
     mut work: impl FnMut() -> Result<T>,
+    mut cleanup: impl FnMut() -> Result<()>,
 ) -> Result<(T, Timing, Vec<f64>)> {
     let median = |mut v: Vec<f64>| -> f64 {
         v.sort_by(f64::total_cmp);
@@ -2176,6 +2182,7 @@ fn timed_runs<T>(
         // The previous run's output is freed first, so no run's peak holds two.
         drop(last.take());
         let (out, t) = timed(&mut work)?;
+        cleanup()?;
         all.push(t);
         last = Some(out);
     }
@@ -2257,7 +2264,8 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<(
             stats: map.stats().clone(),
         };
         for (method, options) in jobs {
-            let (b, memory, memory_runs) = timed_runs(runs, || bake_with(&map, method, &options))?;
+            let (b, memory, memory_runs) =
+                timed_runs(runs, || bake_with(&map, method, &options), || Ok(()))?;
             let texture_bytes: u64 = (0..b.textures.len())
                 .flat_map(|_| 0..b.level_count())
                 .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
@@ -2268,22 +2276,25 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<(
             let mut timings = vec![("memory", memory, estimate, memory_runs)];
             if method == Method::Vmf {
                 let dir = tmp.0.join(format!("{size}-{}", rows.len()));
-                let (_, streamed, streamed_runs) = timed_runs(runs, || {
-                    ndfmap::banded::write_folder(
-                        &ndfmap::banded::Map::Full(&map),
-                        method,
-                        &options,
-                        Format::F32,
-                        ndfmap::container::Container::Exr,
-                        &dir,
-                        info.clone(),
-                        None,
-                        None,
-                        &mut |_| true,
-                    )?;
-                    // Every run writes a fresh folder.
-                    std::fs::remove_dir_all(&dir).map_err(bench_io_error)
-                })?;
+                // Every run writes a fresh folder, deleted after it (untimed).
+                let (_, streamed, streamed_runs) = timed_runs(
+                    runs,
+                    || {
+                        ndfmap::banded::write_folder(
+                            &ndfmap::banded::Map::Full(&map),
+                            method,
+                            &options,
+                            Format::F32,
+                            ndfmap::container::Container::Exr,
+                            &dir,
+                            info.clone(),
+                            None,
+                            None,
+                            &mut |_| true,
+                        )
+                    },
+                    || std::fs::remove_dir_all(&dir).map_err(bench_io_error),
+                )?;
                 let bands = ndfmap::banded::Bands::for_size(size, size);
                 // The bench's map is decoded (`ndfmap bake` of an 8-bit file keeps its
                 // samples, a few bytes per texel, so it peaks lower still).
