@@ -2160,22 +2160,13 @@ fn timed<T>(work: impl FnOnce() -> Result<T>) -> Result<(T, Timing)> {
 }
 
 /// [`timed`] `runs` times, with `cleanup` (untimed) after each run: the last run's output, the
-/// median wall and CPU seconds (the mean of the middle two for an even count), the highest
-/// peak, the lowest base, and every run's wall seconds in order.
+/// median wall and CPU seconds ([`ndfmap::report::median`]), the highest peak, the lowest
+/// base, and every run's wall seconds in order.
 fn timed_runs<T>(
     runs: usize,
     mut work: impl FnMut() -> Result<T>,
     mut cleanup: impl FnMut() -> Result<()>,
 ) -> Result<(T, Timing, Vec<f64>)> {
-    let median = |mut v: Vec<f64>| -> f64 {
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        }
-    };
     let mut all = Vec::with_capacity(runs);
     let mut last = None;
     for _ in 0..runs.max(1) {
@@ -2189,8 +2180,8 @@ fn timed_runs<T>(
     let seconds: Vec<f64> = all.iter().map(|t| t.seconds).collect();
     let cpu: Option<Vec<f64>> = all.iter().map(|t| t.cpu).collect();
     let timing = Timing {
-        seconds: median(seconds.clone()),
-        cpu: cpu.map(median),
+        seconds: ndfmap::report::median(&mut seconds.clone()),
+        cpu: cpu.map(|mut c| ndfmap::report::median(&mut c)),
         peak: all.iter().filter_map(|t| t.peak).max(),
         base: all.iter().filter_map(|t| t.base).min(),
     };

@@ -683,6 +683,24 @@ fn rss() -> Option<u64> {
     proc_status_bytes("VmRSS:")
 }
 
+/// The median of repeated timings (`times` is sorted in place, by [`f64::total_cmp`]): the
+/// middle value, or the mean of the two middle values for an even count. What `ndfmap bench
+/// --runs` prints and the viewer's benchmark reduces its draws to
+/// ([`frame::FrameCell::median_ms`]).
+///
+/// # Panics
+/// If `times` is empty.
+pub fn median(times: &mut [f64]) -> f64 {
+    assert!(!times.is_empty(), "median of no timings");
+    times.sort_by(f64::total_cmp);
+    let n = times.len();
+    if n % 2 == 1 {
+        times[n / 2]
+    } else {
+        0.5 * (times[n / 2 - 1] + times[n / 2])
+    }
+}
+
 /// CPU seconds (user + system) this process and its waited-for children (`glslangValidator`,
 /// the viewer's benchmark) have used (Linux `/proc/self/stat`, 100 ticks/s). On a shared
 /// machine it is the steadier measure of work than wall time.
@@ -1740,6 +1758,16 @@ fn targets(report: &Report) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn median_is_the_middle_or_the_mean_of_the_middle_two() {
+        assert_eq!(median(&mut [3.0]), 3.0);
+        assert_eq!(median(&mut [5.0, 1.0, 3.0]), 3.0);
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
+        let mut v = [0.9, 0.2, 0.7, 0.4, 0.5];
+        assert_eq!(median(&mut v), 0.5);
+        assert_eq!(v, [0.2, 0.4, 0.5, 0.7, 0.9], "sorted in place");
+    }
     use crate::em::AlignmentForm;
     use crate::ingest::{IngestOptions, Samples};
 

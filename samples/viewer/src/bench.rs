@@ -93,16 +93,6 @@ pub fn all_specs() -> Vec<MethodSpec> {
     out
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Milliseconds to three significant digits at most (a GPU's draws take microseconds).
 fn fmt_ms(ms: f64) -> String {
     match ms {
@@ -236,7 +226,7 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
                 .map(|per_format| {
                     per_format
                         .iter_mut()
-                        .map(|t| (!t.is_empty()).then(|| median(t)))
+                        .map(|t| (!t.is_empty()).then(|| ndfmap::report::median(t)))
                         .collect()
                 })
                 .collect()
