@@ -101,20 +101,8 @@ fn main() {
     }
 }
 
-/// User + system CPU seconds of this process so far (`/proc/self/stat`, 100 ticks a second);
-/// NaN where it cannot be read.
+/// User + system CPU seconds of this process so far ([`ndfmap::usage::cpu_seconds`]); NaN
+/// where it cannot be read.
 fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
-        return f64::NAN;
-    };
-    // Fields after the command name (which is in parentheses and may hold spaces).
-    let rest = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| {
-        f.get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(f64::NAN)
-    };
-    // utime and stime are fields 14 and 15 of the whole line: 11 and 12 after the name.
-    (ticks(11) + ticks(12)) / 100.0
+    ndfmap::usage::cpu_seconds().unwrap_or(f64::NAN)
 }

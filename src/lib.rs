@@ -15,7 +15,8 @@
 //! - consumers: [`shade`] (the shaders' CPU twin) → [`sample`] / [`eval`] / [`render`];
 //!   [`pack`] / [`output`] (storage, files), [`glsl`] (the shaders), [`plan`] (the scene
 //!   planner: what a scene needs, issue 18), `report` (feature
-//!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`).
+//!   `report`, error against run time), [`ffi`] (the C ABI, `include/ndfmap.h`); [`usage`]
+//!   (this process's CPU time and memory, for the timings they print).
 
 pub mod bake;
 pub mod banded;
@@ -53,6 +54,7 @@ pub mod sample;
 pub mod sh;
 pub mod shade;
 pub mod tan2005;
+pub mod usage;
 pub mod vmf;
 
 pub use error::{Error, Result};

@@ -792,6 +792,12 @@ fn plan_cmd(
     verify: bool,
     ingest: &IngestArgs,
 ) -> Result<()> {
+    #[cfg(not(feature = "report"))]
+    if verify {
+        return Err(Error::InvalidOption(
+            "plan --verify needs ndfmap built with the `report` feature".into(),
+        ));
+    }
     let mut scene = ndfmap::plan::Scene::load(scene_path)?;
     // An environment file is named relative to the scene file.
     if let Some(env) = &scene.environment
@@ -834,6 +840,7 @@ fn plan_cmd(
     }
     // Measured before anything is written, so that verify.json goes into the folder with the
     // plan.
+    #[cfg(feature = "report")]
     let verified = if verify {
         Some(ndfmap::report::planner::measure(&plan, &map)?)
     } else {
@@ -853,6 +860,7 @@ fn plan_cmd(
             if let Some(s) = &switch {
                 files.push((ndfmap::plan::LOD_SWITCH_FILE.to_string(), s.clone()));
             }
+            #[cfg(feature = "report")]
             if let Some(row) = &verified {
                 let json = serde_json::to_string_pretty(row).unwrap_or_default();
                 files.push(("verify.json".to_string(), json));
@@ -870,6 +878,7 @@ fn plan_cmd(
         None if !explain && !verify => print!("{}", plan.to_json()),
         None => {}
     }
+    #[cfg(feature = "report")]
     if let Some(row) = verified {
         let name = scene_path
             .file_stem()
@@ -2081,29 +2090,6 @@ fn demo(output: &Path, size: u32) -> Result<()> {
     Ok(())
 }
 
-/// CPU seconds this process has used (`None` without the report feature or off Linux).
-fn cpu_seconds() -> Option<f64> {
-    #[cfg(feature = "report")]
-    return ndfmap::report::cpu_seconds();
-    #[cfg(not(feature = "report"))]
-    None
-}
-
-/// Peak resident memory of this process since the last [`reset_peak_memory`], in bytes (Linux;
-/// `None` elsewhere).
-fn peak_memory() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
-
-/// Resets the kernel's peak-RSS counter (writing 5 to /proc/self/clear_refs), so the next
-/// [`peak_memory`] measures one run.
-fn reset_peak_memory() {
-    let _ = std::fs::write("/proc/self/clear_refs", "5");
-}
-
 /// A bench's temporary folder, removed however the bench ends.
 struct Scratch(PathBuf);
 
@@ -2141,26 +2127,26 @@ struct Timing {
 
 /// Runs `work` once, timed (wall and CPU seconds, peak RSS after a reset).
 fn timed<T>(work: impl FnOnce() -> Result<T>) -> Result<(T, Timing)> {
-    reset_peak_memory();
-    let base = peak_memory();
-    let cpu = cpu_seconds();
+    ndfmap::usage::reset_peak_rss();
+    let base = ndfmap::usage::peak_rss();
+    let cpu = ndfmap::usage::cpu_seconds();
     let t = Instant::now();
     let out = work()?;
     let seconds = t.elapsed().as_secs_f64();
-    let cpu = cpu_seconds().zip(cpu).map(|(b, a)| b - a);
+    let cpu = ndfmap::usage::cpu_seconds().zip(cpu).map(|(b, a)| b - a);
     Ok((
         out,
         Timing {
             seconds,
             cpu,
-            peak: peak_memory(),
+            peak: ndfmap::usage::peak_rss(),
             base,
         },
     ))
 }
 
 /// [`timed`] `runs` times, with `cleanup` (untimed) after each run: the last run's output, the
-/// median wall and CPU seconds ([`ndfmap::report::median`]), the highest peak, the lowest
+/// median wall and CPU seconds ([`ndfmap::usage::median`]), the highest peak, the lowest
 /// base, and every run's wall seconds in order.
 fn timed_runs<T>(
     runs: usize,
@@ -2180,8 +2166,8 @@ fn timed_runs<T>(
     let seconds: Vec<f64> = all.iter().map(|t| t.seconds).collect();
     let cpu: Option<Vec<f64>> = all.iter().map(|t| t.cpu).collect();
     let timing = Timing {
-        seconds: ndfmap::report::median(&mut seconds.clone()),
-        cpu: cpu.map(|mut c| ndfmap::report::median(&mut c)),
+        seconds: ndfmap::usage::median(&mut seconds.clone()),
+        cpu: cpu.map(|mut c| ndfmap::usage::median(&mut c)),
         peak: all.iter().filter_map(|t| t.peak).max(),
         base: all.iter().filter_map(|t| t.base).min(),
     };

@@ -121,7 +121,7 @@ fn specs(options: &BenchOptions) -> Vec<MethodSpec> {
 pub fn run(options: &BenchOptions) -> Result<(), String> {
     let (width, height) = options.size;
     let frames = options.frames.max(1);
-    let load_start = ndfmap::report::load_average();
+    let load_start = ndfmap::usage::load_average();
     let gl = context()?;
     let map = ndfmap::procedural::generate(options.sample_size, 1).map;
     let formats = options.formats.clone();
@@ -226,13 +226,13 @@ pub fn run(options: &BenchOptions) -> Result<(), String> {
                 .map(|per_format| {
                     per_format
                         .iter_mut()
-                        .map(|t| (!t.is_empty()).then(|| ndfmap::report::median(t)))
+                        .map(|t| (!t.is_empty()).then(|| ndfmap::usage::median(t)))
                         .collect()
                 })
                 .collect()
         })
         .collect();
-    let load_end = ndfmap::report::load_average();
+    let load_end = ndfmap::usage::load_average();
     println!(
         "Renderer: `{}` (OpenGL {:?}, {} route).",
         gl.renderer(),
