@@ -16,8 +16,8 @@
 //! multiple of 2ᵐ, a fine texel's footprint and children lie in its own band, so the
 //! unaligned pass (finest level up) runs band by band; the aligned pass (eq 29, coarsest level
 //! down) chains along rows through the upper-right neighbour, so a fine level runs band after
-//! band, in wavefronts `x + 2y` inside the band, with the previous band's last aligned row
-//! kept. The unaligned fits of fine levels 1..m−1, which the aligned pass starts from, are
+//! band, in tiles along `x + 2y` inside the band (`mixture`'s tiling), with the previous
+//! band's last aligned row kept. The unaligned fits of fine levels 1..m−1, which the aligned pass starts from, are
 //! fitted again per band instead of being kept (one unaligned level of extra work at
 //! m = 3: level 1 is a closed form); level 0 is always a closed form (the normal in the
 //! parent's best slot, or slot 0 unaligned).
@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 pub const COARSE_TEXELS: u64 = 1 << 22;
 
 /// Finest texels per band that [`Bands::for_size`] aims for (rounded to whole rows): enough
-/// rows that the fine levels' wavefronts keep the threads busy (16 rows of level 1 at 16K).
+/// rows that the fine levels' tiles keep the threads busy (16 rows of level 1 at 16K).
 pub const BAND_TEXELS: u64 = 1 << 19;
 
 /// Most finest texels of level 0 made and sent at once (level 0 has no neighbour

@@ -14,9 +14,9 @@
 //! components moved to the slots of the parent's components they are closest to (so slot j keeps
 //! its meaning down the chain), and EM runs pulled, with strength C, towards slot j of the
 //! previously visited neighbours — left, upper-left, up, upper-right in scan-line order — and of
-//! the parent. Scan-line order is kept exactly, yet texels run in parallel along wavefronts
-//! `x + 2y = const`, whose texels depend only on earlier wavefronts; the result is the same for
-//! any thread count. At the finest level the single normal goes, unpulled, to the parent's slot
+//! the parent. Scan-line order is kept exactly, yet texels run in parallel: in tiles along
+//! `u = x + 2y`, whose diagonals depend only on earlier ones (`Tiling`); the result is the same
+//! for any thread count. At the finest level the single normal goes, unpulled, to the parent's slot
 //! that explains it best (so level 0 stays exact). Under eq 29 a texel with no more normals than
 //! lobes (level 1) takes the closed form in the parent's slots: its lobes are as sharp as
 //! storable, so eq 29's pull, `C/(κα)`, would tilt them by under 10 µrad (texels
@@ -692,6 +692,12 @@ const ALIGN_NEIGHBOURS: usize = 5;
 /// storable κ: the lobe's angular radius `sqrt(2/KAPPA_MAX)` is 690 µrad).
 const CLOSED_FORM_TILT: f64 = 1e-5;
 
+/// Finest texels of footprint along one row of an aligned-pass tile ([`Tiling`]): a tile is
+/// `32/side` rows high (at most half the rows fitted, at least one) and twice that wide in
+/// `u = x + 2r`, `side` being the footprint's width in finest texels: 8 × 16 texels at level 2,
+/// one row of two at level 5.
+const TILE_FOOTPRINT: u32 = 32;
+
 /// Texels fitted in parallel between two progress reports of the unaligned pass.
 const PROGRESS_CHUNK: u32 = 1 << 14;
 
@@ -1137,6 +1143,102 @@ fn slot_order<M: Model>(own: &[M::C], reference: &[M::C]) -> [Option<usize>; MAX
     out
 }
 
+/// The order of the aligned pass's EM texels ([`Levels::aligned_rows`]). Texel `(x, r)` (local
+/// row r) is pulled by `(x − 1, r)`, `(x − 1, r − 1)`, `(x, r − 1)` and `(x + 1, r − 1)`, so it
+/// must be fitted after them (the paper's scan-line order, Sec 7.3). In the coordinates
+/// `(u, r) = (x + 2r, r)` each of them lies at a smaller u, in the same row or the one before.
+/// So the texels are cut into tiles of `tile_u × tile_r` in `(u, r)`, each fitted in order of u:
+/// a tile depends only on tiles before it in u, in r or both, and the tiles of one diagonal
+/// `i + j` run in parallel. Every texel sees its neighbours' final fits, so the result is that
+/// of the scan-line order whatever the tiling and the thread count. A tile spans about
+/// [`TILE_FOOTPRINT`] finest texels per row. Before, every texel was its own tile (wavefronts
+/// `x + 2y`), and the barriers between wavefronts left level 2 of a 1024² map 22 % above its
+/// ideal two-thread time; tiles leave it 6 % above (docs/baker.md, "Stop 47").
+#[derive(Debug, Clone, Copy)]
+struct Tiling {
+    /// Texels per row and rows.
+    w: u32,
+    rows: u32,
+    /// The tile's extent in u and in r.
+    tile_u: u32,
+    tile_r: u32,
+    /// The extent of u, `w + 2(rows − 1)`.
+    span_u: u32,
+    /// Tiles along u and along r.
+    tiles_u: u32,
+    tiles_r: u32,
+}
+
+impl Tiling {
+    /// The tiling of `rows` rows of `w` texels, each covering `side` finest texels per row.
+    fn new(w: u32, rows: u32, side: u32) -> Self {
+        // At most half the rows: a band of few rows (module `banded`) still gets two tiles
+        // per diagonal, one per worker.
+        let tile_r = (TILE_FOOTPRINT / side.max(1)).min(rows.div_ceil(2)).max(1);
+        let tile_u = 2 * tile_r;
+        let span_u = w + 2 * rows.max(1) - 2;
+        Tiling {
+            w,
+            rows,
+            tile_u,
+            tile_r,
+            span_u,
+            tiles_u: span_u.div_ceil(tile_u),
+            tiles_r: rows.div_ceil(tile_r),
+        }
+    }
+
+    /// Diagonals `i + j` of tiles, fitted one after another.
+    fn diagonals(&self) -> u32 {
+        (self.tiles_u + self.tiles_r).saturating_sub(1)
+    }
+
+    /// The tiles `(i, j)` of diagonal `d` that hold texels (u in `[2r, 2r + w)` for one of their
+    /// rows), in order of i.
+    fn tiles(&self, d: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
+        (d.saturating_sub(self.tiles_r.saturating_sub(1))..=d.min(self.tiles_u.saturating_sub(1)))
+            .map(move |i| (i, d - i))
+            .filter(|&(i, j)| {
+                let (r0, r1) = (j * self.tile_r, ((j + 1) * self.tile_r).min(self.rows));
+                i * self.tile_u < 2 * (r1 - 1) + self.w && 2 * r0 < (i + 1) * self.tile_u
+            })
+    }
+
+    /// Texels `(x, r)` of tile `(i, j)` in the order they are fitted: u ascending, then r.
+    fn texels(&self, i: u32, j: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
+        let u_end = ((i + 1) * self.tile_u).min(self.span_u);
+        let r_end = ((j + 1) * self.tile_r).min(self.rows);
+        (i * self.tile_u..u_end).flat_map(move |u| {
+            (j * self.tile_r..r_end)
+                .filter_map(move |r| u.checked_sub(2 * r).filter(|&x| x < self.w).map(|x| (x, r)))
+        })
+    }
+
+    /// Texels per tile (the size of a tile's own results).
+    fn tile_len(&self) -> usize {
+        (self.tile_u * self.tile_r) as usize
+    }
+
+    /// Where texel `(x, r)` sits among the results of `tile`, or `None` when it lies outside it.
+    fn slot(&self, (i, j): (u32, u32), x: u32, r: u32) -> Option<usize> {
+        let u = x + 2 * r;
+        let (du, dr) = (
+            u.checked_sub(i * self.tile_u)?,
+            r.checked_sub(j * self.tile_r)?,
+        );
+        (du < self.tile_u && dr < self.tile_r).then_some((du * self.tile_r + dr) as usize)
+    }
+}
+
+/// The J components of one texel's stored texels (as [`LevelFit::components`] reads them).
+fn components_of<M: Model>(texels: &[[f32; 4]; MAX_LOBES], j: usize) -> [M::C; MAX_LOBES] {
+    let mut out = [M::EMPTY; MAX_LOBES];
+    for (o, t) in out.iter_mut().zip(texels).take(j) {
+        *o = M::from_texel(*t);
+    }
+    out
+}
+
 /// `own` components moved into the slots of `reference` ones ([`slot_order`]).
 fn match_slots<M: Model>(own: &[M::C], reference: &[M::C]) -> [M::C; MAX_LOBES] {
     let order = slot_order::<M>(own, reference);
@@ -1166,7 +1268,7 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
     /// from its own unaligned fit (`own`, covering the rows) with its components matched to the
     /// parent's slots (`parent`: level k + 1's rows covering them, none at the coarsest level),
     /// then EM runs pulled towards the visited neighbours and the parent (eq 29 or eq 23 for
-    /// vMF; Tan's prior for Gaussians), in wavefronts `x + 2y`; `above` is the aligned row
+    /// vMF; Tan's prior for Gaussians), in the order of [`Tiling`]; `above` is the aligned row
     /// `y0 − 1` (none at row 0). A texel with no more normals than components takes the closed
     /// form in the parent's slots when the model says the pull vanishes there
     /// ([`Model::closed_form_when_aligned`]).
@@ -1197,7 +1299,7 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
             texels: planes(j, texels, true),
         };
         // The texels that take the closed form do not depend on their neighbours: fitted
-        // first, in parallel, and written in place; the wavefronts then run EM on the rest.
+        // first, in parallel, and written in place; the tiles then run EM on the rest.
         let mut closed = vec![false; texels];
         let closed_form = |x: u32, y: u32| {
             level.x.taps(x as usize).count() * level.y.taps(y as usize).count() <= j
@@ -1232,85 +1334,101 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
                     Ok(())
                 })?;
         }
-        // One gathering buffer per worker for all the rows (a wavefront holds few texels:
-        // fresh buffers per wavefront would allocate per texel).
+        // One gathering buffer per worker for all the rows (a tile holds few texels: fresh
+        // buffers per tile would allocate per texel).
         let gathers = PerThread::<Gather<M>>::new();
-        // Wavefronts d = x + 2y: (x−1, y), (x−1, y−1), (x, y−1), (x+1, y−1) lie on earlier ones.
-        let wavefronts = w + 2 * (rows - 1);
-        for d in 0..wavefronts {
-            progress(d as f64 / wavefronts as f64)?;
-            // Local rows r with x = d − 2r in [0, w).
-            let r_lo = if d >= w { (d - w) / 2 + 1 } else { 0 };
-            let r_hi = (d / 2).min(rows - 1);
-            if r_lo > r_hi || (r_lo..=r_hi).all(|r| closed[(r * w + d - 2 * r) as usize]) {
-                continue;
-            }
+        let tiling = Tiling::new(w, rows, src.width().div_ceil(w));
+        let diagonals = if closed.iter().all(|&c| c) {
+            0
+        } else {
+            tiling.diagonals()
+        };
+        for d in 0..diagonals {
+            progress(d as f64 / diagonals as f64)?;
+            let tiles: Vec<(u32, u32)> = tiling.tiles(d).collect();
             let done = &out;
             let closed = &closed;
             // Workers poll the cancellation flag between texels.
-            let results: Vec<(u32, u32, TexelFit<M::C>)> = (r_lo..=r_hi)
+            let results: Vec<Vec<(usize, TexelFit<M::C>)>> = tiles
                 .into_par_iter()
-                .filter(|&r| !closed[(r * w + d - 2 * r) as usize])
-                .map(|r| {
+                .map(|(i, jt)| {
                     gathers.with(|g| {
-                        if cancel.is_cancelled() {
-                            return None;
-                        }
-                        let (x, y) = (d - 2 * r, y0 + r);
-                        let parent = parent_of_texel(x, y);
-                        g.collect(src, level, x, y, cap);
-                        // The previously visited neighbours and the parent pull (at most
-                        // ALIGN_NEIGHBOURS lobe lists, read back from their texels).
-                        let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
-                        let mut count = 0;
-                        let (xi, yi) = (x as i64, y as i64);
-                        for (a, b) in [
-                            (xi - 1, yi),
-                            (xi - 1, yi - 1),
-                            (xi, yi - 1),
-                            (xi + 1, yi - 1),
-                        ] {
-                            if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
-                                let (a, b) = (a as u32, b as u32);
-                                pulls[count] = if b >= y0 {
-                                    done.components::<M>(((b - y0) * w + a) as usize, j)
-                                } else {
-                                    above
-                                        .expect("the row above the rows is kept")
-                                        .components::<M>(a, b, j)
-                                };
-                                count += 1;
+                        // This tile's fits so far, as stored (f32 texels), by `tiling.slot`.
+                        let mut local = vec![None; tiling.tile_len()];
+                        let mut fits = Vec::with_capacity(tiling.tile_len());
+                        for (x, r) in tiling.texels(i, jt) {
+                            let t = (r * w + x) as usize;
+                            if closed[t] {
+                                continue;
                             }
-                        }
-                        let own = own.components::<M>(x, y, j);
-                        let init = match &parent {
-                            Some(p) => {
-                                pulls[count] = *p;
-                                count += 1;
-                                match_slots::<M>(&own[..j], &p[..j])
+                            if cancel.is_cancelled() {
+                                return None;
                             }
-                            None => own,
-                        };
-                        let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] = [&[]; ALIGN_NEIGHBOURS];
-                        for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
-                            *n = &p[..j];
-                        }
-                        Some((
-                            x,
-                            r,
-                            g.fit(
+                            let y = y0 + r;
+                            let parent = parent_of_texel(x, y);
+                            g.collect(src, level, x, y, cap);
+                            // The previously visited neighbours and the parent pull (at
+                            // most ALIGN_NEIGHBOURS lobe lists, read back from their
+                            // texels: this tile's own, the level's, or the row above).
+                            let mut pulls = [[M::EMPTY; MAX_LOBES]; ALIGN_NEIGHBOURS];
+                            let mut count = 0;
+                            let (xi, yi) = (x as i64, y as i64);
+                            for (a, b) in [
+                                (xi - 1, yi),
+                                (xi - 1, yi - 1),
+                                (xi, yi - 1),
+                                (xi + 1, yi - 1),
+                            ] {
+                                if a >= 0 && b >= 0 && a < w as i64 && b < h as i64 {
+                                    let (a, b) = (a as u32, b as u32);
+                                    pulls[count] = if b >= y0 {
+                                        let tb = ((b - y0) * w + a) as usize;
+                                        match tiling.slot((i, jt), a, b - y0) {
+                                            Some(k) if !closed[tb] => components_of::<M>(
+                                                &local[k].expect("a tile fits in order of u"),
+                                                j,
+                                            ),
+                                            _ => done.components::<M>(tb, j),
+                                        }
+                                    } else {
+                                        above
+                                            .expect("the row above the rows is kept")
+                                            .components::<M>(a, b, j)
+                                    };
+                                    count += 1;
+                                }
+                            }
+                            let own = own.components::<M>(x, y, j);
+                            let init = match &parent {
+                                Some(p) => {
+                                    pulls[count] = *p;
+                                    count += 1;
+                                    match_slots::<M>(&own[..j], &p[..j])
+                                }
+                                None => own,
+                            };
+                            let mut neighbours: [&[M::C]; ALIGN_NEIGHBOURS] =
+                                [&[]; ALIGN_NEIGHBOURS];
+                            for (n, p) in neighbours.iter_mut().zip(&pulls).take(count) {
+                                *n = &p[..j];
+                            }
+                            let fit = g.fit(
                                 &init[..j],
                                 (options, em),
                                 Some(&neighbours[..count]),
                                 cancel,
-                            ),
-                        ))
+                            );
+                            let k = tiling.slot((i, jt), x, r).expect("in its tile");
+                            local[k] = Some(fit.texels.map(|v| v.map(|v| v as f32)));
+                            fits.push((t, fit));
+                        }
+                        Some(fits)
                     })
                 })
                 .collect::<Option<_>>()
                 .ok_or(Error::Cancelled)?;
-            for (x, r, fit) in &results {
-                out.set::<M>((r * w + x) as usize, fit);
+            for (t, fit) in results.iter().flatten() {
+                out.set::<M>(*t, fit);
             }
         }
         Ok(Rows {
@@ -1811,6 +1929,58 @@ mod tests {
                 sorted(&own, &reference),
                 "{own:?} {reference:?}"
             );
+        }
+    }
+
+    #[test]
+    fn the_aligned_tiles_visit_every_texel_once_after_its_neighbours() {
+        // The scan-line dependencies (Sec 7.3): a texel is fitted after its left, upper-left,
+        // upper and upper-right neighbours. Each texel's time is (diagonal, tile, order in
+        // its tile); tiles of one diagonal run in parallel, so a neighbour must come from an
+        // earlier diagonal or earlier in the same tile.
+        for (w, rows, side) in [
+            (256, 256, 4),
+            (128, 128, 8),
+            (437, 301, 2),
+            (5, 333, 1),
+            (900, 3, 64),
+            (4096, 8, 4),
+            (1, 1, 1024),
+            (1, 7, 1),
+            (7, 1, 1),
+            (64, 64, 3),
+        ] {
+            let tiling = Tiling::new(w, rows, side);
+            let mut when = vec![None; (w * rows) as usize];
+            for d in 0..tiling.diagonals() {
+                for (i, j) in tiling.tiles(d) {
+                    for (k, (x, r)) in tiling.texels(i, j).enumerate() {
+                        let t = (r * w + x) as usize;
+                        assert!(when[t].is_none(), "{w}x{rows}: texel ({x}, {r}) twice");
+                        assert!(tiling.slot((i, j), x, r).is_some());
+                        when[t] = Some((d, (i, j), k));
+                    }
+                }
+            }
+            for r in 0..rows {
+                for x in 0..w {
+                    let (d, tile, k) = when[(r * w + x) as usize]
+                        .unwrap_or_else(|| panic!("{w}x{rows}: texel ({x}, {r}) never visited"));
+                    let (x, r) = (x as i64, r as i64);
+                    for (a, b) in [(x - 1, r), (x - 1, r - 1), (x, r - 1), (x + 1, r - 1)] {
+                        if a < 0 || b < 0 || a >= w as i64 {
+                            continue;
+                        }
+                        let (dn, tn, kn) = when[(b * w as i64 + a) as usize].unwrap();
+                        assert!(
+                            dn < d || (tn == tile && kn < k),
+                            "{w}x{rows}: ({x}, {r}) at {:?} before its neighbour ({a}, {b}) at {:?}",
+                            (d, tile, k),
+                            (dn, tn, kn)
+                        );
+                    }
+                }
+            }
         }
     }
 
