@@ -653,11 +653,7 @@ pub(crate) fn planes(count: usize, len: usize, zeroed: bool) -> Vec<Vec<[f32; 4]
 impl LevelFit {
     /// The J components of texel `t`, read back from their texels.
     pub(crate) fn components<M: Model>(&self, t: usize, j: usize) -> [M::C; MAX_LOBES] {
-        let mut out = [M::EMPTY; MAX_LOBES];
-        for (o, plane) in out.iter_mut().zip(&self.texels).take(j) {
-            *o = M::from_texel(plane[t]);
-        }
-        out
+        components_of::<M>(self.texels.iter().map(|plane| plane[t]), j)
     }
 
     /// Stores texel `t`'s result (colours become `α_j y_j`) into a level made with zeroed
@@ -1230,11 +1226,15 @@ impl Tiling {
     }
 }
 
-/// The J components of one texel's stored texels (as [`LevelFit::components`] reads them).
-fn components_of<M: Model>(texels: &[[f32; 4]; MAX_LOBES], j: usize) -> [M::C; MAX_LOBES] {
+/// The first J components decoded from one texel's stored texels, slot by slot (what
+/// [`LevelFit::components`] and the aligned pass's tiles read back).
+fn components_of<M: Model>(
+    texels: impl IntoIterator<Item = [f32; 4]>,
+    j: usize,
+) -> [M::C; MAX_LOBES] {
     let mut out = [M::EMPTY; MAX_LOBES];
     for (o, t) in out.iter_mut().zip(texels).take(j) {
-        *o = M::from_texel(*t);
+        *o = M::from_texel(t);
     }
     out
 }
@@ -1385,7 +1385,7 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
                                         let tb = ((b - y0) * w + a) as usize;
                                         match tiling.slot((i, jt), a, b - y0) {
                                             Some(k) if !closed[tb] => components_of::<M>(
-                                                &local[k].expect("a tile fits in order of u"),
+                                                local[k].expect("a tile fits in order of u"),
                                                 j,
                                             ),
                                             _ => done.components::<M>(tb, j),
