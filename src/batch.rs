@@ -199,6 +199,12 @@ pub struct Settings {
     pub align_form: Option<String>,
     /// vmf: fast, balanced or exact.
     pub mode: Option<String>,
+    /// vmf, tan2005: the EM iteration cap (1 to [`crate::bake::MAX_EM_ITERATIONS`]; exact
+    /// mode and Tan 2005 use it as given, fast and balanced lower their own caps to it).
+    pub em_iterations: Option<u32>,
+    /// vmf, tan2005: the EM convergence tolerance (0 to [`crate::bake::MAX_EM_TOLERANCE`];
+    /// exact mode and Tan 2005 use it as given, fast and balanced raise it to their own).
+    pub em_tolerance: Option<f64>,
     /// sh: band limit l*.
     pub lmax: Option<usize>,
     /// pbr: base perceptual roughness.
@@ -249,6 +255,8 @@ impl Settings {
             ("align", self.align.is_some(), MIXTURES),
             ("align_form", self.align_form.is_some(), VMF),
             ("mode", self.mode.is_some(), VMF),
+            ("em_iterations", self.em_iterations.is_some(), MIXTURES),
+            ("em_tolerance", self.em_tolerance.is_some(), MIXTURES),
             ("lmax", self.lmax.is_some(), SH),
             ("roughness", self.roughness.is_some(), PBR),
             ("anisotropic", self.anisotropic == Some(true), PBR),
@@ -274,6 +282,8 @@ impl Settings {
             align,
             align_form,
             mode,
+            em_iterations,
+            em_tolerance,
             lmax,
             roughness,
             anisotropic,
@@ -396,6 +406,11 @@ impl Settings {
                 Some(m) => m.parse::<FitMode>().map_err(|e| bad("mode", e))?,
                 None => d.mode,
             },
+            em: crate::em::EmOptions {
+                max_iterations: self.em_iterations.unwrap_or(d.em.max_iterations),
+                tolerance: self.em_tolerance.unwrap_or(d.em.tolerance),
+                ..d.em
+            },
             lmax: self.lmax.unwrap_or(d.lmax),
             pbr: PbrOptions {
                 roughness: self.roughness.unwrap_or(d.pbr.roughness),
@@ -404,7 +419,6 @@ impl Settings {
                 mean_normal: self.mean_normal.unwrap_or(d.pbr.mean_normal),
             },
             memory_limit: memory,
-            ..d
         };
         Ok(Job {
             feature: self.feature.as_ref().map(|f| base_dir.join(f)),
@@ -961,8 +975,10 @@ mod tests {
             method = "vmf"
             lobes = 2
             align = 1.0
+            em_iterations = 60
             [[input]]
             path = "maps/a.png"
+            em_tolerance = 1e-8
             [[input]]
             path = "maps/b.png"
             output = "custom/b"
@@ -992,6 +1008,11 @@ mod tests {
         assert_eq!(jobs[0].options.align, Some(1.0));
         assert_eq!(jobs[0].input, Path::new("/w/maps/a.png"));
         assert_eq!(jobs[0].output, Path::new("/o/a"));
+        assert_eq!(jobs[0].options.em.max_iterations, 60);
+        assert_eq!(jobs[0].options.em.tolerance, 1e-8);
+        let d = crate::em::EmOptions::default();
+        assert_eq!(jobs[1].options.em.max_iterations, 60);
+        assert_eq!(jobs[1].options.em.tolerance, d.tolerance);
         assert_eq!(jobs[1].options.align, None);
         assert_eq!(jobs[1].format, Format::F16);
         assert_eq!(jobs[1].output, Path::new("/w/custom/b"));

@@ -2209,6 +2209,18 @@ fn options_a_method_would_ignore_are_refused() {
             &["-m", "vmf", "--lmax", "4"],
             "--lmax does not apply to --method vmf (for sh)",
         ),
+        (
+            &["-m", "lean", "--em-iterations", "40"],
+            "--em-iterations does not apply to --method lean (for vmf and tan2005)",
+        ),
+        (
+            &["-m", "vmf", "--em-iterations", "0"],
+            "--em-iterations: EM iterations 0 (expected 1 to 1000)",
+        ),
+        (
+            &["-m", "tan2005", "--em-tolerance", "2"],
+            "--em-tolerance: EM tolerance 2 (expected 0 to 1)",
+        ),
         (&["-m", "vmf", "--roughness", "0.5"], "are for --method pbr"),
         (
             &["-m", "vmf", "--brdf", "ggx"],
@@ -2227,6 +2239,24 @@ fn options_a_method_would_ignore_are_refused() {
         &["-m", "tan2005", "--lobes", "2", "--align"][..],
         &["-m", "sh", "--lmax", "2"],
         &["-m", "sh", "--brdf", "ggx", "--alpha", "0.5"],
+        &[
+            "-m",
+            "tan2005",
+            "--em-iterations",
+            "5",
+            "--em-tolerance",
+            "1e-3",
+        ],
+        &[
+            "-m",
+            "vmf",
+            "--mode",
+            "exact",
+            "--em-iterations",
+            "40",
+            "--em-tolerance",
+            "1e-8",
+        ],
         &[
             "-m",
             "vmf",

@@ -56,6 +56,8 @@ enum Command {
         /// vMF fitting modes, comma-separated: fast, balanced, exact.
         #[arg(long, default_value = "fast,balanced,exact", value_delimiter = ',')]
         modes: Vec<String>,
+        #[command(flatten)]
+        em: EmArgs,
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
@@ -267,6 +269,8 @@ enum Command {
         /// `exact` (EM options as given).
         #[arg(long, default_value = "balanced", value_delimiter = ',')]
         modes: Vec<String>,
+        #[command(flatten)]
+        em: EmArgs,
         /// Blinn-Phong exponents, comma-separated.
         #[arg(
             short,
@@ -573,6 +577,53 @@ struct IngestArgs {
     /// before it starts. Default: half the machine's memory.
     #[arg(long)]
     memory: Option<String>,
+}
+
+/// The EM iteration cap and convergence tolerance of the mixture fits (vmf, tan2005).
+#[derive(Args)]
+struct EmArgs {
+    /// vmf, tan2005: the most EM iterations per texel, 1 to 1000 [default: 20]. Exact mode
+    /// and Tan 2005 run up to this many; fast and balanced keep their own lower caps (3 and 8)
+    /// unless this is lower. Exact mode reaches the reference fit on more texels with 60 to
+    /// 300 (docs/baker.md, "Stop 49"), at 2 to 10 times its time.
+    #[arg(long, value_name = "N")]
+    em_iterations: Option<u32>,
+    /// vmf, tan2005: EM stops when the mean log-likelihood per normal changes by at most
+    /// this (relative above 1 nat), 0 to 1 [default: 1e-6]. Exact mode and Tan 2005 use it as
+    /// given; fast and balanced keep their own 1e-4 unless this is higher.
+    #[arg(long, value_name = "T")]
+    em_tolerance: Option<f64>,
+}
+
+impl EmArgs {
+    /// The EM options they give, defaults filled in, checked against their ranges before any
+    /// work (an error names the option).
+    fn checked(&self) -> Result<ndfmap::em::EmOptions> {
+        let d = ndfmap::em::EmOptions::default();
+        let em = ndfmap::em::EmOptions {
+            max_iterations: self.em_iterations.unwrap_or(d.max_iterations),
+            tolerance: self.em_tolerance.unwrap_or(d.tolerance),
+            ..d
+        };
+        let options = BakeOptions {
+            em,
+            ..BakeOptions::default()
+        };
+        ndfmap::methods::check_options(Method::Vmf, &options, false, None).map_err(
+            |e| match e {
+                Error::InvalidOption(m) => {
+                    let flag = if m.starts_with("EM iterations") {
+                        "iterations"
+                    } else {
+                        "tolerance"
+                    };
+                    Error::InvalidOption(format!("--em-{flag}: {m}"))
+                }
+                e => e,
+            },
+        )?;
+        Ok(em)
+    }
 }
 
 /// The BRDF of `bake` (it picks SH's band limit when --lmax is not given).
@@ -1065,6 +1116,8 @@ struct MixtureGrid {
     memory_limit: Option<u64>,
     /// SH band limits.
     lmax: Vec<usize>,
+    /// EM options of every mixture bake (`--em-iterations`, `--em-tolerance`).
+    em: ndfmap::em::EmOptions,
 }
 
 impl MixtureGrid {
@@ -1081,6 +1134,7 @@ impl MixtureGrid {
             modes,
             memory_limit: None,
             lmax: vec![BakeOptions::default().lmax],
+            em: ndfmap::em::EmOptions::default(),
         })
     }
 
@@ -1097,6 +1151,7 @@ impl MixtureGrid {
                         align,
                         align_form: self.align_form,
                         mode,
+                        em: self.em,
                         memory_limit: self.memory_limit,
                         ..BakeOptions::default()
                     });
@@ -1209,6 +1264,8 @@ struct BakeCommand {
     /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
     #[arg(long)]
     mode: Option<String>,
+    #[command(flatten)]
+    em: EmArgs,
     /// sh: band limit l* (0 to 16; (l*+1)² coefficients, four per texture). Without it,
     /// chosen from --brdf: 2 for Lambert, about √(4s) for Blinn-Phong (Sec 5.1).
     #[arg(long)]
@@ -1316,6 +1373,7 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
     if let Some(m) = &a.mode {
         m.parse::<FitMode>().map_err(option("mode"))?;
     }
+    a.em.checked()?;
     let base = Settings {
         feature: a.ingest.feature.as_ref().map(|f| f.display().to_string()),
         method: a.method.clone(),
@@ -1326,6 +1384,8 @@ fn bake_command(a: BakeCommand) -> Result<u8> {
         }),
         align_form: a.align_form.clone(),
         mode: a.mode.clone(),
+        em_iterations: a.em.em_iterations,
+        em_tolerance: a.em.em_tolerance,
         lmax,
         roughness: a.pbr.roughness,
         anisotropic: Some(a.pbr.anisotropic),
@@ -1651,12 +1711,14 @@ fn run(cli: Cli) -> Result<u8> {
             json,
             env,
             ingest,
+            em,
         } => {
             // Everything is checked before any work.
             env.check()?;
             let mut mixtures = MixtureGrid::parse(&lobes, &align, &align_form, &modes)?;
             mixtures.memory_limit = ingest.memory_limit()?;
             mixtures.lmax = lmax;
+            mixtures.em = em.checked()?;
             check_exponents(&s)?;
             if let Some(bad) = sigma.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
                 return Err(Error::InvalidOption(format!(
@@ -1997,6 +2059,7 @@ fn run(cli: Cli) -> Result<u8> {
             scale,
             untiled_max,
             runs,
+            em,
         } => {
             if runs != 1 && (scale || quality) {
                 return Err(Error::InvalidOption(
@@ -2015,6 +2078,7 @@ fn run(cli: Cli) -> Result<u8> {
             }
             let mut grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
             grid.lmax = lmax;
+            grid.em = em.checked()?;
             if quality {
                 bench_quality(&sizes, &maps, &grid, samples, &levels, json)?
             } else {
@@ -2069,6 +2133,7 @@ fn demo(output: &Path, size: u32) -> Result<()> {
         modes: vec![FitMode::default()],
         memory_limit: None,
         lmax: vec![BakeOptions::default().lmax],
+        em: ndfmap::em::EmOptions::default(),
     };
     let bakes = bake_all(&map, &Method::ALL, &grid, false)?;
     for b in &bakes {
