@@ -57,6 +57,11 @@ pub struct QualityOptions {
     pub first_level: usize,
     /// The coarsest level measured (clamped to the bake's last level).
     pub last_level: usize,
+    /// Also fit a second reference per sampled texel, with the same number of starts and
+    /// other k-means++ seeds, and report how often it is at least as good as the first
+    /// ([`LevelQuality::reference_repeat`]): the share a bake can be expected to reach when
+    /// it is as good a search as the reference itself. Doubles the measurement's time.
+    pub reference_check: bool,
 }
 
 impl Default for QualityOptions {
@@ -67,6 +72,7 @@ impl Default for QualityOptions {
             seed: 2007,
             first_level: 2,
             last_level: 8,
+            reference_check: false,
         }
     }
 }
@@ -101,7 +107,17 @@ pub struct LevelQuality {
     pub wasted: f64,
     /// The same share of near-empty lobes among the reference fits of the sampled texels.
     pub reference_near_empty: f64,
+    /// With [`QualityOptions::reference_check`]: the share of sampled texels whose second
+    /// reference fit (other seeds) scores at least the first's, within [`SAME_SCORE`] — the
+    /// reference procedure's own [`LevelQuality::at_least_as_good`] against itself.
+    pub reference_repeat: Option<f64>,
+    /// With [`QualityOptions::reference_check`]: the mean first − second reference score,
+    /// nats per normal (> 0: the second search found less).
+    pub reference_repeat_gap: Option<f64>,
 }
+
+/// Salt of the second reference's seeds ([`QualityOptions::reference_check`]).
+const SECOND_REFERENCE_SALT: u64 = 0x5EC0_4D5E_ED00_0002;
 
 /// The finest normals texel `(x, y)` of a level covers, with their footprint weights.
 fn covered(map: &NormalMap, level: &LevelFootprints, x: u32, y: u32) -> (Vec<Vec3>, Vec<f64>) {
@@ -353,7 +369,7 @@ pub fn fit_quality(
             chosen.into_iter().collect()
         };
         let footprints = LevelFootprints::new((map.width(), map.height()), (w, h));
-        let rows: Vec<(f64, usize, usize, f64)> = picks
+        let rows: Vec<(f64, usize, usize, f64, Option<f64>)> = picks
             .par_iter()
             .map(|&t| {
                 let (x, y) = (t as u32 % w, t as u32 / w);
@@ -371,14 +387,21 @@ pub fn fit_quality(
                 let resolved = |lobes: &[Lobe]| {
                     mean_log_likelihood(&normals, &weights, &capped(lobes, RESOLVED_KAPPA))
                 };
+                let repeat = options.reference_check.then(|| {
+                    let seed = options.seed ^ t as u64 ^ SECOND_REFERENCE_SALT;
+                    best - reference_fit(&normals, &weights, j, options.starts, seed).1
+                });
                 (
                     best - score,
                     live(&reference),
                     live(&baked),
                     resolved(&reference) - resolved(&baked),
+                    repeat,
                 )
             })
             .collect();
+        let repeats: Vec<f64> = rows.iter().filter_map(|r| r.4).collect();
+        let share = |v: &[f64]| v.iter().filter(|&&g| g <= SAME_SCORE).count() as f64;
         let n = rows.len().max(1) as f64;
         out.push(LevelQuality {
             level,
@@ -397,6 +420,10 @@ pub fn fit_quality(
                 / n,
             reference_near_empty: rows.iter().map(|r| (j - r.1) as f64).sum::<f64>()
                 / (n * j as f64),
+            reference_repeat: options.reference_check.then(|| share(&repeats) / n),
+            reference_repeat_gap: options
+                .reference_check
+                .then(|| repeats.iter().sum::<f64>() / n),
         });
     }
     Ok(out)
@@ -508,6 +535,31 @@ mod tests {
             assert!(l.mean_gap.is_finite() && l.max_gap >= l.mean_gap, "{l:?}");
             assert!(l.mean_gap_resolved.is_finite(), "{l:?}");
             assert!((0.0..=1.0).contains(&l.at_least_as_good), "{l:?}");
+        }
+        assert!(q.iter().all(|l| l.reference_repeat.is_none()));
+        // The self-check: with one start (furthest-point, which no seed changes) the second
+        // reference is the first, so it always ties; with three, some k-means++ starts differ
+        // and it is a share.
+        for (starts, exact) in [(1, true), (3, false)] {
+            let q = fit_quality(
+                &map,
+                &bake,
+                &QualityOptions {
+                    samples_per_level: 6,
+                    starts,
+                    reference_check: true,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            for l in &q {
+                let (repeat, gap) = (l.reference_repeat.unwrap(), l.reference_repeat_gap.unwrap());
+                if exact {
+                    assert_eq!((repeat, gap), (1.0, 0.0), "{l:?}");
+                } else {
+                    assert!((0.0..=1.0).contains(&repeat) && gap.is_finite(), "{l:?}");
+                }
+            }
         }
         let toksvig = crate::methods::bake(&map, Method::Toksvig);
         assert!(fit_quality(&map, &toksvig, &QualityOptions::default()).is_err());
