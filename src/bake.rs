@@ -303,6 +303,11 @@ impl Default for PbrOptions {
     }
 }
 
+/// The finest normals a texel covers from which [`FitMode::Balanced`] runs the EM options'
+/// own iteration cap instead of its lower one ([`FitMode::passes`]): 4096, a 64 × 64
+/// footprint.
+pub const COARSE_TEXEL_NORMALS: usize = 4096;
+
 /// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
 /// finer texels it covers (`em::seed_from_children`) and runs EM (Algorithm 1) over every
 /// finest normal it covers; they differ in how many iterations, unaligned and in the aligned
@@ -316,9 +321,11 @@ pub enum FitMode {
     /// pass.
     Fast,
     /// At most 8 iterations per texel (tolerance ≥ 1e-4); aligned, 5 and then 2 in the
-    /// aligned pass. Measured on rock (J = 6, 1024², `docs/baker.md`): 0.006–0.023 nats per
-    /// normal below a multi-start reference at levels 4–8 (exact: 0.003–0.016), at 37–46 % of
-    /// exact's CPU time.
+    /// aligned pass. On texels of at least [`COARSE_TEXEL_NORMALS`] normals, the EM options'
+    /// cap (20 by default) and then at most 6 in the aligned pass. Measured on rock and bark
+    /// (J = 6, 1024², aligned, `docs/baker.md` "Stop 51"): 0.002–0.033 nats per normal below
+    /// a multi-start reference at levels 4–8 (0.002–0.008 at levels 6–8), in about 0.9 s on
+    /// two cores.
     #[default]
     Balanced,
     /// The EM options as given, in both passes (by default 20 iterations, tolerance 1e-6),
@@ -359,16 +366,27 @@ impl FitMode {
     }
 
     /// The EM options of the unaligned and of the aligned pass (`aligned`: whether the bake
-    /// has an aligned pass): `em`'s iteration cap lowered and its tolerance raised to the
-    /// mode's (never the other way). An aligned bake's unaligned pass only starts the aligned
-    /// one, which goes on iterating from it, so it stops sooner.
+    /// has an aligned pass) for a level whose texels cover `texel_normals` finest normals
+    /// each: `em`'s iteration cap lowered and its tolerance raised to the mode's (never the
+    /// other way). An aligned bake's unaligned pass only starts the aligned one, which goes
+    /// on iterating from it, so it stops sooner.
+    ///
+    /// Balanced keeps `em`'s own cap (20 by default) in the unaligned pass and up to 6
+    /// iterations in the aligned one on texels of at least [`COARSE_TEXEL_NORMALS`] normals
+    /// (level 6 and coarser of a power-of-two map). Those levels have few texels and little
+    /// per-texel overhead, so the extra iterations cost 1–4 % of the bake; measured on rock and
+    /// bark (`docs/baker.md`, "Stop 51"), they cut the likelihood gap at levels 6–8 by a
+    /// quarter to a half and the s = 256 / 2048 error there by up to 28 %.
     pub fn passes(
         self,
         em: &crate::em::EmOptions,
         aligned: bool,
+        texel_normals: usize,
     ) -> (crate::em::EmOptions, crate::em::EmOptions) {
+        let coarse = texel_normals >= COARSE_TEXEL_NORMALS;
         let (cap, first_of_two, tolerance, second) = match self {
             FitMode::Fast => (3, 2, 1e-4, 1),
+            FitMode::Balanced if coarse => (u32::MAX, u32::MAX, 1e-4, 6),
             FitMode::Balanced => (8, 5, 1e-4, 2),
             FitMode::Exact => return (*em, *em),
         };

@@ -115,8 +115,9 @@ pub(crate) trait Model: Sync {
     /// The component a stored texel holds (what a finer or neighbouring texel's fit is read
     /// back as: levels keep texels, not components).
     fn from_texel(t: [f32; 4]) -> Self::C;
-    /// The EM options of the unaligned and of the aligned pass.
-    fn passes(options: &BakeOptions) -> (EmOptions, EmOptions);
+    /// The EM options of the unaligned and of the aligned pass on a level whose texels cover
+    /// `texel_normals` finest normals each.
+    fn passes(options: &BakeOptions, texel_normals: usize) -> (EmOptions, EmOptions);
     /// One texel's EM from `init` with `pass = (options, em)`'s EM options, optionally pulled
     /// towards `neighbours` with the strength (and, for vMF, the form) of `options`' alignment.
     /// A fit stops early once `input`'s cancellation flag is set (its result is then
@@ -218,8 +219,10 @@ impl Model for VmfModel {
             glam::DVec3::new(t[1] as f64, t[2] as f64, t[3] as f64),
         )
     }
-    fn passes(options: &BakeOptions) -> (EmOptions, EmOptions) {
-        options.mode.passes(&options.em, options.align.is_some())
+    fn passes(options: &BakeOptions, texel_normals: usize) -> (EmOptions, EmOptions) {
+        options
+            .mode
+            .passes(&options.em, options.align.is_some(), texel_normals)
     }
     fn fit(
         input: &EmInput,
@@ -353,7 +356,7 @@ impl Model for TanModel {
     fn from_texel(t: [f32; 4]) -> Gaussian {
         Gaussian::from_texel(t)
     }
-    fn passes(options: &BakeOptions) -> (EmOptions, EmOptions) {
+    fn passes(options: &BakeOptions, _texel_normals: usize) -> (EmOptions, EmOptions) {
         (options.em, options.em) // Tan 2005 runs its EM as given
     }
     fn fit(
@@ -834,7 +837,6 @@ pub(crate) struct Levels<'a, M: Model, S: Source> {
     footprints: Vec<LevelFootprints>,
     /// J, the components per texel.
     pub(crate) j: usize,
-    passes: (EmOptions, EmOptions),
     /// Polled between texels.
     pub(crate) cancel: &'a CancelFlag,
     _model: std::marker::PhantomData<M>,
@@ -854,10 +856,17 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
                 .collect(),
             sizes,
             j: options.lobes,
-            passes: M::passes(options),
             cancel,
             _model: std::marker::PhantomData,
         }
+    }
+
+    /// The EM options of level `k`'s unaligned and aligned passes ([`Model::passes`] for the
+    /// finest normals its texels cover on average).
+    fn passes(&self, k: usize) -> (EmOptions, EmOptions) {
+        let ((w0, h0), (w, h)) = (self.sizes[0], self.sizes[k]);
+        let texel_normals = (w0 as usize * h0 as usize) / (w as usize * h as usize).max(1);
+        M::passes(self.options, texel_normals)
     }
 
     /// Unaligned fits of rows `y0..y1` of level `k ≥ 1`, each texel initialized from its
@@ -877,7 +886,8 @@ impl<'a, M: Model, S: Source> Levels<'a, M, S> {
         let level = &self.footprints[k];
         let (cx, cy) = (AxisFootprints::new(pw, w), AxisFootprints::new(ph, h));
         let cap = self.options.mode.sample_cap((w * h) as usize);
-        let em = &self.passes.0;
+        let passes = self.passes(k);
+        let em = &passes.0;
         let (src, options, cancel) = (self.src, self.options, self.cancel);
         // The children's components of texel (x, y), seeding its EM.
         let seed = |g: &mut Gather<M>, x: u32, y: u32| -> [M::C; MAX_LOBES] {
@@ -1285,7 +1295,8 @@ impl<M: Model, S: Source> Levels<'_, M, S> {
         let (w, h) = self.sizes[k];
         let level = &self.footprints[k];
         let cap = self.options.mode.sample_cap((w * h) as usize);
-        let em = &self.passes.1;
+        let passes = self.passes(k);
+        let em = &passes.1;
         let (src, options, cancel) = (self.src, self.options, self.cancel);
         let parent_size = self.sizes.get(k + 1).copied();
         let parent_of_texel = |x: u32, y: u32| -> Option<[M::C; MAX_LOBES]> {
@@ -1538,7 +1549,8 @@ pub(crate) fn assemble<M: Model>(
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
     let j = options.lobes;
-    let (unaligned, aligned) = M::passes(options);
+    let (unaligned, aligned) = M::passes(options, 0);
+    let coarse = M::passes(options, crate::bake::COARSE_TEXEL_NORMALS);
     let mut textures: Vec<Texture> = M::NAMES
         .iter()
         .take(j)
@@ -1579,6 +1591,8 @@ pub(crate) fn assemble<M: Model>(
         "em_tolerance": options.em.tolerance,
         "em_iterations": [unaligned.max_iterations, aligned.max_iterations],
         "em_tolerances": [unaligned.tolerance, aligned.tolerance],
+        "em_iterations_coarse": [coarse.0.max_iterations, coarse.1.max_iterations],
+        "em_coarse_texel_normals": crate::bake::COARSE_TEXEL_NORMALS,
     });
     if M::METHOD == Method::Vmf {
         parameters["kappa_max"] = KAPPA_MAX.into();
@@ -2018,6 +2032,89 @@ mod tests {
         assert!(
             mean(&a) < 0.8 * mean(&u),
             "aligned {a:?} vs unaligned {u:?}"
+        );
+    }
+
+    /// Balanced's budget on the texels of at least `COARSE_TEXEL_NORMALS` normals: the EM
+    /// options' own cap (6 in the aligned pass), and nothing else changed.
+    #[test]
+    fn balanced_runs_the_em_cap_on_texels_of_4096_normals_or_more() {
+        use crate::bake::COARSE_TEXEL_NORMALS as N;
+        let em = EmOptions::default();
+        let caps = |mode: FitMode, em: &EmOptions, aligned, normals| {
+            let (u, a) = mode.passes(em, aligned, normals);
+            assert_eq!(u.tolerance, a.tolerance);
+            (u.max_iterations, a.max_iterations, u.tolerance)
+        };
+        let b = FitMode::Balanced;
+        assert_eq!(caps(b, &em, false, N - 1).0, 8);
+        assert_eq!(caps(b, &em, true, N - 1), (5, 2, 1e-4));
+        assert_eq!(caps(b, &em, false, N).0, 20);
+        assert_eq!(caps(b, &em, true, N), (20, 6, 1e-4));
+        let four = EmOptions {
+            max_iterations: 4,
+            ..em
+        };
+        assert_eq!(caps(b, &four, true, 1 << 20), (4, 4, 1e-4));
+        assert_eq!(caps(FitMode::Fast, &em, true, 1 << 20), (2, 1, 1e-4));
+        assert_eq!(caps(FitMode::Exact, &em, true, N), (20, 20, 1e-6));
+
+        // A 64² map's 1×1 level covers 4096 normals. An unaligned balanced bake whose EM cap
+        // is lowered to balanced's own 8 is the bake before the coarse budget: every finer
+        // level is the same to the bit, and the coarse level, EM from the same start run
+        // further, fits at least as well. Slopes on a ring, where the lobes' places along it
+        // are slow to settle (on `bumpy` and on the built-in sample, 8 iterations already
+        // meet the tolerance, or spikes on repeated normals decide the likelihood).
+        let mut rng = crate::rng::Rng(1);
+        let ring = (0..64 * 64)
+            .map(|_| {
+                let (t, r) = (rng.range(0.0, std::f64::consts::TAU), rng.range(0.3, 0.5));
+                Vec3::new((r * t.cos()) as f32, (r * t.sin()) as f32, 1.0)
+            })
+            .collect();
+        let m =
+            NormalMap::from_vectors(64, 64, ring, Addressing::Wrap, BadNormals::Repair).unwrap();
+        let with_cap = |max_iterations| {
+            let o = BakeOptions {
+                em: EmOptions {
+                    max_iterations,
+                    ..EmOptions::default()
+                },
+                ..opts(4, None)
+            };
+            bake_with(&m, Method::Vmf, &o).unwrap()
+        };
+        let (coarse, before) = (with_cap(20), with_cap(8));
+        let last = coarse.level_count() - 1;
+        assert_eq!(coarse.sizes[last], (1, 1));
+        for t in 0..4 {
+            for k in 0..last {
+                assert_eq!(coarse.textures[t].levels[k], before.textures[t].levels[k]);
+            }
+        }
+        assert_ne!(
+            coarse.textures[0].levels[last],
+            before.textures[0].levels[last]
+        );
+        let fit = |b: &Bake| {
+            let level = LevelFootprints::new((64, 64), (1, 1));
+            let mut g = Gather::<VmfModel>::default();
+            g.collect(&m, &level, 0, 0, None);
+            let lobes: Vec<Lobe> = (0..4)
+                .map(|s| VmfModel::from_texel(b.textures[s].levels[last][0]))
+                .collect();
+            crate::quality::mean_log_likelihood(&g.normals, &g.weights, &lobes)
+        };
+        let (lc, lb) = (fit(&coarse), fit(&before));
+        // Measured: 0.0011 nats per normal higher.
+        assert!(lc > lb + 5e-4, "coarse budget {lc} against {lb}");
+        assert_eq!(
+            coarse.parameters["em_iterations_coarse"],
+            serde_json::json!([20, 6])
+        );
+        assert_eq!(
+            coarse.parameters["em_iterations"],
+            serde_json::json!([8, 2])
         );
     }
 

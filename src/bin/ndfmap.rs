@@ -591,9 +591,10 @@ struct IngestArgs {
 #[derive(Args)]
 struct EmArgs {
     /// vmf, tan2005: the most EM iterations per texel, 1 to 1000 [default: 20]. Exact mode
-    /// and Tan 2005 run up to this many; fast and balanced keep their own lower caps (3 and 8)
-    /// unless this is lower. Exact mode reaches the reference fit on more texels with 60 to
-    /// 300 (docs/baker.md, "Stop 49"), at 2 to 10 times its time.
+    /// and Tan 2005 run up to this many; fast and balanced keep their own lower caps (3 and 8;
+    /// balanced none on texels of 4096 normals or more) unless this is lower. Exact mode
+    /// reaches the reference fit on more texels with 60 to 300 (docs/baker.md, "Stop 49"), at
+    /// 2 to 10 times its time.
     #[arg(long, value_name = "N")]
     em_iterations: Option<u32>,
     /// vmf, tan2005: EM stops when the mean log-likelihood per normal changes by at most
@@ -1269,7 +1270,8 @@ struct BakeCommand {
     #[arg(long)]
     align_form: Option<String>,
     /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
-    /// default) or `exact` (the EM options as given: 20 iterations, tolerance 1e-6).
+    /// default; 20 on texels of 4096 normals or more) or `exact` (the EM options as given:
+    /// 20 iterations, tolerance 1e-6).
     #[arg(long)]
     mode: Option<String>,
     #[command(flatten)]
