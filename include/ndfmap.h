@@ -1151,7 +1151,7 @@ typedef struct ndf_environment_info {
 
 /**
  * At most 8 EM iterations per texel (2 in the aligned pass), started from the finer level's
- * lobes; on texels of at least 4096 normals (levels 6 and coarser of a 1024² map),
+ * lobes; on texels of at least 4096 normals (level 6 and coarser of a power-of-two map),
  * `em_max_iterations` (6 in the aligned pass). The default.
  */
 #define NDF_FIT_BALANCED 0

@@ -88,7 +88,7 @@ pub const NDF_ALIGN_FORM_MAIN_TEXT: ndf_align_form = 1;
 /// How hard the vMF baker fits each texel: one of `NDF_FIT_*` (the library's `FitMode`).
 pub type ndf_fit_mode = u32;
 /// At most 8 EM iterations per texel (2 in the aligned pass), started from the finer level's
-/// lobes; on texels of at least 4096 normals (levels 6 and coarser of a 1024² map),
+/// lobes; on texels of at least 4096 normals (level 6 and coarser of a power-of-two map),
 /// `em_max_iterations` (6 in the aligned pass). The default.
 pub const NDF_FIT_BALANCED: ndf_fit_mode = 0;
 /// At most 3 EM iterations per texel (1 in the aligned pass): about twice as fast as
