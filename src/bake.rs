@@ -308,6 +308,12 @@ impl Default for PbrOptions {
 /// footprint.
 pub const COARSE_TEXEL_NORMALS: usize = 4096;
 
+/// The finest normals a texel covers from which [`FitMode::Balanced`]'s aligned pass runs the
+/// EM options' own iteration cap instead of its 2 ([`FitMode::passes`]): 1024, a 32 × 32
+/// footprint (level 5 of a power-of-two map). The unaligned pass keeps its budget there, so the
+/// chain that coarser texels start from is unchanged.
+pub const WIDE_TEXEL_NORMALS: usize = 1024;
+
 /// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
 /// finer texels it covers (`em::seed_from_children`) and runs EM (Algorithm 1) over every
 /// finest normal it covers; they differ in how many iterations, unaligned and in the aligned
@@ -321,11 +327,12 @@ pub enum FitMode {
     /// pass.
     Fast,
     /// At most 8 iterations per texel (tolerance ≥ 1e-4); aligned, 5 and then 2 in the
-    /// aligned pass. On texels of at least [`COARSE_TEXEL_NORMALS`] normals, the EM options'
-    /// cap (20 by default) and then at most 6 in the aligned pass. Measured on rock and bark
-    /// (J = 6, 1024², aligned, `docs/baker.md` "Stop 51"): 0.002–0.033 nats per normal below
-    /// a multi-start reference at levels 4–8 (0.002–0.008 at levels 6–8), in about 0.9 s on
-    /// two cores.
+    /// aligned pass. On texels of at least [`WIDE_TEXEL_NORMALS`] normals, the aligned pass
+    /// runs the EM options' cap (20 by default); on texels of at least
+    /// [`COARSE_TEXEL_NORMALS`], the unaligned pass runs that cap and then the aligned pass at
+    /// most 6. Measured on rock and bark (J = 6, 1024², aligned, `docs/baker.md` "Stop 51" and
+    /// "Stop 52"): 0.002–0.033 nats per normal below a multi-start reference at levels 4–8
+    /// (0.002–0.009 at levels 5–8), in about 0.9–1.4 s on two cores, by machine.
     #[default]
     Balanced,
     /// The EM options as given, in both passes (by default 20 iterations, tolerance 1e-6),
@@ -376,7 +383,12 @@ impl FitMode {
     /// (level 6 and coarser of a power-of-two map). Those levels have few texels and little
     /// per-texel overhead, so the extra iterations cost 1–4 % of the bake; measured on rock and
     /// bark (`docs/baker.md`, "Stop 51"), they cut the likelihood gap at levels 6–8 by a
-    /// quarter to a half and the s = 256 / 2048 error there by up to 28 %.
+    /// quarter to a half and the s = 256 / 2048 error there by up to 28 %. On texels of at
+    /// least [`WIDE_TEXEL_NORMALS`] (level 5) only the aligned pass keeps `em`'s cap: the
+    /// unaligned pass there is the start of every coarser texel, and running it further
+    /// improved level 5 but made the s = 2048 error of levels 6–8 up to 58 % worse; the
+    /// aligned pass alone cuts level 5's gap by 40–65 % and its error by 3–12 %, leaves
+    /// levels 6 and coarser bit-identical, and costs about 3 % of the CPU time ("Stop 52").
     pub fn passes(
         self,
         em: &crate::em::EmOptions,
@@ -384,9 +396,11 @@ impl FitMode {
         texel_normals: usize,
     ) -> (crate::em::EmOptions, crate::em::EmOptions) {
         let coarse = texel_normals >= COARSE_TEXEL_NORMALS;
+        let wide = texel_normals >= WIDE_TEXEL_NORMALS;
         let (cap, first_of_two, tolerance, second) = match self {
             FitMode::Fast => (3, 2, 1e-4, 1),
             FitMode::Balanced if coarse => (u32::MAX, u32::MAX, 1e-4, 6),
+            FitMode::Balanced if wide => (8, 5, 1e-4, u32::MAX),
             FitMode::Balanced => (8, 5, 1e-4, 2),
             FitMode::Exact => return (*em, *em),
         };

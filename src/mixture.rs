@@ -1549,8 +1549,10 @@ pub(crate) fn assemble<M: Model>(
         "color0", "color1", "color2", "color3", "color4", "color5", "color6", "color7",
     ];
     let j = options.lobes;
-    // The budgets of the finer levels and of texels of COARSE_TEXEL_NORMALS or more.
+    // The budgets of the finer levels, of texels of WIDE_TEXEL_NORMALS and of
+    // COARSE_TEXEL_NORMALS or more.
     let (unaligned, aligned) = M::passes(options, 0);
+    let wide = M::passes(options, crate::bake::WIDE_TEXEL_NORMALS);
     let coarse = M::passes(options, crate::bake::COARSE_TEXEL_NORMALS);
     let mut textures: Vec<Texture> = M::NAMES
         .iter()
@@ -1594,6 +1596,8 @@ pub(crate) fn assemble<M: Model>(
         "em_tolerances": [unaligned.tolerance, aligned.tolerance],
         "em_iterations_coarse": [coarse.0.max_iterations, coarse.1.max_iterations],
         "em_coarse_texel_normals": crate::bake::COARSE_TEXEL_NORMALS,
+        "em_iterations_wide": [wide.0.max_iterations, wide.1.max_iterations],
+        "em_wide_texel_normals": crate::bake::WIDE_TEXEL_NORMALS,
     });
     if M::METHOD == Method::Vmf {
         parameters["kappa_max"] = KAPPA_MAX.into();
@@ -2037,7 +2041,8 @@ mod tests {
     }
 
     /// Balanced's budget on the texels of at least `COARSE_TEXEL_NORMALS` normals: the EM
-    /// options' own cap (6 in the aligned pass), and nothing else changed.
+    /// options' own cap (6 in the aligned pass), and nothing else changed; on texels of at
+    /// least `WIDE_TEXEL_NORMALS`, the cap in the aligned pass only.
     #[test]
     fn balanced_runs_the_em_cap_on_texels_of_4096_normals_or_more() {
         use crate::bake::COARSE_TEXEL_NORMALS as N;
@@ -2048,8 +2053,12 @@ mod tests {
             (u.max_iterations, a.max_iterations, u.tolerance)
         };
         let b = FitMode::Balanced;
+        let w = crate::bake::WIDE_TEXEL_NORMALS;
+        assert_eq!(caps(b, &em, false, w - 1).0, 8);
+        assert_eq!(caps(b, &em, true, w - 1), (5, 2, 1e-4));
         assert_eq!(caps(b, &em, false, N - 1).0, 8);
-        assert_eq!(caps(b, &em, true, N - 1), (5, 2, 1e-4));
+        assert_eq!(caps(b, &em, true, w), (5, 20, 1e-4));
+        assert_eq!(caps(b, &em, true, N - 1), (5, 20, 1e-4));
         assert_eq!(caps(b, &em, false, N).0, 20);
         assert_eq!(caps(b, &em, true, N), (20, 6, 1e-4));
         let four = EmOptions {
@@ -2110,6 +2119,10 @@ mod tests {
         assert_eq!(
             coarse.parameters["em_iterations"],
             serde_json::json!([8, 2])
+        );
+        assert_eq!(
+            coarse.parameters["em_iterations_wide"],
+            serde_json::json!([8, 20])
         );
     }
 
