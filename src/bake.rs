@@ -332,7 +332,7 @@ pub enum FitMode {
     /// [`COARSE_TEXEL_NORMALS`], the unaligned pass runs that cap and then the aligned pass at
     /// most 6. Measured on rock and bark (J = 6, 1024², aligned, `docs/baker.md` "Stop 51" and
     /// "Stop 52"): 0.002–0.033 nats per normal below a multi-start reference at levels 4–8
-    /// (0.002–0.009 at levels 5–8), in about 0.9–1.4 s on two cores, by machine.
+    /// (0.002–0.009 at levels 5–8), in about 0.9–1.7 s on two cores, by machine.
     #[default]
     Balanced,
     /// The EM options as given, in both passes (by default 20 iterations, tolerance 1e-6),
