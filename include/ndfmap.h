@@ -1151,7 +1151,7 @@ typedef struct ndf_environment_info {
 
 /**
  * At most 8 EM iterations per texel (2 in the aligned pass), started from the finer level's
- * lobes; on texels of at least 1024 normals (level 5 and coarser of a power-of-two map),
+ * lobes; on texels of at least 256 normals (level 4 and coarser of a power-of-two map),
  * `em_max_iterations` in the aligned pass; on texels of at least 4096 normals (level 6 and
  * coarser), `em_max_iterations` in the unaligned pass and 6 in the aligned one. The default.
  */

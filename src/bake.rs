@@ -309,10 +309,10 @@ impl Default for PbrOptions {
 pub const COARSE_TEXEL_NORMALS: usize = 4096;
 
 /// The finest normals a texel covers from which [`FitMode::Balanced`]'s aligned pass runs the
-/// EM options' own iteration cap instead of its 2 ([`FitMode::passes`]): 1024, a 32 × 32
-/// footprint (level 5 of a power-of-two map). The unaligned pass keeps its budget there, so the
+/// EM options' own iteration cap instead of its 2 ([`FitMode::passes`]): 256, a 16 × 16
+/// footprint (level 4 of a power-of-two map). The unaligned pass keeps its budget there, so the
 /// chain that coarser texels start from is unchanged.
-pub const WIDE_TEXEL_NORMALS: usize = 1024;
+pub const WIDE_TEXEL_NORMALS: usize = 256;
 
 /// How hard the vMF baker fits each texel. Every mode starts a texel from the lobes of the
 /// finer texels it covers (`em::seed_from_children`) and runs EM (Algorithm 1) over every
@@ -330,8 +330,8 @@ pub enum FitMode {
     /// aligned pass. On texels of at least [`WIDE_TEXEL_NORMALS`] normals, the aligned pass
     /// runs the EM options' cap (20 by default); on texels of at least
     /// [`COARSE_TEXEL_NORMALS`], the unaligned pass runs that cap and then the aligned pass at
-    /// most 6. Measured on rock and bark (J = 6, 1024², aligned, `docs/baker.md` "Stop 51" and
-    /// "Stop 52"): 0.002–0.033 nats per normal below a multi-start reference at levels 4–8
+    /// most 6. Measured on rock and bark (J = 6, 1024², aligned, `docs/baker.md` "Stop 51" to
+    /// "Stop 53"): 0.002–0.025 nats per normal below a multi-start reference at levels 4–8
     /// (0.002–0.009 at levels 5–8), in about 0.9–1.7 s on two cores, by machine.
     #[default]
     Balanced,
@@ -378,17 +378,14 @@ impl FitMode {
     /// other way). An aligned bake's unaligned pass only starts the aligned one, which goes
     /// on iterating from it, so it stops sooner.
     ///
-    /// Balanced keeps `em`'s own cap (20 by default) in the unaligned pass and up to 6
-    /// iterations in the aligned one on texels of at least [`COARSE_TEXEL_NORMALS`] normals
-    /// (level 6 and coarser of a power-of-two map). Those levels have few texels and little
-    /// per-texel overhead, so the extra iterations cost 1–4 % of the bake; measured on rock and
-    /// bark (`docs/baker.md`, "Stop 51"), they cut the likelihood gap at levels 6–8 by a
-    /// quarter to a half and the s = 256 / 2048 error there by up to 28 %. On texels of at
-    /// least [`WIDE_TEXEL_NORMALS`] (level 5) only the aligned pass keeps `em`'s cap: the
-    /// unaligned pass there is the start of every coarser texel, and running it further
-    /// improved level 5 but made the s = 2048 error of levels 6–8 up to 58 % worse; the
-    /// aligned pass alone cuts level 5's gap by 40–65 % and its error by 3–12 %, leaves
-    /// levels 6 and coarser bit-identical, and costs about 3 % of the CPU time ("Stop 52").
+    /// Balanced's budget grows with the texel, because coarse levels have few texels and
+    /// little per-texel overhead: on texels of at least [`WIDE_TEXEL_NORMALS`] normals (level 4
+    /// and coarser of a power-of-two map) the aligned pass keeps `em`'s cap (20 by default);
+    /// on texels of at least [`COARSE_TEXEL_NORMALS`] (level 6 and coarser) the unaligned pass
+    /// keeps it too and the aligned pass runs at most 6. Below `COARSE_TEXEL_NORMALS` the
+    /// unaligned pass keeps its lower cap because it is the start of every coarser texel, and
+    /// running it further there made coarser levels' error worse. What each threshold buys and
+    /// costs is measured in `docs/baker.md` ("Stop 51" to "Stop 53").
     pub fn passes(
         self,
         em: &crate::em::EmOptions,

@@ -2044,7 +2044,7 @@ mod tests {
     /// options' own cap (6 in the aligned pass), and nothing else changed; on texels of at
     /// least `WIDE_TEXEL_NORMALS`, the cap in the aligned pass only.
     #[test]
-    fn balanced_budgets_step_up_at_1024_and_4096_normals() {
+    fn balanced_budgets_step_up_at_256_and_4096_normals() {
         use crate::bake::COARSE_TEXEL_NORMALS as N;
         let em = EmOptions::default();
         let caps = |mode: FitMode, em: &EmOptions, aligned, normals| {

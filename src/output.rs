@@ -563,7 +563,9 @@ mod tests {
         let map = NormalMap::from_vectors(5, 3, v, Addressing::Clamp, BadNormals::Repair).unwrap();
         let b = bake(&map, Method::Olano);
         let dir = tempfile::tempdir().unwrap();
-        let m = write_bake(&b, input(&map), dir.path()).unwrap();
+        // A folder inside the temporary one, so that its lock file is removed with it.
+        let out = dir.path().join("bake");
+        let m = write_bake(&b, input(&map), &out).unwrap();
         let manifest: Manifest =
             serde_json::from_str(&std::fs::read_to_string(m).unwrap()).unwrap();
         assert_eq!(manifest.method, Method::Olano);
@@ -571,7 +573,7 @@ mod tests {
         assert_eq!(manifest.addressing, Addressing::Clamp);
         for (t, info) in b.textures.iter().zip(&manifest.textures) {
             for (k, f) in info.files.iter().enumerate() {
-                let (w, h, px) = read_level(&dir.path().join(f)).unwrap();
+                let (w, h, px) = read_level(&out.join(f)).unwrap();
                 assert_eq!((w, h), b.sizes[k]);
                 assert_eq!(px, t.levels[k]);
             }

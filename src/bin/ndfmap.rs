@@ -593,7 +593,7 @@ struct EmArgs {
     /// vmf, tan2005: the most EM iterations per texel, 1 to 1000 [default: 20]. Exact mode
     /// and Tan 2005 run up to this many; fast and balanced keep their own lower caps (3 and 8;
     /// balanced none in the unaligned pass on texels of 4096 normals or more, nor in the
-    /// aligned pass on texels of 1024 to 4095) unless this is lower. Exact mode
+    /// aligned pass on texels of 256 to 4095) unless this is lower. Exact mode
     /// reaches the reference fit on more texels with 60 to 300 (docs/baker.md, "Stop 49"), at
     /// 2 to 10 times its time.
     #[arg(long, value_name = "N")]
@@ -1272,7 +1272,7 @@ struct BakeCommand {
     align_form: Option<String>,
     /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
     /// default; 20 on texels of 4096 normals or more, and 20 in the aligned pass alone on
-    /// texels of 1024 to 4095) or `exact` (the EM options as given:
+    /// texels of 256 to 4095) or `exact` (the EM options as given:
     /// 20 iterations, tolerance 1e-6).
     #[arg(long)]
     mode: Option<String>,

@@ -88,7 +88,7 @@ pub const NDF_ALIGN_FORM_MAIN_TEXT: ndf_align_form = 1;
 /// How hard the vMF baker fits each texel: one of `NDF_FIT_*` (the library's `FitMode`).
 pub type ndf_fit_mode = u32;
 /// At most 8 EM iterations per texel (2 in the aligned pass), started from the finer level's
-/// lobes; on texels of at least 1024 normals (level 5 and coarser of a power-of-two map),
+/// lobes; on texels of at least 256 normals (level 4 and coarser of a power-of-two map),
 /// `em_max_iterations` in the aligned pass; on texels of at least 4096 normals (level 6 and
 /// coarser), `em_max_iterations` in the unaligned pass and 6 in the aligned one. The default.
 pub const NDF_FIT_BALANCED: ndf_fit_mode = 0;
