@@ -327,10 +327,8 @@ pub enum FitMode {
     /// pass.
     Fast,
     /// At most 8 iterations per texel (tolerance ≥ 1e-4); aligned, 5 and then 2 in the
-    /// aligned pass. On texels of at least [`WIDE_TEXEL_NORMALS`] normals, the aligned pass
-    /// runs the EM options' cap (20 by default); on texels of at least
-    /// [`COARSE_TEXEL_NORMALS`], the unaligned pass runs that cap and then the aligned pass at
-    /// most 6. Measured on rock and bark (J = 6, 1024², aligned, `docs/baker.md` "Stop 51" to
+    /// aligned pass. Larger texels get more ([`FitMode::passes`] gives the rule and its
+    /// thresholds, [`WIDE_TEXEL_NORMALS`] and [`COARSE_TEXEL_NORMALS`]). Measured on rock and bark (J = 6, 1024², aligned, `docs/baker.md` "Stop 51" to
     /// "Stop 53"): 0.002–0.025 nats per normal below a multi-start reference at levels 4–8
     /// (0.002–0.009 at levels 5–8), in about 0.9–1.7 s on two cores, by machine.
     #[default]
