@@ -639,16 +639,40 @@ fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
         .filter(|n| n.to_string_lossy().starts_with("ndfmap-bench-bake-") && !before.contains(n))
         .collect();
     assert!(pid_dirs.is_empty(), "left behind: {pid_dirs:?}");
-    // `--runs` times the speed table only, 1 to 100 times: anything else is one clear line.
+    // Each run of a row is a child process given the parent's arguments with its own `--runs`
+    // and `--json`: the `--runs=N` spelling is replaced too, and a table (not JSON) is printed.
+    let run = ndfmap(&[
+        "bench", "--sizes", "16", "--lobes", "0", "--lmax", "2", "--runs=2",
+    ]);
+    let out = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(out.contains("median of 2 runs each"), "{out}");
+    assert_eq!(
+        out.lines()
+            .filter(|l| l.trim_start().starts_with("16 "))
+            .count(),
+        2,
+        "{out}"
+    );
+    // `--runs` times the speed table only, 1 to 100 times, and `--job` (a child's row) is a row
+    // of it: anything else is one clear line.
     for args in [
         &["bench", "--quality", "--runs", "2"][..],
         &["bench", "--sizes", "32", "--runs", "0"],
+        &[
+            "bench", "--sizes", "32", "--lobes", "0", "--lmax", "2", "--job", "2",
+        ],
+        &["bench", "--quality", "--job", "0"],
     ] {
         let run = ndfmap(args);
         let err = String::from_utf8_lossy(&run.stderr);
         assert!(!run.status.success(), "{args:?}: {err}");
         assert!(
-            err.contains("--runs") && err.trim().lines().count() == 1,
+            (err.contains("--runs") || err.contains("--job")) && err.trim().lines().count() == 1,
             "{err}"
         );
     }

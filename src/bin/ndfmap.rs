@@ -37,7 +37,8 @@ struct Cli {
 enum Command {
     /// Time the vMF and SH bakes (and Toksvig's, for scale) on the built-in sample at several
     /// sizes, lobe counts and band limits: wall seconds, CPU seconds, peak memory, the memory
-    /// budget's estimate and texture bytes per run. With `--quality`, measure instead how well
+    /// budget's estimate and texture bytes per run, each run in a process of its own (so a
+    /// row's peak is its bake's alone). With `--quality`, measure instead how well
     /// each vMF bake fits its normals (`ndfmap::quality`): per level, the log-likelihood gap to
     /// a multi-start reference fit and the dead / near-empty lobe shares.
     Bench {
@@ -98,6 +99,10 @@ enum Command {
         /// lists every run's wall seconds). Not with `--quality` or `--scale`.
         #[arg(long, default_value_t = 1)]
         runs: usize,
+        /// Internal: time only row N of the speed table in this process and print it as JSON
+        /// (each row of `ndfmap bench` runs so, in a process of its own).
+        #[arg(long, hide = true)]
+        job: Option<usize>,
     },
     /// Generate the built-in sample map, bake every method, and print the error table.
     Demo {
@@ -2074,10 +2079,16 @@ fn run(cli: Cli) -> Result<u8> {
             untiled_max,
             runs,
             em,
+            job,
         } => {
             if !quality && (reference_check || reference_starts != 8) {
                 return Err(Error::InvalidOption(
                     "--reference-starts and --reference-check are options of --quality".into(),
+                ));
+            }
+            if job.is_some() && (scale || quality) {
+                return Err(Error::InvalidOption(
+                    "--job is a row of the speed table (not with --quality or --scale)".into(),
                 ));
             }
             if runs != 1 && (scale || quality) {
@@ -2107,7 +2118,7 @@ fn run(cli: Cli) -> Result<u8> {
                 };
                 bench_quality(&sizes, &maps, &grid, reference, &levels, json)?
             } else {
-                bench(&sizes, &grid, json, runs)?
+                bench(&sizes, &grid, json, runs, job)?
             }
         }
     }
@@ -2235,48 +2246,102 @@ fn timed<T>(work: impl FnOnce() -> Result<T>) -> Result<(T, Timing)> {
     ))
 }
 
-/// [`timed`] `runs` times, with `cleanup` (untimed) after each run: the last run's output, the
-/// median wall and CPU seconds ([`ndfmap::usage::median`]), the highest peak, the lowest
-/// base, and every run's wall seconds in order.
-fn timed_runs<T>(
-    runs: usize,
-    mut work: impl FnMut() -> Result<T>,
-    mut cleanup: impl FnMut() -> Result<()>,
-) -> Result<(T, Timing, Vec<f64>)> {
-    let mut all = Vec::with_capacity(runs);
-    let mut last = None;
-    for _ in 0..runs.max(1) {
-        // The previous run's output is freed first, so no run's peak holds two.
-        drop(last.take());
-        let (out, t) = timed(&mut work)?;
-        cleanup()?;
-        all.push(t);
-        last = Some(out);
-    }
-    let seconds: Vec<f64> = all.iter().map(|t| t.seconds).collect();
-    let cpu: Option<Vec<f64>> = all.iter().map(|t| t.cpu).collect();
-    let timing = Timing {
-        seconds: ndfmap::usage::median(&mut seconds.clone()),
-        cpu: cpu.map(|mut c| ndfmap::usage::median(&mut c)),
-        peak: all.iter().filter_map(|t| t.peak).max(),
-        base: all.iter().filter_map(|t| t.base).min(),
-    };
-    Ok((last.expect("at least one run"), timing, seconds))
+/// Which bake of a configuration a row of `ndfmap bench` times.
+#[derive(Clone, Copy, PartialEq)]
+enum BenchBake {
+    /// `methods::bake_with`, the library call: all levels held as f32 textures.
+    Memory,
+    /// The way `ndfmap bake` writes it (module `banded`): levels streamed to f32 EXR files as
+    /// they are fitted, the same bytes.
+    Streamed,
 }
 
-/// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo). Every
-/// configuration is timed twice: baked in memory (`methods::bake_with`, the library call, all
-/// levels held as f32 textures) and, for vMF, written the way `ndfmap bake` writes it (module
-/// `banded`: levels streamed to f32 EXR files as they are fitted, the same bytes), whose peak
-/// is what a user of the baker sees. Each is timed `runs` times ([`timed_runs`]: medians).
-fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<()> {
+/// One row of `ndfmap bench`'s speed table: a size of the built-in sample, a method with its
+/// options, and which bake.
+struct BenchJob {
+    size: u32,
+    method: Method,
+    options: BakeOptions,
+    bake: BenchBake,
+}
+
+/// The rows of `ndfmap bench`'s speed table, in order: per size, Toksvig, SH per band limit,
+/// then every vMF configuration of `grid`, each baked in memory and then streamed.
+fn bench_jobs(sizes: &[u32], grid: &MixtureGrid) -> Result<Vec<BenchJob>> {
+    let mut jobs = Vec::new();
+    for &size in sizes {
+        if !(8..=8192).contains(&size) {
+            return Err(Error::InvalidOption(format!(
+                "--sizes {size} (expected 8 to 8192)"
+            )));
+        }
+        let mut configs = vec![(Method::Toksvig, BakeOptions::default())];
+        for &l in &grid.lmax {
+            configs.push((
+                Method::Sh,
+                BakeOptions {
+                    lmax: l,
+                    ..BakeOptions::default()
+                },
+            ));
+        }
+        // `--lobes 0`: no vMF bake (SH and Toksvig only).
+        configs.extend(
+            grid.options(Method::Vmf)
+                .into_iter()
+                .filter(|o| o.lobes > 0)
+                .map(|o| (Method::Vmf, o)),
+        );
+        for (method, options) in configs {
+            jobs.push(BenchJob {
+                size,
+                method,
+                options,
+                bake: BenchBake::Memory,
+            });
+            if method == Method::Vmf {
+                jobs.push(BenchJob {
+                    size,
+                    method,
+                    options,
+                    bake: BenchBake::Streamed,
+                });
+            }
+        }
+    }
+    Ok(jobs)
+}
+
+/// `ndfmap bench`: bake time and peak memory on the built-in sample (with its albedo), one row
+/// per [`BenchJob`] of [`bench_jobs`], each timed `runs` times ([`bench_child`]: medians).
+///
+/// Every run of every row is a process of its own (this executable, `bench … --runs 1 --job N
+/// --json`), so its peak RSS is the bake's and not what the allocator kept from the bakes
+/// before it. In one process, the 1024² J = 6 aligned streamed bake read 165–250 MiB after the
+/// in-memory bakes, and more with each further run; alone it peaks at 133–142 MiB
+/// (docs/baker.md, "Stop 55"). `job` is that child's row: it prints the row as JSON and
+/// nothing else.
+fn bench(
+    sizes: &[u32],
+    grid: &MixtureGrid,
+    json: bool,
+    runs: usize,
+    job: Option<usize>,
+) -> Result<()> {
     if !(1..=100).contains(&runs) {
         return Err(Error::InvalidOption(format!(
             "--runs {runs} (expected 1 to 100)"
         )));
     }
-    let tmp = Scratch::new("bake")?;
-    let mut rows = Vec::new();
+    let jobs = bench_jobs(sizes, grid)?;
+    if let Some(i) = job {
+        let job = jobs.get(i).ok_or_else(|| {
+            Error::InvalidOption(format!("--job {i} (the bench has {} rows)", jobs.len()))
+        })?;
+        let row = bench_row(job)?;
+        println!("{}", serde_json::to_string(&row).expect("row serializes"));
+        return Ok(());
+    }
     let threads = rayon::current_num_threads();
     if !json {
         let timing = if runs == 1 {
@@ -2284,7 +2349,10 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<(
         } else {
             format!("median of {runs} runs each")
         };
-        println!("{threads} threads; built-in sample with albedo; full MIP chain; {timing}");
+        println!(
+            "{threads} threads; built-in sample with albedo; full MIP chain; {timing}; \
+             each row in a process of its own"
+        );
         println!(
             "{:>6} {:>8} {:>6} {:>9} {:>8} {:>9} {:>10} {:>8} {:>12} {:>14} {:>10}",
             "size",
@@ -2300,119 +2368,19 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<(
             "f32 MiB"
         );
     }
-    for &size in sizes {
-        if !(8..=8192).contains(&size) {
-            return Err(Error::InvalidOption(format!(
-                "--sizes {size} (expected 8 to 8192)"
-            )));
+    let mut rows: Vec<serde_json::Value> = Vec::with_capacity(jobs.len());
+    for (i, job) in jobs.iter().enumerate() {
+        let mut row = bench_child(i, runs)?;
+        if job.bake == BenchBake::Streamed {
+            // The same configuration's in-memory row, just before, counted the texture bytes.
+            row["texture_bytes_f32"] = rows
+                .last()
+                .map_or(serde_json::Value::Null, |r| r["texture_bytes_f32"].clone());
         }
-        let sample = ndfmap::procedural::generate(size, 2007);
-        let map = sample.map.with_feature(sample.albedo)?;
-        let mut jobs = vec![(Method::Toksvig, BakeOptions::default())];
-        for &l in &grid.lmax {
-            jobs.push((
-                Method::Sh,
-                BakeOptions {
-                    lmax: l,
-                    ..BakeOptions::default()
-                },
-            ));
+        if !json {
+            print_bench_row(&row);
         }
-        // `--lobes 0`: no vMF bake (SH and Toksvig only).
-        jobs.extend(
-            grid.options(Method::Vmf)
-                .into_iter()
-                .filter(|o| o.lobes > 0)
-                .map(|o| (Method::Vmf, o)),
-        );
-        let info = InputInfo {
-            path: None,
-            options: IngestOptions::default(),
-            stats: map.stats().clone(),
-        };
-        for (method, options) in jobs {
-            let (b, memory, memory_runs) =
-                timed_runs(runs, || bake_with(&map, method, &options), || Ok(()))?;
-            let texture_bytes: u64 = (0..b.textures.len())
-                .flat_map(|_| 0..b.level_count())
-                .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
-                .sum();
-            drop(b);
-            // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
-            let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, &options, true);
-            let mut timings = vec![("memory", memory, estimate, memory_runs)];
-            if method == Method::Vmf {
-                let dir = tmp.0.join(format!("{size}-{}", rows.len()));
-                // Every run writes a fresh folder, deleted after it (untimed).
-                let (_, streamed, streamed_runs) = timed_runs(
-                    runs,
-                    || {
-                        ndfmap::banded::write_folder(
-                            &ndfmap::banded::Map::Full(&map),
-                            method,
-                            &options,
-                            Format::F32,
-                            ndfmap::container::Container::Exr,
-                            &dir,
-                            info.clone(),
-                            None,
-                            None,
-                            &mut |_| true,
-                        )
-                    },
-                    || std::fs::remove_dir_all(&dir).map_err(bench_io_error),
-                )?;
-                let bands = ndfmap::banded::Bands::for_size(size, size);
-                // The bench's map is decoded (`ndfmap bake` of an 8-bit file keeps its
-                // samples, a few bytes per texel, so it peaks lower still).
-                let source =
-                    ndfmap::banded::DECODED_NORMAL_BYTES + ndfmap::banded::DECODED_FEATURE_BYTES;
-                let estimate =
-                    ndfmap::banded::estimate_peak_bytes(size, size, &options, true, source, bands);
-                timings.push(("streamed", streamed, estimate, streamed_runs));
-            }
-            let lobes = match method {
-                Method::Vmf => options.lobes,
-                Method::Sh => options.lmax,
-                _ => 0,
-            };
-            for (bake, run, estimate, seconds_runs) in timings {
-                let Timing {
-                    seconds,
-                    cpu,
-                    peak,
-                    base,
-                } = run;
-                let row = serde_json::json!({
-                    "size": size, "method": method, "lobes": lobes,
-                    "align": options.align, "mode": options.mode, "bake": bake,
-                    "seconds": seconds, "cpu_seconds": cpu,
-                    "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
-                    "threads": threads, "texture_bytes_f32": texture_bytes,
-                    "runs": runs, "seconds_runs": seconds_runs,
-                });
-                if !json {
-                    let mib = |b: Option<u64>| {
-                        b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0))
-                    };
-                    println!(
-                        "{size:>6} {:>8} {lobes:>6} {:>9} {:>8} {bake:>9} {seconds:>10.3} {:>8} {:>12} {:>14} {:>10.1}",
-                        method.name(),
-                        options.align.map_or("no".into(), |c| format!("C={c}")),
-                        if method == Method::Vmf {
-                            options.mode.name()
-                        } else {
-                            "-"
-                        },
-                        cpu.map_or("?".into(), |c| format!("{c:.2}")),
-                        mib(peak),
-                        mib(Some(estimate)),
-                        texture_bytes as f64 / 1048576.0
-                    );
-                }
-                rows.push(row);
-            }
-        }
+        rows.push(row);
     }
     if json {
         println!(
@@ -2421,6 +2389,164 @@ fn bench(sizes: &[u32], grid: &MixtureGrid, json: bool, runs: usize) -> Result<(
         );
     }
     Ok(())
+}
+
+/// Runs row `i` of this bench `runs` times, each in a fresh child process (this executable with
+/// the same arguments and `--json --runs 1 --job i`), and returns the row: the median wall and
+/// CPU seconds, the highest peak, the lowest baseline and every run's wall seconds in order.
+/// A child's error line becomes this process's error.
+fn bench_child(i: usize, runs: usize) -> Result<serde_json::Value> {
+    let exe = std::env::current_exe().map_err(bench_io_error)?;
+    // The parent's own arguments, less the ones the child is given anew.
+    let mut args = Vec::new();
+    let mut given = std::env::args_os().skip(1);
+    while let Some(a) = given.next() {
+        if a == "--runs" {
+            given.next();
+        } else if a != "--json" && !a.to_string_lossy().starts_with("--runs=") {
+            args.push(a);
+        }
+    }
+    let mut rows = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let out = std::process::Command::new(&exe)
+            .args(&args)
+            .args(["--json", "--runs", "1", "--job", &i.to_string()])
+            .stdin(std::process::Stdio::null())
+            .output()
+            .map_err(bench_io_error)?;
+        if !out.status.success() {
+            let err = String::from_utf8_lossy(&out.stderr);
+            let line = err.trim().trim_start_matches("ndfmap: error: ");
+            return Err(Error::InvalidOption(format!("bench row {i}: {line}")));
+        }
+        let row: serde_json::Value = serde_json::from_slice(&out.stdout).map_err(|e| {
+            Error::InvalidOption(format!(
+                "bench row {i}: the child printed no JSON row ({e})"
+            ))
+        })?;
+        rows.push(row);
+    }
+    let all = |key: &str| -> Option<Vec<f64>> { rows.iter().map(|r| r[key].as_f64()).collect() };
+    let bytes = |key: &str| -> Vec<u64> { rows.iter().filter_map(|r| r[key].as_u64()).collect() };
+    let mut row = rows[0].clone();
+    let seconds = all("seconds").unwrap_or_default();
+    row["seconds"] = serde_json::json!(ndfmap::usage::median(&mut seconds.clone()));
+    row["seconds_runs"] = serde_json::json!(seconds);
+    row["cpu_seconds"] =
+        serde_json::json!(all("cpu_seconds").map(|mut c| ndfmap::usage::median(&mut c)));
+    row["peak_bytes"] = serde_json::json!(bytes("peak_bytes").into_iter().max());
+    row["baseline_bytes"] = serde_json::json!(bytes("baseline_bytes").into_iter().min());
+    row["runs"] = serde_json::json!(runs);
+    Ok(row)
+}
+
+/// Times one run of a [`BenchJob`] in this process and returns its JSON row (for a streamed
+/// bake, `texture_bytes_f32` is null: the parent copies it from the in-memory row before it).
+fn bench_row(job: &BenchJob) -> Result<serde_json::Value> {
+    let &BenchJob {
+        size,
+        method,
+        ref options,
+        bake,
+    } = job;
+    let sample = ndfmap::procedural::generate(size, 2007);
+    let map = sample.map.with_feature(sample.albedo)?;
+    let (run, estimate, texture_bytes, name) = match bake {
+        BenchBake::Memory => {
+            let (b, run) = timed(|| bake_with(&map, method, options))?;
+            let texture_bytes: u64 = (0..b.textures.len())
+                .flat_map(|_| 0..b.level_count())
+                .map(|k| ndfmap::pack::packed_len(&b, k, Format::F32) as u64)
+                .sum();
+            // The budget's estimate (methods::estimate_peak_bytes), for calibrating it.
+            let estimate = ndfmap::methods::estimate_peak_bytes(size, size, method, options, true);
+            (run, estimate, Some(texture_bytes), "memory")
+        }
+        BenchBake::Streamed => {
+            let tmp = Scratch::new("bake")?;
+            let dir = tmp.0.join("bake");
+            let info = InputInfo {
+                path: None,
+                options: IngestOptions::default(),
+                stats: map.stats().clone(),
+            };
+            // The folder is deleted with `tmp` (untimed).
+            let (_, run) = timed(|| {
+                ndfmap::banded::write_folder(
+                    &ndfmap::banded::Map::Full(&map),
+                    method,
+                    options,
+                    Format::F32,
+                    ndfmap::container::Container::Exr,
+                    &dir,
+                    info,
+                    None,
+                    None,
+                    &mut |_| true,
+                )
+            })?;
+            let bands = ndfmap::banded::Bands::for_size(size, size);
+            // The bench's map is decoded (`ndfmap bake` of an 8-bit file keeps its samples, a
+            // few bytes per texel, so it peaks lower still).
+            let source =
+                ndfmap::banded::DECODED_NORMAL_BYTES + ndfmap::banded::DECODED_FEATURE_BYTES;
+            let estimate =
+                ndfmap::banded::estimate_peak_bytes(size, size, options, true, source, bands);
+            (run, estimate, None, "streamed")
+        }
+    };
+    let lobes = match method {
+        Method::Vmf => options.lobes,
+        Method::Sh => options.lmax,
+        _ => 0,
+    };
+    let Timing {
+        seconds,
+        cpu,
+        peak,
+        base,
+    } = run;
+    Ok(serde_json::json!({
+        "size": size, "method": method, "lobes": lobes,
+        "align": options.align, "mode": options.mode, "bake": name,
+        "seconds": seconds, "cpu_seconds": cpu,
+        "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
+        "threads": rayon::current_num_threads(), "texture_bytes_f32": texture_bytes,
+        "runs": 1, "seconds_runs": [seconds],
+    }))
+}
+
+/// Prints one JSON row of [`bench_row`] as a line of the speed table.
+fn print_bench_row(row: &serde_json::Value) {
+    let mib = |v: &serde_json::Value| {
+        v.as_f64()
+            .map_or("?".into(), |b| format!("{:.0}", b / 1048576.0))
+    };
+    let method = row["method"].as_str().unwrap_or("?");
+    let aligned = row["align"]
+        .as_f64()
+        .map_or("no".into(), |c| format!("C={c}"));
+    let mode = if method == Method::Vmf.name() {
+        row["mode"].as_str().unwrap_or("?")
+    } else {
+        "-"
+    };
+    println!(
+        "{:>6} {method:>8} {:>6} {aligned:>9} {mode:>8} {:>9} {:>10.3} {:>8} {:>12} {:>14} {:>10}",
+        row["size"].as_u64().unwrap_or(0),
+        row["lobes"].as_u64().unwrap_or(0),
+        row["bake"].as_str().unwrap_or("?"),
+        row["seconds"].as_f64().unwrap_or(f64::NAN),
+        row["cpu_seconds"]
+            .as_f64()
+            .map_or("?".into(), |c| format!("{c:.2}")),
+        mib(&row["peak_bytes"]),
+        mib(&row["estimate_bytes"]),
+        row["texture_bytes_f32"]
+            .as_f64()
+            .map_or("?".into(), |b| format!("{:.1}", b / 1048576.0)),
+    );
 }
 
 /// The 8-bit RGB samples of the built-in sample at `size` (≤ 1024), or of the 1024² sample
