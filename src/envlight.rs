@@ -20,7 +20,7 @@
 //!   lobe each (μ lifted from the planar mean, κ = 1/σ², weight α). Olano–North stores the
 //!   footprint's first and second moments `E[n]`, `E[nnᵀ]`, which are exactly what the bands
 //!   l ≤ 2 need: its diffuse term is `Σ_{l≤2} ρ̂_l Σ_m L_lm E[Y_lm(n)]` with `E[Y_1m]` linear in
-//!   `E[n]` and `E[Y_2m]` linear in `E[nnᵀ]` ([`moments_diffuse`]), the footprint average
+//!   `E[n]` and `E[Y_2m]` linear in `E[nnᵀ]` (`moments_diffuse`), the footprint average
 //!   itself up to the environment's band 2, as for SH bakes.
 //! - **Specular, prefiltered route**: per lobe (Olano–North: one, about `normalize(E[n])`
 //!   with κ the inverse of the mean per-axis variance of its tangent-plane covariance) the
@@ -581,10 +581,10 @@ pub const ENERGY_PARAM: usize = 49;
 /// `t = 0`, one vMF; GGX two), the core's blend (its lookup direction, the lobe's mode), and
 /// the energy and blend with the cosine taken at the half vector instead of the lobe's centre
 /// (blocks 6 and 7), and the shift of `log2 κ` under those weights (block 8) (`energy_quadrature::lobe_moments`;
-/// mixed in by the NDF's share of the lobe, [`ndf_share`]).
+/// mixed in by the NDF's share of the lobe, `ndf_share`).
 pub const ENERGY_BLOCKS: usize = 9;
 /// Shares of GGX's lobe table: the NDF lobe's share `w ∈ [0, 1]` of the widened lobe's
-/// variance ([`ndf_share`]) in equal steps, `w = j/(ENERGY_SHARES − 1)`. GGX's widened lobe
+/// variance (`ndf_share`) in equal steps, `w = j/(ENERGY_SHARES − 1)`. GGX's widened lobe
 /// changes shape with w (eq 14 of a vMF and GGX: GGX's long tail at w = 0, the vMF's short one
 /// at w = 1), and the energy with the cosine at every normal of the NDF lobe depends on w
 /// (block 6 is set so that the route's energy is that exact energy at every share:
@@ -1006,7 +1006,7 @@ fn ndf_share(brdf: &Brdf, var: f64) -> f64 {
 /// The prefiltered route's specular term of one NDF lobe of unit weight, direction `mu` and
 /// concentration `kappa` (∞: a single normal), for view `view` (tangent frame) on a surface
 /// whose tangent frame is `frame`, per colour channel: the widened BRDF's lobe energy (mixed
-/// by [`ndf_share`] between the cosine at the lobe's centre and at the half vector) times one
+/// by `ndf_share` between the cosine at the lobe's centre and at the half vector) times one
 /// prefiltered lookup (GGX: a core and a tail) in the lobe's mean direction, times `g` at the
 /// reflected direction (module docs; what [`shade_in_with`] sums per lobe, the shaders'
 /// `ndf_env_lobe`). 0 when the view is behind `mu` and for a BRDF with no specular term.
@@ -1031,9 +1031,9 @@ fn lobe_var(kappa: f64) -> f64 {
     }
 }
 
-/// [`prefiltered_lobe`] with the cosine mixed by `share` instead of [`ndf_share`]: 0 takes the
+/// [`prefiltered_lobe`] with the cosine mixed by `share` instead of `ndf_share`: 0 takes the
 /// cosine at the lobe's centre (the route before the half-vector blocks), 1 at the half vector.
-/// GGX's table share (its lobe shape and exact energy) still follows [`ndf_share`].
+/// GGX's table share (its lobe shape and exact energy) still follows `ndf_share`.
 /// For analysis (`examples/env_error_split.rs` measures the route both ways in one run).
 pub fn prefiltered_lobe_with_share(
     light: &EnvLight,

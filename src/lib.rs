@@ -4,7 +4,7 @@
 //! and the baselines it compares with. Data flows forward through one module per stage, and no
 //! module imports one above it:
 //!
-//! - data: [`budget`] (the memory budget), [`format`] (storage formats, value ranges) →
+//! - data: [`budget`] (the memory budget), [`mod@format`] (storage formats, value ranges) →
 //!   [`bake`] (the textures every method produces, options, progress); [`harmonics`] (the
 //!   real SH basis, quadratures) → [`brdf`] (the one BRDF library: lobes, g factors, `ρ̂_l`,
 //!   widening rules, the exact unfiltered shading);

@@ -1,5 +1,5 @@
 //! Mixture bakes: one EM fit per texel of every MIP level, over *all* finest normals the texel
-//! covers (exact footprints, [`crate::pyramid`]), for any [`Model`]: the paper's vMF lobes
+//! covers (exact footprints, [`crate::pyramid`]), for any `Model`: the paper's vMF lobes
 //! (Algorithm 1, [`crate::em`]) and Tan et al. 2005's planar Gaussians ([`crate::tan2005`]).
 //!
 //! **Unaligned** (Sec 7.1): levels are fitted from the finest up. The finest texel holds one

@@ -645,7 +645,7 @@ fn offset(n0: DVec3, t1: DVec3, t2: DVec3, u: f64, v: f64) -> DVec3 {
 }
 
 /// Fits one isotropic lobe to one texel's `target` (values for `set`'s pairs): the best of
-/// `starts` by [`cost`], refined by up to `iterations` Levenberg–Marquardt steps over
+/// `starts` by `cost`, refined by up to `iterations` Levenberg–Marquardt steps over
 /// `(u, v, ln α)` (the normal `normalize(n₀ + u t₁ + v t₂)` in the start's tangent frame)
 /// with the analytic Jacobian `∂D/∂c = 4α²c(1 − α²)/(π d³)`, `∂D/∂ln α = 2D(1 − 2c²α²/d)`
 /// for `d = 1 − c²(1 − α²)`. Returns the lobe and its cost. `α` stays in `[floor, 1]`
@@ -887,7 +887,7 @@ pub fn bake_with_maps(
     crate::bake::run_with_progress(&mut |_| true, |p| bake(map, options, maps, p))
 }
 
-/// [`bake`] with any pair set and search (the report's best-possible isotropic lobe: the
+/// `bake` with any pair set and search (the report's best-possible isotropic lobe: the
 /// evaluation's own pairs, [`Search::Thorough`]), and the seconds each stage took; `set`
 /// replaces the options' own ([`PbrOptions::fit_max_angle`] is then only checked). Levels
 /// 1 to `fit_from − 1` are not fitted (the κ formula's lobe, c = 2, isotropic): for a report
@@ -1100,7 +1100,7 @@ fn two_basins(
     }
 }
 
-/// Taps per axis a texel's mode search reads ([`footprint_sample`]): up to 8 × 8 of its
+/// Taps per axis a texel's mode search reads (`footprint_sample`): up to 8 × 8 of its
 /// footprint's finest normals (levels 1–3 of a power-of-two map: all of them).
 pub const MODE_TAPS: usize = 8;
 
@@ -1177,7 +1177,7 @@ pub fn mean_shift(
 /// edges is best served by a lobe on the panel's normal, the NDF's mode, not on the mean
 /// normal every κ start uses): per kernel `κ = c/α²` of [`MODE_KERNELS`] (α the footprint's
 /// base roughness), [`MODE_STEPS`] mean-shift steps ([`mean_shift`]) from the mean normal over
-/// the footprint's sampled normals ([`footprint_sample`]), and at the mode three α: the base
+/// the footprint's sampled normals (`footprint_sample`), and at the mode three α: the base
 /// α, and the κ formula `α² + 2/κ(r)` for the mode's local spread (`r` the kernel-weighted
 /// mean length) and for the footprint's spread about the mode (`r` the mean normal's
 /// projection on it). `stats` are the texel's statistics, `samples` its sampled normals. None

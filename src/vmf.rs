@@ -510,7 +510,7 @@ pub(crate) fn half_norm(x: f64) -> f64 {
 /// `q(c) = c^s e^{η(1−c)}`: the vMF part has the Blinn-Phong lobe's peak and (to `e^{−2η}`)
 /// its unit mass, and the vMF ⊛ vMF product has a closed form,
 /// `A · g(κ)/g(R) · e^{R−κ−η}` with `R = |κμ + ηω_h|` and `g(x) = x/(1 − e^{−2x})`
-/// ([`half_norm`]); the slowly varying `q` is taken at the product lobe's centre
+/// (`half_norm`); the slowly varying `q` is taken at the product lobe's centre
 /// `m = (κμ + ηω_h)/R`, `c_m = m·ω_h = (κc + η)/R`. So
 /// `B = A · g(κ)/g(R) · exp(R − κ − η + η(1 − c_m) + s ln c_m)`, with the cancelling
 /// differences in stable forms: `R − κ − η = −2κη(1 − c)/(R + κ + η)` and

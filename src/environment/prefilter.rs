@@ -51,7 +51,7 @@
 //! correlation in φ: each input row's spectrum is taken once, each row pair's kernel is
 //! transformed and multiplied in, the products of all the input rows are summed and one inverse
 //! transform (folded to the output's width) gives the output row. Only row pairs whose window is
-//! a few taps wide are summed directly ([`FFT_COST`]). The two agree to f32 rounding (the
+//! a few taps wide are summed directly (`FFT_COST`). The two agree to f32 rounding (the
 //! tests); on venice_sunset_1k the levels take 0.15 s per channel against 1.3 s summed
 //! directly, identical bytes (docs/environment.md). `rustfft` (pure Rust, a fixed plan per
 //! length, no threads of its own) earns its place: a point source near the pole makes every
@@ -248,7 +248,7 @@ pub fn convolve(env: &Radiance, kappa: f64) -> Radiance {
 /// `5/√κ` of it, renormalized. The weights depend on the output row, the input row and the
 /// azimuth offset only, so they are computed once per pair of rows; a row pair whose window
 /// spans many texels (the polar rows, the wide lobes) is summed as a circular correlation in
-/// φ by FFT ([`FFT_COST`]), the others directly.
+/// φ by FFT (`FFT_COST`), the others directly.
 pub fn convolve_to(src: &Radiance, width: u32, kappa: f64) -> Radiance {
     convolve_with(src, width, kappa, FFT_COST)
 }

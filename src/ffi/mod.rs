@@ -12,7 +12,7 @@
 //!   NULL, and are written only on success. [`ndf_last_error_message`] explains a failure.
 //! - Enumerations arrive as `uint32_t` and are validated as integers before use (a Rust enum
 //!   taken from C with an unknown value would be undefined behaviour).
-//! - Every exported body runs inside [`guard`]: a panic becomes [`ndf_status::Panic`] and a
+//! - Every exported body runs inside `guard`: a panic becomes [`ndf_status::Panic`] and a
 //!   message instead of unwinding into the host (the crate never builds with `panic = "abort"`).
 //! - `unsafe` appears only in this module, each block with the reason it is sound.
 

@@ -88,7 +88,7 @@ pub struct EnvImageRow {
 
 /// The label of the ideal-NDF floor row: at each pixel, the trilinear taps and weights of the
 /// bakes, each tap texel standing for the exact average over the finest normals it covers —
-/// the Monte Carlo ground truth of that weighted normal set ([`ideal_floor`]). What any
+/// the Monte Carlo ground truth of that weighted normal set (`ideal_floor`). What any
 /// per-texel NDF sampled like the bakes shares: the MIP footprint (a square texel grid, two
 /// levels, bilinear weights) against the pixel's own footprint.
 pub const FLOOR_LABEL: &str = "ideal NDF (trilinear floor)";

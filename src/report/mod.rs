@@ -3,7 +3,7 @@
 //! in image space ([`crate::render`]: supersampled ground truth vs the CPU twin of the shaders,
 //! relative RMSE and FLIP), and costed (texture bytes, fetches and ALU operations per pixel from
 //! the specialized shader, [`cost`]; frame times from the sample viewer's benchmark, [`frame`]).
-//! [`write`] turns the rows into `report.md`, `report.json` and plots ([`plot`]).
+//! [`write()`] turns the rows into `report.md`, `report.json` and plots ([`plot`]).
 //!
 //! Memory stays bounded: each configuration is baked, measured in every format and dropped
 //! before the next; only the ground-truth images of the current map are kept.
