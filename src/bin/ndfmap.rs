@@ -99,8 +99,8 @@ enum Command {
         /// lists every run's wall seconds). Not with `--quality` or `--scale`.
         #[arg(long, default_value_t = 1)]
         runs: usize,
-        /// Internal: time only row N of the speed table in this process and print it as JSON
-        /// (each row of `ndfmap bench` runs so, in a process of its own).
+        /// Internal: time one run of row N of the speed table in this process and print it as
+        /// JSON (`ndfmap bench` runs every run of every row so, each in a process of its own).
         #[arg(long, hide = true)]
         job: Option<usize>,
     },
