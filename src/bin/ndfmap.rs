@@ -2430,7 +2430,9 @@ fn bench_child(i: usize, runs: usize) -> Result<serde_json::Value> {
     let all = |key: &str| -> Option<Vec<f64>> { rows.iter().map(|r| r[key].as_f64()).collect() };
     let bytes = |key: &str| -> Vec<u64> { rows.iter().filter_map(|r| r[key].as_u64()).collect() };
     let mut row = rows[0].clone();
-    let seconds = all("seconds").unwrap_or_default();
+    let seconds = all("seconds")
+        .filter(|s| !s.is_empty())
+        .ok_or_else(|| Error::InvalidOption(format!("bench row {i}: a run without seconds")))?;
     row["seconds"] = serde_json::json!(ndfmap::usage::median(&mut seconds.clone()));
     row["seconds_runs"] = serde_json::json!(seconds);
     row["cpu_seconds"] =
