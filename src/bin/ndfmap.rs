@@ -2368,9 +2368,11 @@ fn bench(
             "f32 MiB"
         );
     }
+    let exe = std::env::current_exe().map_err(bench_io_error)?;
+    let args = bench_child_args();
     let mut rows: Vec<serde_json::Value> = Vec::with_capacity(jobs.len());
     for (i, job) in jobs.iter().enumerate() {
-        let mut row = bench_child(i, runs)?;
+        let mut row = bench_child(&exe, &args, i, runs)?;
         if job.bake == BenchBake::Streamed {
             // The same configuration's in-memory row, just before, counted the texture bytes.
             row["texture_bytes_f32"] = rows
@@ -2391,13 +2393,9 @@ fn bench(
     Ok(())
 }
 
-/// Runs row `i` of this bench `runs` times, each in a fresh child process (this executable with
-/// the same arguments and `--json --runs 1 --job i`), and returns the row: the median wall and
-/// CPU seconds, the highest peak, the lowest baseline and every run's wall seconds in order.
-/// A child's error line becomes this process's error.
-fn bench_child(i: usize, runs: usize) -> Result<serde_json::Value> {
-    let exe = std::env::current_exe().map_err(bench_io_error)?;
-    // The parent's own arguments, less the ones the child is given anew.
+/// This process's arguments less `--json` and `--runs`, which [`bench_child`] gives its
+/// children anew.
+fn bench_child_args() -> Vec<std::ffi::OsString> {
     let mut args = Vec::new();
     let mut given = std::env::args_os().skip(1);
     while let Some(a) = given.next() {
@@ -2407,10 +2405,23 @@ fn bench_child(i: usize, runs: usize) -> Result<serde_json::Value> {
             args.push(a);
         }
     }
+    args
+}
+
+/// Runs row `i` of this bench `runs` times, each in a fresh child process (`exe` with `args`
+/// ([`bench_child_args`]) and `--json --runs 1 --job i`), and returns the row: the median wall
+/// and CPU seconds, the highest peak, the lowest baseline and every run's wall seconds in
+/// order. A child's error line becomes this process's error.
+fn bench_child(
+    exe: &Path,
+    args: &[std::ffi::OsString],
+    i: usize,
+    runs: usize,
+) -> Result<serde_json::Value> {
     let mut rows = Vec::with_capacity(runs);
     for _ in 0..runs {
-        let out = std::process::Command::new(&exe)
-            .args(&args)
+        let out = std::process::Command::new(exe)
+            .args(args)
             .args(["--json", "--runs", "1", "--job", &i.to_string()])
             .stdin(std::process::Stdio::null())
             .output()
