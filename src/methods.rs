@@ -127,32 +127,36 @@ impl PeakPerTexel {
 /// The in-memory vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or
 /// fast, any storage format). `ndfmap bake` (module `batch`) bakes vMF and Tan 2005 without
 /// block compression in bands instead, estimated by `banded::estimate_peak_bytes` (1024² J = 6
-/// aligned colour: 153 MiB instead of the 349 below; docs/scale.md). Measured peaks of the whole `ndfmap bake` command against the estimate
-/// ([`estimate_peak_bytes`]), MiB, after issue 14's memory reductions (the 2048² map is the
-/// 1024² sample tiled 2 × 2):
+/// aligned colour: 153 MiB instead of the 380 below; docs/scale.md).
+///
+/// Calibrated at stop 56 (docs/scale.md, "Stop 56") on the aligned bake, whose aligned pass
+/// holds every level's unaligned fits and so peaks highest: the decoded PNG, `bake_with`,
+/// `pack::quantize_into` and the KTX2 writer, each in a process of its own, with every
+/// texture page made resident (what a host whose allocator reuses freed memory sees; a fresh
+/// process leaves the dead lobes' zero pages unmapped and peaks lower). Measured on the
+/// built-in sample against the estimate ([`estimate_peak_bytes`]), MiB (rock and mossyrock at
+/// 1024² peak within 1 MiB of the sample):
 ///
 /// | map | configuration | measured | estimate |
 /// |---|---|---|---|
-/// | 1024² | J = 1, aligned, colour | 110 | 156 |
-/// | 1024² | J = 6, unaligned | 184 | 220 |
-/// | 1024² | J = 6, unaligned, colour, f16 | 325 | 436 |
-/// | 1024² | J = 6, aligned, colour (f32, f16) | 349, 354 | 436 |
-/// | 1024² | J = 6, aligned, colour, fast, unorm8 | 356 | 436 |
-/// | 1024² | J = 8, aligned, colour, f16 | 453 | 548 |
-/// | 512² | J = 8, aligned, colour, f16 | 140 | 185 |
-/// | 2048² | J = 6, unaligned | 603 | 688 |
-/// | 2048² | J = 6, aligned, colour | 1300 | 1552 |
+/// | 1024² | J = 1, aligned / unaligned | 50 / 63 | 126 |
+/// | 1024² | J = 8, aligned / unaligned | 236 / 182 | 336 |
+/// | 1024² | J = 8, aligned / unaligned, colour | 427 / 357 | 552 |
+/// | 2048² | J = 1, aligned, no colour / colour | 187 / 351 | 312 / 504 |
+/// | 2048² | J = 6, aligned, no colour / colour | 712 / 1305 | 912 / 1584 |
+/// | 2048² | J = 8, aligned / unaligned | 922 / 719 | 1152 |
+/// | 2048² | J = 8, aligned / unaligned, colour | 1685 / 1399 | 2016 |
 ///
-/// The estimate lies 14–42 % above every measured peak (the fixed 64 MiB dominates small
-/// bakes). Before issue 14 the same bakes peaked at 161–1855 MiB (J = 6 aligned colour at
-/// 1024²: 494) under constants 96 + 44 J, colour 48 + 24 J. Update it when the vMF bake's
-/// memory changes (`ndfmap bench` prints the measured peak and this estimate side by side;
-/// `/usr/bin/time -f %M ndfmap bake ...` gives the whole command's).
+/// The estimate lies 20–28 % above the aligned peaks at 2048² with J ≥ 6 (44–67 % at J = 1,
+/// and more at smaller sizes, where the fixed 64 MiB dominates). The constants before (36 + 20 J, colour 36 J) lay 3–8 % *below*
+/// the aligned bakes without colour at 2048² (712 and 922 MiB against 688 and 848) and far
+/// above the colour ones. Update them when the vMF bake's memory changes (`ndfmap bench`
+/// prints the measured peak and this estimate side by side).
 pub const VMF_PEAK_PER_TEXEL: PeakPerTexel = PeakPerTexel {
-    base: 36,
-    per_lobe: 20,
-    color_base: 0,
-    color_per_lobe: 36,
+    base: 32,
+    per_lobe: 30,
+    color_base: 24,
+    color_per_lobe: 24,
 };
 
 /// The Tan 2005 bake's peak memory per texel. Measured at 1024² against the estimate, MiB:
@@ -369,7 +373,15 @@ mod tests {
             lmax,
             ..BakeOptions::default()
         };
-        let measured: [(u32, Method, BakeOptions, bool, u64); 19] = [
+        let measured: [(u32, Method, BakeOptions, bool, u64); 25] = [
+            // Stop 56, every texture page resident (docs/scale.md).
+            (1024, Method::Vmf, o(8, Some(0.03)), false, 236),
+            (1024, Method::Vmf, o(8, Some(0.03)), true, 427),
+            (2048, Method::Vmf, o(6, Some(0.03)), false, 712),
+            (2048, Method::Vmf, o(8, Some(0.03)), false, 922),
+            (2048, Method::Vmf, o(8, Some(0.03)), true, 1685),
+            (2048, Method::Vmf, o(1, Some(0.03)), true, 351),
+            // Earlier calibrations (the whole `ndfmap bake` command).
             (1024, Method::Vmf, o(1, Some(1.0)), true, 110),
             (1024, Method::Vmf, o(6, None), false, 184),
             (1024, Method::Vmf, o(6, None), true, 325),

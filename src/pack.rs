@@ -140,7 +140,13 @@ pub fn round_trip(v: f32, range: ValueRange, format: Format) -> f32 {
 pub fn round_trip_texels(texels: &mut [[f32; 4]], ranges: [ValueRange; 4], format: Format) {
     for texel in texels {
         for (c, v) in texel.iter_mut().enumerate() {
-            *v = round_trip(*v, ranges[c], format);
+            let r = round_trip(*v, ranges[c], format);
+            // Stored only where it changes (bit for bit): a value the format holds exactly, as
+            // f32 holds every value and f16 holds 0, leaves its page as it was, so
+            // dead lobes' zero pages are not made resident.
+            if r.to_bits() != v.to_bits() {
+                *v = r;
+            }
         }
     }
 }

@@ -678,6 +678,90 @@ fn bench_times_each_vmf_bake_in_memory_and_streamed_and_cleans_up() {
     }
 }
 
+/// `bench --scale` bakes each size banded and (up to `--untiled-max`) untiled, each row in a
+/// child process writing into the parent's temporary folder, compares the two bakes' files byte
+/// for byte, and removes the folder.
+#[test]
+fn bench_scale_compares_banded_with_untiled_and_cleans_up() {
+    let tmp = std::env::temp_dir();
+    let scratch = || -> Vec<std::ffi::OsString> {
+        std::fs::read_dir(&tmp)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name())
+            .filter(|n| n.to_string_lossy().starts_with("ndfmap-bench-scale-"))
+            .collect()
+    };
+    let before = scratch();
+    let run = ndfmap(&[
+        "bench",
+        "--scale",
+        "--sizes",
+        "16,32",
+        "--lobes",
+        "2",
+        "--modes",
+        "fast",
+        "--untiled-max",
+        "16",
+        "--json",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&run.stdout).unwrap();
+    let kinds: Vec<_> = rows
+        .iter()
+        .map(|r| (r["size"].as_u64().unwrap(), r["bake"].as_str().unwrap()))
+        .collect();
+    assert_eq!(
+        kinds,
+        [(16, "banded"), (16, "untiled"), (32, "banded")],
+        "{rows:?}"
+    );
+    assert_eq!(rows[0]["identical_to_untiled"], true);
+    assert!(rows[1]["identical_to_untiled"].is_null());
+    assert!(rows[2]["identical_to_untiled"].is_null());
+    assert_eq!(rows[0]["ratio_to_first"].as_f64().unwrap_or(1.0), 1.0);
+    for r in &rows {
+        assert!(r["seconds"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["estimate_bytes"].as_u64().unwrap() > 0, "{r}");
+        assert_eq!(r["band_rows"].is_null(), r["bake"] == "untiled", "{r}");
+    }
+    let left: Vec<_> = scratch()
+        .into_iter()
+        .filter(|n| !before.contains(n))
+        .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+    // The table names the isolation; a size it cannot tile and a misplaced `--job-dir` are one
+    // clear line each.
+    let run = ndfmap(&["bench", "--scale", "--sizes", "16", "--lobes", "2"]);
+    let out = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success() && out.contains("each row in a process of its own"),
+        "{out}"
+    );
+    assert!(out.contains("yes"), "{out}");
+    for (args, needle) in [
+        (&["bench", "--scale", "--sizes", "1500"][..], "--sizes 1500"),
+        (&["bench", "--sizes", "16", "--job-dir", "x"], "--job-dir"),
+        (
+            &["bench", "--scale", "--sizes", "16", "--job", "0"],
+            "--job-dir",
+        ),
+    ] {
+        let run = ndfmap(args);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{args:?}: {err}");
+        assert!(
+            err.contains(needle) && err.trim().lines().count() == 1,
+            "{err}"
+        );
+    }
+}
+
 /// A command line clap refuses is one line too (its tip and usage are dropped), exit status 2;
 /// help and version still print as clap prints them.
 #[test]

@@ -71,7 +71,7 @@ enum Command {
         /// (`--sizes`: up to 1024, or multiples of 1024 up to 16384), kept as 8-bit samples:
         /// seconds, CPU µs per texel and its ratio to the first size, peak RSS and the
         /// budget's estimate; sizes up to `--untiled-max` are also baked untiled (in memory)
-        /// and the files compared byte for byte.
+        /// and the files compared byte for byte. Each bake runs in a process of its own.
         #[arg(long)]
         scale: bool,
         /// `--scale`: largest size also baked untiled for the byte comparison (0: none).
@@ -99,10 +99,14 @@ enum Command {
         /// lists every run's wall seconds). Not with `--quality` or `--scale`.
         #[arg(long, default_value_t = 1)]
         runs: usize,
-        /// Internal: time one run of row N of the speed table in this process and print it as
-        /// JSON (`ndfmap bench` runs every run of every row so, each in a process of its own).
+        /// Internal: time one run of row N of the speed table (or, with `--scale`, of the scale
+        /// table) in this process and print it as JSON (`ndfmap bench` runs every run of every
+        /// row so, each in a process of its own).
         #[arg(long, hide = true)]
         job: Option<usize>,
+        /// Internal, with `--scale --job`: the folder that row writes its files to.
+        #[arg(long, hide = true)]
+        job_dir: Option<PathBuf>,
     },
     /// Generate the built-in sample map, bake every method, and print the error table.
     Demo {
@@ -596,9 +600,8 @@ struct IngestArgs {
 #[derive(Args)]
 struct EmArgs {
     /// vmf, tan2005: the most EM iterations per texel, 1 to 1000 [default: 20]. Exact mode
-    /// and Tan 2005 run up to this many; fast and balanced keep their own lower caps (3 and 8;
-    /// balanced none in the unaligned pass on texels of 4096 normals or more, nor in the
-    /// aligned pass on texels of 256 to 4095) unless this is lower. Exact mode
+    /// and Tan 2005 run up to this many; fast and balanced keep their own lower caps (3 and 8,
+    /// lifted by balanced on large texels: see `--mode`) unless this is lower. Exact mode
     /// reaches the reference fit on more texels with 60 to 300 (docs/baker.md, "Stop 49"), at
     /// 2 to 10 times its time.
     #[arg(long, value_name = "N")]
@@ -1275,10 +1278,10 @@ struct BakeCommand {
     /// for every lobe) [default: appendix].
     #[arg(long)]
     align_form: Option<String>,
-    /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (8, the
-    /// default; 20 on texels of 4096 normals or more, and 20 in the aligned pass alone on
-    /// texels of 256 to 4095) or `exact` (the EM options as given:
-    /// 20 iterations, tolerance 1e-6).
+    /// vmf: how hard each texel is fitted: `fast` (3 EM iterations), `balanced` (the
+    /// default: at most 8, and the EM cap in the aligned pass on texels of 256 normals or more,
+    /// level 4 and coarser, and in the unaligned pass too from 4096, level 6) or `exact` (the
+    /// EM options as given: 20 iterations, tolerance 1e-6).
     #[arg(long)]
     mode: Option<String>,
     #[command(flatten)]
@@ -2080,15 +2083,21 @@ fn run(cli: Cli) -> Result<u8> {
             runs,
             em,
             job,
+            job_dir,
         } => {
             if !quality && (reference_check || reference_starts != 8) {
                 return Err(Error::InvalidOption(
                     "--reference-starts and --reference-check are options of --quality".into(),
                 ));
             }
-            if job.is_some() && (scale || quality) {
+            if job.is_some() && quality {
                 return Err(Error::InvalidOption(
-                    "--job is a row of the speed table (not with --quality or --scale)".into(),
+                    "--job is a row of the speed or scale table (not with --quality)".into(),
+                ));
+            }
+            if job_dir.is_some() != (scale && job.is_some()) {
+                return Err(Error::InvalidOption(
+                    "--job-dir goes with --scale --job, and only there".into(),
                 ));
             }
             if runs != 1 && (scale || quality) {
@@ -2103,7 +2112,8 @@ fn run(cli: Cli) -> Result<u8> {
                     _ => FitMode::Balanced,
                 };
                 let lobes = lobes.first().copied().unwrap_or(6);
-                bench_scale(&sizes, lobes, mode, untiled_max, json)?;
+                let job = job.zip(job_dir.as_deref());
+                bench_scale(&sizes, lobes, mode, untiled_max, json, job)?;
                 return Ok(status);
             }
             let mut grid = MixtureGrid::parse(&lobes, &align, "appendix", &modes)?;
@@ -2562,14 +2572,20 @@ fn print_bench_row(row: &serde_json::Value) {
     );
 }
 
-/// The 8-bit RGB samples of the built-in sample at `size` (≤ 1024), or of the 1024² sample
-/// tiled to `size` (a multiple of 1024), so that every size has the same content per texel.
-fn scale_samples(size: u32) -> Result<Vec<u8>> {
+/// Whether `size` is a size `ndfmap bench --scale` can tile the built-in sample to.
+fn check_scale_size(size: u32) -> Result<()> {
     if !(8..=16384).contains(&size) || (size > 1024 && !size.is_multiple_of(1024)) {
         return Err(Error::InvalidOption(format!(
             "--sizes {size} (--scale: 8 to 1024, or a multiple of 1024 up to 16384)"
         )));
     }
+    Ok(())
+}
+
+/// The 8-bit RGB samples of the built-in sample at `size` (≤ 1024), or of the 1024² sample
+/// tiled to `size` (a multiple of 1024), so that every size has the same content per texel.
+fn scale_samples(size: u32) -> Result<Vec<u8>> {
+    check_scale_size(size)?;
     let side = size.min(1024) as usize;
     let tile = ndfmap::procedural::encode_rgb8(
         ndfmap::procedural::generate(side as u32, 2007)
@@ -2608,30 +2624,197 @@ fn same_files(a: &Path, b: &Path) -> std::io::Result<bool> {
     Ok(true)
 }
 
-/// `ndfmap bench --scale`: the banded bake's time and peak memory per size (docs/scale.md).
+/// Which bake of a size a row of `ndfmap bench --scale` times.
+#[derive(Clone, Copy, PartialEq)]
+enum ScaleBake {
+    /// `banded::write_folder` from the compact 8-bit source, in bands.
+    Banded,
+    /// The whole map decoded and baked in memory, then written: the files the banded bake must
+    /// equal.
+    Untiled,
+}
+
+impl ScaleBake {
+    /// The name in the table and the JSON.
+    fn name(self) -> &'static str {
+        match self {
+            ScaleBake::Banded => "banded",
+            ScaleBake::Untiled => "untiled",
+        }
+    }
+}
+
+/// One row of `ndfmap bench --scale`: a size and which bake of it.
+struct ScaleJob {
+    size: u32,
+    bake: ScaleBake,
+}
+
+/// The rows of `ndfmap bench --scale`, in order: per size, the banded bake, then the untiled
+/// one for sizes up to `untiled_max`. Every size is checked before any work.
+fn scale_jobs(sizes: &[u32], untiled_max: u32) -> Result<Vec<ScaleJob>> {
+    let mut jobs = Vec::new();
+    for &size in sizes {
+        check_scale_size(size)?;
+        jobs.push(ScaleJob {
+            size,
+            bake: ScaleBake::Banded,
+        });
+        if size <= untiled_max {
+            jobs.push(ScaleJob {
+                size,
+                bake: ScaleBake::Untiled,
+            });
+        }
+    }
+    Ok(jobs)
+}
+
+/// The bake options of `ndfmap bench --scale`: vMF, `lobes`, aligned at eq 29's default C,
+/// `mode`, no colour.
+fn scale_options(lobes: usize, mode: FitMode) -> BakeOptions {
+    BakeOptions {
+        lobes,
+        align: Some(AlignmentForm::default().default_strength()),
+        mode,
+        ..BakeOptions::default()
+    }
+}
+
+/// Times one [`ScaleJob`] in this process, writing its f16 KTX2 files into `dir` (which the
+/// parent compares and deletes), and returns its JSON row.
+///
+/// The source is built before the timer starts: the compact 8-bit normals for the banded
+/// bake (the decoded samples freed first), the 8-bit samples for the untiled one, which
+/// decodes them inside the timed work as `ndfmap bake` would.
+fn scale_row(job: &ScaleJob, options: &BakeOptions, dir: &Path) -> Result<serde_json::Value> {
+    use ndfmap::banded::{Bands, CompactSource, Map};
+    use ndfmap::container::Container;
+    use ndfmap::ingest::{CompactNormals, Samples};
+    let size = job.size;
+    let samples = scale_samples(size)?;
+    let ingest = IngestOptions::default();
+    let bands = Bands::for_size(size, size);
+    let (run, estimate) = match job.bake {
+        ScaleBake::Banded => {
+            let compact = CompactNormals::from_samples(
+                "sample",
+                size,
+                size,
+                3,
+                Samples::U8(&samples),
+                &ingest,
+            )?;
+            drop(samples);
+            let info = InputInfo {
+                path: None,
+                options: ingest,
+                stats: compact.stats().clone(),
+            };
+            let map = Map::Compact(CompactSource {
+                normals: &compact,
+                feature: None,
+            });
+            let (_, run) = timed(|| {
+                ndfmap::banded::write_folder(
+                    &map,
+                    Method::Vmf,
+                    options,
+                    Format::F16,
+                    Container::Ktx2,
+                    dir,
+                    info,
+                    None,
+                    Some(bands),
+                    &mut |_| true,
+                )
+                .map(|_| ())
+            })?;
+            let estimate = ndfmap::banded::estimate_peak_bytes(
+                size,
+                size,
+                options,
+                false,
+                compact.bytes_per_texel(),
+                bands,
+            );
+            (run, estimate)
+        }
+        ScaleBake::Untiled => {
+            let (_, run) = timed(|| {
+                let full = NormalMap::from_samples(
+                    "sample",
+                    size,
+                    size,
+                    3,
+                    Samples::U8(&samples),
+                    &ingest,
+                )?;
+                let info = InputInfo {
+                    path: None,
+                    options: ingest,
+                    stats: full.stats().clone(),
+                };
+                let b = bake_with(&full, Method::Vmf, options)?;
+                drop(full);
+                let b = ndfmap::pack::quantize_into(b, Format::F16)?;
+                ndfmap::container::write_bake(&b, info, dir, Container::Ktx2, None).map(|_| ())
+            })?;
+            let estimate =
+                ndfmap::methods::estimate_peak_bytes(size, size, Method::Vmf, options, false);
+            (run, estimate)
+        }
+    };
+    let banded = job.bake == ScaleBake::Banded;
+    let Timing {
+        seconds,
+        cpu,
+        peak,
+        base,
+    } = run;
+    Ok(serde_json::json!({
+        "size": size, "bake": job.bake.name(),
+        "fine_levels": banded.then_some(bands.fine),
+        "band_rows": banded.then_some(bands.band_rows),
+        "seconds": seconds, "cpu_seconds": cpu,
+        "peak_bytes": peak, "baseline_bytes": base, "estimate_bytes": estimate,
+        "threads": rayon::current_num_threads(),
+    }))
+}
+
+/// `ndfmap bench --scale`: the banded bake's time and peak memory per size (docs/scale.md),
+/// and for sizes up to `untiled_max` the untiled bake's, with the files compared byte for byte.
+///
+/// Every row is a process of its own (this executable, `bench … --json --runs 1 --job N
+/// --job-dir DIR`, [`scale_row`]), as in [`bench`]: in one process a row's peak carried what
+/// the allocator kept from the bakes before it (docs/baker.md, "Stop 56"). `job` and `job_dir`
+/// are that child's row and output folder.
 fn bench_scale(
     sizes: &[u32],
     lobes: usize,
     mode: FitMode,
     untiled_max: u32,
     json: bool,
+    job: Option<(usize, &Path)>,
 ) -> Result<()> {
-    use ndfmap::banded::{Bands, CompactSource, Map};
-    use ndfmap::container::Container;
-    use ndfmap::ingest::{CompactNormals, Samples};
-    let c = AlignmentForm::default().default_strength();
-    let options = BakeOptions {
-        lobes,
-        align: Some(c),
-        mode,
-        ..BakeOptions::default()
-    };
+    let options = scale_options(lobes, mode);
+    let jobs = scale_jobs(sizes, untiled_max)?;
+    if let Some((i, dir)) = job {
+        let job = jobs.get(i).ok_or_else(|| {
+            Error::InvalidOption(format!("--job {i} (the bench has {} rows)", jobs.len()))
+        })?;
+        let row = scale_row(job, &options, dir)?;
+        println!("{}", serde_json::to_string(&row).expect("row serializes"));
+        return Ok(());
+    }
     let threads = rayon::current_num_threads();
     let io = bench_io_error;
     let tmp = Scratch::new("scale")?;
     if !json {
         println!(
-            "{threads} threads; vMF J = {lobes} aligned C = {c} {}, f16 KTX2, built-in 1024² sample tiled",
+            "{threads} threads; vMF J = {lobes} aligned C = {} {}, f16 KTX2, built-in 1024² sample \
+             tiled; each row in a process of its own",
+            options.align.unwrap_or_default(),
             mode.name()
         );
         println!(
@@ -2649,124 +2832,50 @@ fn bench_scale(
             "= untiled"
         );
     }
+    let exe = std::env::current_exe().map_err(io)?;
+    let args = bench_child_args();
     let mut rows = Vec::new();
     let mut first_per_texel = None;
-    for &size in sizes {
-        let samples = scale_samples(size)?;
-        let ingest = IngestOptions::default();
-        let compact =
-            CompactNormals::from_samples("sample", size, size, 3, Samples::U8(&samples), &ingest)?;
-        // The decoded samples are kept only for the untiled bake.
-        let samples = (size <= untiled_max).then_some(samples);
-        let info = InputInfo {
-            path: None,
-            options: ingest,
-            stats: compact.stats().clone(),
-        };
-        let bands = Bands::for_size(size, size);
-        let banded_dir = tmp.0.join(format!("banded{size}"));
-        let untiled_dir = tmp.0.join(format!("untiled{size}"));
-        let map = Map::Compact(CompactSource {
-            normals: &compact,
-            feature: None,
-        });
-        let (_, banded) = timed(|| {
-            ndfmap::banded::write_folder(
-                &map,
-                Method::Vmf,
-                &options,
-                Format::F16,
-                Container::Ktx2,
-                &banded_dir,
-                info.clone(),
-                None,
-                Some(bands),
-                &mut |_| true,
-            )
-            .map(|_| ())
-        })?;
-        let mut configs = vec![(
-            "banded",
-            banded,
-            ndfmap::banded::estimate_peak_bytes(
-                size,
-                size,
-                &options,
-                false,
-                compact.bytes_per_texel(),
-                bands,
-            ),
-        )];
-        let mut identical = None;
-        if let Some(samples) = &samples {
-            let (_, untiled) = timed(|| {
-                let full = NormalMap::from_samples(
-                    "sample",
-                    size,
-                    size,
-                    3,
-                    Samples::U8(samples),
-                    &ingest,
-                )?;
-                let b = bake_with(&full, Method::Vmf, &options)?;
-                drop(full);
-                let b = ndfmap::pack::quantize_into(b, Format::F16)?;
-                ndfmap::container::write_bake(&b, info.clone(), &untiled_dir, Container::Ktx2, None)
-                    .map(|_| ())
-            })?;
-            identical = Some(same_files(&banded_dir, &untiled_dir).map_err(io)?);
-            let _ = std::fs::remove_dir_all(&untiled_dir);
-            configs.push((
-                "untiled",
-                untiled,
-                ndfmap::methods::estimate_peak_bytes(size, size, Method::Vmf, &options, false),
-            ));
-        }
-        let _ = std::fs::remove_dir_all(&banded_dir);
-        drop(compact);
-        drop(samples);
+    let mut i = 0;
+    for size_jobs in jobs.chunk_by(|a, b| a.size == b.size) {
+        let size = size_jobs[0].size;
         let texels = size as f64 * size as f64;
-        for (label, run, estimate) in configs {
-            let Timing {
-                seconds, cpu, peak, ..
-            } = run;
-            let per_texel = cpu.map(|c| c * 1e6 / texels);
-            if label == "banded" && first_per_texel.is_none() {
+        let mut size_rows = Vec::with_capacity(size_jobs.len());
+        let mut dirs = Vec::with_capacity(size_jobs.len());
+        for job in size_jobs {
+            let dir = tmp.0.join(format!("{}{size}", job.bake.name()));
+            let mut extra = args.clone();
+            extra.push("--job-dir".into());
+            extra.push(dir.clone().into_os_string());
+            let mut row = bench_child(&exe, &extra, i, 1)?;
+            i += 1;
+            let per_texel = row["cpu_seconds"].as_f64().map(|c| c * 1e6 / texels);
+            if job.bake == ScaleBake::Banded && first_per_texel.is_none() {
                 first_per_texel = per_texel;
             }
-            let ratio = per_texel.zip(first_per_texel).map(|(a, b)| a / b);
-            let (fine, band) = if label == "banded" {
-                (bands.fine.to_string(), bands.band_rows.to_string())
-            } else {
-                ("-".into(), "-".into())
-            };
-            let mib =
-                |b: Option<u64>| b.map_or("?".into(), |b| format!("{:.0}", b as f64 / 1048576.0));
-            let same = if label == "banded" {
-                identical.map_or("-".to_string(), |s| {
-                    if s { "yes" } else { "NO" }.to_string()
-                })
-            } else {
-                "-".into()
-            };
-            if !json {
-                println!(
-                    "{size:>6} {label:>8} {fine:>5} {band:>6} {seconds:>9.2} {:>8} {:>12} {:>7} {:>9} {:>13} {same:>9}",
-                    cpu.map_or("?".into(), |c| format!("{c:.1}")),
-                    per_texel.map_or("?".into(), |p| format!("{p:.3}")),
-                    ratio.map_or("?".into(), |r| format!("{r:.3}")),
-                    mib(peak),
-                    mib(Some(estimate)),
-                );
-            }
-            rows.push(serde_json::json!({
-                "size": size, "bake": label, "fine_levels": (label == "banded").then_some(bands.fine),
-                "band_rows": (label == "banded").then_some(bands.band_rows), "seconds": seconds,
-                "cpu_seconds": cpu, "cpu_us_per_texel": per_texel, "ratio_to_first": ratio,
-                "peak_bytes": peak, "estimate_bytes": estimate, "threads": threads,
-                "identical_to_untiled": if label == "banded" { identical } else { None },
-            }));
+            row["cpu_us_per_texel"] = serde_json::json!(per_texel);
+            row["ratio_to_first"] =
+                serde_json::json!(per_texel.zip(first_per_texel).map(|(a, b)| a / b));
+            size_rows.push(row);
+            dirs.push(dir);
         }
+        // The banded folder against the untiled one, where there is one.
+        let identical = match dirs.as_slice() {
+            [banded, untiled] => Some(same_files(banded, untiled).map_err(io)?),
+            _ => None,
+        };
+        for dir in &dirs {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+        for (k, row) in size_rows.iter_mut().enumerate() {
+            row["identical_to_untiled"] = serde_json::json!(if k == 0 { identical } else { None });
+        }
+        if !json {
+            for row in &size_rows {
+                print_scale_row(row);
+            }
+        }
+        rows.extend(size_rows);
         if identical == Some(false) {
             return Err(Error::InvalidOption(format!(
                 "the banded bake of {size}x{size} differs from the untiled bake"
@@ -2780,6 +2889,34 @@ fn bench_scale(
         );
     }
     Ok(())
+}
+
+/// Prints one JSON row of [`bench_scale`] as a line of its table.
+fn print_scale_row(row: &serde_json::Value) {
+    let num = |v: &serde_json::Value, digits: usize| {
+        v.as_f64().map_or("?".into(), |x| format!("{x:.digits$}"))
+    };
+    let dash = |v: &serde_json::Value| v.as_u64().map_or("-".into(), |x| x.to_string());
+    let mib = |v: &serde_json::Value| {
+        v.as_f64()
+            .map_or("?".into(), |b| format!("{:.0}", b / 1048576.0))
+    };
+    let same = row["identical_to_untiled"]
+        .as_bool()
+        .map_or("-", |s| if s { "yes" } else { "NO" });
+    println!(
+        "{:>6} {:>8} {:>5} {:>6} {:>9} {:>8} {:>12} {:>7} {:>9} {:>13} {same:>9}",
+        row["size"].as_u64().unwrap_or(0),
+        row["bake"].as_str().unwrap_or("?"),
+        dash(&row["fine_levels"]),
+        dash(&row["band_rows"]),
+        num(&row["seconds"], 2),
+        num(&row["cpu_seconds"], 1),
+        num(&row["cpu_us_per_texel"], 3),
+        num(&row["ratio_to_first"], 3),
+        mib(&row["peak_bytes"]),
+        mib(&row["estimate_bytes"]),
+    );
 }
 
 /// `ndfmap bench --quality`: fit quality of each vMF configuration on the given maps, or on

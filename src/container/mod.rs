@@ -431,6 +431,27 @@ pub fn texture_file(
     }
 }
 
+/// The texels [`stream_texture`] encodes per write: 64 Ki, 1 MiB of f32 texels.
+const STREAM_TEXELS: usize = 1 << 16;
+
+/// Writes texture `texture` of `bake` (uncompressed) as its `container` file at `path`
+/// through [`StreamedFile`], a few rows at a time: the same bytes as [`texture_file`]
+/// (`StreamedFile`'s contract), without building the whole file in memory. Building it held
+/// the encoded file and its levels, 2 × 21 MiB per texture of a 1024² f32 bake, on each
+/// thread at once (docs/scale.md, "Stop 56").
+fn stream_texture(bake: &Bake, texture: usize, container: Container, path: &Path) -> Result<()> {
+    crate::pack::check(bake, texture, bake.format)?;
+    let file = StreamedFile::create(path, bake, texture, container)?;
+    for (k, level) in bake.textures[texture].levels.iter().enumerate() {
+        let width = bake.sizes[k].0.max(1) as usize;
+        let rows = (STREAM_TEXELS / width).max(1);
+        for (i, chunk) in level.chunks(rows * width).enumerate() {
+            file.write_rows(k, (i * rows) as u32, chunk)?;
+        }
+    }
+    Ok(())
+}
+
 /// The manifest of `bake` written in `container` with `codec`: [`Manifest::new`]'s, with one
 /// file per texture, the container's storage and the encoding's description.
 pub fn manifest(
@@ -519,6 +540,9 @@ pub fn write_bake_hashed(
             .into_par_iter()
             .map(|t| {
                 let name = &manifest.textures[t].files[0];
+                if codec.is_none() {
+                    return stream_texture(bake, t, container, &staging.join(name));
+                }
                 let bytes = texture_file(bake, t, container, codec)?;
                 std::fs::write(staging.join(name), bytes).map_err(|e| Error::Write {
                     path: dir.join(name),
