@@ -164,6 +164,11 @@ pub fn quantize_into(mut bake: Bake, format: Format) -> Result<Bake> {
     for i in 0..bake.textures.len() {
         check(&bake, i, format)?;
     }
+    bake.format = format;
+    if format == Format::F32 {
+        // f32 holds every value as it is: nothing to round.
+        return Ok(bake);
+    }
     for t in &mut bake.textures {
         let ranges = t.ranges;
         for level in &mut t.levels {
@@ -173,7 +178,6 @@ pub fn quantize_into(mut bake: Bake, format: Format) -> Result<Bake> {
                 .for_each(|chunk| round_trip_texels(chunk, ranges, format));
         }
     }
-    bake.format = format;
     Ok(bake)
 }
 

@@ -2695,6 +2695,11 @@ fn scale_row(job: &ScaleJob, options: &BakeOptions, dir: &Path) -> Result<serde_
     let samples = scale_samples(size)?;
     let ingest = IngestOptions::default();
     let bands = Bands::for_size(size, size);
+    let info = |stats: &ndfmap::ingest::IngestStats| InputInfo {
+        path: None,
+        options: ingest,
+        stats: stats.clone(),
+    };
     let (run, estimate) = match job.bake {
         ScaleBake::Banded => {
             let compact = CompactNormals::from_samples(
@@ -2706,11 +2711,7 @@ fn scale_row(job: &ScaleJob, options: &BakeOptions, dir: &Path) -> Result<serde_
                 &ingest,
             )?;
             drop(samples);
-            let info = InputInfo {
-                path: None,
-                options: ingest,
-                stats: compact.stats().clone(),
-            };
+            let info = info(compact.stats());
             let map = Map::Compact(CompactSource {
                 normals: &compact,
                 feature: None,
@@ -2750,11 +2751,7 @@ fn scale_row(job: &ScaleJob, options: &BakeOptions, dir: &Path) -> Result<serde_
                     Samples::U8(&samples),
                     &ingest,
                 )?;
-                let info = InputInfo {
-                    path: None,
-                    options: ingest,
-                    stats: full.stats().clone(),
-                };
+                let info = info(full.stats());
                 let b = bake_with(&full, Method::Vmf, options)?;
                 drop(full);
                 let b = ndfmap::pack::quantize_into(b, Format::F16)?;

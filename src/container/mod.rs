@@ -437,8 +437,9 @@ const STREAM_TEXELS: usize = 1 << 16;
 /// Writes texture `texture` of `bake` (uncompressed) as its `container` file at `path`
 /// through [`StreamedFile`], a few rows at a time: the same bytes as [`texture_file`]
 /// (`StreamedFile`'s contract), without building the whole file in memory. Building it held
-/// the encoded file and its levels, 2 × 21 MiB per texture of a 1024² f32 bake, on each
-/// thread at once (docs/scale.md, "Stop 56").
+/// each texture's encoded levels and the file (21 MiB each for a 1024² f32 texture) on every
+/// thread at once: about 90 MiB more peak for a 1024² J = 6 f32 bake on two threads
+/// (docs/scale.md, "Stop 56").
 fn stream_texture(bake: &Bake, texture: usize, container: Container, path: &Path) -> Result<()> {
     crate::pack::check(bake, texture, bake.format)?;
     let file = StreamedFile::create(path, bake, texture, container)?;
