@@ -103,12 +103,23 @@ impl FromStr for Method {
 pub struct Texture {
     /// Short name, used in file names (`moments`, `mean`, ...).
     pub name: &'static str,
-    /// What each of R, G, B, A holds.
+    /// What each of R, G, B, A holds ([`UNUSED`] for a channel that holds nothing).
     pub channels: [&'static str; 4],
     /// The value range of each channel.
     pub ranges: [ValueRange; 4],
     /// Texels of each level, finest first, row-major.
     pub levels: Vec<Vec<[f32; 4]>>,
+}
+
+/// The channel name of a texture channel that holds nothing ([`Texture::channels`]).
+pub const UNUSED: &str = "unused";
+
+impl Texture {
+    /// Whether channel A holds data (block compression then keeps it; otherwise BC7 may use
+    /// its opaque modes, `compress::encode_level`).
+    pub fn uses_alpha(&self) -> bool {
+        self.channels[3] != UNUSED
+    }
 }
 
 /// The result of baking one method: level sizes and the textures every level is read from.

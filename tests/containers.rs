@@ -230,6 +230,7 @@ fn block_compressed_files_hold_the_encoders_blocks_and_decode_to_the_round_trip(
                     h,
                     &texture.levels[k],
                     texture.ranges,
+                    texture.uses_alpha(),
                     codec,
                 )
                 .unwrap();

@@ -388,7 +388,15 @@ fn levels(bake: &Bake, texture: usize, encoding: Encoding) -> Result<Vec<Vec<u8>
                 .map(|k| {
                     let (w, h) = bake.sizes[k];
                     let what = format!("texture '{}' level {k}", t.name);
-                    crate::compress::encode_level(&what, w, h, &t.levels[k], t.ranges, codec)
+                    crate::compress::encode_level(
+                        &what,
+                        w,
+                        h,
+                        &t.levels[k],
+                        t.ranges,
+                        t.uses_alpha(),
+                        codec,
+                    )
                 })
                 .collect()
         }
