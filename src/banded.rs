@@ -28,6 +28,7 @@
 //! m so that level m has at most 2²² texels: m = 1 up to 4096², 3 at 16384².
 
 use crate::bake::{Bake, BakeOptions, Method, Progress};
+use crate::compress::Codec;
 use crate::container::{Container, StreamedFile};
 use crate::error::{Error, Result};
 use crate::format::Format;
@@ -518,33 +519,44 @@ pub fn estimate_peak_bytes(
 /// Writes the rows to one file per texture: KTX2 and DDS files at their final layout
 /// ([`StreamedFile`]); for the exr container, a KTX2 f32 spill file per texture, turned into
 /// one OpenEXR (or PNG) file per level when the bake ends ([`FileSink::finish`]).
+///
+/// Block-compressed files take whole 4-row blocks: a level's rows that do not fill one yet
+/// wait in `pending` (at most 3 rows per texture and level) until the next rows of that
+/// level, which the bake sends in order, complete it.
 struct FileSink {
     files: Vec<StreamedFile>,
     ranges: Vec<[crate::format::ValueRange; 4]>,
     names: Vec<&'static str>,
     format: Format,
-    /// Level widths.
-    widths: Vec<u32>,
+    /// Level sizes.
+    sizes: Vec<(u32, u32)>,
+    /// Per texture and level: the first row and the texels of rows not yet written (block
+    /// codecs only).
+    pending: Vec<Vec<(u32, Vec<[f32; 4]>)>>,
 }
 
-/// Texels a [`FileSink`] encodes and writes per piece.
+/// Texels a [`FileSink`] encodes and writes per piece (rounded up to whole 4-row blocks for
+/// block codecs).
 const WRITE_CHUNK: usize = 1 << 14;
 
-impl RowSink for FileSink {
-    fn rows(
-        &mut self,
+impl FileSink {
+    /// Writes rows `first_row..` of `level` of texture `texture` in pieces of whole rows in
+    /// parallel (positional writes: any order).
+    fn write(
+        &self,
         texture: usize,
         level: usize,
         first_row: u32,
         texels: &[[f32; 4]],
     ) -> Result<()> {
         let ranges = self.ranges[texture];
-        crate::pack::check_level(self.names[texture], level, texels, self.format)?;
-        // The values the format holds, as `pack::quantize_into` rounds them, encoded and
-        // written in pieces of whole rows in parallel (positional writes: any order).
-        let w = self.widths[level] as usize;
-        let rows = (WRITE_CHUNK / w).max(1);
-        let (file, format) = (&self.files[texture], self.format);
+        let w = self.sizes[level].0 as usize;
+        let file = &self.files[texture];
+        let mut rows = (WRITE_CHUNK / w).max(1);
+        if file.codec().is_some() {
+            rows = rows.next_multiple_of(4);
+        }
+        let format = self.format;
         texels
             .par_chunks(rows * w)
             .enumerate()
@@ -557,12 +569,62 @@ impl RowSink for FileSink {
             .into_iter()
             .collect()
     }
+
+    /// Checks that every block-compressed level was written to its last row.
+    fn finish(&self) -> Result<()> {
+        for (t, levels) in self.pending.iter().enumerate() {
+            if let Some(k) = levels.iter().position(|(_, rows)| !rows.is_empty()) {
+                return Err(Error::InvalidOption(format!(
+                    "texture '{}' level {k}: rows left unwritten (a bug: rows must come in order)",
+                    self.names[t]
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl RowSink for FileSink {
+    fn rows(
+        &mut self,
+        texture: usize,
+        level: usize,
+        first_row: u32,
+        texels: &[[f32; 4]],
+    ) -> Result<()> {
+        // The values the format holds, as `pack::quantize_into` rounds them (in `write`).
+        crate::pack::check_level(self.names[texture], level, texels, self.format)?;
+        if self.files[texture].codec().is_none() {
+            return self.write(texture, level, first_row, texels);
+        }
+        let (w, h) = self.sizes[level];
+        let (start, mut rows) = std::mem::take(&mut self.pending[texture][level]);
+        let start = if rows.is_empty() { first_row } else { start };
+        if start as usize + rows.len() / w as usize != first_row as usize {
+            return Err(Error::InvalidOption(format!(
+                "texture '{}' level {level}: rows from {first_row} sent out of order (a bug)",
+                self.names[texture]
+            )));
+        }
+        rows.extend_from_slice(texels);
+        let end = start + (rows.len() / w as usize) as u32;
+        // Whole blocks now; the level's last rows whatever their count.
+        let ready = if end == h { end } else { end & !3 };
+        let split = (ready.saturating_sub(start)) as usize * w as usize;
+        if split > 0 {
+            self.write(texture, level, start, &rows[..split])?;
+        }
+        rows.drain(..split);
+        self.pending[texture][level] = (ready.max(start), rows);
+        Ok(())
+    }
 }
 
 /// Bakes `method` (vMF or Tan 2005) for `map` in `bands` (`None`: [`Bands::for_size`]) and
-/// writes it as folder `dir` in `container` and `format`, every level streamed to its file as
-/// it is produced (module docs): the same files as `methods::bake_with`, `pack::quantize_into`
-/// and `container::write_bake_hashed` write, byte for byte, in bounded memory
+/// writes it as folder `dir` in `container` and `format`, block-compressed with `codec` when
+/// given (KTX2 and DDS), every level streamed to its file as it is produced (module docs):
+/// the same files as `methods::bake_with`, `pack::quantize_into` and
+/// `container::write_bake_hashed` write, byte for byte, in bounded memory
 /// ([`estimate_peak_bytes`]). Atomic like them (`output::write_folder`: the files are made
 /// in a staging folder, the manifest last, and the folder swapped in only when complete; an
 /// interrupted bake leaves `dir` as it was). Returns the manifest's path.
@@ -579,6 +641,7 @@ pub fn write_folder(
     options: &BakeOptions,
     format: Format,
     container: Container,
+    codec: Option<Codec>,
     dir: &Path,
     input: InputInfo,
     content_hash: Option<String>,
@@ -590,7 +653,7 @@ pub fn write_folder(
     map.check()?;
     crate::methods::check_options(method, options, color, Some(format))?;
     let lobes = options.lobes;
-    crate::container::check(container, method, lobes, color, format, None)?;
+    crate::container::check(container, method, lobes, color, format, codec)?;
     let bands = bands.unwrap_or_else(|| Bands::for_size(w, h));
     bands.check(w, h)?;
     crate::budget::check(
@@ -603,7 +666,7 @@ pub fn write_folder(
     for t in 0..bake.textures.len() {
         crate::pack::check(&bake, t, format)?;
     }
-    let mut manifest = crate::container::manifest(&bake, input, container, None);
+    let mut manifest = crate::container::manifest(&bake, input, container, codec);
     manifest.content_hash = content_hash;
     let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Write {
         path: dir.to_path_buf(),
@@ -613,8 +676,8 @@ pub fn write_folder(
         // Errors name the final files, not their staging copies.
         let fill = |staging: &Path| {
             fill_staging(
-                staging, dir, map, method, options, format, container, bands, &bake, &manifest,
-                json, progress,
+                staging, dir, map, method, options, format, container, codec, bands, &bake,
+                &manifest, json, progress,
             )
         };
         fill(staging).map_err(|e| match e {
@@ -640,6 +703,7 @@ fn fill_staging(
     options: &BakeOptions,
     format: Format,
     container: Container,
+    codec: Option<Codec>,
     bands: Bands,
     bake: &Bake,
     manifest: &crate::output::Manifest,
@@ -668,11 +732,12 @@ fn fill_staging(
             .iter()
             .enumerate()
             .map(|(t, p)| {
-                StreamedFile::create(
+                StreamedFile::create_blocks(
                     p,
                     &layout,
                     t,
                     if spill { Container::Ktx2 } else { container },
+                    codec,
                 )
             })
             .collect::<Result<Vec<_>>>()?;
@@ -681,11 +746,13 @@ fn fill_staging(
             ranges: bake.textures.iter().map(|t| t.ranges).collect(),
             names: bake.textures.iter().map(|t| t.name).collect(),
             format,
-            widths: bake.sizes.iter().map(|s| s.0).collect(),
+            sizes: bake.sizes.clone(),
+            pending: vec![vec![(0, Vec::new()); bake.sizes.len()]; bake.textures.len()],
         };
         crate::bake::run_with_progress(progress, |progress| {
             progress.report(0.0)?;
             run(map, method, options, bands, &mut sink, progress)?;
+            sink.finish()?;
             progress.report(1.0)
         })?;
         if spill {

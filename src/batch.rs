@@ -792,10 +792,10 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
     }
     let probe = crate::ingest::probe_bytes(&job.input, &input)?;
     let (w, h) = (probe.width, probe.height);
-    // Mixture bakes without block compression are baked in bands and streamed to their files
+    // Mixture bakes (block-compressed or not) are baked in bands and streamed to their files
     // (module `banded`: bounded memory, the same bytes), from the decoded 8/16-bit samples
     // kept as they are (`ingest::CompactNormals`, `CompactFeature`); the others whole.
-    let banded = matches!(job.method, Method::Vmf | Method::Tan2005) && job.codec.is_none();
+    let banded = matches!(job.method, Method::Vmf | Method::Tan2005);
     let needed = if banded {
         let bands = crate::banded::Bands::for_size(w, h);
         let kept = |p: &crate::ingest::Probe, decoded: u64| {
@@ -852,7 +852,7 @@ fn bake_job(job: &Job, limit: u64, force: bool, budget: &Budget) -> Result<Optio
     result.map(Some)
 }
 
-/// The banded bake of a job (vMF or Tan 2005, no block compression): 8/16-bit inputs are kept
+/// The banded bake of a job (vMF or Tan 2005, block-compressed or not): 8/16-bit inputs are kept
 /// as their decoded samples (`ingest::load_normals_compact`, `CompactFeature`), float ones
 /// decoded; the same files as from a decoded [`NormalMap`], byte for byte.
 fn bake_banded_job(
@@ -880,6 +880,7 @@ fn bake_banded_job(
             options,
             job.format,
             job.container,
+            job.codec,
             &job.output,
             info,
             Some(hash.clone()),

@@ -125,8 +125,8 @@ impl PeakPerTexel {
 }
 
 /// The in-memory vMF bake's peak memory per texel (every mode: unaligned or aligned, exact or
-/// fast, any storage format). `ndfmap bake` (module `batch`) bakes vMF and Tan 2005 without
-/// block compression in bands instead, estimated by `banded::estimate_peak_bytes` (1024² J = 6
+/// fast, any storage format). `ndfmap bake` (module `batch`) bakes vMF and Tan 2005 (block
+/// compressed or not, since stop 57) in bands instead, estimated by `banded::estimate_peak_bytes` (1024² J = 6
 /// aligned colour: 153 MiB instead of the 380 below; docs/scale.md).
 ///
 /// Calibrated at stop 56 (docs/scale.md, "Stop 56") on the aligned bake, whose aligned pass

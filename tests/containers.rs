@@ -420,4 +420,12 @@ fn streamed_files_equal_in_memory_files() {
     assert!(f.write_rows(0, 0, &vec![[0.0; 4]; w as usize - 1]).is_err());
     assert!(f.write_rows(b.sizes.len(), 0, &[]).is_err());
     assert!(StreamedFile::create(&path, b, 0, Container::Exr).is_err());
+    // Block-compressed files take whole 4-row blocks (the level's last rows excepted).
+    let bc7 = StreamedFile::create_blocks(&path, b, 0, Container::Ktx2, Some(Codec::Bc7)).unwrap();
+    let row = vec![[0.0; 4]; w as usize];
+    assert!(bc7.write_rows(0, 2, &row).is_err());
+    assert!(h > 4 && bc7.write_rows(0, 0, &row).is_err());
+    let rest = (h - h % 4) as usize;
+    let tail = vec![[0.0; 4]; w as usize * (h as usize - rest)];
+    assert!(bc7.write_rows(0, rest as u32, &tail).is_ok());
 }

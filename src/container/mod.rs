@@ -190,10 +190,11 @@ fn plain_level(bake: &Bake, texture: usize, level: usize, format: Format) -> Vec
 /// level layout depend only on the bake's description — level sizes, method, parameters, the
 /// texture's name, channels and ranges, the storage format (`bake`'s textures may hold no
 /// levels) — so every level's bytes lie at an offset known before any texel is baked, and
-/// [`StreamedFile::write_rows`] writes rows where they belong (positional writes). Uncompressed
-/// formats only (block codecs encode whole 4-row blocks). Written completely, the file is
-/// byte-identical to [`texture_file`] of the whole bake (tested), the bytes between levels
-/// being zeros as there.
+/// [`StreamedFile::write_rows`] writes rows where they belong (positional writes). Block
+/// codecs ([`StreamedFile::create_blocks`]) encode whole 4-row blocks: their rows come in
+/// pieces of a multiple of 4 rows, the last piece of a level excepted. Written completely, the
+/// file is byte-identical to [`texture_file`] of the whole bake (tested), the bytes between
+/// levels being zeros as there.
 #[derive(Debug)]
 pub struct StreamedFile {
     file: std::fs::File,
@@ -202,6 +203,9 @@ pub struct StreamedFile {
     sizes: Vec<(u32, u32)>,
     format: Format,
     ranges: [ValueRange; 4],
+    /// The block codec, with whether A holds data ([`crate::bake::Texture::uses_alpha`]).
+    codec: Option<(Codec, bool)>,
+    name: &'static str,
 }
 
 impl StreamedFile {
@@ -213,18 +217,48 @@ impl StreamedFile {
     /// [`Error::InvalidOption`] for the exr container or a texture index out of range,
     /// [`Error::Write`] when the file cannot be created or sized (a full disk).
     pub fn create(path: &Path, bake: &Bake, texture: usize, container: Container) -> Result<Self> {
+        Self::create_blocks(path, bake, texture, container, None)
+    }
+
+    /// [`StreamedFile::create`] with the levels block-compressed with `codec` when given
+    /// (the blocks [`texture_file`] makes; the texture's values are then rounded to
+    /// `bake.format` by the caller, as [`write_bake`] rounds them before encoding).
+    ///
+    /// # Errors
+    ///
+    /// As [`StreamedFile::create`], and [`Error::InvalidOption`] for a codec that cannot hold
+    /// the texture ([`crate::compress::check_texture`]) or [`Codec::Bc6hBc4`] (no container
+    /// holds it).
+    pub fn create_blocks(
+        path: &Path,
+        bake: &Bake,
+        texture: usize,
+        container: Container,
+        codec: Option<Codec>,
+    ) -> Result<Self> {
         let t = bake.textures.get(texture).ok_or_else(|| {
             Error::InvalidOption(format!(
                 "texture {texture} out of range: the bake has {}",
                 bake.textures.len()
             ))
         })?;
-        let encoding = Encoding::Plain(bake.format);
+        if let Some(c) = codec {
+            if c == Codec::Bc6hBc4 {
+                return Err(Error::InvalidOption(format!(
+                    "{c} is for measurement (eval) only: no container holds it"
+                )));
+            }
+            crate::compress::check_texture(c, bake.method, t.name, &t.channels, &t.ranges)?;
+        }
+        let encoding = Encoding::of(bake, codec);
         let texel_bytes = 4 * bake.format.channel_bytes() as u64;
         let lengths: Vec<u64> = bake
             .sizes
             .iter()
-            .map(|&(w, h)| w as u64 * h as u64 * texel_bytes)
+            .map(|&(w, h)| match codec {
+                Some(c) => crate::compress::level_len(w, h, c) as u64,
+                None => w as u64 * h as u64 * texel_bytes,
+            })
             .collect();
         let (prefix, offsets) = match container {
             Container::Ktx2 => ktx2::layout(bake, texture, encoding, &lengths),
@@ -261,17 +295,27 @@ impl StreamedFile {
             sizes: bake.sizes.clone(),
             format: bake.format,
             ranges: t.ranges,
+            codec: codec.map(|c| (c, t.uses_alpha())),
+            name: t.name,
         })
+    }
+
+    /// The block codec of the file's levels, if any.
+    pub fn codec(&self) -> Option<Codec> {
+        self.codec.map(|(c, _)| c)
     }
 
     /// Writes whole rows `first_row..` of `level` (`texels`: a multiple of the level's width,
     /// row-major), encoded as [`texture_file`] encodes them. Values must already be what the
     /// format holds (f16 within ±65504: [`Error::InvalidOption`] otherwise, naming the level).
+    /// In a block-compressed file `first_row` is a multiple of 4, and so is the row count
+    /// unless the rows end the level (its last block row is padded as [`texture_file`] pads
+    /// it).
     ///
     /// # Errors
     ///
-    /// [`Error::InvalidOption`] for rows outside the level or a partial row, and
-    /// [`Error::Write`] when the write fails (a full disk).
+    /// [`Error::InvalidOption`] for rows outside the level, a partial row, or rows not on
+    /// block boundaries, and [`Error::Write`] when the write fails (a full disk).
     pub fn write_rows(&self, level: usize, first_row: u32, texels: &[[f32; 4]]) -> Result<()> {
         let Some(&(w, h)) = self.sizes.get(level) else {
             return Err(Error::InvalidOption(format!("level {level} out of range")));
@@ -295,10 +339,42 @@ impl StreamedFile {
                 crate::pack::F16_MAX
             )));
         }
-        let texel_bytes = 4 * self.format.channel_bytes() as u64;
-        let mut bytes = Vec::with_capacity(texels.len() * texel_bytes as usize);
-        encode_texels(texels, self.ranges, self.format, &mut bytes);
-        let at = self.offsets[level] + first_row as u64 * w as u64 * texel_bytes;
+        let (bytes, at) = match self.codec {
+            Some((codec, alpha)) => {
+                let last = first_row as usize + rows == h as usize;
+                if !first_row.is_multiple_of(4) || !(rows.is_multiple_of(4) || last) {
+                    return Err(Error::InvalidOption(format!(
+                        "{rows} rows from row {first_row} of level {level} ({w}x{h}) are not \
+                         whole 4-row blocks of a {codec} file"
+                    )));
+                }
+                if rows == 0 {
+                    return Ok(());
+                }
+                let what = format!("texture '{}' level {level}", self.name);
+                let blocks = crate::compress::encode_level(
+                    &what,
+                    w,
+                    rows as u32,
+                    texels,
+                    self.ranges,
+                    alpha,
+                    codec,
+                )?;
+                let at =
+                    self.offsets[level] + crate::compress::level_len(w, first_row, codec) as u64;
+                (blocks, at)
+            }
+            None => {
+                let texel_bytes = 4 * self.format.channel_bytes() as u64;
+                let mut bytes = Vec::with_capacity(texels.len() * texel_bytes as usize);
+                encode_texels(texels, self.ranges, self.format, &mut bytes);
+                (
+                    bytes,
+                    self.offsets[level] + first_row as u64 * w as u64 * texel_bytes,
+                )
+            }
+        };
         write_at(&self.file, &bytes, at).map_err(|e| Error::Write {
             path: self.path.clone(),
             message: e.to_string(),
@@ -319,7 +395,10 @@ impl StreamedFile {
         let Some(&(w, h)) = self.sizes.get(level) else {
             return Err(Error::InvalidOption(format!("level {level} out of range")));
         };
-        if self.format != Format::F32 || first_row as u64 + rows as u64 > h as u64 {
+        if self.format != Format::F32
+            || self.codec.is_some()
+            || first_row as u64 + rows as u64 > h as u64
+        {
             return Err(Error::InvalidOption(format!(
                 "rows {first_row}..+{rows} of level {level} ({w}x{h}) of an {} file",
                 self.format
