@@ -518,7 +518,7 @@ pub fn estimate_peak_bytes(
 
 /// Writes the rows to one file per texture: KTX2 and DDS files at their final layout
 /// ([`StreamedFile`]); for the exr container, a KTX2 f32 spill file per texture, turned into
-/// one OpenEXR (or PNG) file per level when the bake ends ([`FileSink::finish`]).
+/// one OpenEXR (or PNG) file per level when the bake ends (in `fill_staging`).
 ///
 /// Block-compressed files take whole 4-row blocks: a level's rows that do not fill one yet
 /// wait in `pending` (at most 3 rows per texture and level) until the next rows of that
