@@ -597,25 +597,36 @@ impl RowSink for FileSink {
         if self.files[texture].codec().is_none() {
             return self.write(texture, level, first_row, texels);
         }
-        let (w, h) = self.sizes[level];
-        let (start, mut rows) = std::mem::take(&mut self.pending[texture][level]);
-        let start = if rows.is_empty() { first_row } else { start };
-        if start as usize + rows.len() / w as usize != first_row as usize {
+        let (w, h) = (self.sizes[level].0 as usize, self.sizes[level].1);
+        // Rows held back from the last call come first (copied only then); `start`, the first
+        // row to write, is a multiple of 4 as the bake sends its rows.
+        let (held_from, mut held) = std::mem::take(&mut self.pending[texture][level]);
+        let (start, rows): (u32, std::borrow::Cow<[[f32; 4]]>) = if held.is_empty() {
+            (first_row, texels.into())
+        } else {
+            if held_from as usize + held.len() / w != first_row as usize {
+                return Err(Error::InvalidOption(format!(
+                    "texture '{}' level {level}: rows from {first_row} sent out of order (a bug)",
+                    self.names[texture]
+                )));
+            }
+            held.extend_from_slice(texels);
+            (held_from, held.into())
+        };
+        if !start.is_multiple_of(4) {
             return Err(Error::InvalidOption(format!(
-                "texture '{}' level {level}: rows from {first_row} sent out of order (a bug)",
+                "texture '{}' level {level}: rows from {start} start inside a block (a bug)",
                 self.names[texture]
             )));
         }
-        rows.extend_from_slice(texels);
-        let end = start + (rows.len() / w as usize) as u32;
+        let end = start + (rows.len() / w) as u32;
         // Whole blocks now; the level's last rows whatever their count.
         let ready = if end == h { end } else { end & !3 };
-        let split = (ready.saturating_sub(start)) as usize * w as usize;
+        let split = (ready - start) as usize * w;
         if split > 0 {
             self.write(texture, level, start, &rows[..split])?;
         }
-        rows.drain(..split);
-        self.pending[texture][level] = (ready.max(start), rows);
+        self.pending[texture][level] = (ready, rows[split..].to_vec());
         Ok(())
     }
 }

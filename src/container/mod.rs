@@ -185,6 +185,17 @@ fn plain_level(bake: &Bake, texture: usize, level: usize, format: Format) -> Vec
     out
 }
 
+/// Refuses [`Codec::Bc6hBc4`], which stores one texture as two: a measurement for `eval` that
+/// no file of `container` holds.
+fn refuse_measurement_codec(codec: Option<Codec>, container: Container) -> Result<()> {
+    match codec {
+        Some(c @ Codec::Bc6hBc4) => Err(Error::InvalidOption(format!(
+            "{c} is a measurement for eval that no {container} file holds"
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// One texture's KTX2 or DDS file written a band of rows at a time, in any order: for bakes
 /// too large to hold in memory (issue 19's tiled bakes, docs/scale.md). The header and the
 /// level layout depend only on the bake's description — level sizes, method, parameters, the
@@ -242,12 +253,8 @@ impl StreamedFile {
                 bake.textures.len()
             ))
         })?;
+        refuse_measurement_codec(codec, container)?;
         if let Some(c) = codec {
-            if c == Codec::Bc6hBc4 {
-                return Err(Error::InvalidOption(format!(
-                    "{c} is for measurement (eval) only: no container holds it"
-                )));
-            }
             crate::compress::check_texture(c, bake.method, t.name, &t.channels, &t.ranges)?;
         }
         let encoding = Encoding::of(bake, codec);
@@ -502,12 +509,8 @@ pub fn texture_file(
             bake.textures.len()
         )));
     }
+    refuse_measurement_codec(codec, container)?;
     let encoding = Encoding::of(bake, codec);
-    if let Encoding::Block(c @ Codec::Bc6hBc4) = encoding {
-        return Err(Error::InvalidOption(format!(
-            "{c} is a measurement for eval that no {container} file holds"
-        )));
-    }
     let data = levels(bake, texture, encoding)?;
     match container {
         Container::Exr => Err(Error::InvalidOption(
